@@ -1,0 +1,42 @@
+"""ament_python package definition for supersafe_ros."""
+from glob import glob
+import os
+
+from setuptools import find_packages, setup
+
+package_name = 'supersafe_ros'
+
+# One console script per node (ros2 run supersafe_ros <name>), plus the `supersafe` tool.
+NODES = [
+    'dubins_robot_node',
+    'world_node',
+    'planner_node',
+    'safety_filter_node',
+    'learner_node',
+    'supervisor_node',
+    'sim_clock_node',
+]
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test', 'bench']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+        (os.path.join('share', package_name, 'config'), glob('config/*.yaml')),
+        (os.path.join('share', package_name, 'launch'), glob('launch/*.launch.py')),
+    ],
+    install_requires=['setuptools', 'numpy', 'scipy', 'matplotlib', 'pyyaml'],
+    zip_safe=True,
+    maintainer='supersafe_ros developers',
+    maintainer_email='supersafe@example.org',
+    description='Supervisor safe sets for robot teams (HJI reachability, learning, safety filter).',
+    license='Apache-2.0',
+    tests_require=['pytest'],
+    entry_points={
+        'console_scripts': [
+            'supersafe = supersafe_ros.cli:main',
+        ] + [f'{name} = supersafe_ros.nodes.{name}:main' for name in NODES],
+    },
+)

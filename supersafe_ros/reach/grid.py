@@ -1,0 +1,130 @@
+"""Regular state grids over (x, y, theta) with a periodic heading axis.
+
+Conventions (shared by the solver, the value-function files and the ROS messages):
+
+* x and y nodes include both ends: ``x_i = x_min + i (x_max - x_min) / (nx - 1)``.
+* theta nodes are ``theta_k = -pi + k 2 pi / nth`` (periodic, no node at +pi).
+* value arrays are indexed ``values[i, j, k]`` (axes x, y, theta).
+
+Interpolation is trilinear: exact for functions linear in each axis, monotone
+(never overshoots the node values), and cheap enough to evaluate for thousands of
+robot-obstacle pairs per call.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+TWO_PI = 2.0 * np.pi
+
+
+def wrap_angle(theta):
+    """Wrap angles to [-pi, pi)."""
+    return (np.asarray(theta, dtype=float) + np.pi) % TWO_PI - np.pi
+
+
+@dataclass(frozen=True)
+class Grid:
+    """A rectangle in (x, y) times the full circle of headings."""
+
+    lo: tuple[float, float]
+    hi: tuple[float, float]
+    shape: tuple[int, int, int]
+
+    def __post_init__(self):
+        lo = tuple(float(v) for v in self.lo)
+        hi = tuple(float(v) for v in self.hi)
+        shape = tuple(int(n) for n in self.shape)
+        if len(lo) != 2 or len(hi) != 2 or len(shape) != 3:
+            raise ValueError('a grid needs lo=(xmin, ymin), hi=(xmax, ymax), shape=(nx, ny, nth)')
+        if not all(np.isfinite(lo + hi)):
+            raise ValueError(f'grid bounds must be finite, got lo={lo} hi={hi}')
+        if not (hi[0] > lo[0] and hi[1] > lo[1]):
+            raise ValueError(f'grid needs hi > lo on both axes, got lo={lo} hi={hi}')
+        if shape[0] < 2 or shape[1] < 2 or shape[2] < 3:
+            raise ValueError(f'grid shape must be at least 2 x 2 x 3, got {shape}')
+        object.__setattr__(self, 'lo', lo)
+        object.__setattr__(self, 'hi', hi)
+        object.__setattr__(self, 'shape', shape)
+
+    # -- node coordinates -------------------------------------------------
+    @property
+    def spacing(self) -> tuple[float, float, float]:
+        nx, ny, nth = self.shape
+        return ((self.hi[0] - self.lo[0]) / (nx - 1),
+                (self.hi[1] - self.lo[1]) / (ny - 1),
+                TWO_PI / nth)
+
+    @property
+    def x(self) -> np.ndarray:
+        return np.linspace(self.lo[0], self.hi[0], self.shape[0])
+
+    @property
+    def y(self) -> np.ndarray:
+        return np.linspace(self.lo[1], self.hi[1], self.shape[1])
+
+    @property
+    def theta(self) -> np.ndarray:
+        return -np.pi + np.arange(self.shape[2]) * (TWO_PI / self.shape[2])
+
+    def mesh(self):
+        """Node coordinates as three arrays of the grid's shape."""
+        return np.meshgrid(self.x, self.y, self.theta, indexing='ij')
+
+    def contains(self, states) -> np.ndarray:
+        """Whether (x, y) of each state lies in the rectangle (theta is periodic)."""
+        s = np.asarray(states, dtype=float)
+        return ((s[..., 0] >= self.lo[0]) & (s[..., 0] <= self.hi[0])
+                & (s[..., 1] >= self.lo[1]) & (s[..., 1] <= self.hi[1]))
+
+    def to_dict(self) -> dict:
+        return {'lo': list(self.lo), 'hi': list(self.hi), 'shape': list(self.shape)}
+
+    @classmethod
+    def from_dict(cls, d) -> 'Grid':
+        return cls(tuple(d['lo']), tuple(d['hi']), tuple(d['shape']))
+
+    # -- interpolation ----------------------------------------------------
+    def _cell(self, states):
+        """Lower corner indices and fractional offsets of each state's cell.
+
+        x and y are clamped to the rectangle; theta wraps.
+        """
+        s = np.asarray(states, dtype=float)
+        nx, ny, nth = self.shape
+        dx, dy, dth = self.spacing
+        fx = np.clip((s[..., 0] - self.lo[0]) / dx, 0.0, nx - 1)
+        fy = np.clip((s[..., 1] - self.lo[1]) / dy, 0.0, ny - 1)
+        ft = ((s[..., 2] + np.pi) / dth) % nth
+        ix = np.minimum(fx.astype(np.intp), nx - 2)
+        iy = np.minimum(fy.astype(np.intp), ny - 2)
+        it = np.minimum(ft.astype(np.intp), nth - 1)
+        return ix, iy, it, fx - ix, fy - iy, ft - it
+
+    def interpolate(self, values, states) -> np.ndarray:
+        """Trilinear interpolation of node ``values`` at ``states`` (..., 3)."""
+        values = np.asarray(values)
+        if values.shape[:3] != self.shape:
+            raise ValueError(f'values of shape {values.shape} do not match grid {self.shape}')
+        ix, iy, it, wx, wy, wt = self._cell(states)
+        it1 = (it + 1) % self.shape[2]
+        out = 0.0
+        for cx, ax in ((ix, 1.0 - wx), (ix + 1, wx)):
+            for cy, ay in ((iy, 1.0 - wy), (iy + 1, wy)):
+                axy = ax * ay
+                out = out + axy * ((1.0 - wt) * values[cx, cy, it] + wt * values[cx, cy, it1])
+        return np.asarray(out, dtype=float)
+
+
+def node_gradient(grid: Grid, values: np.ndarray) -> np.ndarray:
+    """Central-difference gradient at the nodes, shape grid.shape + (3,).
+
+    One-sided differences at the x and y edges; theta is periodic.
+    """
+    dx, dy, dth = grid.spacing
+    v = np.asarray(values, dtype=float)
+    gx = np.gradient(v, dx, axis=0)
+    gy = np.gradient(v, dy, axis=1)
+    gth = (np.roll(v, -1, axis=2) - np.roll(v, 1, axis=2)) / (2.0 * dth)
+    return np.stack([gx, gy, gth], axis=-1)

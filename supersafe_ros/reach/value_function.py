@@ -1,0 +1,125 @@
+"""A value function on a grid, with its parameters, and its file formats.
+
+``ValueFunction`` is what every other part of the package passes around: the
+solver returns one, the library holds many, the learner publishes one, the
+safety filter and the simulated supervisor evaluate one at robot states.
+
+File formats:
+
+* ``.npz`` (the package's own): ``value`` float32 (nx, ny, nth), ``x``, ``y``,
+  ``theta`` node coordinates, and ``meta`` (JSON text: parameters, solver
+  settings, solve time).
+* helperOC / Level Set Toolbox JSON (as exported from MATLAB, see
+  shared/data/s3/README.md): keys gdim, gmin, gmax, gN, gdx, gperiodicity, data.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import json
+import os
+
+import numpy as np
+
+from .grid import Grid, TWO_PI, node_gradient
+
+
+@dataclass
+class ValueFunction:
+    """V on ``grid`` (values[i, j, k] at x_i, y_j, theta_k) plus metadata.
+
+    ``meta`` carries what produced it, e.g. speed, omega_max, radius, horizon.
+    """
+
+    grid: Grid
+    values: np.ndarray
+    meta: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        v = np.asarray(self.values, dtype=np.float32)
+        if v.shape != self.grid.shape:
+            raise ValueError(f'values of shape {v.shape} do not match grid shape {self.grid.shape}')
+        if not np.all(np.isfinite(v)):
+            raise ValueError('value function contains NaN or infinite values')
+        self.values = v
+        self._grad = None
+
+    # -- evaluation -------------------------------------------------------
+    def value(self, states, outside=None) -> np.ndarray:
+        """V at states (..., 3). Outside the (x, y) rectangle: ``outside`` if given,
+        else the value at the nearest edge."""
+        v = self.grid.interpolate(self.values, states)
+        if outside is not None:
+            v = np.where(self.grid.contains(states), v, outside)
+        return v
+
+    def node_gradient(self) -> np.ndarray:
+        if self._grad is None:
+            self._grad = node_gradient(self.grid, self.values).astype(np.float32)
+        return self._grad
+
+    def gradient(self, states) -> np.ndarray:
+        """dV/d(x, y, theta) at states (..., 3): trilinear interpolation of the
+        central-difference node gradients."""
+        return self.grid.interpolate(self.node_gradient(), states)
+
+    @property
+    def omega_max(self):
+        return self.meta.get('omega_max')
+
+    # -- .npz ---------------------------------------------------------------
+    def save_npz(self, path) -> None:
+        path = os.fspath(path)
+        tmp = path + '.tmp.npz'
+        np.savez(tmp, value=self.values.astype(np.float32), x=self.grid.x, y=self.grid.y,
+                 theta=self.grid.theta, meta=np.array(json.dumps(self.meta, sort_keys=True)))
+        os.replace(tmp, path)  # atomic: a reader never sees half a file
+
+    @classmethod
+    def load_npz(cls, path) -> 'ValueFunction':
+        with np.load(os.fspath(path), allow_pickle=False) as f:
+            x, y, theta = f['x'], f['y'], f['theta']
+            value = f['value']
+            meta = json.loads(str(f['meta'])) if 'meta' in f else {}
+        grid = Grid((x[0], y[0]), (x[-1], y[-1]), value.shape)
+        if not (np.allclose(grid.x, x) and np.allclose(grid.y, y) and np.allclose(grid.theta, theta)):
+            raise ValueError(f'{path}: node coordinates are not a regular grid of this package')
+        return cls(grid, value, meta)
+
+    # -- helperOC JSON ---------------------------------------------------------
+    @classmethod
+    def load_helperoc_json(cls, path, meta=None) -> 'ValueFunction':
+        """Read a helperOC export; theta must be periodic over [-pi, pi)."""
+        with open(path) as f:
+            d = json.load(f)
+        gmin = np.asarray(d['gmin'], dtype=float).ravel()
+        gmax = np.asarray(d['gmax'], dtype=float).ravel()
+        gN = [int(n) for n in np.asarray(d['gN']).ravel()]
+        data = np.asarray(d['data'], dtype=float)
+        if int(np.asarray(d.get('gdim', 3))) != 3 or data.shape != tuple(gN):
+            raise ValueError(f'{path}: expected 3-D data of shape gN={gN}, got {data.shape}')
+        if abs(gmin[2] + np.pi) > 1e-6:
+            raise ValueError(f'{path}: theta must start at -pi, starts at {gmin[2]}')
+        dth = (gmax[2] - gmin[2]) / (gN[2] - 1)
+        if abs(dth * gN[2] - TWO_PI) > 1e-6:
+            # helperOC stores periodic gmax = -pi + 2 pi (N - 1) / N
+            raise ValueError(f'{path}: theta nodes do not cover the circle periodically')
+        grid = Grid((gmin[0], gmin[1]), (gmax[0], gmax[1]), tuple(gN))
+        m = {'source': os.path.basename(os.fspath(path)), 'format': 'helperOC'}
+        m.update(meta or {})
+        return cls(grid, data, m)
+
+    def save_helperoc_json(self, path) -> None:
+        g = self.grid
+        gmin = [g.lo[0], g.lo[1], -np.pi]
+        gmax = [g.hi[0], g.hi[1], float(g.theta[-1])]
+        d = {
+            'gdim': 3,
+            'gmin': gmin,
+            'gmax': gmax,
+            'gN': list(g.shape),
+            'gdx': list(g.spacing),
+            'gperiodicity': [0, 0, 1],
+            'data': self.values.astype(float).tolist(),
+        }
+        with open(path, 'w') as f:
+            json.dump(d, f)
