@@ -1,0 +1,64 @@
+"""The minimally invasive filter law, as a pure function over many robots.
+
+For robot states expressed relative to each detected obstacle (obstacle at the
+origin, axes as the map), with avoid value V:
+
+    override  = V(x) <= alpha
+    u*        = omega_max * sign(dV/dtheta)       (the control that raises V fastest)
+
+A robot with several obstacles is governed by the smallest V (see
+``most_constraining``). Pairs outside the value function's grid are far from the
+obstacle and never constrain (V = +inf there).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .reach.value_function import ValueFunction
+
+
+@dataclass
+class FilterDecision:
+    override: np.ndarray   # bool[N]: apply u* instead of the planner's command
+    control: np.ndarray    # float[N]: u* (turn rate), meaningful where override
+    value: np.ndarray      # float[N]: V at each state (+inf outside the grid)
+
+
+def filter_law(vf: ValueFunction, alpha: float, rel_states, omega_max: float) -> FilterDecision:
+    """Decide, for N relative states (N, 3), whether to override and with which turn rate."""
+    s = np.asarray(rel_states, dtype=float).reshape(-1, 3)
+    if not np.isfinite(alpha):
+        raise ValueError(f'alpha must be finite, got {alpha}')
+    if not np.all(np.isfinite(s)):
+        raise ValueError('relative states contain NaN or infinite values')
+    inside = vf.grid.contains(s)
+    value = np.where(inside, vf.value(s), np.inf)
+    override = value <= alpha
+    control = np.zeros(len(s))
+    if np.any(override):
+        grad_th = vf.gradient(s[override])[:, 2]
+        # On a ridge of V (dV/dtheta == 0, e.g. heading straight at the obstacle) pick
+        # a fixed side rather than going straight into it.
+        control[override] = omega_max * np.where(grad_th >= 0.0, 1.0, -1.0)
+    return FilterDecision(override, control, value)
+
+
+def most_constraining(robot_index, decision: FilterDecision, n_robots: int):
+    """Reduce pair decisions to one per robot: the pair with the smallest V wins.
+
+    Returns (override bool[n], control float[n], value float[n], pair index int[n] or -1).
+    """
+    robot_index = np.asarray(robot_index, dtype=int)
+    value = np.full(n_robots, np.inf)
+    pair = np.full(n_robots, -1)
+    order = np.argsort(decision.value, kind='stable')[::-1]  # largest first, smallest written last
+    value[robot_index[order]] = decision.value[order]
+    pair[robot_index[order]] = order
+    has = pair >= 0
+    override = np.zeros(n_robots, dtype=bool)
+    control = np.zeros(n_robots)
+    override[has] = decision.override[pair[has]]
+    control[has] = decision.control[pair[has]]
+    return override, control, value, pair
