@@ -1,0 +1,65 @@
+"""Shared main() plumbing for the node executables.
+
+``run_node(NodeClass, args)`` keeps DDS on loopback (before rclpy.init), builds
+the node, spins it, and shuts down cleanly on Ctrl-C or SIGTERM (rclpy's own
+signal handlers stop the context; spin then raises ExternalShutdownException).
+It returns a process exit code: 0 on a clean stop, 1 if the node failed to start.
+"""
+from __future__ import annotations
+
+import sys
+import traceback
+
+from ..rosenv import ensure_local_ros_env
+
+
+def run_node(node_class, args=None, executor_class=None) -> int:
+    """Run one node until shutdown; ``args`` are the process argv (incl. --ros-args)."""
+    ensure_local_ros_env()
+    import rclpy
+    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+
+    argv = sys.argv if args is None else args
+    rclpy.init(args=argv)
+    node = None
+    code = 0
+    try:
+        node = node_class()
+        executor = (executor_class or SingleThreadedExecutor)()
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except Exception:  # a node that cannot start or crashes: say why, exit non-zero
+        traceback.print_exc()
+        code = 1
+    finally:
+        if node is not None:
+            try:
+                close = getattr(node, 'close', None)
+                if close is not None:
+                    close()
+                node.destroy_node()
+            except Exception:
+                traceback.print_exc()
+        if rclpy.ok():
+            rclpy.try_shutdown()
+    return code
+
+
+def declare(node, name, default, description, lo=None, hi=None, step=0, read_only=False):
+    """Declare a parameter with a descriptor (description and range) and return its value.
+
+    Floats get a FloatingPointRange, ints an IntegerRange when ``lo``/``hi`` are given.
+    """
+    from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+    desc = ParameterDescriptor(description=description, read_only=read_only)
+    if lo is not None and hi is not None:
+        if isinstance(default, bool):
+            pass
+        elif isinstance(default, int):
+            desc.integer_range = [IntegerRange(from_value=int(lo), to_value=int(hi), step=int(step))]
+        elif isinstance(default, float):
+            desc.floating_point_range = [FloatingPointRange(from_value=float(lo), to_value=float(hi),
+                                                            step=float(step))]
+    return node.declare_parameter(name, default, desc).value

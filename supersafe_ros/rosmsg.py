@@ -1,0 +1,168 @@
+"""Message <-> numpy conversions and the QoS profiles shared by every node.
+
+Conventions (REP 103/105): metres, radians, planar poses in frame ``map``;
+a planar heading theta is the yaw of a quaternion about +z:
+    q = (x=0, y=0, z=sin(theta/2), w=cos(theta/2)),  theta = atan2(2(wz + xy), 1 - 2(y^2 + z^2)).
+Conversions that read messages validate them and raise ``MessageError`` with the
+reason, so a node can log it and keep running.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
+
+from geometry_msgs.msg import Pose, PoseArray, PoseStamped, Quaternion, Twist
+
+MAP_FRAME = 'map'
+OBSTACLE_FRAME_PREFIX = 'obstacle_'
+
+# Streams (pose, detections, cmd_vel, cmd_vel_nav, /obstacles): only the newest sample
+# matters and a late one is useless, but the loopback link does not drop, so reliable
+# keeps tests deterministic. Depth 1 would drop bursts under load; 5 absorbs them.
+QOS_STREAM = QoSProfile(depth=5, history=HistoryPolicy.KEEP_LAST,
+                        reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.VOLATILE)
+# Events that must not be lost (/interventions, /world/intervention_log, decisions).
+QOS_EVENTS = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST,
+                        reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.VOLATILE)
+# Latched state a late joiner needs at once (obstacle markers, stats, value function).
+QOS_LATCHED = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
+                         reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+# /clock: the rosgraph default is best effort depth 1 in some tools; we use reliable
+# so a lockstepped clock never loses a tick the robots wait for.
+QOS_CLOCK = QoSProfile(depth=10, history=HistoryPolicy.KEEP_LAST,
+                       reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.VOLATILE)
+
+
+class MessageError(ValueError):
+    """A message that cannot be used, with the reason why."""
+
+
+def yaw_to_quaternion(theta: float) -> Quaternion:
+    """Quaternion for a rotation of ``theta`` about +z."""
+    if not math.isfinite(theta):
+        raise MessageError(f'yaw must be finite, got {theta}')
+    return Quaternion(x=0.0, y=0.0, z=math.sin(theta / 2.0), w=math.cos(theta / 2.0))
+
+
+def quaternion_to_yaw(q: Quaternion) -> float:
+    """Yaw (rotation about +z) of a quaternion; rejects non-finite or zero quaternions.
+
+    Non-unit quaternions are normalised; the roll/pitch part is ignored (planar robot).
+    """
+    vals = (q.x, q.y, q.z, q.w)
+    if not all(math.isfinite(v) for v in vals):
+        raise MessageError(f'orientation has non-finite components {vals}')
+    norm = math.sqrt(sum(v * v for v in vals))
+    if norm < 1e-9:
+        raise MessageError('orientation quaternion has zero norm')
+    x, y, z, w = (v / norm for v in vals)
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+def pose_to_state(msg: PoseStamped, frame: str | None = MAP_FRAME) -> tuple:
+    """(x, y, theta) of a PoseStamped; raises MessageError for NaN/inf or a wrong frame.
+
+    ``frame=None`` skips the frame check (e.g. intervention poses in obstacle frames).
+    """
+    if frame is not None and msg.header.frame_id != frame:
+        raise MessageError(f"pose frame is '{msg.header.frame_id}', expected '{frame}'")
+    p = msg.pose.position
+    if not (math.isfinite(p.x) and math.isfinite(p.y)):
+        raise MessageError(f'pose position is not finite ({p.x}, {p.y})')
+    return (float(p.x), float(p.y), quaternion_to_yaw(msg.pose.orientation))
+
+
+def state_to_pose(state, stamp=None, frame: str = MAP_FRAME) -> PoseStamped:
+    """PoseStamped (z = 0) for a planar state (x, y, theta); ``stamp`` is a builtin Time."""
+    x, y, theta = (float(v) for v in state)
+    if not (math.isfinite(x) and math.isfinite(y)):
+        raise MessageError(f'state is not finite ({x}, {y}, {theta})')
+    msg = PoseStamped()
+    msg.header.frame_id = frame
+    if stamp is not None:
+        msg.header.stamp = stamp
+    msg.pose.position.x = x
+    msg.pose.position.y = y
+    msg.pose.orientation = yaw_to_quaternion(theta)
+    return msg
+
+
+def posearray_to_xy(msg: PoseArray, frame: str | None = MAP_FRAME) -> np.ndarray:
+    """(N, 2) positions of a PoseArray; raises MessageError for non-finite values or a wrong frame."""
+    if frame is not None and msg.header.frame_id != frame:
+        raise MessageError(f"pose array frame is '{msg.header.frame_id}', expected '{frame}'")
+    xy = np.array([(p.position.x, p.position.y) for p in msg.poses], dtype=float).reshape(-1, 2)
+    if not np.all(np.isfinite(xy)):
+        raise MessageError('pose array contains non-finite positions')
+    return xy
+
+
+def xy_to_posearray(xy, stamp=None, frame: str = MAP_FRAME) -> PoseArray:
+    """PoseArray with identity orientation at each (x, y) row."""
+    pts = np.asarray(xy, dtype=float).reshape(-1, 2)
+    if not np.all(np.isfinite(pts)):
+        raise MessageError('positions are not finite')
+    msg = PoseArray()
+    msg.header.frame_id = frame
+    if stamp is not None:
+        msg.header.stamp = stamp
+    for x, y in pts:
+        pose = Pose()
+        pose.position.x = float(x)
+        pose.position.y = float(y)
+        pose.orientation.w = 1.0
+        msg.poses.append(pose)
+    return msg
+
+
+def twist_turn_rate(msg: Twist) -> float:
+    """angular.z of a Twist; raises MessageError if it is not finite."""
+    w = msg.angular.z
+    if not math.isfinite(w):
+        raise MessageError(f'angular.z is not finite ({w})')
+    return float(w)
+
+
+def turn_rate_to_twist(omega: float, speed: float = 0.0) -> Twist:
+    """Twist with angular.z = omega (and linear.x = speed, informative only)."""
+    msg = Twist()
+    msg.linear.x = float(speed)
+    msg.angular.z = float(omega)
+    return msg
+
+
+def obstacle_frame(obstacle_id: int) -> str:
+    """Frame name of an obstacle (used in /interventions headers)."""
+    return f'{OBSTACLE_FRAME_PREFIX}{int(obstacle_id)}'
+
+
+def parse_obstacle_frame(frame: str) -> int:
+    """Obstacle id from 'obstacle_<id>'; raises MessageError otherwise."""
+    if not frame.startswith(OBSTACLE_FRAME_PREFIX):
+        raise MessageError(f"frame '{frame}' does not name an obstacle (obstacle_<id>)")
+    tail = frame[len(OBSTACLE_FRAME_PREFIX):]
+    if not tail.isdigit():
+        raise MessageError(f"frame '{frame}' does not name an obstacle (obstacle_<id>)")
+    return int(tail)
+
+
+def diagnostic_values(msg) -> dict:
+    """Key/value pairs of a diagnostic_msgs/DiagnosticStatus as a dict of strings."""
+    return {kv.key: kv.value for kv in msg.values}
+
+
+def make_diagnostic(name: str, values: dict, message: str = '', level: int = 0):
+    """diagnostic_msgs/DiagnosticStatus with every value stringified."""
+    from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+    status = DiagnosticStatus()
+    status.level = bytes([int(level)])
+    status.name = name
+    status.message = message
+    status.values = [KeyValue(key=str(k), value=str(v)) for k, v in values.items()]
+    return status
