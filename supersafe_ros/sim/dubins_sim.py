@@ -1,0 +1,147 @@
+"""One simulated robot: exact Dubins integration, command handling and a lossy sensor.
+
+Dynamics (the paper's eq. (dubins)):  x' = v cos(th), y' = v sin(th), th' = u,
+|u| <= w_max, v fixed. A step holds the latest accepted command constant and
+moves along the exact arc (``DubinsCar.flow``), so a coarse or uneven step
+changes only when the command is sampled, never the path taken under it.
+
+Commands: angular.z is clipped to +-w_max; non-finite commands are rejected and
+the previous command stays in force. Fail-safe without commands:
+  * before the first command the robot is *parked* (it does not move): a team
+    that is still starting up does not drive blind;
+  * once commands stop for longer than ``command_timeout`` the robot *loiters*,
+    turning at +w_max on a circle of radius v / w_max. A fixed-speed car cannot
+    stop; loitering keeps it within 2 v / w_max of where its controller went
+    silent instead of driving straight across the field into unseen obstacles.
+    (``timeout_behavior='straight'`` holds u = 0 instead, for experiments.)
+
+Sensor: every obstacle within ``sensor_range`` of the robot is reported, except
+that each (trip, obstacle) pair is missed with probability ``miss_probability``;
+the draw is made the first time the obstacle is considered in a trip and kept for
+the rest of the trip (a robot that missed an obstacle keeps missing it, as in the
+paper's task), and drawn again when a new trip starts.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import math
+
+import numpy as np
+
+from ..reach.dynamics import DubinsCar
+from ..reach.grid import wrap_angle
+
+TIMEOUT_BEHAVIORS = ('loiter', 'straight')
+
+
+@dataclass
+class RobotSim:
+    """State and command handling of one Dubins robot (times in seconds of sim time)."""
+
+    state: np.ndarray
+    speed: float = 3.0
+    omega_max: float = 1.0
+    command_timeout: float = 0.5
+    timeout_behavior: str = 'loiter'
+    last_command: float | None = None       # turn rate of the last accepted command
+    last_command_time: float | None = None
+    time: float | None = None               # sim time of ``state``
+
+    def __post_init__(self):
+        self.state = np.asarray(self.state, dtype=float).reshape(3).copy()
+        if not np.all(np.isfinite(self.state)):
+            raise ValueError(f'initial state must be finite, got {self.state}')
+        self.state[2] = wrap_angle(self.state[2])
+        self.dynamics = DubinsCar(self.speed, self.omega_max)  # validates speed, omega_max
+        if not (math.isfinite(self.command_timeout) and self.command_timeout > 0):
+            raise ValueError(f'command_timeout must be positive, got {self.command_timeout}')
+        if self.timeout_behavior not in TIMEOUT_BEHAVIORS:
+            raise ValueError(f'timeout_behavior must be one of {TIMEOUT_BEHAVIORS}, '
+                             f'got {self.timeout_behavior!r}')
+
+    def command(self, omega: float, now: float) -> float:
+        """Accept a turn-rate command at sim time ``now``; returns the clipped rate.
+
+        Raises ValueError for a non-finite rate (the previous command stays).
+        """
+        if not math.isfinite(omega):
+            raise ValueError(f'turn rate is not finite ({omega})')
+        clipped = float(np.clip(omega, -self.omega_max, self.omega_max))
+        self.last_command = clipped
+        self.last_command_time = float(now)
+        return clipped
+
+    def mode(self, now: float) -> str:
+        """'parked' (no command yet), 'commanded', or 'timeout' (commands went stale)."""
+        if self.last_command_time is None:
+            return 'parked'
+        if now - self.last_command_time > self.command_timeout:
+            return 'timeout'
+        return 'commanded'
+
+    def control(self, now: float) -> float | None:
+        """Turn rate applied at ``now``; None when parked."""
+        mode = self.mode(now)
+        if mode == 'parked':
+            return None
+        if mode == 'timeout':
+            return self.omega_max if self.timeout_behavior == 'loiter' else 0.0
+        return self.last_command
+
+    def advance(self, now: float) -> np.ndarray:
+        """Integrate from the last step time to ``now`` under the current control.
+
+        The first call only sets the clock. Time going backwards (a restarted
+        /clock) resets the clock without moving. Returns the new state.
+        """
+        now = float(now)
+        if self.time is None or now <= self.time:
+            self.time = now
+            return self.state
+        dt = now - self.time
+        u = self.control(self.time)  # the command in force during the step
+        if u is not None:
+            self.state = self.dynamics.flow(self.state, u, dt)
+        self.time = now
+        return self.state
+
+
+@dataclass
+class LossySensor:
+    """Range-limited obstacle sensor that misses each obstacle once per trip with prob p."""
+
+    sensor_range: float = 10.0
+    miss_probability: float = 0.2
+    rng: np.random.Generator = field(default_factory=np.random.default_rng)
+    trip: int = 0
+    _missed: dict = field(default_factory=dict)   # obstacle id -> bool, this trip
+
+    def __post_init__(self):
+        if not (self.sensor_range > 0 and math.isfinite(self.sensor_range)):
+            raise ValueError(f'sensor_range must be positive, got {self.sensor_range}')
+        if not 0.0 <= self.miss_probability <= 1.0:
+            raise ValueError(f'miss_probability must be in [0, 1], got {self.miss_probability}')
+
+    def new_trip(self) -> None:
+        """Forget this trip's draws: every obstacle gets a fresh miss draw."""
+        self.trip += 1
+        self._missed.clear()
+
+    def is_missed(self, obstacle_id: int) -> bool:
+        oid = int(obstacle_id)
+        if oid not in self._missed:
+            self._missed[oid] = bool(self.rng.random() < self.miss_probability)
+        return self._missed[oid]
+
+    def sense(self, position, obstacle_ids, obstacle_xy) -> tuple[np.ndarray, np.ndarray]:
+        """(ids, xy) of the obstacles seen from ``position`` (obstacle centres, map frame)."""
+        ids = np.asarray(obstacle_ids, dtype=int).reshape(-1)
+        xy = np.asarray(obstacle_xy, dtype=float).reshape(-1, 2)
+        if len(ids) != len(xy):
+            raise ValueError(f'{len(ids)} obstacle ids for {len(xy)} positions')
+        if len(ids) == 0:
+            return ids, xy
+        dist = np.hypot(xy[:, 0] - position[0], xy[:, 1] - position[1])
+        in_range = dist <= self.sensor_range
+        seen = np.array([r and not self.is_missed(i) for i, r in zip(ids, in_range)], dtype=bool)
+        return ids[seen], xy[seen]
