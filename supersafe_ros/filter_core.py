@@ -1,0 +1,329 @@
+"""The safety filter of one robot (or many), as a ROS-free state machine.
+
+Inputs (each with the time it arrived, seconds on the caller's clock):
+
+* the robot's pose (x, y, theta) in ``map``;
+* the detected obstacles: centres (N, 2) in ``map`` (N may be 0);
+* the planner's turn-rate command;
+* the safe set in force: a value function V with its level alpha (``SafeSet``).
+
+Output per step (``FilterOutput``): the turn rate to send and a record of what was
+decided and why. The law (``supersafe_ros.filter_law``) is applied to the robot's
+state relative to every detected obstacle; the smallest V governs:
+
+    pass      V_min > alpha                 forward the planner's command
+    override  V_min <= alpha                u* = w_max sign(dV/dtheta) of that obstacle
+    fail_safe pose or detections stale/invalid (see below)
+
+Hysteresis ("until the robot is clear"): once overriding, the filter keeps
+overriding until V_min > alpha + clear_margin. Without it the robot would leave
+the override the instant V crosses alpha, turn back toward the obstacle under the
+planner and re-enter at once, chattering along the level set. The margin is in
+the units of V (metres of clearance for the signed-distance keep-out).
+
+Fail safe. The planner's command is never forwarded when the filter cannot judge
+it: no pose yet, the newest pose was invalid (NaN/inf, wrong frame) or older than
+``pose_timeout``, or the same for detections (``detections_timeout``). Then:
+
+* if the last valid pose and detections are younger than ``hold_timeout``: the
+  avoid control u* for that last valid state against the most constraining
+  obstacle (the best the filter knows to do);
+* otherwise, or if no obstacle is near: the stop-turn policy — linear.x = 0 (a
+  robot that can stop, stops) and a full-rate left turn, angular.z = +w_max. A
+  Dubins robot that cannot stop then circles on radius speed / w_max (3 m by
+  default) around where its state was lost, instead of driving on blindly.
+
+``step_many`` evaluates many robots with one vectorised call of the law (one
+value-function interpolation over every robot-obstacle pair); ``RobotFilter.step``
+is the one-robot case of it.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import math
+
+import numpy as np
+
+from .reach.value_function import ValueFunction
+
+PASS = 'pass'
+OVERRIDE = 'override'
+FAIL_SAFE = 'fail_safe'
+
+# diagnostic_msgs/DiagnosticStatus levels, by action
+LEVEL_OK, LEVEL_WARN, LEVEL_ERROR = 0, 1, 2
+LEVEL_OF_ACTION = {PASS: LEVEL_OK, OVERRIDE: LEVEL_WARN, FAIL_SAFE: LEVEL_ERROR}
+
+
+@dataclass(frozen=True)
+class FilterConfig:
+    """Parameters of the filter (times in seconds, rates in rad/s)."""
+
+    speed: float = 3.0               # robot speed (informative in the Twist)
+    omega_max: float = 1.0           # the robot's turn-rate bound: |u*| = omega_max
+    pose_timeout: float = 0.5        # a pose older than this is stale
+    detections_timeout: float = 1.0  # detections older than this are stale
+    hold_timeout: float = 1.0        # last valid state still usable for fail-safe avoidance
+    cmd_timeout: float = 0.5         # planner silent longer than this: pass 0 (straight)
+    clear_margin: float = 0.2        # hysteresis: release override when V > alpha + margin
+
+    def __post_init__(self):
+        for name in ('speed', 'omega_max', 'pose_timeout', 'detections_timeout', 'hold_timeout',
+                     'cmd_timeout', 'clear_margin'):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0.0):
+                raise ValueError(f'{name} must be finite and >= 0, got {v}')
+
+
+@dataclass(frozen=True)
+class SafeSet:
+    """A value function and the level alpha below which the filter overrides.
+
+    ``source`` is 'standard' (true dynamics, computed locally) or 'learned'
+    (received from the learner).
+    """
+
+    vf: ValueFunction
+    alpha: float
+    source: str = 'standard'
+
+    def __post_init__(self):
+        if not math.isfinite(self.alpha):
+            raise ValueError(f'alpha must be finite, got {self.alpha}')
+
+    @property
+    def omega_max(self):
+        return self.vf.meta.get('omega_max')
+
+
+@dataclass
+class FilterOutput:
+    """What one step decided."""
+
+    omega: float                 # turn rate to command (angular.z)
+    linear: float                # linear.x to command (speed, or 0 for stop-turn)
+    action: str                  # pass | override | fail_safe
+    reason: str
+    obstacle_index: int = -1     # index in the last detections, -1 if none
+    obstacle_xy: tuple = (math.nan, math.nan)
+    value: float = math.inf      # smallest V over the detections (+inf: none near)
+    alpha: float = math.nan
+    source: str = ''
+    omega_max_set: float = math.nan  # omega_max of the safe set's model
+
+    @property
+    def level(self) -> int:
+        return LEVEL_OF_ACTION[self.action]
+
+    def record(self) -> dict:
+        """Flat key/value record (for the diagnostic state message)."""
+        return {
+            'action': self.action,
+            'reason': self.reason,
+            'cmd_angular_z': f'{self.omega:.6g}',
+            'cmd_linear_x': f'{self.linear:.6g}',
+            'obstacle_index': str(self.obstacle_index),
+            'obstacle_x': f'{self.obstacle_xy[0]:.6g}',
+            'obstacle_y': f'{self.obstacle_xy[1]:.6g}',
+            'value': f'{self.value:.6g}',
+            'alpha': f'{self.alpha:.6g}',
+            'omega_max': f'{self.omega_max_set:.6g}',
+            'source': self.source,
+        }
+
+
+@dataclass
+class _Input:
+    """The newest valid sample of one input, and whether a newer one was rejected."""
+
+    value: object = None
+    t: float = -math.inf          # arrival time of the newest valid sample
+    rejected: str = ''            # reason the newest sample was rejected ('' if it was valid)
+    rejected_t: float = -math.inf
+
+    def accept(self, value, t):
+        self.value, self.t, self.rejected = value, float(t), ''
+
+    def reject(self, reason, t):
+        self.rejected, self.rejected_t = str(reason), float(t)
+
+
+@dataclass
+class RobotFilter:
+    """Filter state of one robot: the last inputs and whether it is overriding."""
+
+    config: FilterConfig = field(default_factory=FilterConfig)
+    name: str = ''
+
+    def __post_init__(self):
+        self.pose = _Input()
+        self.detections = _Input()
+        self.command = _Input()
+        self.overriding = False
+
+    # -- inputs ------------------------------------------------------------------------
+    def update_pose(self, state, t) -> None:
+        """A pose (x, y, theta) in map; raises ValueError (and records it) if not finite."""
+        s = np.asarray(state, dtype=float).reshape(-1)
+        if s.shape != (3,) or not np.all(np.isfinite(s)):
+            reason = f'pose is not a finite (x, y, theta): {s.tolist()}'
+            self.pose.reject(reason, t)
+            raise ValueError(reason)
+        self.pose.accept(s, t)
+
+    def reject_pose(self, reason, t) -> None:
+        """Record a pose message the caller could not convert (wrong frame, bad quaternion)."""
+        self.pose.reject(reason, t)
+
+    def update_detections(self, centres, t) -> None:
+        """Obstacle centres (N, 2) in map, N >= 0; raises ValueError if malformed."""
+        c = np.asarray(centres, dtype=float)
+        if c.size == 0:
+            c = np.zeros((0, 2))
+        if c.ndim != 2 or c.shape[1] != 2 or not np.all(np.isfinite(c)):
+            reason = f'detections must be finite (N, 2) centres, got shape {c.shape}'
+            self.detections.reject(reason, t)
+            raise ValueError(reason)
+        self.detections.accept(c, t)
+
+    def reject_detections(self, reason, t) -> None:
+        self.detections.reject(reason, t)
+
+    def update_command(self, omega, t) -> None:
+        """The planner's turn rate; a non-finite one is rejected and the previous kept."""
+        w = float(omega)
+        if not math.isfinite(w):
+            reason = f'planner command is not finite ({w})'
+            self.command.reject(reason, t)
+            raise ValueError(reason)
+        self.command.accept(w, t)
+
+    # -- decision ------------------------------------------------------------------------
+    def problem(self, t) -> str:
+        """Why the filter cannot judge the planner's command now ('' if it can)."""
+        cfg = self.config
+        for label, inp, timeout in (('pose', self.pose, cfg.pose_timeout),
+                                    ('detections', self.detections, cfg.detections_timeout)):
+            if inp.rejected:
+                return f'{label} rejected: {inp.rejected}'
+            if inp.value is None:
+                return f'no {label} received yet'
+            age = t - inp.t
+            if age > timeout:
+                return f'{label} stale ({age:.3g} s old > {timeout:g} s)'
+        return ''
+
+    def step(self, safe_set: SafeSet, t) -> FilterOutput:
+        return step_many([self], safe_set, t)[0]
+
+
+def _pairs(filters, use):
+    """Relative states of every (robot, obstacle) pair for the robots in ``use``."""
+    rel, robot, obstacle = [], [], []
+    for i in use:
+        f = filters[i]
+        x = f.pose.value
+        c = f.detections.value
+        if len(c) == 0:
+            continue
+        r = np.empty((len(c), 3))
+        r[:, 0] = x[0] - c[:, 0]
+        r[:, 1] = x[1] - c[:, 1]
+        r[:, 2] = x[2]
+        rel.append(r)
+        robot.append(np.full(len(c), i))
+        obstacle.append(np.arange(len(c)))
+    if not rel:
+        return np.zeros((0, 3)), np.zeros(0, int), np.zeros(0, int)
+    return np.concatenate(rel), np.concatenate(robot), np.concatenate(obstacle)
+
+
+def step_many(filters, safe_set: SafeSet, t) -> list:
+    """One decision per robot filter, with one vectorised evaluation of the law.
+
+    Robots that can be judged use their current pose and detections; robots that
+    fail safe use their last valid pose and detections if younger than
+    ``hold_timeout``, else the stop-turn policy.
+    """
+    n = len(filters)
+    problems = [f.problem(t) for f in filters]
+    usable = []   # robots whose (last valid) state enters the law
+    for i, f in enumerate(filters):
+        if not problems[i]:
+            usable.append(i)
+        elif (f.pose.value is not None and f.detections.value is not None
+              and t - f.pose.t <= f.config.hold_timeout and t - f.detections.t <= f.config.hold_timeout):
+            usable.append(i)
+    rel, robot, obstacle = _pairs(filters, usable)
+    omega_law = np.array([filters[i].config.omega_max for i in robot]) if len(robot) else np.zeros(0)
+    value, turn = evaluate_pairs(safe_set.vf, rel)
+    control = turn * omega_law
+
+    # the smallest V per robot (its pair index), by a stable sort: largest first, smallest last
+    best = np.full(n, -1)
+    order = np.argsort(value, kind='stable')[::-1]
+    best[robot[order]] = order
+
+    alpha = float(safe_set.alpha)
+    set_omega = safe_set.omega_max
+    set_omega = float(set_omega) if set_omega is not None else math.nan
+    out = []
+    for i, f in enumerate(filters):
+        cfg = f.config
+        p = int(best[i])
+        v_min = float(value[p]) if p >= 0 else math.inf
+        if p >= 0:
+            obst_index = int(obstacle[p])
+            obst_xy = tuple(float(v) for v in f.detections.value[obst_index])
+        else:
+            obst_index, obst_xy = -1, (math.nan, math.nan)
+        common = dict(obstacle_index=obst_index, obstacle_xy=obst_xy, value=v_min, alpha=alpha,
+                      source=safe_set.source, omega_max_set=set_omega)
+        if problems[i]:
+            f.overriding = False   # re-enter by the law once inputs are back
+            if math.isfinite(v_min):
+                out.append(FilterOutput(float(control[p]), cfg.speed, FAIL_SAFE,
+                                        f'{problems[i]}; avoiding obstacle {obst_index} from the last '
+                                        f'valid state (V={v_min:.3g})', **common))
+            else:
+                why = 'no recent valid state' if i not in usable else 'no obstacle near the last valid state'
+                out.append(FilterOutput(cfg.omega_max, 0.0, FAIL_SAFE,
+                                        f'{problems[i]}; {why}: stop-turn', **common))
+            continue
+        enter = v_min <= alpha
+        stay = f.overriding and v_min <= alpha + cfg.clear_margin
+        if enter or stay:
+            f.overriding = True
+            why = (f'V={v_min:.3g} <= alpha={alpha:.3g} at obstacle {obst_index}' if enter else
+                   f'V={v_min:.3g} <= alpha+margin={alpha + cfg.clear_margin:.3g}: not clear yet')
+            out.append(FilterOutput(float(control[p]), cfg.speed, OVERRIDE, why, **common))
+            continue
+        f.overriding = False
+        if f.command.value is None or t - f.command.t > cfg.cmd_timeout:
+            out.append(FilterOutput(0.0, cfg.speed, PASS,
+                                    'clear; planner silent: holding straight', **common))
+        else:
+            why = ('clear: no obstacle near' if not math.isfinite(v_min) else
+                   f'clear: V={v_min:.3g} > alpha={alpha:.3g}')
+            out.append(FilterOutput(float(f.command.value), cfg.speed, PASS, why, **common))
+    return out
+
+
+def evaluate_pairs(vf: ValueFunction, rel_states):
+    """V and the unit avoid control sign(dV/dtheta) at relative states (N, 3).
+
+    The rule of ``filter_law.filter_law`` (pairs outside the grid: V = +inf, never
+    constraining; ties dV/dtheta = 0 turn left), but evaluated at *every* pair: the
+    hysteresis band and the fail-safe hold need u* where V > alpha too. Only the
+    theta component of the gradient is interpolated.
+    """
+    s = np.asarray(rel_states, dtype=float).reshape(-1, 3)
+    value = np.full(len(s), np.inf)
+    turn = np.zeros(len(s))
+    inside = vf.grid.contains(s)
+    if np.any(inside):
+        si = s[inside]
+        value[inside] = vf.value(si)
+        grad_th = vf.grid.interpolate(vf.node_gradient()[..., 2], si)
+        turn[inside] = np.where(grad_th >= 0.0, 1.0, -1.0)
+    return value, turn

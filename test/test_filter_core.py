@@ -1,0 +1,178 @@
+"""ROS-free tests of the per-robot filter state machine (supersafe_ros.filter_core)."""
+import math
+
+import numpy as np
+import pytest
+
+from supersafe_ros.filter_core import (FAIL_SAFE, OVERRIDE, PASS, FilterConfig, RobotFilter, SafeSet,
+                                       evaluate_pairs, step_many)
+from supersafe_ros.filter_law import filter_law
+from supersafe_ros.reach.dynamics import DubinsCar
+from supersafe_ros.reach.grid import Grid
+from supersafe_ros.reach.sets import Disc
+from supersafe_ros.reach.solver import solve_avoid
+
+OBSTACLE = (10.0, 5.0)   # obstacle centre in map (not at the origin: exercises the relative frame)
+
+
+@pytest.fixture(scope='module')
+def standard():
+    vf = solve_avoid(Grid((-8, -8), (8, 8), (41, 41, 24)), DubinsCar(3.0, 1.0), Disc(0, 0, 1.8), horizon=3.0)
+    return SafeSet(vf, 0.0, 'standard')
+
+
+def robot(t=0.0, pose=(0.0, 0.0, 0.0), detections=(OBSTACLE,), cmd=0.3, **cfg):
+    f = RobotFilter(FilterConfig(**cfg))
+    f.update_pose(pose, t)
+    f.update_detections(np.asarray(detections, dtype=float).reshape(-1, 2), t)
+    if cmd is not None:
+        f.update_command(cmd, t)
+    return f
+
+
+def at(rel_x, rel_y, theta):
+    return (OBSTACLE[0] + rel_x, OBSTACLE[1] + rel_y, theta)
+
+
+def test_far_from_obstacles_passes_the_planner_command(standard):
+    f = robot(pose=at(-7.5, 6.0, 0.0), cmd=0.3)
+    out = f.step(standard, 0.01)
+    assert out.action == PASS and out.omega == 0.3 and out.level == 0
+    assert out.value > standard.alpha
+
+
+def test_no_detections_passes(standard):
+    out = robot(pose=at(-1.0, 0.0, 0.0), detections=np.zeros((0, 2)), cmd=-0.2).step(standard, 0.0)
+    assert out.action == PASS and out.omega == -0.2 and out.obstacle_index == -1
+
+
+@pytest.mark.parametrize('side', [1.0, -1.0])
+def test_near_obstacle_overrides_and_turns_away(standard, side):
+    # heading +x toward the obstacle, slightly to its left (side=+1) or right (side=-1):
+    # turning away means turning left (+) on the left side, right (-) on the right side
+    f = robot(pose=at(-3.0, 0.6 * side, 0.0), cmd=-0.5 * side)
+    out = f.step(standard, 0.0)
+    assert out.action == OVERRIDE and out.level == 1
+    assert out.omega == pytest.approx(side * 1.0)
+    assert out.value <= 0.0 and out.obstacle_index == 0
+    assert out.obstacle_xy == OBSTACLE
+
+
+def test_smallest_value_governs(standard):
+    far = (OBSTACLE[0] - 20.0, OBSTACLE[1])
+    f = robot(pose=at(-3.0, -0.6, 0.0), detections=[far, OBSTACLE])
+    out = f.step(standard, 0.0)
+    assert out.action == OVERRIDE and out.obstacle_index == 1 and out.omega == pytest.approx(-1.0)
+
+
+def test_hysteresis_keeps_overriding_until_clear(standard):
+    vf = standard.vf
+    f = robot(pose=at(-3.0, 0.6, 0.0), clear_margin=0.5)
+    assert f.step(standard, 0.0).action == OVERRIDE
+    # a state just above alpha but inside the margin: still overriding
+    xs = np.linspace(-7.0, -2.0, 400)
+    vals = vf.value(np.stack([xs, np.full_like(xs, 0.6), np.zeros_like(xs)], axis=1))
+    band = xs[(vals > 0.1) & (vals < 0.4)]
+    clear = xs[vals > 0.6]
+    assert band.size and clear.size
+    f.update_pose(at(band[0], 0.6, 0.0), 0.1)
+    out = f.step(standard, 0.1)
+    assert out.action == OVERRIDE and 'not clear' in out.reason and out.omega == pytest.approx(1.0)
+    f.update_pose(at(clear[0], 0.6, 0.0), 0.2)
+    assert f.step(standard, 0.2).action == PASS
+    # without a preceding override the same band state passes
+    g = robot(pose=at(band[0], 0.6, 0.0), clear_margin=0.5)
+    assert g.step(standard, 0.0).action == PASS
+
+
+def test_stale_pose_fails_safe_with_avoid_control_then_stop_turn(standard):
+    f = robot(pose=at(-3.0, -0.6, 0.0), cmd=0.9, pose_timeout=0.5, hold_timeout=1.0, detections_timeout=5.0)
+    f.update_detections(np.array([OBSTACLE]), 0.9)
+    out = f.step(standard, 0.7)        # pose 0.7 s old: stale, but within the hold window
+    assert out.action == FAIL_SAFE and out.level == 2 and 'pose stale' in out.reason
+    assert out.omega == pytest.approx(-1.0)        # avoid control of the last valid state
+    out = f.step(standard, 1.5)        # beyond the hold window: stop-turn
+    assert out.action == FAIL_SAFE and out.linear == 0.0 and out.omega == pytest.approx(1.0)
+    assert 'stop-turn' in out.reason
+
+
+def test_stale_pose_does_not_forward_the_planner(standard):
+    # near enough to be on the obstacle's grid: the avoid control of the last state
+    f = robot(pose=at(-7.5, 6.0, 0.0), cmd=0.3, pose_timeout=0.1)
+    out = f.step(standard, 0.2)
+    assert out.action == FAIL_SAFE and abs(out.omega) == 1.0 and 'avoiding obstacle 0' in out.reason
+    # off every obstacle's grid: nothing to avoid, stop-turn
+    g = robot(pose=at(-9.0, 6.0, 0.0), cmd=0.3, pose_timeout=0.1)
+    out = g.step(standard, 0.2)
+    assert out.action == FAIL_SAFE and out.linear == 0.0 and out.omega == 1.0 and 'stop-turn' in out.reason
+
+
+def test_pair_evaluation_agrees_with_filter_law(standard):
+    rng = np.random.default_rng(0)
+    rel = np.stack([rng.uniform(-9, 9, 300), rng.uniform(-9, 9, 300), rng.uniform(-4, 4, 300)], axis=1)
+    value, turn = evaluate_pairs(standard.vf, rel)
+    for r, v, u in zip(rel, value, turn):   # one at a time: filter_law's reference rule
+        d = filter_law(standard.vf, 0.0, r[None], 1.0)
+        assert v == d.value[0]
+        if d.override[0]:
+            assert u == d.control[0]
+
+
+def test_invalid_pose_is_rejected_and_fails_safe_until_a_valid_one(standard):
+    f = robot(pose=at(-7.5, 6.0, 0.0), cmd=0.3)
+    with pytest.raises(ValueError):
+        f.update_pose((math.nan, 0.0, 0.0), 0.01)
+    out = f.step(standard, 0.02)
+    assert out.action == FAIL_SAFE and 'pose rejected' in out.reason
+    f.update_pose(at(-7.5, 6.0, 0.0), 0.03)
+    assert f.step(standard, 0.03).action == PASS
+
+
+def test_invalid_detections_and_commands(standard):
+    f = robot(pose=at(-7.5, 6.0, 0.0), cmd=0.3)
+    with pytest.raises(ValueError):
+        f.update_detections(np.array([[np.inf, 0.0]]), 0.01)
+    assert f.step(standard, 0.01).action == FAIL_SAFE
+    f.update_detections(np.array([OBSTACLE]), 0.02)
+    with pytest.raises(ValueError):
+        f.update_command(math.nan, 0.02)
+    out = f.step(standard, 0.02)
+    assert out.action == PASS and out.omega == 0.3    # the previous valid command is kept
+
+
+def test_nothing_received_fails_safe(standard):
+    out = RobotFilter().step(standard, 0.0)
+    assert out.action == FAIL_SAFE and 'no pose' in out.reason and out.linear == 0.0
+
+
+def test_silent_planner_holds_straight(standard):
+    f = robot(pose=at(-7.5, 6.0, 0.0), cmd=0.3, cmd_timeout=0.5)
+    f.update_pose(at(-7.5, 6.0, 0.0), 1.0)
+    f.update_detections(np.array([OBSTACLE]), 1.0)
+    out = f.step(standard, 1.0)
+    assert out.action == PASS and out.omega == 0.0 and 'planner silent' in out.reason
+
+
+def test_alpha_raises_the_override_level(standard):
+    f = robot(pose=at(-6.0, 0.0, 0.0))
+    v = f.step(standard, 0.0).value
+    assert f.step(SafeSet(standard.vf, v - 0.1), 0.0).action == PASS
+    g = robot(pose=at(-6.0, 0.0, 0.0))
+    assert g.step(SafeSet(standard.vf, v + 0.1), 0.0).action == OVERRIDE
+
+
+def test_step_many_matches_single_steps(standard):
+    rng = np.random.default_rng(3)
+    filters, singles = [], []
+    for i in range(40):
+        pose = at(rng.uniform(-6, 6), rng.uniform(-6, 6), rng.uniform(-np.pi, np.pi))
+        dets = [OBSTACLE] if i % 3 else [OBSTACLE, (OBSTACLE[0] + 4.0, OBSTACLE[1])]
+        filters.append(robot(pose=pose, detections=dets, cmd=0.1 * (i % 5)))
+        singles.append(robot(pose=pose, detections=dets, cmd=0.1 * (i % 5)))
+    many = step_many(filters, standard, 0.0)
+    actions = set()
+    for f, out in zip(singles, many):
+        one = f.step(standard, 0.0)
+        actions.add(one.action)
+        assert (one.action, one.omega, one.obstacle_index) == (out.action, out.omega, out.obstacle_index)
+    assert actions == {PASS, OVERRIDE}
