@@ -64,7 +64,7 @@ class FilterConfig:
     pose_timeout: float = 0.5        # a pose older than this is stale
     detections_timeout: float = 1.0  # detections older than this are stale
     hold_timeout: float = 1.0        # last valid state still usable for fail-safe avoidance
-    cmd_timeout: float = 0.5         # planner silent longer than this: pass 0 (straight)
+    cmd_timeout: float = 0.5         # planner silent longer than this: zero twist
     clear_margin: float = 0.2        # hysteresis: release override when V > alpha + margin
 
     def __post_init__(self):
@@ -300,8 +300,9 @@ def step_many(filters, safe_set: SafeSet, t) -> list:
             continue
         f.overriding = False
         if f.command.value is None or t - f.command.t > cfg.cmd_timeout:
-            out.append(FilterOutput(0.0, cfg.speed, PASS,
-                                    'clear; planner silent: holding straight', **common))
+            # Nav2 style: no input, zero twist (a Dubins robot drives straight on;
+            # the filter still guards it against every detected obstacle)
+            out.append(FilterOutput(0.0, 0.0, PASS, 'clear; planner silent: zero command', **common))
         else:
             why = ('clear: no obstacle near' if not math.isfinite(v_min) else
                    f'clear: V={v_min:.3g} > alpha={alpha:.3g}')

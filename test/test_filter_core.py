@@ -145,12 +145,12 @@ def test_nothing_received_fails_safe(standard):
     assert out.action == FAIL_SAFE and 'no pose' in out.reason and out.linear == 0.0
 
 
-def test_silent_planner_holds_straight(standard):
+def test_silent_planner_gives_a_zero_command(standard):
     f = robot(pose=at(-7.5, 6.0, 0.0), cmd=0.3, cmd_timeout=0.5)
     f.update_pose(at(-7.5, 6.0, 0.0), 1.0)
     f.update_detections(np.array([OBSTACLE]), 1.0)
     out = f.step(standard, 1.0)
-    assert out.action == PASS and out.omega == 0.0 and 'planner silent' in out.reason
+    assert out.action == PASS and out.omega == 0.0 and out.linear == 0.0 and 'planner silent' in out.reason
 
 
 def test_alpha_raises_the_override_level(standard):
