@@ -36,13 +36,14 @@ from std_srvs.srv import Empty
 
 from .. import rosmsg
 from ..intervention_store import Intervention, InterventionStore
+from ..reach.library import PAPER_OMEGAS, LibrarySpec, load_or_build_library
 from ..vfmsg import value_function_to_msg
 from .common import declare, run_node
 
 VALUE_FUNCTION_TOPIC = '/safe_set/value_function'
 FIT_TOPIC = '/safe_set/fit'
 ESTIMATORS = ('paper',)   # first-passage needs whole encounters; /interventions carries states only
-DEFAULT_OMEGAS = [0.0, 0.125, 0.25, 0.375, 0.5, 0.625, 0.75, 0.875, 1.0, 1.5, 2.0, 2.5, 3.0]
+DEFAULT_OMEGAS = [float(w) for w in PAPER_OMEGAS]
 
 
 def default_store_path() -> str:
@@ -51,23 +52,10 @@ def default_store_path() -> str:
 
 
 def build_library(speed, radius, horizon, omegas, lo, hi, shape, cache_dir=None):
-    """The candidate value functions, sorted by omega_max (cached by the library module)."""
-    try:
-        from ..reach.library import LibrarySpec, load_or_build_library
-    except ImportError:   # library module not there: solve each entry here (uncached)
-        from ..reach.dynamics import DubinsCar
-        from ..reach.grid import Grid
-        from ..reach.sets import Disc
-        from ..reach.solver import solve_avoid
-        grid = Grid(tuple(lo), tuple(hi), tuple(shape))
-        entries = []
-        for w in sorted(omegas):
-            vf = solve_avoid(grid, DubinsCar(speed, w), Disc(0.0, 0.0, radius), horizon=horizon)
-            vf.meta.setdefault('radius', radius)
-            entries.append(vf)
-        return entries
-    spec = LibrarySpec(speed=speed, radius=radius, omegas=tuple(sorted(omegas)), horizon=horizon,
-                       lo=tuple(lo), hi=tuple(hi), shape=tuple(shape))
+    """The candidate value functions sorted by omega_max (from the cache, or solved and cached)."""
+    spec = LibrarySpec(speed=speed, radius=radius, omegas=tuple(sorted(omegas)),
+                       horizon=horizon if horizon > 0 else None, lo=tuple(lo), hi=tuple(hi),
+                       shape=tuple(int(n) for n in shape))
     return list(load_or_build_library(spec, cache_dir=cache_dir or None).entries)
 
 
@@ -91,7 +79,7 @@ class LearnerNode(Node):
                               'an intervention frame must start with this ("" = any non-empty frame)')
         speed = p('library_speed', 3.0, 'library: robot speed [m/s]', 0.01, 100.0)
         radius = p('library_radius', 1.8, 'library: obstacle radius [m]', 0.01, 100.0)
-        horizon = p('library_horizon', 3.0, 'library: avoid horizon [s]', 0.0, 1000.0)
+        horizon = p('library_horizon', 3.0, 'library: avoid horizon [s] (0 = to convergence)', 0.0, 1000.0)
         omegas = p('library_omegas', DEFAULT_OMEGAS, 'library: candidate turn-rate bounds [rad/s]')
         self.lo = p('library_lo', [-8.0, -8.0], 'library grid: (xmin, ymin) [m]')
         self.hi = p('library_hi', [8.0, 8.0], 'library grid: (xmax, ymax) [m]')
@@ -155,6 +143,7 @@ class LearnerNode(Node):
         except ValueError as exc:
             self.rejected += 1
             self.get_logger().error(f'intervention rejected: {exc}')
+            self.publish_status(f'intervention rejected: {exc}', level=1)
             return
         if not self.store.append(entry):   # persisted (fsync) before anything else
             self.get_logger().warn(f'duplicate intervention ({entry.frame}, stamp {entry.stamp_ns}) ignored')

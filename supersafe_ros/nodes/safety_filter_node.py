@@ -46,19 +46,14 @@ LOG_THROTTLE_S = 2.0   # the same kind of complaint at most this often
 
 
 def standard_value_function(lo, hi, shape, speed, omega_max, radius, horizon, cache_dir=None):
-    """The standard set's V: true dynamics and radius, from the cache or solved now."""
+    """The standard set's V: true dynamics and radius, from the cache or solved now.
+
+    horizon <= 0 means "to convergence".
+    """
     from ..reach.grid import Grid
-    grid = Grid(tuple(lo), tuple(hi), tuple(shape))
-    try:
-        from ..reach.library import load_or_solve
-    except ImportError:   # the library module is not there: solve directly (uncached)
-        from ..reach.dynamics import DubinsCar
-        from ..reach.sets import Disc
-        from ..reach.solver import solve_avoid
-        vf = solve_avoid(grid, DubinsCar(speed, omega_max), Disc(0.0, 0.0, radius), horizon=horizon)
-        vf.meta.setdefault('radius', radius)
-        return vf
-    return load_or_solve(grid, speed, omega_max, radius, horizon, cache_dir=cache_dir or None)
+    from ..reach.library import load_or_solve
+    return load_or_solve(Grid(tuple(lo), tuple(hi), tuple(int(n) for n in shape)), speed, omega_max,
+                         radius, horizon if horizon > 0 else None, cache_dir=cache_dir or None)
 
 
 def learned_alpha(meta: dict, k: float) -> float:
@@ -103,7 +98,7 @@ class SafetyFilterNode(Node):
         lo = p('standard_lo', [-8.0, -8.0], 'standard set grid: (xmin, ymin) relative to the obstacle [m]')
         hi = p('standard_hi', [8.0, 8.0], 'standard set grid: (xmax, ymax) [m]')
         shape = p('standard_shape', [65, 65, 42], 'standard set grid: nodes (nx, ny, ntheta)')
-        horizon = p('standard_horizon', 3.0, 'standard set horizon [s] (as the library)', 0.0, 1000.0)
+        horizon = p('standard_horizon', 3.0, 'standard set horizon [s] (as the library; 0 = to convergence)', 0.0, 1000.0)
 
         self.filter = RobotFilter(cfg, self.get_namespace())
         t0 = time.perf_counter()

@@ -1,0 +1,184 @@
+"""learner_node at topic level: interventions from a simulated supervisor in, fits out."""
+import math
+import os
+
+import numpy as np
+import pytest
+from rclpy.parameter import Parameter
+
+from diagnostic_msgs.msg import DiagnosticStatus
+from geometry_msgs.msg import PoseStamped
+from std_msgs.msg import Float32MultiArray
+from std_srvs.srv import Empty
+
+from supersafe_ros import rosmsg
+from supersafe_ros.learning.data import PHASE2_OFFSETS, intervention_states, phase2_encounters
+from supersafe_ros.learning.supervisor import NoisySupervisor
+from supersafe_ros.nodes.learner_node import FIT_TOPIC, VALUE_FUNCTION_TOPIC, LearnerNode
+from supersafe_ros.reach.library import LibrarySpec, load_or_build_library
+from supersafe_ros.vfmsg import msg_to_value_function
+
+from filter_learner_support import Spinner, matched, ros_context  # noqa: F401  (fixture)
+
+OMEGAS = [0.25, 0.5, 1.0, 2.0]
+SHAPE = [41, 41, 24]
+TRUE_OMEGA, MU, SIGMA = 0.5, 0.3, 0.1     # the simulated supervisor
+
+
+@pytest.fixture(scope='module')
+def library(ros_context):
+    return load_or_build_library(LibrarySpec(shape=tuple(SHAPE), omegas=tuple(OMEGAS)))
+
+
+@pytest.fixture(scope='module')
+def supervised_states(library):
+    sup = NoisySupervisor(library.entry(TRUE_OMEGA), MU, SIGMA, rng=1)
+    return intervention_states(phase2_encounters(sup, np.tile(PHASE2_OFFSETS, 2), rng=1))
+
+
+class Listener:
+    """Latched subscriber of the learner's outputs, /interventions publisher, reset client."""
+
+    def __init__(self, ctx, name):
+        from rclpy.node import Node
+        self.node = Node(name, context=ctx)
+        self.fits, self.vfs = [], []
+        self.fit_sub = self.node.create_subscription(DiagnosticStatus, FIT_TOPIC, self.fits.append,
+                                                     rosmsg.QOS_LATCHED)
+        self.vf_sub = self.node.create_subscription(Float32MultiArray, VALUE_FUNCTION_TOPIC,
+                                                    self.vfs.append, rosmsg.QOS_LATCHED)
+        self.pub = self.node.create_publisher(PoseStamped, '/interventions', rosmsg.QOS_EVENTS)
+        self.reset = self.node.create_client(Empty, '/learner/reset')
+
+    def fit(self):
+        return rosmsg.diagnostic_values(self.fits[-1]) if self.fits else {}
+
+    def send(self, state, obstacle, stamp_s, frame=None):
+        msg = PoseStamped()
+        msg.header.frame_id = rosmsg.obstacle_frame(obstacle) if frame is None else frame
+        msg.header.stamp.sec, msg.header.stamp.nanosec = int(stamp_s), int((stamp_s % 1) * 1e9)
+        msg.pose.position.x, msg.pose.position.y = float(state[0]), float(state[1])
+        if math.isfinite(state[2]):
+            msg.pose.orientation = rosmsg.yaw_to_quaternion(state[2])
+        else:
+            msg.pose.orientation.w = 0.0   # a zero quaternion cannot be normalised
+        self.pub.publish(msg)
+
+
+def make_learner(ctx, store, **extra):
+    params = [Parameter('store_path', value=str(store)), Parameter('library_shape', value=SHAPE),
+              Parameter('library_omegas', value=OMEGAS), Parameter('min_interventions', value=3)]
+    params += [Parameter(k, value=v) for k, v in extra.items()]
+    return LearnerNode(context=ctx, parameter_overrides=params)
+
+
+@pytest.fixture(scope='module')
+def running(ros_context, tmp_path_factory, library):
+    store = tmp_path_factory.mktemp('learner') / 'subject.jsonl'
+    node = make_learner(ros_context, store)
+    listener = Listener(ros_context, 'learner_test_listener')
+    spin = Spinner(ros_context, node, listener.node)
+    spin.until(lambda: matched(listener.pub, listener.fit_sub, listener.vf_sub), 10.0, 'learner topics')
+    state = {'node': node, 'store': store}
+    yield state, listener, spin
+    spin.shutdown()
+    state['node'].close()
+    state['node'].destroy_node()
+    listener.node.destroy_node()
+
+
+def test_fit_follows_the_interventions_of_a_simulated_supervisor(running, supervised_states, library):
+    state, listener, spin = running
+    states = supervised_states
+    for i, s in enumerate(states[:2]):
+        listener.send(s, i, 100.0 + i)
+    spin.until(lambda: listener.fit().get('interventions') == '2', 5.0, 'two stored')
+    assert not listener.vfs and listener.fit()['fitted_interventions'] == '0'   # below min_interventions
+    listener.send(states[2], 2, 102.0)
+    spin.until(lambda: listener.fit().get('fitted_interventions') == '3', 5.0, 'the first fit')
+    spin.until(lambda: listener.vfs, 5.0, 'the first value function')
+    for i in range(3, len(states)):
+        listener.send(states[i], i, 100.0 + i)
+    n = str(len(states))
+    spin.until(lambda: listener.fit().get('fitted_interventions') == n, 10.0, 'the fit on every intervention')
+    fit = listener.fit()
+    assert float(fit['omega_max']) == TRUE_OMEGA
+    assert abs(float(fit['mu']) - MU) < 0.1 and abs(float(fit['sigma']) - SIGMA) < 0.06
+    assert fit['estimator'] == 'paper' and math.isfinite(float(fit['log_likelihood']))
+    assert float(fit['alpha']) == pytest.approx(float(fit['mu']))   # alpha_k = 0
+    # the value function that went out is the chosen library entry, bit for bit
+    spin.until(lambda: msg_to_value_function(listener.vfs[-1]).meta.get('interventions') == len(states),
+               5.0, 'the last value function')
+    vf = msg_to_value_function(listener.vfs[-1])
+    assert np.array_equal(vf.values, library.entry(TRUE_OMEGA).values)
+    assert vf.meta['source'] == 'learned' and vf.meta['mu'] == pytest.approx(float(fit['mu']))
+    assert vf.meta['omega_max'] == TRUE_OMEGA and vf.grid == library.spec.grid
+
+
+@pytest.mark.parametrize('bad', ['nan', 'inf', 'empty_frame', 'map_frame', 'outside', 'zero_quaternion',
+                                 'duplicate'])
+def test_bad_interventions_are_rejected_and_the_node_keeps_running(running, bad):
+    state, listener, spin = running
+    before = int(listener.fit().get('interventions', 0))
+    rejected = int(listener.fit().get('rejected', 0))
+    s, frame, stamp = (-3.0, 0.5, 0.0), None, 500.0 + rejected
+    if bad == 'nan':
+        s = (math.nan, 0.5, 0.0)
+    elif bad == 'inf':
+        s = (-3.0, -math.inf, 0.0)
+    elif bad == 'empty_frame':
+        frame = ''
+    elif bad == 'map_frame':
+        frame = 'map'
+    elif bad == 'outside':
+        s = (-30.0, 0.5, 0.0)
+    elif bad == 'zero_quaternion':
+        s = (-3.0, 0.5, math.nan)
+    elif bad == 'duplicate':
+        stamp = 100.0   # the first supervised intervention, same obstacle and time
+    listener.fits.clear()
+    listener.send(s, 0, stamp, frame)
+    if bad == 'duplicate':
+        spin.spin_for(0.3)
+        assert not listener.fits   # nothing new: no refit, no status
+        assert len(state['node'].store) == before
+        return
+    spin.until(lambda: listener.fit().get('rejected') == str(rejected + 1), 5.0, 'the rejection')
+    assert listener.fit()['interventions'] == str(before)
+    assert 'rejected' in listener.fits[-1].message and listener.fits[-1].level == bytes([1])
+
+
+def test_restart_keeps_the_data_and_republishes_the_fit(running, ros_context):
+    state, listener, spin = running
+    n = len(state['node'].store)
+    old_mu = state['node'].fit.mu
+    assert n >= 3
+    spin.remove(state['node'])
+    state['node'].close()
+    state['node'].destroy_node()
+    state['node'] = make_learner(ros_context, state['store'])
+    spin.add(state['node'])
+    late = Listener(ros_context, 'learner_late_joiner')   # late joiner: latched fit and set
+    spin.add(late.node)
+    spin.until(lambda: late.fits and late.vfs, 10.0, 'the republished fit')
+    assert late.fit()['interventions'] == str(n) and float(late.fit()['mu']) == pytest.approx(old_mu)
+    assert msg_to_value_function(late.vfs[-1]).meta['interventions'] == n
+    late.node.destroy_node()
+
+
+def test_reset_archives_the_data_and_publishes_the_standard_set(running):
+    state, listener, spin = running
+    n = len(state['node'].store)
+    spin.until(lambda: listener.reset.service_is_ready(), 10.0, 'the reset service')
+    listener.vfs.clear()
+    future = listener.reset.call_async(Empty.Request())
+    spin.until(future.done, 5.0, 'the reset reply')
+    spin.until(lambda: listener.vfs and listener.fit().get('interventions') == '0', 5.0, 'the reset')
+    vf = msg_to_value_function(listener.vfs[-1])
+    assert vf.meta['source'] == 'standard' and vf.meta['omega_max'] == 1.0
+    assert len(state['node'].store) == 0
+    folder = os.path.dirname(state['store'])
+    archived = [f for f in os.listdir(folder) if f != os.path.basename(state['store'])]
+    assert len(archived) == 1
+    with open(os.path.join(folder, archived[0])) as f:
+        assert len(f.read().splitlines()) == n
