@@ -66,6 +66,10 @@ def plot_fit(path, learned: ValueFunction, mu: float, interventions, standard: V
         ax.set_title('standard set (blue: V = 0' + (f', omega_max {ws:g})' if ws is not None else ')')
                      + '\nred dashed: learned mu level')
         _decorate(ax, radius if radius is not None else standard.meta.get('radius'))
+    lo, hi = _view(learned, s, standard)
+    for a in axes:
+        a.set_xlim(lo[0], hi[0])
+        a.set_ylim(lo[1], hi[1])
     if title:
         fig.suptitle(title)
     fig.tight_layout()
@@ -74,6 +78,19 @@ def plot_fit(path, learned: ValueFunction, mu: float, interventions, standard: V
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def _view(learned, states, standard, pad=1.5):
+    """Zoom on the interventions and the standard unsafe set (within the grid)."""
+    g = learned.grid
+    pts = [states[:, :2]]
+    if standard is not None:
+        X, Y, V = theta_slice(standard, n=101)
+        pts.append(np.stack([X[V <= 0], Y[V <= 0]], axis=1))
+    pts = np.concatenate([p for p in pts if len(p)] or [np.zeros((1, 2))])
+    lo = np.maximum(pts.min(axis=0) - pad, g.lo)
+    hi = np.minimum(pts.max(axis=0) + pad, g.hi)
+    return lo, hi
 
 
 def _decorate(ax, radius):
