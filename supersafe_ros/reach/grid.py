@@ -108,6 +108,9 @@ class Grid:
         if values.shape[:3] != self.shape:
             raise ValueError(f'values of shape {values.shape} do not match grid {self.shape}')
         ix, iy, it, wx, wy, wt = self._cell(states)
+        if values.ndim > 3:  # vector-valued nodes (e.g. gradients): weights broadcast over them
+            extra = (None,) * (values.ndim - 3)
+            wx, wy, wt = wx[(...,) + extra], wy[(...,) + extra], wt[(...,) + extra]
         it1 = (it + 1) % self.shape[2]
         out = 0.0
         for cx, ax in ((ix, 1.0 - wx), (ix + 1, wx)):

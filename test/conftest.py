@@ -1,0 +1,33 @@
+"""Test session set-up shared by every test module.
+
+* DDS stays on loopback and the session gets its own ROS_DOMAIN_ID, set here
+  before any test imports rclpy, so runs on one machine cannot hear each other.
+* Value functions are cached under .cache/test-values in the repository (or
+  $SUPERSAFE_CACHE), so solving happens once per machine, not once per test.
+"""
+import os
+from pathlib import Path
+
+import pytest
+
+from supersafe_ros.rosenv import ensure_local_ros_env
+
+REPO = Path(__file__).resolve().parents[1]
+S3_DATA = REPO.parent / 'shared' / 'data' / 's3'
+
+ensure_local_ros_env()
+os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+if 'SUPERSAFE_TEST_DOMAIN_SET' not in os.environ:
+    # 110..199: clear of the default domain 0 and of the developer shell's domain
+    os.environ['ROS_DOMAIN_ID'] = str(110 + os.getpid() % 90)
+    os.environ['SUPERSAFE_TEST_DOMAIN_SET'] = '1'
+os.environ.setdefault('SUPERSAFE_CACHE', str(REPO / '.cache' / 'test-values'))
+os.environ.setdefault('ROS_LOG_DIR', str(REPO / '.cache' / 'ros-log'))
+
+
+@pytest.fixture(scope='session')
+def s3_data() -> Path:
+    """The paper's own data (../shared/data/s3), or a skip saying where it was looked for."""
+    if not S3_DATA.is_dir():
+        pytest.skip(f'paper data not found at {S3_DATA} (shared/ must sit beside the repository)')
+    return S3_DATA

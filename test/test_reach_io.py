@@ -1,0 +1,147 @@
+"""Grid interpolation, value-function files, the library cache, the filter law and the CLI."""
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from supersafe_ros.filter_law import filter_law, most_constraining
+from supersafe_ros.reach.dynamics import DubinsCar
+from supersafe_ros.reach.grid import Grid
+from supersafe_ros.reach.library import LibrarySpec, load_or_build_library, load_or_solve
+from supersafe_ros.reach.value_function import ValueFunction
+
+GRID = Grid((-4, -3), (4, 5), (17, 21, 12))
+
+
+def test_trilinear_is_exact_for_multilinear_functions_and_wraps_heading():
+    X, Y, TH = GRID.mesh()
+    f = lambda x, y, k: 1.0 + 2.0 * x - 0.5 * y + 0.25 * x * y + 0.1 * k  # noqa: E731
+    k_index = np.arange(12)[None, None, :] * np.ones_like(X)
+    values = f(X, Y, k_index)
+    rng = np.random.default_rng(0)
+    pts = np.stack([rng.uniform(-4, 4, 300), rng.uniform(-3, 5, 300),
+                    GRID.theta[rng.integers(0, 12, 300)]], -1)
+    k = np.round((pts[:, 2] + np.pi) / GRID.spacing[2])
+    assert np.allclose(GRID.interpolate(values, pts), f(pts[:, 0], pts[:, 1], k))
+    # theta = pi is the same heading as -pi; halfway between the last node and 2 pi wraps
+    a = GRID.interpolate(values, np.array([[0.5, 0.5, np.pi]]))
+    b = GRID.interpolate(values, np.array([[0.5, 0.5, -np.pi]]))
+    assert np.allclose(a, b)
+    mid = GRID.interpolate(values, np.array([[0.0, 1.0, GRID.theta[-1] + GRID.spacing[2] / 2]]))
+    assert np.allclose(mid, 0.5 * (f(0, 1, 11) + f(0, 1, 0)))
+
+
+def test_gradient_of_a_linear_function():
+    X, Y, TH = GRID.mesh()
+    vf = ValueFunction(GRID, 3.0 * X - 2.0 * Y + 0.0 * TH)
+    g = vf.gradient(np.array([[0.3, 0.7, 1.0], [-2.2, 4.1, -3.0]]))
+    assert np.allclose(g, [[3.0, -2.0, 0.0]] * 2, atol=1e-5)
+
+
+def test_flow_composes_and_goes_straight_without_turning():
+    car = DubinsCar(3.0, 1.0)
+    s = np.array([1.0, -2.0, 0.4])
+    assert np.allclose(car.flow(car.flow(s, 0.7, 0.3), 0.7, 0.5), car.flow(s, 0.7, 0.8))
+    assert np.allclose(car.flow(s, 0.0, 2.0), [1 + 6 * np.cos(0.4), -2 + 6 * np.sin(0.4), 0.4])
+    # a full circle of radius v / w comes back
+    assert np.allclose(car.flow(s, 1.0, 2 * np.pi)[:2], s[:2], atol=1e-9)
+
+
+def test_npz_and_helperoc_round_trips(tmp_path):
+    X, Y, TH = GRID.mesh()
+    vf = ValueFunction(GRID, np.sin(X) + Y * np.cos(TH), {'omega_max': 0.5, 'speed': 3.0})
+    vf.save_npz(tmp_path / 'v.npz')
+    back = ValueFunction.load_npz(tmp_path / 'v.npz')
+    assert back.grid == GRID and np.array_equal(back.values, vf.values) and back.meta == vf.meta
+    with np.load(tmp_path / 'v.npz') as f:
+        assert f['value'].dtype == np.float32 and f['value'].shape == (17, 21, 12)
+        assert np.allclose(f['theta'], -np.pi + np.arange(12) * 2 * np.pi / 12)
+        assert f['x'][0] == -4 and f['x'][-1] == 4
+    vf.save_helperoc_json(tmp_path / 'v.json')
+    d = json.loads((tmp_path / 'v.json').read_text())
+    assert d['gN'] == [17, 21, 12] and d['gperiodicity'] == [0, 0, 1]
+    back = ValueFunction.load_helperoc_json(tmp_path / 'v.json')
+    assert back.grid == GRID and np.allclose(back.values, vf.values)
+
+
+def test_reads_the_authors_files(s3_data):
+    vf = ValueFunction.load_helperoc_json(s3_data / 'standard_reachset.json')
+    assert vf.grid.shape == (65, 65, 42)
+    # far from the obstacle and heading away, V is the distance minus the radius
+    assert vf.value(np.array([[6.0, 0.0, 0.0]]))[0] == pytest.approx(6.0 - 1.8, abs=0.05)
+    cons = ValueFunction.load_helperoc_json(s3_data / 'conservative_reachset.json')
+    assert cons.grid.shape == (65, 65, 41)
+
+
+def test_rejects_malformed_value_functions():
+    with pytest.raises(ValueError):
+        ValueFunction(GRID, np.zeros((17, 21, 11)))
+    bad = np.zeros(GRID.shape)
+    bad[3, 3, 3] = np.nan
+    with pytest.raises(ValueError):
+        ValueFunction(GRID, bad)
+
+
+def test_library_cache_loads_what_it_solved(tmp_path):
+    spec = LibrarySpec(omegas=(0.5, 1.0), shape=(33, 33, 24), horizon=1.5)
+    first = load_or_build_library(spec, tmp_path)
+    assert [e.from_cache for e in first.entries] == [False, False]
+    second = load_or_build_library(spec, tmp_path)
+    assert [e.from_cache for e in second.entries] == [True, True]
+    for a, b in zip(first.entries, second.entries):
+        assert np.array_equal(a.values, b.values)
+    assert list(second.omegas) == [0.5, 1.0] and second.entry(1.0) is second.entries[1]
+    # another horizon is another problem: not served from the cache
+    other = load_or_solve(spec.grid, 3.0, 1.0, 1.8, 2.5, tmp_path)
+    assert other.from_cache is False and not np.array_equal(other.values, first.entries[1].values)
+    # a damaged cache file is solved again rather than trusted
+    for f in tmp_path.glob('*.npz'):
+        f.write_bytes(b'not a zip file')
+    again = load_or_build_library(spec, tmp_path)
+    assert [e.from_cache for e in again.entries] == [False, False]
+
+
+def test_filter_law_overrides_at_the_level_set_and_turns_uphill():
+    X, Y, TH = GRID.mesh()
+    # V grows with theta near theta = 0: the optimal control turns left (+)
+    vf = ValueFunction(GRID, X + 0.5 * np.sin(TH))
+    states = np.array([[2.0, 0.0, 0.0], [0.1, 0.0, 0.0], [-1.0, 0.0, np.pi / 2 + 0.3], [50.0, 0.0, 0.0]])
+    d = filter_law(vf, 0.5, states, omega_max=1.0)
+    assert list(d.override) == [False, True, True, False]
+    assert d.control[1] == 1.0           # dV/dth = 0.5 cos(0) > 0
+    assert d.control[2] == -1.0          # past pi/2, V falls with theta
+    assert d.value[3] == np.inf          # outside the grid: far from the obstacle
+    with pytest.raises(ValueError):
+        filter_law(vf, 0.5, np.array([[np.nan, 0, 0]]), 1.0)
+    # two obstacles for robot 0, one for robot 1: the smaller V decides
+    override, control, value, pair = most_constraining([0, 0, 1, 1], d, 3)
+    assert list(pair) == [1, 2, -1] and list(override) == [True, True, False]
+
+
+def test_filter_law_is_vectorised_over_thousands_of_pairs():
+    X, Y, TH = GRID.mesh()
+    vf = ValueFunction(GRID, X + 0.5 * np.sin(TH))
+    rng = np.random.default_rng(1)
+    states = np.stack([rng.uniform(-4, 4, 5000), rng.uniform(-3, 5, 5000), rng.uniform(-3, 3, 5000)], -1)
+    d = filter_law(vf, 0.0, states, 1.0)
+    assert d.override.shape == (5000,) and np.array_equal(d.override, d.value <= 0.0)
+
+
+def test_cli_reach_writes_the_documented_file(tmp_path):
+    out = tmp_path / 'v.npz'
+    r = subprocess.run([sys.executable, '-m', 'supersafe_ros.cli', 'reach', '--speed', '3',
+                        '--omega-max', '1', '--radius', '1.8', '--grid-min', '-6', '-6',
+                        '--grid-max', '6', '6', '--shape', '25', '25', '16', '--out', str(out)],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert 'converged after' in r.stdout
+    with np.load(out) as f:
+        assert f['value'].shape == (25, 25, 16) and f['value'].dtype == np.float32
+        meta = json.loads(str(f['meta']))
+    assert meta['omega_max'] == 1.0 and meta['converged'] is True and meta['horizon'] is None
+    assert 'solve_time_s' in meta and meta['keepout']['type'] == 'disc'
+    r = subprocess.run([sys.executable, '-m', 'supersafe_ros.cli', 'reach', '--speed', '3',
+                        '--omega-max', '1', '--out', str(out)], capture_output=True, text=True)
+    assert r.returncode == 2 and '--radius' in r.stderr
