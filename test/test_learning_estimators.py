@@ -277,3 +277,18 @@ def test_predicted_false_positives_match_the_rate_on_synthetic_data(coarse_libra
         alpha = E.alpha_for_fp_rate(res.mu, res.sigma, rate)
         got = E.predicted_false_positive_fraction(res.value_function, alpha, states)
         assert got == pytest.approx(rate, abs=0.05)
+
+
+@pytest.mark.parametrize('conditional, lapse', [(False, 0.0), (True, 0.0), (False, 0.02)])
+def test_vectorised_newton_finds_the_same_maximum_as_lbfgsb(coarse_library, conditional, lapse):
+    enc = synthetic_phase2(coarse_library, 0.75, 0.5, 0.3, seed=2, repeats=4)
+    if conditional:
+        enc = [e for e in enc if e.intervened]
+    iv = E.encounter_intervals(coarse_library, enc, conditional=conditional)
+    mu_n, sd_n, ll_n = E.maximise_first_passage(iv, lapse, method='newton')
+    mu_l, sd_l, ll_l = E.maximise_first_passage(iv, lapse, method='lbfgsb')
+    fitted = np.isfinite(ll_l)
+    assert np.array_equal(np.isfinite(ll_n), fitted) and fitted.sum() >= 10
+    assert np.all(ll_n[fitted] >= ll_l[fitted] - 1e-6)           # never a worse optimum
+    assert np.allclose(mu_n[fitted], mu_l[fitted], atol=1e-4)
+    assert np.allclose(sd_n[fitted], sd_l[fitted], rtol=1e-4)

@@ -41,7 +41,9 @@ drop of V_i between frames, the Jacobian the paper's estimator leaves out). In t
 natural parameters eta = mu/sigma, tau = 1/sigma each term is
 log P(lo tau - eta <= Z < hi tau - eta) with Z ~ N(0, 1), log-concave in (eta, tau)
 (Prekopa), so the maximum over mu >= 0, sigma > 0 is unique; all entries are fitted
-together by L-BFGS-B with analytic gradients, started from the paper's estimate.
+at once by a vectorised projected Newton method (analytic gradient, finite-difference
+Hessian, Armijo line search), started from the paper-style estimate; scipy's L-BFGS-B
+entry by entry is kept as a cross-check (``method='lbfgsb'``).
 An entry under which some recorded intervention is impossible (v_k >= m_{<k}: a
 frame earlier in the same encounter was already at or below the intervention's
 value) has log L_i = -inf, unless ``lapse`` > 0.
@@ -388,37 +390,126 @@ def _start(iv: EncounterIntervals):
     return mu0, sd0
 
 
-def maximise_first_passage(iv: EncounterIntervals, lapse=0.0, rows=None):
-    """Maximise the first-passage log-likelihood over mu >= 0, sigma >= SIGMA_FLOOR, entry
-    by entry (L-BFGS-B in eta = mu/sigma, tau = 1/sigma, analytic gradient), for the
-    entries ``rows`` (default: every entry that can explain the data).
+def _subset(iv: EncounterIntervals, rows) -> EncounterIntervals:
+    return EncounterIntervals(iv.lo[rows], iv.hi[rows], None if iv.m_full is None else iv.m_full[rows],
+                              iv.outcomes, iv.intervened)
+
+
+_TAU_MIN = 1e-6                    # sigma <= 1e6: no bound in practice
+_TAU_MAX = 1.0 / SIGMA_FLOOR
+
+
+def _newton(fun, x, lower, upper, max_iter=100, tol=1e-10):
+    """Maximise m independent smooth 2-parameter functions at once, within box bounds.
+
+    fun(x (k, 2), rows=None) -> (f (k,), g (k, 2)) for the given rows (None: all m). Projected Newton with a finite-difference
+    Hessian of the analytic gradient, made negative definite when it is not, a
+    coordinate held at a bound while the gradient pushes it out, and a per-row
+    Armijo backtracking line search. Stops when every row's Newton decrement g.d is
+    below ``tol`` times (1 + |f|).
+    """
+    f, g = fun(x, None)
+    m = len(x)
+    active = np.ones(m, dtype=bool)
+    for _ in range(max_iter):
+        idx = np.flatnonzero(active)
+        if idx.size == 0:
+            break
+        xa, ga = x[idx], g[idx]
+        H = np.empty((idx.size, 2, 2))
+        for j in range(2):
+            h = 1e-6 * np.maximum(1.0, np.abs(xa[:, j]))
+            xh = xa.copy()
+            # difference inward from an upper bound, outward from a lower one
+            xh[:, j] = np.where(xa[:, j] + h > upper[j], xa[:, j] - h, xa[:, j] + h)
+            _, gh = fun(xh, idx)
+            H[:, :, j] = (gh - ga) / (xh[:, j] - xa[:, j])[:, None]
+        H = 0.5 * (H + np.swapaxes(H, 1, 2))
+        # bounds: freeze a coordinate sitting on a bound with the gradient pointing out
+        frozen = np.stack([(xa[:, j] <= lower[j]) & (ga[:, j] < 0) |
+                           (xa[:, j] >= upper[j]) & (ga[:, j] > 0) for j in range(2)], axis=1)
+        # make -H positive definite (Levenberg shift) so that d = -H^-1 g ascends
+        eig_max = np.linalg.eigvalsh(H)[:, -1]
+        shift = np.where(eig_max >= 0.0, eig_max + 1e-8 * (1.0 + np.abs(H).max(axis=(1, 2))), 0.0)
+        Hn = H - shift[:, None, None] * np.eye(2)
+        gf = np.where(frozen, 0.0, ga)
+        Hn[:, 0, 1] = np.where(frozen.any(axis=1), 0.0, Hn[:, 0, 1])
+        Hn[:, 1, 0] = Hn[:, 0, 1]
+        d = -np.linalg.solve(Hn, gf[:, :, None])[:, :, 0]
+        decrement = np.sum(gf * d, axis=1)
+        done = decrement <= tol * (1.0 + np.abs(f[idx]))
+        step = np.ones(idx.size)
+        pending = ~done
+        for _ls in range(60):
+            if not pending.any():
+                break
+            rows = idx[pending]
+            xn = np.clip(x[rows] + step[pending, None] * d[pending], lower, upper)
+            fn, gn = fun(xn, rows)
+            ok = np.isfinite(fn) & (fn >= f[rows] + 1e-4 * step[pending] * decrement[pending])
+            x[rows[ok]], f[rows[ok]], g[rows[ok]] = xn[ok], fn[ok], gn[ok]
+            sub = np.flatnonzero(pending)
+            step[sub[~ok]] *= 0.5
+            pending[sub[ok]] = False
+        done |= pending           # no ascent along d: converged to rounding
+        active[idx[done]] = False
+    return x, f
+
+
+def maximise_first_passage(iv: EncounterIntervals, lapse=0.0, rows=None, method='newton'):
+    """Maximise the first-passage log-likelihood over mu >= 0, sigma >= SIGMA_FLOOR for the
+    entries ``rows`` (default: every entry that can explain the data), in the natural
+    parameters eta = mu/sigma, tau = 1/sigma with analytic gradients.
+
+    method 'newton': all entries at once (``_newton``, vectorised); 'lbfgsb': scipy's
+    L-BFGS-B entry by entry (slower; kept as a cross-check).
     Returns mu, sigma, loglik (n_entries,): nan, nan, -inf for entries not fitted."""
     n = iv.lo.shape[0]
     if rows is None:
         rows = np.flatnonzero(iv.feasible) if lapse == 0.0 else np.arange(n)
+    rows = np.asarray(rows, dtype=int)
     mu = np.full(n, np.nan)
     sigma = np.full(n, np.nan)
     loglik = np.full(n, -np.inf)
-    mu0, sd0 = _start(iv)
-    scale = float(iv.lo.shape[1])           # keep the objective O(1) for the tolerances
-    bounds = [(0.0, None), (1e-6, 1.0 / SIGMA_FLOOR)]
-    for i in np.asarray(rows, dtype=int):
-        one = EncounterIntervals(iv.lo[i:i + 1], iv.hi[i:i + 1],
-                                 None if iv.m_full is None else iv.m_full[i:i + 1],
-                                 iv.outcomes, iv.intervened)
+    if rows.size == 0:
+        return mu, sigma, loglik
+    sub = _subset(iv, rows)
+    mu0, sd0 = _start(sub)
+    x0 = np.stack([mu0 / sd0, 1.0 / sd0], axis=1)
+    x0[:, 1] = np.clip(x0[:, 1], _TAU_MIN, _TAU_MAX)
+    if method == 'newton':
+        def fun(x, which=None):
+            part = sub if which is None else _subset(sub, which)
+            with np.errstate(over='ignore', invalid='ignore'):
+                ll, de, dt = first_passage_loglik(x[:, 0], x[:, 1], part, lapse, grad=True)
+            bad = ~np.isfinite(ll)
+            ll = np.where(bad, -np.inf, ll)
+            return ll, np.where(bad[:, None], 0.0, np.stack([de, dt], axis=1))
 
-        def objective(x):
-            ll, de, dt = first_passage_loglik(x[:1], x[1:], one, lapse, grad=True)
-            if not np.isfinite(ll[0]):
-                return 1e300, np.zeros(2)
-            return -ll[0] / scale, -np.array([de[0], dt[0]]) / scale
+        x, ll = _newton(fun, x0.copy(),
+                        lower=np.array([0.0, _TAU_MIN]), upper=np.array([np.inf, _TAU_MAX]))
+    elif method == 'lbfgsb':
+        x = np.empty_like(x0)
+        scale = float(iv.lo.shape[1])          # keep the objective O(1) for the tolerances
+        for k in range(rows.size):
+            one = _subset(sub, [k])
 
-        x0 = np.array([mu0[i] / sd0[i], 1.0 / sd0[i]])
-        res = optimize.minimize(objective, x0, jac=True, method='L-BFGS-B', bounds=bounds,
-                                options={'maxiter': 500, 'ftol': 1e-14, 'gtol': 1e-10})
-        eta, tau = res.x
-        mu[i], sigma[i] = eta / tau, 1.0 / tau
-        loglik[i] = first_passage_loglik(res.x[:1], res.x[1:], one, lapse)[0]
+            def objective(z):
+                l1, de, dt = first_passage_loglik(z[:1], z[1:], one, lapse, grad=True)
+                if not np.isfinite(l1[0]):
+                    return 1e300, np.zeros(2)
+                return -l1[0] / scale, -np.array([de[0], dt[0]]) / scale
+
+            res = optimize.minimize(objective, x0[k], jac=True, method='L-BFGS-B',
+                                    bounds=[(0.0, None), (_TAU_MIN, _TAU_MAX)],
+                                    options={'maxiter': 500, 'ftol': 1e-14, 'gtol': 1e-10})
+            x[k] = res.x
+        ll = first_passage_loglik(x[:, 0], x[:, 1], sub, lapse)
+    else:
+        raise ValueError(f"method must be 'newton' or 'lbfgsb', got {method!r}")
+    mu[rows] = x[:, 0] / x[:, 1]
+    sigma[rows] = 1.0 / x[:, 1]
+    loglik[rows] = ll
     return mu, sigma, loglik
 
 
