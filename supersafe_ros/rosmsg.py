@@ -24,6 +24,11 @@ OBSTACLE_FRAME_PREFIX = 'obstacle_'
 QOS_STREAM = QoSProfile(depth=5, history=HistoryPolicy.KEEP_LAST,
                         reliability=ReliabilityPolicy.RELIABLE,
                         durability=DurabilityPolicy.VOLATILE)
+# Consumers that must see every sample of a stream (the world counting crashes, the
+# supervisor judging every pose) keep a deep queue so a busy moment loses nothing.
+QOS_EVERY_SAMPLE = QoSProfile(depth=200, history=HistoryPolicy.KEEP_LAST,
+                              reliability=ReliabilityPolicy.RELIABLE,
+                              durability=DurabilityPolicy.VOLATILE)
 # Events that must not be lost (/interventions, /world/intervention_log, decisions).
 QOS_EVENTS = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST,
                         reliability=ReliabilityPolicy.RELIABLE,

@@ -7,17 +7,36 @@ It returns a process exit code: 0 on a clean stop, 1 if the node failed to start
 """
 from __future__ import annotations
 
+import os
 import sys
 import traceback
 
 from ..rosenv import ensure_local_ros_env
 
 
+def make_executor(kind: str | None = None):
+    """The executor a node process spins: $SUPERSAFE_EXECUTOR = 'events' or 'single'.
+
+    'single' (default) is rclpy's SingleThreadedExecutor. 'events' is the experimental
+    C++ EventsExecutor; in this rclpy (7.1.6) it spins a whole core per process with
+    use_sim_time and its timers do not follow /clock, so it is opt-in only.
+    """
+    from rclpy.executors import SingleThreadedExecutor
+    kind = (kind or os.environ.get('SUPERSAFE_EXECUTOR', 'single')).lower()
+    if kind == 'events':
+        try:
+            from rclpy.experimental import EventsExecutor
+            return EventsExecutor()
+        except (ImportError, AttributeError):
+            pass
+    return SingleThreadedExecutor()
+
+
 def run_node(node_class, args=None, executor_class=None) -> int:
     """Run one node until shutdown; ``args`` are the process argv (incl. --ros-args)."""
     ensure_local_ros_env()
     import rclpy
-    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+    from rclpy.executors import ExternalShutdownException
 
     argv = sys.argv if args is None else args
     rclpy.init(args=argv)
@@ -25,7 +44,7 @@ def run_node(node_class, args=None, executor_class=None) -> int:
     code = 0
     try:
         node = node_class()
-        executor = (executor_class or SingleThreadedExecutor)()
+        executor = executor_class() if executor_class else make_executor()
         executor.add_node(node)
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):

@@ -96,6 +96,7 @@ class World:
         if not self.robots:
             raise ValueError('the world needs at least one robot')
         self.obstacles: dict[int, np.ndarray] = {}
+        self._arrays = None    # cached (ids, xy); None after any change
         self.next_id = 0
         self.interventions: list[Intervention] = []
         self.relaxed_spawns = 0
@@ -105,9 +106,12 @@ class World:
     # ----- obstacles -----------------------------------------------------------------
     def obstacle_arrays(self) -> tuple[np.ndarray, np.ndarray]:
         """(ids int[K], centres float[K, 2]) in id order."""
-        ids = np.array(sorted(self.obstacles), dtype=int)
-        xy = np.array([self.obstacles[i] for i in ids], dtype=float).reshape(-1, 2)
-        return ids, xy
+        key = tuple(self.obstacles)
+        if self._arrays is None or self._arrays[0] != key:
+            ids = np.array(sorted(self.obstacles), dtype=int)
+            xy = np.array([self.obstacles[i] for i in ids], dtype=float).reshape(-1, 2)
+            self._arrays = (key, ids, xy)
+        return self._arrays[1], self._arrays[2]
 
     def _robot_xy(self) -> np.ndarray:
         pts = [r.position[:2] for r in self.robots.values() if r.position is not None]

@@ -1,0 +1,144 @@
+"""dubins_robot_node: one simulated Dubins robot (see supersafe_ros.sim.dubins_sim).
+
+Topics (relative; run it in a namespace such as /robot_0):
+  sub  cmd_vel            geometry_msgs/Twist        angular.z, clipped to +-w_max (linear.x ignored)
+  sub  goal               geometry_msgs/PoseStamped  latched, from the world: a new goal = a new
+                                                     trip (the sensor's miss draws start afresh)
+  sub  /obstacle_markers  visualization_msgs/MarkerArray  latched, obstacle ids and centres
+  pub  pose               geometry_msgs/PoseStamped  frame map, every step
+  pub  detections         geometry_msgs/PoseArray    frame map, obstacle centres seen; on every
+                                                     change and every detections_period
+  pub  step_done          rosgraph_msgs/Clock        lockstep acknowledgement (see sim_clock_node)
+
+Steps run on a timer of the node's clock: with use_sim_time they follow /clock.
+Each step integrates the exact arc from the previous step time under the command
+in force. Lockstep: after publishing the pose of step t the robot acknowledges t
+on ``step_done`` once a command has arrived in reply (or at once when it has no
+live controller: parked or timed out), so the clock never outruns the control loop.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import rclpy
+from rclpy.node import Node
+
+from geometry_msgs.msg import PoseStamped, Twist, PoseArray
+from rosgraph_msgs.msg import Clock
+from visualization_msgs.msg import MarkerArray
+
+from .. import rosmsg
+from ..sim.dubins_sim import LossySensor, RobotSim, TIMEOUT_BEHAVIORS
+from .common import declare, run_node
+from .markers import ObstacleMarkers
+
+
+class DubinsRobotNode(Node):
+    def __init__(self):
+        super().__init__('dubins_robot')
+        p = lambda *a, **k: declare(self, *a, **k)  # noqa: E731
+        x0 = p('initial_x', -17.0, 'initial x in map [m]', -1e4, 1e4)
+        y0 = p('initial_y', 0.0, 'initial y in map [m]', -1e4, 1e4)
+        th0 = p('initial_theta', 0.0, 'initial heading [rad], 0 = +x', -math.pi, math.pi)
+        speed = p('speed', 3.0, 'fixed forward speed [m/s]', 0.01, 100.0)
+        w_max = p('w_max', 1.0, 'turn-rate bound [rad/s]; commands are clipped to it', 0.0, 20.0)
+        rate = p('rate', 20.0, 'integration and publishing rate [Hz of the node clock]', 1.0, 1000.0)
+        rng_ = p('sensor_range', 10.0, 'obstacles within this distance of the robot are sensed [m]',
+                 0.1, 1e3)
+        miss = p('miss_probability', 0.2, 'probability that an obstacle is missed for a whole trip',
+                 0.0, 1.0)
+        timeout = p('command_timeout', 0.5, 'no cmd_vel for this long [s] -> fail-safe behaviour',
+                    0.01, 100.0)
+        behavior = p('timeout_behavior', 'loiter',
+                     f'fail-safe after command_timeout: one of {TIMEOUT_BEHAVIORS} '
+                     '(loiter = turn at +w_max on a circle of radius speed/w_max)')
+        seed = p('seed', -1, 'random seed of the sensor misses (-1: from the OS)', -1, 2**31 - 1)
+        self.detections_period = p(
+            'detections_period', 0.25,
+            'detections are published when the seen set changes and at least this often [s]; '
+            '0 = every step', 0.0, 100.0)
+        self.lockstep = p('lockstep', True, 'acknowledge each step on step_done (for sim_clock_node)')
+        self.frame = p('frame_id', rosmsg.MAP_FRAME, 'frame of pose and detections')
+
+        self.robot = RobotSim([x0, y0, th0], speed=speed, omega_max=w_max,
+                              command_timeout=timeout, timeout_behavior=behavior)
+        rng = np.random.default_rng(None if seed < 0 else seed)
+        self.sensor = LossySensor(sensor_range=rng_, miss_probability=miss, rng=rng)
+        self.obstacles = ObstacleMarkers()
+        self.pending_ack = None     # sim time (ns) of a step awaiting its command
+        self.last_seen = None       # ids in the last detections message
+        self.last_detections_t = -float('inf')
+        self.steps = 0
+
+        self.pose_pub = self.create_publisher(PoseStamped, 'pose', rosmsg.QOS_STREAM)
+        self.det_pub = self.create_publisher(PoseArray, 'detections', rosmsg.QOS_STREAM)
+        self.ack_pub = self.create_publisher(Clock, 'step_done', rosmsg.QOS_CLOCK)
+        self.create_subscription(Twist, 'cmd_vel', self.on_cmd, rosmsg.QOS_STREAM)
+        self.create_subscription(PoseStamped, 'goal', self.on_goal, rosmsg.QOS_LATCHED)
+        self.create_subscription(MarkerArray, '/obstacle_markers', self.on_markers,
+                                 rosmsg.QOS_LATCHED)
+        self.timer = self.create_timer(1.0 / rate, self.step)
+        self.get_logger().info(
+            f'robot at ({x0:.2f}, {y0:.2f}, {th0:.2f}) speed {speed} w_max {w_max} rate {rate} Hz, '
+            f'sensor range {rng_} m, miss p {miss}, fail-safe {behavior} after {timeout} s')
+
+    def now_s(self) -> float:
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    def on_cmd(self, msg: Twist):
+        try:
+            omega = rosmsg.twist_turn_rate(msg)
+            self.robot.command(omega, self.now_s())
+        except ValueError as exc:
+            self.get_logger().error(f'cmd_vel rejected: {exc}; keeping the previous command',
+                                    throttle_duration_sec=1.0)
+            return
+        if self.pending_ack is not None:
+            self.ack(self.pending_ack)
+
+    def on_goal(self, msg: PoseStamped):
+        self.sensor.new_trip()
+
+    def on_markers(self, msg: MarkerArray):
+        try:
+            self.obstacles.update(msg)
+        except ValueError as exc:
+            self.get_logger().error(f'/obstacle_markers rejected: {exc}')
+
+    def ack(self, t_ns: int):
+        self.pending_ack = None
+        out = Clock()
+        out.clock.sec, out.clock.nanosec = divmod(int(t_ns), 1_000_000_000)
+        self.ack_pub.publish(out)
+
+    def step(self):
+        stamp = self.get_clock().now()
+        now = stamp.nanoseconds * 1e-9
+        state = self.robot.advance(now)
+        self.steps += 1
+        ids, xy = self.obstacles.arrays()
+        seen_ids, seen = self.sensor.sense(state[:2], ids, xy)
+        msg_stamp = stamp.to_msg()
+        self.pose_pub.publish(rosmsg.state_to_pose(state, msg_stamp, self.frame))
+        # detections change rarely: send them on change and as a heartbeat, which keeps
+        # every consumer fresh at a fraction of the per-step traffic
+        seen_key = tuple(seen_ids.tolist())
+        if (seen_key != self.last_seen
+                or now - self.last_detections_t >= self.detections_period - 1e-9):
+            self.det_pub.publish(rosmsg.xy_to_posearray(seen, msg_stamp, self.frame))
+            self.last_seen = seen_key
+            self.last_detections_t = now
+        if self.lockstep:
+            if self.robot.mode(now) == 'commanded':
+                self.pending_ack = stamp.nanoseconds   # acknowledged when the reply arrives
+            else:
+                self.ack(stamp.nanoseconds)
+
+
+def main(args=None):
+    return run_node(DubinsRobotNode, args)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

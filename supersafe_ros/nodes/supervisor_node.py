@@ -1,0 +1,118 @@
+"""supervisor_node: the simulated noisy idealized supervisor (paper Sec. III-B).
+
+Its internal value function V_S is its own: a Dubins car with the supervisor's
+belief of the turn-rate bound ``w_max``, obstacle ``radius`` and ``horizon``
+(computed or loaded from the cache by reach.library.load_or_solve). It never reads
+the learner's value function. It watches every robot pose against every obstacle
+and, per approach, intervenes when V_S(x_rel) <= mu + w, w ~ N(0, sigma^2) drawn once
+per approach (supersafe_ros.sim.watcher).
+
+  sub  /<robot>/pose         geometry_msgs/PoseStamped  every pose (deep queue)
+  sub  /obstacle_markers     visualization_msgs/MarkerArray  latched, obstacle ids and centres
+  pub  /interventions        geometry_msgs/PoseStamped  the robot's pose relative to the obstacle
+                             (obstacle at the origin, axes as map); frame obstacle_<id>,
+                             stamp = sim time of the judged pose. The world removes that obstacle.
+  pub  /supervisor/decisions diagnostic_msgs/DiagnosticStatus  robot, obstacle, V_S, threshold
+"""
+from __future__ import annotations
+
+import numpy as np
+from rclpy.node import Node
+from rclpy.time import Time
+
+from diagnostic_msgs.msg import DiagnosticStatus
+from geometry_msgs.msg import PoseStamped
+from visualization_msgs.msg import MarkerArray
+
+from .. import rosmsg
+from ..reach.grid import Grid
+from ..sim.watcher import Watcher
+from .common import declare, run_node
+from .markers import ObstacleMarkers
+
+
+def supervisor_value_function(grid: Grid, speed: float, w_max: float, radius: float, horizon: float):
+    """V_S from the lead's cached library solver when present, else solved here."""
+    try:
+        from ..reach.library import load_or_solve
+    except ImportError:
+        load_or_solve = None
+    if load_or_solve is not None:
+        return load_or_solve(grid, speed, w_max, radius, horizon)
+    from ..reach.dynamics import DubinsCar
+    from ..reach.sets import Disc
+    from ..reach.solver import solve_avoid
+    return solve_avoid(grid, DubinsCar(speed, w_max), Disc(0.0, 0.0, radius), horizon=horizon)
+
+
+class SupervisorNode(Node):
+    def __init__(self):
+        super().__init__('supervisor')
+        p = lambda *a, **k: declare(self, *a, **k)  # noqa: E731
+        w_max = p('w_max', 0.75, "the supervisor's belief of the robots' turn-rate bound [rad/s]",
+                  0.0, 20.0)
+        speed = p('speed', 3.0, "the supervisor's belief of the robots' speed [m/s]", 0.01, 100.0)
+        radius = p('radius', 1.8, "the supervisor's belief of the obstacle radius [m]", 0.01, 100.0)
+        horizon = p('horizon', 3.0, 'horizon of V_S [s]', 0.0, 100.0)
+        mu = p('mu', 0.5, 'intervention level mu of V_S', -100.0, 100.0)
+        sigma = p('sigma', 0.2, 'std of the per-approach noise w', 0.0, 100.0)
+        seed = p('seed', -1, 'random seed of the noise (-1: from the OS)', -1, 2**31 - 1)
+        pending = p('pending_timeout', 5.0,
+                    'sim seconds to wait for a removal before judging that obstacle again', 0.01, 1e4)
+        half = p('grid_half_width', 8.0, 'V_S grid spans +-this in x and y [m]', 1.0, 100.0)
+        nxy = p('grid_nxy', 65, 'V_S grid nodes per axis in x and y', 5, 1001)
+        nth = p('grid_ntheta', 42, 'V_S grid nodes in theta', 4, 720)
+        self.robots = [r.strip('/') for r in p('robots', ['robot_0'], 'robot namespaces to watch')]
+
+        grid = Grid((-half, -half), (half, half), (nxy, nxy, nth))
+        vf = supervisor_value_function(grid, speed, w_max, radius, horizon)
+        self.watcher = Watcher(vf, mu=mu, sigma=sigma, pending_timeout=pending,
+                               rng=np.random.default_rng(None if seed < 0 else seed))
+        self.params = {'w_max': w_max, 'mu': mu, 'sigma': sigma, 'horizon': horizon, 'radius': radius}
+        self.obstacles = ObstacleMarkers()
+        self.intervention_pub = self.create_publisher(PoseStamped, '/interventions', rosmsg.QOS_EVENTS)
+        self.decision_pub = self.create_publisher(DiagnosticStatus, '/supervisor/decisions',
+                                                  rosmsg.QOS_EVENTS)
+        self.create_subscription(MarkerArray, '/obstacle_markers', self.on_markers, rosmsg.QOS_LATCHED)
+        for r in self.robots:
+            self.create_subscription(PoseStamped, f'/{r}/pose', lambda m, r=r: self.on_pose(r, m),
+                                     rosmsg.QOS_EVERY_SAMPLE)
+        self.get_logger().info(f'supervisor: V_S with w_max={w_max}, radius={radius}, '
+                               f'horizon={horizon}; mu={mu}, sigma={sigma}; watching {self.robots}')
+
+    def on_markers(self, msg: MarkerArray):
+        try:
+            self.obstacles.update(msg)
+        except ValueError as exc:
+            self.get_logger().error(f'/obstacle_markers rejected: {exc}')
+            return
+        self.watcher.obstacles_changed(self.obstacles.arrays()[0])
+
+    def on_pose(self, robot, msg: PoseStamped):
+        try:
+            state = rosmsg.pose_to_state(msg)
+        except rosmsg.MessageError as exc:
+            self.get_logger().error(f'pose of {robot} rejected: {exc}', throttle_duration_sec=1.0)
+            return
+        t = Time.from_msg(msg.header.stamp).nanoseconds * 1e-9
+        ids, xy = self.obstacles.arrays()
+        decision = self.watcher.judge(robot, state, t, ids, xy)
+        if decision is None:
+            return
+        out = rosmsg.state_to_pose(decision.rel_state, msg.header.stamp,
+                                   rosmsg.obstacle_frame(decision.obstacle_id))
+        self.intervention_pub.publish(out)
+        values = {'robot': robot, 'obstacle': decision.obstacle_id, 'time': f'{t:.3f}',
+                  'value': f'{decision.value:.4f}', 'threshold': f'{decision.threshold:.4f}'}
+        values.update(self.params)
+        self.decision_pub.publish(rosmsg.make_diagnostic('intervention', values))
+        self.get_logger().info(f'intervene: {robot} at V_S={decision.value:.3f} <= '
+                               f'{decision.threshold:.3f} near obstacle {decision.obstacle_id}')
+
+
+def main(args=None):
+    return run_node(SupervisorNode, args)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

@@ -1,0 +1,182 @@
+"""world_node: the team task (supersafe_ros.sim.world) on topics.
+
+  sub  /<robot>/pose           geometry_msgs/PoseStamped  trips and crashes, per pose
+  sub  /<robot>/detections     geometry_msgs/PoseArray    what each robot saw (FP classification)
+  sub  /interventions          geometry_msgs/PoseStamped  removal request: frame obstacle_<id>,
+                                                          pose of the robot relative to it
+  pub  /obstacles              geometry_msgs/PoseArray    latched, centres (map), on change
+  pub  /obstacle_markers       visualization_msgs/MarkerArray  latched, DELETEALL + one
+                                                          CYLINDER per obstacle (id = obstacle id)
+  pub  /<robot>/goal           geometry_msgs/PoseStamped  latched; each new goal = a new trip
+  pub  /world/stats            diagnostic_msgs/DiagnosticStatus  latched, every stats_period
+  pub  /world/intervention_log diagnostic_msgs/DiagnosticStatus  one per accepted intervention
+  pub  /world/events           diagnostic_msgs/DiagnosticStatus  one per trip and per crash
+
+Robots are listed in the ``robots`` parameter (namespaces). An intervention naming an
+unknown obstacle (already removed, or not an obstacle frame) is rejected and logged.
+"""
+from __future__ import annotations
+
+from rclpy.node import Node
+from rclpy.time import Time
+
+from diagnostic_msgs.msg import DiagnosticStatus
+from geometry_msgs.msg import PoseArray, PoseStamped
+from visualization_msgs.msg import MarkerArray
+
+from .. import rosmsg
+from ..sim.world import World, WorldConfig
+from .common import declare, run_node
+from .markers import obstacles_to_markers
+
+# deep queues: the world must see every pose (a crash can last a single step)
+QOS_EVERY_POSE = rosmsg.QOS_EVERY_SAMPLE
+
+
+class WorldNode(Node):
+    def __init__(self):
+        super().__init__('world')
+        p = lambda *a, **k: declare(self, *a, **k)  # noqa: E731
+        d = WorldConfig()
+        cfg = WorldConfig(
+            half_width=p('half_width', d.half_width, 'field spans x in +-half_width [m]', 1.0, 1e4),
+            half_height=p('half_height', d.half_height, 'field spans y in +-half_height [m]', 1.0, 1e4),
+            goal_x=p('goal_x', d.goal_x, 'goal lines at x = +-goal_x; crossing one ends a trip [m]',
+                     0.1, 1e4),
+            n_obstacles=p('n_obstacles', d.n_obstacles, 'number of obstacles', 0, 1000),
+            radius=p('radius', d.radius, 'obstacle radius [m]', 0.01, 100.0),
+            spacing=p('spacing', d.spacing, 'least gap between obstacle discs [m]', 0.0, 100.0),
+            goal_margin=p('goal_margin', d.goal_margin,
+                          'obstacle centres stay this far inside the goal lines [m]', 0.0, 1e3),
+            respawn_clearance=p('respawn_clearance', d.respawn_clearance,
+                                'a new obstacle appears at least this far from every robot [m]',
+                                0.0, 1e3),
+            near_distance=p('near_distance', d.near_distance,
+                            'robots within this distance of a removed obstacle decide whether the '
+                            'intervention was a false positive [m]', 0.01, 1e3),
+            detection_tolerance=p('detection_tolerance', d.detection_tolerance,
+                                  'a detection this close to a centre names that obstacle [m]',
+                                  0.001, 100.0),
+            trip_reward=p('trip_reward', d.trip_reward, 'score per completed trip', 0.0, 1e6),
+            crash_penalty=p('crash_penalty', d.crash_penalty, 'score lost per crash', 0.0, 1e6),
+            intervention_penalty=p('intervention_penalty', d.intervention_penalty,
+                                   'score lost per intervention (paper: half a crash)', 0.0, 1e6),
+        )
+        self.robots = [r.strip('/') for r in p('robots', ['robot_0'], 'robot namespaces in the team')]
+        seed = p('seed', 0, 'random seed of obstacle placement and goals (-1: from the OS)',
+                 -1, 2**31 - 1)
+        stats_period = p('stats_period', 1.0, 'sim seconds between /world/stats messages', 0.01, 1e4)
+        self.match_tolerance = p('robot_match_tolerance', 1.0,
+                                 'an intervention pose names the robot within this distance [m]',
+                                 0.001, 100.0)
+        self.world = World(cfg, self.robots, seed=None if seed < 0 else seed)
+
+        self.obstacles_pub = self.create_publisher(PoseArray, '/obstacles', rosmsg.QOS_LATCHED)
+        self.markers_pub = self.create_publisher(MarkerArray, '/obstacle_markers', rosmsg.QOS_LATCHED)
+        self.stats_pub = self.create_publisher(DiagnosticStatus, '/world/stats', rosmsg.QOS_LATCHED)
+        self.log_pub = self.create_publisher(DiagnosticStatus, '/world/intervention_log',
+                                             rosmsg.QOS_EVENTS)
+        self.events_pub = self.create_publisher(DiagnosticStatus, '/world/events', rosmsg.QOS_EVENTS)
+        self.goal_pubs = {}
+        for r in self.robots:
+            self.goal_pubs[r] = self.create_publisher(PoseStamped, f'/{r}/goal', rosmsg.QOS_LATCHED)
+            self.create_subscription(PoseStamped, f'/{r}/pose',
+                                     lambda m, r=r: self.on_pose(r, m), QOS_EVERY_POSE)
+            self.create_subscription(PoseArray, f'/{r}/detections',
+                                     lambda m, r=r: self.on_detections(r, m), QOS_EVERY_POSE)
+        self.create_subscription(PoseStamped, '/interventions', self.on_intervention,
+                                 rosmsg.QOS_EVENTS)
+        self.create_timer(stats_period, self.publish_stats)
+        self.publish_obstacles()
+        self.publish_stats()
+        self.get_logger().info(f'world: {cfg.n_obstacles} obstacles r={cfg.radius}, '
+                               f'robots {self.robots}')
+
+    def now_s(self) -> float:
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    def publish_obstacles(self):
+        ids, xy = self.world.obstacle_arrays()
+        stamp = self.get_clock().now().to_msg()
+        self.obstacles_pub.publish(rosmsg.xy_to_posearray(xy, stamp))
+        self.markers_pub.publish(obstacles_to_markers(ids, xy, self.world.config.radius, stamp))
+
+    def publish_goal(self, robot):
+        goal = self.world.robots[robot].goal
+        r = self.world.robots[robot]
+        heading = 0.0 if r.side > 0 else 3.141592653589793
+        self.goal_pubs[robot].publish(rosmsg.state_to_pose((goal[0], goal[1], heading),
+                                                           self.get_clock().now().to_msg()))
+
+    def stats_values(self) -> dict:
+        values = dict(self.world.stats())
+        values['sim_time'] = f'{self.now_s():.3f}'
+        for name, r in self.world.robots.items():
+            values[f'{name}/trips'] = r.trips
+            values[f'{name}/crashes'] = r.crashes
+        values['relaxed_spawns'] = self.world.relaxed_spawns
+        return values
+
+    def publish_stats(self):
+        self.stats_pub.publish(rosmsg.make_diagnostic('world', self.stats_values()))
+
+    def on_pose(self, robot, msg: PoseStamped):
+        try:
+            state = rosmsg.pose_to_state(msg)
+            first = self.world.robots[robot].position is None
+            events = self.world.update_pose(robot, state)
+        except ValueError as exc:
+            self.get_logger().error(f'pose of {robot} rejected: {exc}', throttle_duration_sec=1.0)
+            return
+        t = Time.from_msg(msg.header.stamp).nanoseconds * 1e-9
+        if first or events['trip']:
+            self.publish_goal(robot)
+        if events['trip']:
+            self.events_pub.publish(rosmsg.make_diagnostic('trip', {
+                'robot': robot, 'time': f'{t:.3f}', 'trips': self.world.robots[robot].trips}))
+        for oid in events['crashed']:
+            self.get_logger().warn(f'{robot} crashed into obstacle {oid} at t={t:.2f}')
+            self.events_pub.publish(rosmsg.make_diagnostic('crash', {
+                'robot': robot, 'obstacle': oid, 'time': f'{t:.3f}',
+                'x': f'{state[0]:.3f}', 'y': f'{state[1]:.3f}'}, level=1))
+
+    def on_detections(self, robot, msg: PoseArray):
+        try:
+            xy = rosmsg.posearray_to_xy(msg)
+            self.world.update_detections(robot, xy, Time.from_msg(msg.header.stamp).nanoseconds * 1e-9)
+        except ValueError as exc:
+            self.get_logger().error(f'detections of {robot} rejected: {exc}', throttle_duration_sec=1.0)
+
+    def on_intervention(self, msg: PoseStamped):
+        try:
+            oid = rosmsg.parse_obstacle_frame(msg.header.frame_id)
+            rel = rosmsg.pose_to_state(msg, frame=None)
+        except rosmsg.MessageError as exc:
+            self.get_logger().error(f'intervention rejected: {exc}')
+            return
+        if oid not in self.world.obstacles:
+            self.get_logger().error(f'intervention rejected: obstacle {oid} does not exist '
+                                    '(already removed?)')
+            return
+        centre = self.world.obstacles[oid]
+        robot = self.world.robot_at(centre + rel[:2], self.match_tolerance)
+        t = Time.from_msg(msg.header.stamp).nanoseconds * 1e-9 or self.now_s()
+        record, new_id = self.world.intervene(oid, t, robot)
+        self.publish_obstacles()
+        self.log_pub.publish(rosmsg.make_diagnostic('intervention', {
+            'obstacle': oid, 'robot': robot or 'unknown', 'false_positive': record.false_positive,
+            'time': f'{t:.3f}', 'near_robots': ','.join(record.near_robots),
+            'undetected_by': ','.join(record.undetected_by), 'new_obstacle': new_id,
+            'rel_x': f'{rel[0]:.4f}', 'rel_y': f'{rel[1]:.4f}', 'rel_theta': f'{rel[2]:.4f}'}))
+        self.get_logger().info(f'intervention on obstacle {oid} for {robot}: '
+                               f'{"false positive" if record.false_positive else "needed"}; '
+                               f'new obstacle {new_id}')
+        self.publish_stats()
+
+
+def main(args=None):
+    return run_node(WorldNode, args)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

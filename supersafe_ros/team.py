@@ -1,0 +1,436 @@
+"""`supersafe team`: run the ROS 2 node graph of a robot team as separate processes.
+
+The same graph as launch/team.launch.py, for machines without `ros2 launch`:
+sim_clock, world, N x (dubins_robot, planner, safety_filter) in /robot_<i>,
+learner and supervisor, each a child process with the shared ROS_DOMAIN_ID and
+loopback-only discovery, parameters from config/*.yaml (ament index share
+directory, else the source tree) plus per-process ``-p`` overrides.
+
+``team_processes(...)`` returns the argv of every process so the study can start
+the same graph its own way; ``run_team(...)`` starts them, prints /world/stats as
+they come, stops at ``duration`` sim seconds (the clock stops there) or on
+Ctrl-C/SIGTERM (SIGINT to every child, a grace period, then SIGKILL), and
+returns the last stats.
+"""
+from __future__ import annotations
+
+import argparse
+from dataclasses import dataclass, field
+import importlib.util
+import math
+import os
+from pathlib import Path
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+PACKAGE = 'supersafe_ros'
+CONFIG_FILES = {
+    'sim_clock': 'clock.yaml', 'world': 'world.yaml', 'dubins_robot': 'robot.yaml',
+    'planner': 'planner.yaml', 'safety_filter': 'safety_filter.yaml',
+    'learner': 'learner.yaml', 'supervisor': 'supervisor.yaml',
+}
+NODE_MODULES = {
+    'sim_clock': 'sim_clock_node', 'world': 'world_node', 'dubins_robot': 'dubins_robot_node',
+    'planner': 'planner_node', 'safety_filter': 'safety_filter_node',
+    'learner': 'learner_node', 'supervisor': 'supervisor_node',
+}
+
+
+def config_dir() -> Path:
+    """share/supersafe_ros/config from the ament index, else the source tree's config/."""
+    try:
+        from ament_index_python.packages import get_package_share_directory
+        shared = Path(get_package_share_directory(PACKAGE)) / 'config'
+        if (shared / 'world.yaml').is_file():
+            return shared
+    except Exception:  # not installed in an ament prefix (editable install, plain venv)
+        pass
+    return Path(__file__).resolve().parent.parent / 'config'
+
+
+def node_available(node: str) -> bool:
+    return importlib.util.find_spec(f'{PACKAGE}.nodes.{NODE_MODULES[node]}') is not None
+
+
+def robot_names(n_robots: int) -> list[str]:
+    return [f'robot_{i}' for i in range(n_robots)]
+
+
+def start_poses(n_robots: int, goal_x: float = 16.0, half_height: float = 12.0) -> list[tuple]:
+    """Robots start one metre behind the left goal line, spread in y, heading +x."""
+    ys = [0.0] if n_robots == 1 else [
+        -0.6 * half_height + 1.2 * half_height * i / (n_robots - 1) for i in range(n_robots)]
+    return [(-goal_x - 1.0, y, 0.0) for y in ys]
+
+
+def _param_value(v) -> str:
+    if isinstance(v, bool):
+        return 'true' if v else 'false'
+    if isinstance(v, (list, tuple)):
+        return '[' + ','.join(_param_value(x) for x in v) + ']'
+    if isinstance(v, float):
+        return repr(float(v))
+    return str(v)
+
+
+def node_argv(node: str, namespace: str | None = None, params: dict | None = None,
+              remaps: dict | None = None, config: Path | None = None,
+              python: str = sys.executable) -> list[str]:
+    """argv of one node process: python -m <module> --ros-args --params-file ... -r ... -p ..."""
+    argv = [python, '-m', f'{PACKAGE}.nodes.{NODE_MODULES[node]}', '--ros-args']
+    cfg = (config or config_dir()) / CONFIG_FILES[node]
+    if cfg.is_file():
+        argv += ['--params-file', str(cfg)]
+    if namespace:
+        argv += ['-r', f'__ns:=/{namespace.strip("/")}']
+    for src, dst in (remaps or {}).items():
+        argv += ['-r', f'{src}:={dst}']
+    for k, v in (params or {}).items():
+        argv += ['-p', f'{k}:={_param_value(v)}']
+    return argv
+
+
+def team_processes(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
+                   duration: float = 0.0, config: Path | None = None,
+                   overrides: dict | None = None, with_filter: bool | None = None,
+                   with_learner: bool | None = None, with_supervisor: bool = True,
+                   learner_store: str | Path | None = None,
+                   python: str = sys.executable) -> list[list[str]]:
+    """argv of every process of a team, in start order.
+
+    ``overrides``: {node kind: {param: value}} applied to every process of that kind
+    (e.g. {'supervisor': {'mu': 1.0}, 'safety_filter': {'alpha': 0.5}}).
+    ``with_filter``/``with_learner`` None: include them when their node module exists;
+    without a filter the planner publishes straight into cmd_vel (test wiring only).
+    ``learner_store``: the learner's intervention file; give each run its own (the
+    learner reloads whatever the file holds), None = the learner's default.
+    """
+    if n_robots < 1:
+        raise ValueError('a team needs at least one robot')
+    overrides = overrides or {}
+    with_filter = node_available('safety_filter') if with_filter is None else with_filter
+    with_learner = node_available('learner') if with_learner is None else with_learner
+    robots = robot_names(n_robots)
+    sim = {'use_sim_time': True}
+
+    def params(kind, base):
+        out = dict(base)
+        out.update(overrides.get(kind, {}))
+        return out
+
+    def argv(kind, namespace=None, base=None, remaps=None):
+        return node_argv(kind, namespace, params(kind, base or {}), remaps, config, python)
+
+    # world, planner, supervisor and learner take event times from message stamps and
+    # read the clock only for timeouts and statistics: they follow /clock_coarse and
+    # are spared a /clock callback every step
+    coarse = {'/clock': '/clock_coarse'}
+    procs = [argv('world', base={**sim, 'robots': robots, 'seed': seed}, remaps=coarse)]
+    step = 0.05
+    clock_over = overrides.get('sim_clock', {})
+    step = float(clock_over.get('step', step))
+    rate = 1.0 / step
+    for i, (name, pose) in enumerate(zip(robots, start_poses(n_robots))):
+        procs.append(argv('dubins_robot', name, {
+            **sim, 'initial_x': pose[0], 'initial_y': pose[1], 'initial_theta': pose[2],
+            'seed': seed * 1000 + i + 1, 'rate': rate}))
+        remaps = dict(coarse) if with_filter else {**coarse, 'cmd_vel_nav': 'cmd_vel'}
+        procs.append(argv('planner', name, sim, remaps))
+        if with_filter:
+            procs.append(argv('safety_filter', name, sim))
+    if with_learner:
+        store = {'store_path': str(learner_store)} if learner_store else {}
+        procs.append(argv('learner', None, {**sim, **store}, coarse))
+    if with_supervisor:
+        procs.append(argv('supervisor', None, {**sim, 'robots': robots, 'seed': seed * 1000 + 999},
+                          coarse))
+    # the clock starts sim time only once the whole graph is up (the supervisor and the
+    # filters may spend seconds loading value functions)
+    publishers = ['/obstacle_markers=1'] + [f'/{r}/cmd_vel=1' for r in robots]
+    if with_filter:
+        publishers += [f'/{r}/cmd_vel_nav=1' for r in robots]
+    if with_supervisor:
+        publishers.append('/interventions=1')
+    if with_learner:
+        publishers.append('/safe_set/value_function=1')
+    pose_readers = 2 + int(with_filter) + int(with_supervisor)   # world, planner, filter, supervisor
+    subscriptions = [f'/{r}/pose={pose_readers}' for r in robots]
+    procs.append(argv('sim_clock', None, {
+        'use_sim_time': False, 'robots': robots, 'rate_factor': float(rate_factor),
+        'duration': float(duration), 'step': step,
+        'wait_for_publishers': publishers, 'wait_for_subscriptions': subscriptions}))
+    return procs
+
+
+def process_name(argv: list[str]) -> str:
+    """A short label for a process argv: 'robot_0/planner', 'world', ..."""
+    module = next(a for a in argv if a.startswith(f'{PACKAGE}.nodes.'))
+    kind = module.rsplit('.', 1)[1].removesuffix('_node')
+    ns = next((a.split(':=', 1)[1].strip('/') for a in argv if a.startswith('__ns:=')), '')
+    return f'{ns}/{kind}' if ns else kind
+
+
+def team_env(domain_id: int | None = None, base: dict | None = None) -> dict:
+    """Environment of the children: loopback discovery and one shared ROS_DOMAIN_ID."""
+    from .rosenv import ensure_local_ros_env
+    env = dict(os.environ if base is None else base)
+    ensure_local_ros_env(env)
+    if domain_id is not None:
+        env['ROS_DOMAIN_ID'] = str(int(domain_id))
+    elif 'ROS_DOMAIN_ID' not in env:
+        env['ROS_DOMAIN_ID'] = str(100 + os.getpid() % 100)
+    env.setdefault('ROS_LOG_DIR', os.path.join(os.environ.get('TMPDIR', '/tmp'), 'supersafe-ros-log'))
+    env['PYTHONUNBUFFERED'] = '1'
+    return env
+
+
+@dataclass
+class Team:
+    """Running child processes of a team."""
+
+    argvs: list
+    env: dict
+    log_dir: Path
+    procs: list = field(default_factory=list)
+    logs: list = field(default_factory=list)
+
+    def start(self):
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        for argv in self.argvs:
+            name = process_name(argv)
+            log = open(self.log_dir / (name.replace('/', '.') + '.log'), 'w')
+            self.logs.append(log)
+            # own session: a terminal Ctrl-C reaches the runner only, which then
+            # stops the children in order
+            self.procs.append(subprocess.Popen(argv, env=self.env, stdout=log,
+                                               stderr=subprocess.STDOUT, start_new_session=True))
+        return self
+
+    def dead(self) -> list[str]:
+        return [process_name(a) for a, p in zip(self.argvs, self.procs) if p.poll() is not None]
+
+    def cpu_seconds(self) -> dict:
+        """User + system CPU seconds used so far by each child (Linux /proc; {} elsewhere)."""
+        out = {}
+        tick = os.sysconf('SC_CLK_TCK') if hasattr(os, 'sysconf') else 100
+        for argv, p in zip(self.argvs, self.procs):
+            try:
+                with open(f'/proc/{p.pid}/stat') as f:
+                    fields = f.read().rsplit(')', 1)[1].split()
+                out[process_name(argv)] = (int(fields[11]) + int(fields[12])) / tick
+            except (OSError, IndexError, ValueError):
+                pass
+        return out
+
+    def stop(self, grace: float = 5.0) -> dict:
+        """SIGINT every child, wait up to ``grace`` s, SIGKILL the rest; returns exit codes."""
+        for p in self.procs:
+            if p.poll() is None:
+                try:
+                    p.send_signal(signal.SIGINT)
+                except ProcessLookupError:
+                    pass
+        deadline = time.monotonic() + grace
+        for p in self.procs:
+            try:
+                p.wait(timeout=max(0.0, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+        for log in self.logs:
+            log.close()
+        return {process_name(a): p.returncode for a, p in zip(self.argvs, self.procs)}
+
+
+class TeamMonitor:
+    """A small rclpy node in the runner: collects /world/stats and /sim/clock_status."""
+
+    def __init__(self, env: dict):
+        from .rosenv import ensure_local_ros_env
+        ensure_local_ros_env()
+        os.environ['ROS_DOMAIN_ID'] = env['ROS_DOMAIN_ID']
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+        from diagnostic_msgs.msg import DiagnosticStatus
+        from . import rosmsg
+        self.rclpy = rclpy
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, args=[])
+        self.node = rclpy.create_node('team_monitor', context=self.context)
+        self.stats = {}
+        self.clock = {}
+        self.interventions = []
+        self.lock = threading.Lock()
+        self.node.create_subscription(DiagnosticStatus, '/world/stats',
+                                      lambda m: self._set('stats', rosmsg.diagnostic_values(m)),
+                                      rosmsg.QOS_LATCHED)
+        self.node.create_subscription(DiagnosticStatus, '/sim/clock_status',
+                                      lambda m: self._set('clock', rosmsg.diagnostic_values(m)),
+                                      rosmsg.QOS_LATCHED)
+        self.node.create_subscription(DiagnosticStatus, '/world/intervention_log',
+                                      lambda m: self.interventions.append(rosmsg.diagnostic_values(m)),
+                                      rosmsg.QOS_EVENTS)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.thread = threading.Thread(target=self._spin, daemon=True)
+        self.thread.start()
+
+    def _set(self, attr, values):
+        with self.lock:
+            setattr(self, attr, values)
+
+    def _spin(self):
+        try:
+            self.executor.spin()
+        except Exception:
+            pass
+
+    def snapshot(self):
+        with self.lock:
+            return dict(self.stats), dict(self.clock)
+
+    def close(self):
+        # stop the context first so spin() returns, then tear down in this thread
+        self.rclpy.try_shutdown(context=self.context)
+        self.thread.join(timeout=2.0)
+        try:
+            self.executor.shutdown()
+            self.node.destroy_node()
+        except Exception:
+            pass
+
+
+def format_stats(stats: dict, clock: dict) -> str:
+    keys = ('trips', 'crashes', 'interventions', 'false_positives', 'score')
+    parts = [f'sim {clock.get("sim_time", stats.get("sim_time", "?"))} s',
+             f'x{clock.get("rate_factor_achieved", "?")}']
+    parts += [f'{k} {stats[k]}' for k in keys if k in stats]
+    return '  '.join(parts)
+
+
+def run_team(argvs: list[list[str]], duration: float = 0.0, timeout: float = 0.0,
+             domain_id: int | None = None, log_dir: Path | None = None,
+             print_period: float = 5.0, out=sys.stdout) -> dict:
+    """Run a team until ``duration`` sim seconds pass (0: until interrupted) or ``timeout``
+    wall seconds; returns {'stats', 'clock', 'interventions', 'exit_codes', 'dead', 'reason'}."""
+    env = team_env(domain_id)
+    log_dir = Path(log_dir or default_log_dir())
+    stop = threading.Event()
+    reason = ['interrupted']
+
+    def on_signal(signum, frame):
+        reason[0] = f'signal {signal.Signals(signum).name}'
+        stop.set()
+
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)} \
+        if threading.current_thread() is threading.main_thread() else {}
+    team = Team(argvs, env, log_dir)
+    monitor = None
+    print(f'team: {len(argvs)} processes, ROS_DOMAIN_ID={env["ROS_DOMAIN_ID"]}, logs in {log_dir}',
+          file=out, flush=True)
+    try:
+        team.start()
+        monitor = TeamMonitor(env)
+        wall0 = time.monotonic()
+        next_print = wall0 + print_period
+        cpu_at_start = None
+        while not stop.wait(0.2):
+            stats, clock = monitor.snapshot()
+            if cpu_at_start is None and clock:
+                cpu_at_start = team.cpu_seconds()   # the graph is up: start-up CPU ends here
+            if time.monotonic() >= next_print:
+                print(format_stats(stats, clock), file=out, flush=True)
+                next_print += print_period
+            dead = team.dead()
+            if dead:
+                reason[0] = f'processes exited: {dead}'
+                break
+            if duration > 0 and float(clock.get('sim_time', 0.0)) >= duration - 1e-6:
+                reason[0] = 'duration reached'
+                time.sleep(0.5)   # let the last stats arrive
+                break
+            if timeout > 0 and time.monotonic() - wall0 > timeout:
+                reason[0] = 'wall-clock timeout'
+                break
+    finally:
+        dead = team.dead()
+        cpu = team.cpu_seconds()
+        codes = team.stop()
+        stats, clock = monitor.snapshot() if monitor else ({}, {})
+        interventions = list(monitor.interventions) if monitor else []
+        if monitor:
+            monitor.close()
+        for s, h in old.items():
+            signal.signal(s, h)
+    print(f'team stopped ({reason[0]}): {format_stats(stats, clock)}', file=out, flush=True)
+    return {'stats': stats, 'clock': clock, 'interventions': interventions,
+            'exit_codes': codes, 'dead': dead, 'reason': reason[0], 'cpu_seconds': cpu,
+            'cpu_seconds_at_start': cpu_at_start or {}}
+
+
+def parse_overrides(items) -> dict:
+    """['supervisor.mu=1.0', ...] -> {'supervisor': {'mu': 1.0}} (values parsed as YAML)."""
+    import yaml
+    out: dict = {}
+    for item in items or []:
+        key, sep, value = item.partition('=')
+        node, dot, param = key.partition('.')
+        if not sep or not dot or node not in NODE_MODULES:
+            raise ValueError(f"override '{item}' is not <node>.<param>=<value> with node in "
+                             f'{sorted(NODE_MODULES)}')
+        out.setdefault(node, {})[param] = yaml.safe_load(value)
+    return out
+
+
+def add_parser(subparsers):
+    parser = subparsers.add_parser(
+        'team', help='run the ROS 2 node graph of a robot team as separate processes',
+        description=__doc__.splitlines()[0])
+    parser.add_argument('--robots', type=int, default=2, help='number of robots (default 2)')
+    parser.add_argument('--rate-factor', type=float, default=10.0,
+                        help='sim seconds per wall second (0: as fast as possible; default 10)')
+    parser.add_argument('--seed', type=int, default=0, help='seed of world, sensors, supervisor')
+    parser.add_argument('--duration', type=float, default=0.0,
+                        help='stop after this many sim seconds (default: run until Ctrl-C)')
+    parser.add_argument('--timeout', type=float, default=0.0, help='stop after this many wall seconds')
+    parser.add_argument('--domain-id', type=int, default=None, help='ROS_DOMAIN_ID (default: inherited)')
+    parser.add_argument('--log-dir', type=Path, default=None,
+                        help='per-process logs go here (default $TMPDIR/supersafe-team-<pid>)')
+    parser.add_argument('--learner-store', type=Path, default=None,
+                        help="the learner's intervention file (default <log-dir>/interventions.jsonl: "
+                             'a fresh subject per run)')
+    parser.add_argument('--no-filter', action='store_true',
+                        help='wire cmd_vel_nav straight into cmd_vel (testing only)')
+    parser.add_argument('--no-learner', action='store_true', help='leave the learner out')
+    parser.add_argument('--no-supervisor', action='store_true', help='leave the supervisor out')
+    parser.add_argument('--set', action='append', default=[], metavar='NODE.PARAM=VALUE',
+                        help='parameter override, e.g. --set supervisor.mu=1.0 (repeatable)')
+    parser.add_argument('--print-argv', action='store_true', help='print the processes and exit')
+    parser.set_defaults(func=run)
+    return parser
+
+
+def default_log_dir() -> Path:
+    return Path(os.environ.get('TMPDIR', '/tmp')) / f'supersafe-team-{os.getpid()}'
+
+
+def run(args) -> int:
+    log_dir = args.log_dir or default_log_dir()
+    argvs = team_processes(
+        args.robots, args.rate_factor, args.seed, args.duration,
+        overrides=parse_overrides(args.set),
+        with_filter=False if args.no_filter else None,
+        with_learner=False if args.no_learner else None,
+        with_supervisor=not args.no_supervisor,
+        learner_store=args.learner_store or log_dir / 'interventions.jsonl')
+    if args.print_argv:
+        for argv in argvs:
+            print(' '.join(argv))
+        return 0
+    result = run_team(argvs, args.duration, args.timeout, args.domain_id, log_dir)
+    if result['dead'] and result['reason'].startswith('processes exited'):
+        return 1
+    return 0
