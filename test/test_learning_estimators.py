@@ -292,3 +292,11 @@ def test_vectorised_newton_finds_the_same_maximum_as_lbfgsb(coarse_library, cond
     assert np.all(ll_n[fitted] >= ll_l[fitted] - 1e-6)           # never a worse optimum
     assert np.allclose(mu_n[fitted], mu_l[fitted], atol=1e-4)
     assert np.allclose(sd_n[fitted], sd_l[fitted], rtol=1e-4)
+
+
+def test_first_passage_says_so_when_no_encounter_has_an_intervention():
+    vf = linear_vf(-1.0, 0.0, 0.0, omega=1.0)
+    x = np.linspace(-6.0, -2.0, 9)
+    f = np.stack([x, np.zeros(9), np.zeros(9)], axis=1)
+    res = E.fit_first_passage([vf], [Encounter(f, False, k) for k in range(5)])
+    assert res.interventions == 0 and any('not identified' in n for n in res.notes)

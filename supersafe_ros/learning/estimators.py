@@ -537,6 +537,12 @@ def fit_first_passage(entries, encounters, *, true_vf=None, alpha_k=0.0, conditi
     at_floor = np.isfinite(sigma) & (sigma <= SIGMA_FLOOR * (1 + 1e-6))
     if at_floor.any():
         notes.append(f'sigma at the floor {SIGMA_FLOOR:g} for {int(at_floor.sum())} entries (degenerate data)')
+    unbounded = np.isfinite(sigma) & (sigma >= 0.5 / _TAU_MIN)
+    if unbounded.any():
+        notes.append(f'sigma unbounded (> {0.5 / _TAU_MIN:g}) for {int(unbounded.sum())} entries: '
+                     'the data do not pin the noise down')
+    if n_int == 0:
+        notes.append('no encounter ended in an intervention: mu and sigma are not identified')
     if conditional:
         notes.append('conditional likelihood: encounters without intervention were not recorded')
     return _result(entries, 'first-passage', mu, sigma, loglik, admissible, best, alpha_k, n_int,
