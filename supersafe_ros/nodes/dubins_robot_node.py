@@ -35,8 +35,8 @@ from .markers import ObstacleMarkers
 
 
 class DubinsRobotNode(Node):
-    def __init__(self):
-        super().__init__('dubins_robot')
+    def __init__(self, node_name='dubins_robot', **kwargs):
+        super().__init__(node_name, **kwargs)
         p = lambda *a, **k: declare(self, *a, **k)  # noqa: E731
         x0 = p('initial_x', -17.0, 'initial x in map [m]', -1e4, 1e4)
         y0 = p('initial_y', 0.0, 'initial y in map [m]', -1e4, 1e4)
@@ -93,7 +93,7 @@ class DubinsRobotNode(Node):
         except ValueError as exc:
             self.get_logger().error(f'cmd_vel rejected: {exc}; keeping the previous command',
                                     throttle_duration_sec=1.0)
-            return
+        # a reply, valid or not, ends the lockstep wait: waiting longer would not help
         if self.pending_ack is not None:
             self.ack(self.pending_ack)
 

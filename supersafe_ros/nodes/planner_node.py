@@ -19,8 +19,8 @@ from .common import declare, run_node
 
 
 class PlannerNode(Node):
-    def __init__(self):
-        super().__init__('planner')
+    def __init__(self, node_name='planner', **kwargs):
+        super().__init__(node_name, **kwargs)
         self.gain = declare(self, 'gain', 2.0, 'turn rate per radian of heading error [1/s]', 0.0, 100.0)
         self.w_max = declare(self, 'w_max', 1.0, 'largest turn rate the planner asks for [rad/s]',
                              0.0, 20.0)

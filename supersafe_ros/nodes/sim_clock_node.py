@@ -54,8 +54,8 @@ def parse_topic_counts(items) -> list[tuple[str, int]]:
 
 
 class SimClockNode(Node):
-    def __init__(self):
-        super().__init__('sim_clock')
+    def __init__(self, node_name='sim_clock', **kwargs):
+        super().__init__(node_name, **kwargs)
         if self.get_parameter('use_sim_time').value:
             self.get_logger().warn('use_sim_time is true for the clock source; forcing it off')
             self.set_parameters([Parameter('use_sim_time', Parameter.Type.BOOL, False)])

@@ -46,8 +46,8 @@ def supervisor_value_function(grid: Grid, speed: float, w_max: float, radius: fl
 
 
 class SupervisorNode(Node):
-    def __init__(self):
-        super().__init__('supervisor')
+    def __init__(self, node_name='supervisor', **kwargs):
+        super().__init__(node_name, **kwargs)
         p = lambda *a, **k: declare(self, *a, **k)  # noqa: E731
         w_max = p('w_max', 0.75, "the supervisor's belief of the robots' turn-rate bound [rad/s]",
                   0.0, 20.0)

@@ -34,8 +34,8 @@ QOS_EVERY_POSE = rosmsg.QOS_EVERY_SAMPLE
 
 
 class WorldNode(Node):
-    def __init__(self):
-        super().__init__('world')
+    def __init__(self, node_name='world', **kwargs):
+        super().__init__(node_name, **kwargs)
         p = lambda *a, **k: declare(self, *a, **k)  # noqa: E731
         d = WorldConfig()
         cfg = WorldConfig(
@@ -114,6 +114,7 @@ class WorldNode(Node):
         for name, r in self.world.robots.items():
             values[f'{name}/trips'] = r.trips
             values[f'{name}/crashes'] = r.crashes
+            values[f'{name}/detected'] = len(r.detections)
         values['relaxed_spawns'] = self.world.relaxed_spawns
         return values
 

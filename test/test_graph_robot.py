@@ -1,0 +1,144 @@
+"""dubins_robot_node at topic level: a real node in-process, on sim time driven by the test."""
+import math
+
+import numpy as np
+import pytest
+from rclpy.node import Node
+
+from geometry_msgs.msg import PoseArray, PoseStamped, Twist
+from visualization_msgs.msg import MarkerArray
+
+from supersafe_ros import rosmsg
+from supersafe_ros.nodes.dubins_robot_node import DubinsRobotNode
+from supersafe_ros.nodes.markers import obstacles_to_markers
+from supersafe_ros.reach.dynamics import DubinsCar
+from supersafe_ros.reach.grid import wrap_angle
+
+from test_graph_support import ClockDriver, Rosout, Spinner, matched, params, ros_context  # noqa: F401
+
+
+class Controller:
+    """Plays the safety filter: answers every pose with a cmd_vel of ``self.omega``."""
+
+    def __init__(self, node, ns):
+        self.omega = 0.0
+        self.poses, self.detections = [], []
+        self.cmd = node.create_publisher(Twist, f'{ns}/cmd_vel', rosmsg.QOS_STREAM)
+        self.pose_sub = node.create_subscription(PoseStamped, f'{ns}/pose', self.on_pose,
+                                                 rosmsg.QOS_EVERY_SAMPLE)
+        self.det_sub = node.create_subscription(PoseArray, f'{ns}/detections', self.detections.append,
+                                                rosmsg.QOS_EVERY_SAMPLE)
+        self.answer = True
+
+    def on_pose(self, msg):
+        self.poses.append((msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9,
+                           rosmsg.pose_to_state(msg)))
+        if self.answer:
+            t = Twist()
+            t.angular.z = float(self.omega)
+            self.cmd.publish(t)
+
+
+@pytest.fixture(scope='module')
+def rig(ros_context):
+    robot = DubinsRobotNode(context=ros_context, namespace='robot_0', parameter_overrides=params(
+        use_sim_time=True, initial_x=1.0, initial_y=-2.0, initial_theta=0.3, speed=3.0, w_max=1.0,
+        rate=20.0, command_timeout=0.5, seed=3, detections_period=0.0))
+    driver = Node('robot_test_driver', context=ros_context)
+    ctl = Controller(driver, '/robot_0')
+    clock = ClockDriver(driver, ['robot_0'])
+    rosout = Rosout(driver)
+    spin = Spinner(ros_context, robot, driver)
+    spin.until(lambda: matched(ctl.cmd, ctl.pose_sub, ctl.det_sub, clock.pub, *clock.subs),
+               10.0, 'robot and driver to match')
+    yield robot, ctl, clock, rosout, spin
+    spin.shutdown()
+    robot.destroy_node()
+    driver.destroy_node()
+
+
+def test_robot_integrates_commands_on_exact_arcs_and_clips_w_max(rig):
+    robot, ctl, clock, rosout, spin = rig
+    ctl.omega = -5.0                        # |u| > w_max: the robot turns at -1 rad/s
+    for _ in range(45):
+        clock.step(spin)
+    spin.until(lambda: ctl.poses and ctl.poses[-1][0] >= clock.now_ns * 1e-9 - 1e-9, 5.0, 'last pose')
+    times = np.array([t for t, _ in ctl.poses])
+    states = np.array([s for _, s in ctl.poses])
+    start = np.array([1.0, -2.0, 0.3])
+    parked = np.all(np.abs(states - start) < 1e-9, axis=1)
+    assert parked[0] and not parked[-1]
+    k0 = np.flatnonzero(parked)[-1]         # last pose before the first command took effect
+    expected = DubinsCar(3.0, 1.0).flow(np.repeat(start[None], len(times) - k0, 0), -1.0,
+                                        times[k0:] - times[k0])
+    assert states[k0:, :2] == pytest.approx(expected[:, :2], abs=1e-6)
+    assert np.all(np.abs(wrap_angle(states[k0:, 2] - expected[:, 2])) < 1e-6)
+    assert times[-1] - times[k0] > 1.5      # it really drove
+    assert np.all(np.diff(times) == pytest.approx(0.05, abs=1e-9))
+
+
+def test_robot_rejects_nan_command_keeps_previous_then_loiters(rig):
+    robot, ctl, clock, rosout, spin = rig
+    ctl.omega = -1.0
+    for _ in range(3):
+        clock.step(spin)
+    ctl.omega = float('nan')
+    n0 = len(ctl.poses)
+    for _ in range(30):
+        clock.step(spin)                    # still stepping: the node answers and keeps going
+    spin.until(lambda: rosout.has('dubins_robot', 'cmd_vel rejected', 'not finite'), 5.0,
+               'the rejection to be logged')
+    spin.until(lambda: len(ctl.poses) >= n0 + 30, 5.0, 'poses of every step')
+    th = np.array([s[2] for _, s in ctl.poses[n0 - 1:]])
+    rates = wrap_angle(np.diff(th)) / 0.05
+    # the last valid command (-1) stays in force until command_timeout (0.5 s), then the
+    # fail-safe loiter turns at +w_max
+    assert rates[0] == pytest.approx(-1.0, abs=1e-6)
+    assert rates[-1] == pytest.approx(1.0, abs=1e-6)
+    switch = np.flatnonzero(rates > 0)[0]
+    assert np.all(rates[:switch] == pytest.approx(-1.0, abs=1e-6))
+    assert np.all(rates[switch:] == pytest.approx(1.0, abs=1e-6))
+    assert 0.45 <= switch * 0.05 <= 0.65
+
+
+def test_robot_detections_within_range_missed_20_percent_per_trip(ros_context):
+    robot = DubinsRobotNode(context=ros_context, namespace='robot_1', parameter_overrides=params(
+        use_sim_time=True, initial_x=0.0, initial_y=0.0, initial_theta=0.0, sensor_range=6.0,
+        miss_probability=0.2, seed=11, detections_period=0.0))
+    driver = Node('sensor_test_driver', context=ros_context)
+    ctl = Controller(driver, '/robot_1')
+    ctl.answer = False                      # no commands: the robot stays parked
+    markers = driver.create_publisher(MarkerArray, '/obstacle_markers', rosmsg.QOS_LATCHED)
+    goal = driver.create_publisher(PoseStamped, '/robot_1/goal', rosmsg.QOS_LATCHED)
+    clock = ClockDriver(driver, ['robot_1'])
+    spin = Spinner(ros_context, robot, driver)
+    try:
+        spin.until(lambda: matched(markers, goal, ctl.det_sub, clock.pub, *clock.subs), 10.0, 'matching')
+        centres = np.array([[3.0, 0.0], [0.0, 4.0], [-5.0, 0.5], [2.0, -2.0], [4.0, 4.0], [9.0, 0.0]])
+        markers.publish(obstacles_to_markers(range(10, 16), centres, 1.8))
+        in_range = 5                        # (9, 0) is beyond 6 m
+        spin.until(lambda: (clock.step(spin) or True) and ctl.detections
+                   and len(ctl.detections[-1].poses) > 0, 10.0, 'obstacles to be sensed')
+        seen_fraction, patterns = [], set()
+        for trip in range(250):
+            goal.publish(rosmsg.state_to_pose((16.0 * (-1) ** trip, 0.0, 0.0)))
+            clock.step(spin)
+            clock.step(spin)
+            spin.until(lambda: ctl.detections and ctl.detections[-1].header.stamp.nanosec
+                       + ctl.detections[-1].header.stamp.sec * 10**9 == clock.now_ns, 5.0, 'detections')
+            a, b = ctl.detections[-2], ctl.detections[-1]
+            xy = rosmsg.posearray_to_xy(b)
+            assert np.array_equal(rosmsg.posearray_to_xy(a), xy)   # one draw per trip
+            d = np.hypot(*(xy[:, None] - centres[None]).transpose(2, 0, 1))
+            assert np.all(np.min(d, axis=1) < 1e-9)                  # real centres only
+            assert not np.any(np.min(d, axis=0)[5:] < 1e-9)          # nothing out of range
+            seen_fraction.append(len(xy) / in_range)
+            patterns.add(tuple(np.round(xy.ravel(), 3)))
+        missed = 1.0 - np.mean(seen_fraction)
+        # 1250 draws: sd of the fraction ~ 0.011
+        assert missed == pytest.approx(0.2, abs=0.05)
+        assert len(patterns) >= 8           # drawn again per trip
+    finally:
+        spin.shutdown()
+        robot.destroy_node()
+        driver.destroy_node()

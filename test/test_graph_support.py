@@ -1,0 +1,109 @@
+"""Plumbing of the sim-graph topic-level tests (no tests here).
+
+Nodes run in-process in the module's own rclpy Context, spun by hand with
+deadlines; the session's ROS_DOMAIN_ID and loopback discovery come from conftest.
+"""
+from __future__ import annotations
+
+import os
+import time
+
+import pytest
+from rclpy.parameter import Parameter
+
+from rcl_interfaces.msg import Log
+from rosgraph_msgs.msg import Clock
+
+from supersafe_ros import rosmsg
+from supersafe_ros.rosenv import ensure_local_ros_env
+
+
+@pytest.fixture(scope='module')
+def ros_context(tmp_path_factory):
+    ensure_local_ros_env()
+    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    os.environ.setdefault('SUPERSAFE_CACHE', str(tmp_path_factory.getbasetemp() / 'vf-cache'))
+    import rclpy
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    yield ctx
+    ctx.try_shutdown()
+
+
+def params(**values):
+    return [Parameter(k, value=v) for k, v in values.items()]
+
+
+class Spinner:
+    """One executor over the nodes of a test; spins until a condition or a deadline."""
+
+    def __init__(self, ctx, *nodes):
+        from rclpy.executors import SingleThreadedExecutor
+        self.executor = SingleThreadedExecutor(context=ctx)
+        for n in nodes:
+            self.executor.add_node(n)
+
+    def until(self, condition, timeout=5.0, what='condition'):
+        deadline = time.monotonic() + timeout
+        while True:
+            if condition():
+                return
+            if time.monotonic() > deadline:
+                raise AssertionError(f'timed out after {timeout} s waiting for {what}')
+            self.executor.spin_once(timeout_sec=0.005)
+
+    def spin_for(self, seconds):
+        """Spin a fixed time: only for checking that something does NOT happen."""
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline:
+            self.executor.spin_once(timeout_sec=0.005)
+
+    def shutdown(self):
+        self.executor.shutdown()
+
+
+def matched(*endpoints) -> bool:
+    """Every publisher has a subscriber and every subscription a publisher."""
+    for e in endpoints:
+        n = e.get_subscription_count() if hasattr(e, 'get_subscription_count') else e.get_publisher_count()
+        if n < 1:
+            return False
+    return True
+
+
+class Rosout:
+    """Collects /rosout so tests can check that a rejection was logged with its reason."""
+
+    def __init__(self, node):
+        self.logs = []
+        self.sub = node.create_subscription(Log, '/rosout', self.logs.append, 100)
+
+    def has(self, node_name: str, *words) -> bool:
+        return any(node_name in m.name and all(w in m.msg for w in words) for m in self.logs)
+
+
+class ClockDriver:
+    """Plays sim_clock_node for tests: publishes /clock steps and reads step_done acks."""
+
+    def __init__(self, node, robots=('robot_0',)):
+        self.pub = node.create_publisher(Clock, '/clock', rosmsg.QOS_CLOCK)
+        self.acks = {r: -1 for r in robots}
+        self.subs = [node.create_subscription(Clock, f'/{r}/step_done',
+                                              lambda m, r=r: self._ack(r, m), rosmsg.QOS_CLOCK)
+                     for r in robots]
+        self.now_ns = 0
+
+    def _ack(self, robot, msg):
+        self.acks[robot] = max(self.acks[robot], msg.clock.sec * 1_000_000_000 + msg.clock.nanosec)
+
+    def publish(self, t_ns):
+        msg = Clock()
+        msg.clock.sec, msg.clock.nanosec = divmod(int(t_ns), 1_000_000_000)
+        self.now_ns = int(t_ns)
+        self.pub.publish(msg)
+
+    def step(self, spinner, dt=0.05, timeout=5.0):
+        """Advance by dt and wait until every robot acknowledged the new time."""
+        self.publish(self.now_ns + int(round(dt * 1e9)))
+        spinner.until(lambda: all(a >= self.now_ns for a in self.acks.values()), timeout,
+                      f'step_done for t={self.now_ns * 1e-9:.3f}')

@@ -1,0 +1,229 @@
+"""world_node and supervisor_node at topic level: real nodes in-process, the test plays the robots."""
+import math
+
+import numpy as np
+import pytest
+from rclpy.node import Node
+
+from diagnostic_msgs.msg import DiagnosticStatus
+from geometry_msgs.msg import Pose, PoseArray, PoseStamped
+from visualization_msgs.msg import Marker, MarkerArray
+
+from supersafe_ros import rosmsg
+from supersafe_ros.nodes.markers import ObstacleMarkers, obstacles_to_markers
+from supersafe_ros.nodes.supervisor_node import SupervisorNode
+from supersafe_ros.nodes.world_node import WorldNode
+
+from test_graph_support import Rosout, Spinner, matched, params, ros_context  # noqa: F401
+
+ROBOTS = ['robot_0', 'robot_1']
+
+
+class Robots:
+    """Plays the robots' pose and detections publishers; records what the world says."""
+
+    def __init__(self, node):
+        self.pose = {r: node.create_publisher(PoseStamped, f'/{r}/pose', rosmsg.QOS_STREAM) for r in ROBOTS}
+        self.det = {r: node.create_publisher(PoseArray, f'/{r}/detections', rosmsg.QOS_STREAM)
+                    for r in ROBOTS}
+        self.intervene = node.create_publisher(PoseStamped, '/interventions', rosmsg.QOS_EVENTS)
+        self.goals = {r: [] for r in ROBOTS}
+        self.subs = [node.create_subscription(PoseStamped, f'/{r}/goal',
+                                              lambda m, r=r: self.goals[r].append(m), rosmsg.QOS_LATCHED)
+                     for r in ROBOTS]
+        self.obstacles = ObstacleMarkers()
+        self.marker_msgs = 0
+        self.stats, self.log, self.events = [], [], []
+
+        def on_markers(m):
+            self.obstacles.update(m)
+            self.marker_msgs += 1
+        self.subs += [
+            node.create_subscription(MarkerArray, '/obstacle_markers', on_markers, rosmsg.QOS_LATCHED),
+            node.create_subscription(DiagnosticStatus, '/world/stats',
+                                     lambda m: self.stats.append(rosmsg.diagnostic_values(m)),
+                                     rosmsg.QOS_LATCHED),
+            node.create_subscription(DiagnosticStatus, '/world/intervention_log',
+                                     lambda m: self.log.append(rosmsg.diagnostic_values(m)),
+                                     rosmsg.QOS_EVENTS),
+            node.create_subscription(DiagnosticStatus, '/world/events',
+                                     lambda m: self.events.append((m.name, rosmsg.diagnostic_values(m))),
+                                     rosmsg.QOS_EVENTS)]
+
+    def endpoints(self):
+        return [*self.pose.values(), *self.det.values(), self.intervene, *self.subs]
+
+    def send_pose(self, robot, x, y, th=0.0, t=0.0):
+        msg = PoseStamped()          # by hand: the tests send NaN the converters refuse
+        msg.header.frame_id = 'map'
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(round(t * 1e9)), 10**9)
+        msg.pose.position.x, msg.pose.position.y = float(x), float(y)
+        if math.isfinite(th):
+            msg.pose.orientation = rosmsg.yaw_to_quaternion(th)
+        self.pose[robot].publish(msg)
+
+    def send_detections(self, robot, xy):
+        self.det[robot].publish(rosmsg.xy_to_posearray(np.asarray(xy, dtype=float).reshape(-1, 2)))
+
+    def intervention(self, obstacle_id, rel, t=0.0, frame=None):
+        msg = rosmsg.state_to_pose(rel, frame=frame or rosmsg.obstacle_frame(obstacle_id))
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(round(t * 1e9)), 10**9)
+        self.intervene.publish(msg)
+
+
+@pytest.fixture(scope='module')
+def world_rig(ros_context):
+    world = WorldNode(context=ros_context, parameter_overrides=params(
+        robots=ROBOTS, seed=5, n_obstacles=4, stats_period=0.05, near_distance=6.0,
+        respawn_clearance=8.0))
+    driver = Node('world_test_driver', context=ros_context)
+    robots = Robots(driver)
+    rosout = Rosout(driver)
+    spin = Spinner(ros_context, world, driver)
+    spin.until(lambda: matched(*robots.endpoints()), 10.0, 'world and driver to match')
+    spin.until(lambda: len(robots.obstacles.centres) == 4 and robots.stats, 5.0, 'obstacles and stats')
+    yield world, robots, rosout, spin
+    spin.shutdown()
+    world.destroy_node()
+    driver.destroy_node()
+
+
+def latest(robots, key):
+    return robots.stats[-1].get(key)
+
+
+def test_world_counts_crash_once_per_entry_and_trips(world_rig):
+    world, robots, rosout, spin = world_rig
+    ids, xy = robots.obstacles.arrays()
+    cx, cy = xy[0]
+    robots.send_pose('robot_0', -17.0, 0.0, t=0.0)
+    spin.until(lambda: robots.goals['robot_0'], 5.0, 'the first goal')
+    first_goal = rosmsg.pose_to_state(robots.goals['robot_0'][-1])
+    assert first_goal[0] == pytest.approx(16.0)          # starts left: heads right
+    for k, dx in enumerate([-3.0, -1.0, 0.0, 1.0, 3.0, 0.5, 3.0]):   # in, stay, out, in, out
+        robots.send_pose('robot_0', cx + dx, cy, t=0.1 * (k + 1))
+    spin.until(lambda: latest(robots, 'robot_0/crashes') == '2', 5.0, 'two crashes')
+    crashes = [v for name, v in robots.events if name == 'crash']
+    assert [int(v['obstacle']) for v in crashes] == [int(ids[0])] * 2
+    robots.send_pose('robot_0', 16.5, 0.0, t=1.0)          # crosses the right goal line
+    spin.until(lambda: latest(robots, 'robot_0/trips') == '1', 5.0, 'a trip')
+    spin.until(lambda: len(robots.goals['robot_0']) >= 2, 5.0, 'the next goal')
+    assert rosmsg.pose_to_state(robots.goals['robot_0'][-1])[0] == pytest.approx(-16.0)
+    s = robots.stats[-1]
+    assert float(s['score']) == pytest.approx(10.0 - 2 * 20.0)
+
+
+def test_world_classifies_interventions_and_respawns_away_from_robots(world_rig):
+    world, robots, rosout, spin = world_rig
+    ids, xy = robots.obstacles.arrays()
+    # A and B: the two obstacles farthest apart, so each robot is near only its own one
+    d = np.hypot(*(xy[:, None] - xy[None]).transpose(2, 0, 1))
+    i, j = np.unravel_index(np.argmax(d), d.shape)
+    assert d[i, j] > 9.0 + 1e-6
+    a_id, b_id, a, b = int(ids[i]), int(ids[j]), xy[i], xy[j]
+    # robot_0 3 m left of A and has detected it; robot_1 3 m below B, saw nothing
+    robots.send_pose('robot_0', a[0] - 3.0, a[1], 0.0, t=2.0)
+    robots.send_pose('robot_1', b[0], b[1] - 3.0, math.pi / 2, t=2.0)
+    robots.send_detections('robot_0', [a])
+    robots.send_detections('robot_1', [])
+    spin.until(lambda: latest(robots, 'robot_0/detected') == '1' and robots.goals['robot_1'], 5.0,
+               'the world to hold the poses and detections')
+    n0 = len(robots.log)
+    robots.intervention(a_id, (-3.0, 0.0, 0.0), t=2.5)
+    spin.until(lambda: len(robots.log) == n0 + 1, 5.0, 'the first intervention record')
+    rec = robots.log[-1]
+    assert rec['obstacle'] == str(a_id) and rec['robot'] == 'robot_0'
+    assert rec['near_robots'] == 'robot_0'
+    assert rec['false_positive'] == 'True'      # every robot near A had detected it
+    robots.intervention(b_id, (0.0, -3.0, math.pi / 2), t=3.0)
+    spin.until(lambda: len(robots.log) == n0 + 2, 5.0, 'the second intervention record')
+    rec = robots.log[-1]
+    assert rec['obstacle'] == str(b_id) and rec['robot'] == 'robot_1'
+    assert rec['false_positive'] == 'False' and rec['undetected_by'] == 'robot_1'
+    spin.until(lambda: a_id not in robots.obstacles.centres and b_id not in robots.obstacles.centres
+               and len(robots.obstacles.centres) == 4, 5.0, 'removal and respawn')
+    new = set(robots.obstacles.centres) - set(ids.tolist())
+    assert len(new) == 2
+    for oid in new:
+        c = np.array(robots.obstacles.centres[oid])
+        assert np.hypot(*(c - (a[0] - 3.0, a[1]))) >= 8.0
+        assert np.hypot(*(c - (b[0], b[1] - 3.0))) >= 8.0
+    spin.until(lambda: latest(robots, 'interventions') == str(n0 + 2), 5.0, 'stats to count them')
+
+
+def test_world_rejects_bad_input_and_keeps_running(world_rig):
+    world, robots, rosout, spin = world_rig
+    before = dict(robots.stats[-1])
+    robots.send_pose('robot_1', float('nan'), 0.0, 0.0, t=4.0)
+    spin.until(lambda: rosout.has('world', 'pose of robot_1 rejected', 'not finite'), 5.0, 'NaN pose log')
+    robots.intervention(9999, (1.0, 0.0, 0.0), t=4.1)
+    spin.until(lambda: rosout.has('world', 'intervention rejected', '9999'), 5.0, 'unknown obstacle log')
+    robots.intervention(0, (1.0, 0.0, 0.0), t=4.2, frame='map')
+    spin.until(lambda: rosout.has('world', 'intervention rejected', "'map'"), 5.0, 'bad frame log')
+    bad = PoseArray()
+    bad.header.frame_id = 'map'
+    p = Pose()
+    p.position.x = float('inf')
+    bad.poses.append(p)
+    robots.det['robot_0'].publish(bad)
+    spin.until(lambda: rosout.has('world', 'detections of robot_0 rejected'), 5.0, 'bad detections log')
+    # still alive and counting: a valid crash after the bad input
+    ids, xy = robots.obstacles.arrays()
+    robots.send_pose('robot_1', *xy[-1], 0.0, t=5.0)
+    spin.until(lambda: int(latest(robots, 'robot_1/crashes')) == int(before['robot_1/crashes']) + 1,
+               5.0, 'a crash counted after the bad input')
+    assert latest(robots, 'interventions') == before['interventions']   # nothing bogus accepted
+
+
+def test_supervisor_intervenes_at_its_level_and_names_the_robot(ros_context):
+    sup = SupervisorNode(context=ros_context, parameter_overrides=params(
+        robots=['robot_0'], w_max=0.5, mu=0.8, sigma=0.0, horizon=2.0, seed=1,
+        grid_nxy=41, grid_ntheta=24))
+    driver = Node('supervisor_test_driver', context=ros_context)
+    markers = driver.create_publisher(MarkerArray, '/obstacle_markers', rosmsg.QOS_LATCHED)
+    pose = driver.create_publisher(PoseStamped, '/robot_0/pose', rosmsg.QOS_STREAM)
+    got, decisions = [], []
+    s1 = driver.create_subscription(PoseStamped, '/interventions', got.append, rosmsg.QOS_EVENTS)
+    s2 = driver.create_subscription(DiagnosticStatus, '/supervisor/decisions',
+                                    lambda m: decisions.append(rosmsg.diagnostic_values(m)),
+                                    rosmsg.QOS_EVENTS)
+    rosout = Rosout(driver)
+    spin = Spinner(ros_context, sup, driver)
+    try:
+        spin.until(lambda: matched(markers, pose, s1, s2), 10.0, 'matching')
+        centre = np.array([5.0, 1.0])
+        markers.publish(obstacles_to_markers([42], centre[None], 1.8))
+        spin.until(lambda: 42 in sup.obstacles.centres, 5.0, 'the supervisor to see the obstacle')
+        bad = rosmsg.state_to_pose((0.0, 0.0, 0.0))
+        bad.pose.position.y = float('nan')
+        pose.publish(bad)
+        spin.until(lambda: rosout.has('supervisor', 'pose of robot_0 rejected'), 5.0, 'NaN pose log')
+        # drive straight at the obstacle, one pose per 0.05 s of sim time
+        sent = []
+        for k, x in enumerate(np.arange(-6.0, 3.2, 0.15)):
+            sent.append(np.array([x, 1.0, 0.0]))
+            msg = rosmsg.state_to_pose(sent[-1])
+            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(k * 5e7), 10**9)
+            pose.publish(msg)
+        spin.until(lambda: got and decisions, 5.0, 'an intervention')
+        spin.spin_for(0.3)                                  # any second one would arrive now
+        assert len(got) == 1                                # one per obstacle (pending removal)
+        msg = got[0]
+        assert msg.header.frame_id == 'obstacle_42'
+        rel = np.array(rosmsg.pose_to_state(msg, frame=None))
+        assert rel[1] == pytest.approx(0.0, abs=1e-9) and rel[2] == pytest.approx(0.0, abs=1e-9)
+        d = decisions[0]
+        assert d['robot'] == 'robot_0' and d['obstacle'] == '42'
+        v = float(d['value'])
+        assert v <= 0.8 and float(d['threshold']) == pytest.approx(0.8)
+        # the first pose at or below the level: the pose before it was above it
+        prev = rel[0] - 0.15
+        v_prev = float(sup.watcher.vf.value(np.array([[prev, 0.0, 0.0]]))[0])
+        assert v_prev > 0.8
+        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        k = int(round((rel[0] + centre[0] + 6.0) / 0.15))
+        assert stamp == pytest.approx(k * 0.05, abs=1e-6)   # stamped with the judged pose's time
+    finally:
+        spin.shutdown()
+        sup.destroy_node()
+        driver.destroy_node()
