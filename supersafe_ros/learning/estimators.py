@@ -133,7 +133,7 @@ def _check_entries(entries):
     return entries
 
 
-def _entry_omega(entry, i):
+def _entry_omega(entry):
     w = entry.meta.get('omega_max')
     return float(w) if w is not None else float('nan')
 
@@ -198,12 +198,12 @@ def _result(entries, estimator, mu, sigma, loglik, admissible, best, alpha_k, n_
             extra_cols=None, encounters=None, notes=()):
     candidates = []
     for i, e in enumerate(entries):
-        c = {'omega_max': _entry_omega(e, i), 'mu': float(mu[i]), 'sigma': float(sigma[i]),
+        c = {'omega_max': _entry_omega(e), 'mu': float(mu[i]), 'sigma': float(sigma[i]),
              'log_likelihood': float(loglik[i]), 'admissible': bool(admissible[i])}
         for k, col in (extra_cols or {}).items():
             c[k] = col[i]
         candidates.append(c)
-    return FitResult(omega_max=_entry_omega(entries[best], best), mu=float(mu[best]),
+    return FitResult(omega_max=_entry_omega(entries[best]), mu=float(mu[best]),
                      sigma=float(sigma[best]), alpha=float(mu[best] + alpha_k * sigma[best]),
                      log_likelihood=float(loglik[best]), estimator=estimator,
                      interventions=int(n_interventions), index=best, candidates=candidates,
@@ -402,15 +402,14 @@ _TAU_MAX = 1.0 / SIGMA_FLOOR
 def _newton(fun, x, lower, upper, max_iter=100, tol=1e-10):
     """Maximise m independent smooth 2-parameter functions at once, within box bounds.
 
-    fun(x (k, 2), rows=None) -> (f (k,), g (k, 2)) for the given rows (None: all m). Projected Newton with a finite-difference
-    Hessian of the analytic gradient, made negative definite when it is not, a
+    fun(x (k, 2), rows) -> (f (k,), g (k, 2)) for the given rows (None: all m rows).
+    Projected Newton with a finite-difference Hessian of the analytic gradient, made negative definite when it is not, a
     coordinate held at a bound while the gradient pushes it out, and a per-row
     Armijo backtracking line search. Stops when every row's Newton decrement g.d is
     below ``tol`` times (1 + |f|).
     """
     f, g = fun(x, None)
-    m = len(x)
-    active = np.ones(m, dtype=bool)
+    active = np.ones(len(x), dtype=bool)
     for _ in range(max_iter):
         idx = np.flatnonzero(active)
         if idx.size == 0:
