@@ -93,16 +93,31 @@ def node_argv(node: str, namespace: str | None = None, params: dict | None = Non
     return argv
 
 
-def team_processes(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
-                   duration: float = 0.0, config: Path | None = None,
-                   overrides: dict | None = None, with_filter: bool | None = None,
-                   with_learner: bool | None = None, with_supervisor: bool = True,
-                   learner_store: str | Path | None = None,
-                   python: str = sys.executable) -> list[list[str]]:
-    """argv of every process of a team, in start order.
+@dataclass(frozen=True)
+class NodeSpec:
+    """One node of the team: its kind (key of NODE_MODULES), namespace, parameters
+    (beyond its config file) and remappings. The launch file and ``team_processes``
+    both build the graph from these, so the two cannot drift apart."""
 
-    ``overrides``: {node kind: {param: value}} applied to every process of that kind
-    (e.g. {'supervisor': {'mu': 1.0}, 'safety_filter': {'alpha': 0.5}}).
+    kind: str
+    namespace: str | None
+    params: dict
+    remaps: dict
+
+    @property
+    def executable(self) -> str:
+        return NODE_MODULES[self.kind]
+
+
+def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
+                duration: float = 0.0, overrides: dict | None = None,
+                with_filter: bool | None = None, with_learner: bool | None = None,
+                with_supervisor: bool = True,
+                learner_store: str | Path | None = None) -> list[NodeSpec]:
+    """Every node of a team, in start order (the sim clock last).
+
+    ``overrides``: {node kind: {param: value}} applied to every node of that kind
+    (e.g. {'supervisor': {'mu': 1.0}, 'sim_clock': {'step': 0.1}}).
     ``with_filter``/``with_learner`` None: include them when their node module exists;
     without a filter the planner publishes straight into cmd_vel (test wiring only).
     ``learner_store``: the learner's intervention file; give each run its own (the
@@ -111,42 +126,39 @@ def team_processes(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
     if n_robots < 1:
         raise ValueError('a team needs at least one robot')
     overrides = overrides or {}
+    unknown = set(overrides) - set(NODE_MODULES)
+    if unknown:
+        raise ValueError(f'overrides for unknown nodes {sorted(unknown)}')
     with_filter = node_available('safety_filter') if with_filter is None else with_filter
     with_learner = node_available('learner') if with_learner is None else with_learner
     robots = robot_names(n_robots)
     sim = {'use_sim_time': True}
+    layout = []
 
-    def params(kind, base):
-        out = dict(base)
-        out.update(overrides.get(kind, {}))
-        return out
-
-    def argv(kind, namespace=None, base=None, remaps=None):
-        return node_argv(kind, namespace, params(kind, base or {}), remaps, config, python)
+    def add(kind, namespace=None, base=None, remaps=None):
+        params = dict(base or {})
+        params.update(overrides.get(kind, {}))
+        layout.append(NodeSpec(kind, namespace, params, dict(remaps or {})))
 
     # world, planner, supervisor and learner take event times from message stamps and
     # read the clock only for timeouts and statistics: they follow /clock_coarse and
     # are spared a /clock callback every step
     coarse = {'/clock': '/clock_coarse'}
-    procs = [argv('world', base={**sim, 'robots': robots, 'seed': seed}, remaps=coarse)]
-    step = 0.05
-    clock_over = overrides.get('sim_clock', {})
-    step = float(clock_over.get('step', step))
-    rate = 1.0 / step
+    add('world', None, {**sim, 'robots': robots, 'seed': seed}, coarse)
+    # one step of the clock = one robot step (lockstep acknowledges every step)
+    step = float(overrides.get('sim_clock', {}).get('step', 0.05))
     for i, (name, pose) in enumerate(zip(robots, start_poses(n_robots))):
-        procs.append(argv('dubins_robot', name, {
+        add('dubins_robot', name, {
             **sim, 'initial_x': pose[0], 'initial_y': pose[1], 'initial_theta': pose[2],
-            'seed': seed * 1000 + i + 1, 'rate': rate}))
-        remaps = dict(coarse) if with_filter else {**coarse, 'cmd_vel_nav': 'cmd_vel'}
-        procs.append(argv('planner', name, sim, remaps))
+            'seed': seed * 1000 + i + 1, 'rate': 1.0 / step})
+        add('planner', name, sim, coarse if with_filter else {**coarse, 'cmd_vel_nav': 'cmd_vel'})
         if with_filter:
-            procs.append(argv('safety_filter', name, sim))
+            add('safety_filter', name, sim)
     if with_learner:
-        store = {'store_path': str(learner_store)} if learner_store else {}
-        procs.append(argv('learner', None, {**sim, **store}, coarse))
+        add('learner', None, {**sim, **({'store_path': str(learner_store)} if learner_store else {})},
+            coarse)
     if with_supervisor:
-        procs.append(argv('supervisor', None, {**sim, 'robots': robots, 'seed': seed * 1000 + 999},
-                          coarse))
+        add('supervisor', None, {**sim, 'robots': robots, 'seed': seed * 1000 + 999}, coarse)
     # the clock starts sim time only once the whole graph is up (the supervisor and the
     # filters may spend seconds loading value functions)
     publishers = ['/obstacle_markers=1'] + [f'/{r}/cmd_vel=1' for r in robots]
@@ -157,12 +169,18 @@ def team_processes(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
     if with_learner:
         publishers.append('/safe_set/value_function=1')
     pose_readers = 2 + int(with_filter) + int(with_supervisor)   # world, planner, filter, supervisor
-    subscriptions = [f'/{r}/pose={pose_readers}' for r in robots]
-    procs.append(argv('sim_clock', None, {
+    add('sim_clock', None, {
         'use_sim_time': False, 'robots': robots, 'rate_factor': float(rate_factor),
-        'duration': float(duration), 'step': step,
-        'wait_for_publishers': publishers, 'wait_for_subscriptions': subscriptions}))
-    return procs
+        'duration': float(duration), 'step': step, 'wait_for_publishers': publishers,
+        'wait_for_subscriptions': [f'/{r}/pose={pose_readers}' for r in robots]})
+    return layout
+
+
+def team_processes(*args, config: Path | None = None, python: str = sys.executable,
+                   **kwargs) -> list[list[str]]:
+    """argv of every process of a team, in start order; arguments as ``team_layout``."""
+    return [node_argv(n.kind, n.namespace, n.params, n.remaps, config, python)
+            for n in team_layout(*args, **kwargs)]
 
 
 def process_name(argv: list[str]) -> str:
@@ -207,6 +225,9 @@ class Team:
             # stops the children in order
             self.procs.append(subprocess.Popen(argv, env=self.env, stdout=log,
                                                stderr=subprocess.STDOUT, start_new_session=True))
+        # who is who, for anyone who has to clean up after a crashed runner
+        (self.log_dir / 'pids.txt').write_text(''.join(
+            f'{p.pid} {process_name(a)}\n' for a, p in zip(self.argvs, self.procs)))
         return self
 
     def dead(self) -> list[str]:
@@ -431,6 +452,9 @@ def run(args) -> int:
             print(' '.join(argv))
         return 0
     result = run_team(argvs, args.duration, args.timeout, args.domain_id, log_dir)
+    unclean = {n: c for n, c in result['exit_codes'].items() if c != 0}
+    if unclean:
+        print(f'processes that did not exit cleanly (exit codes): {unclean}; logs in {log_dir}')
     if result['dead'] and result['reason'].startswith('processes exited'):
         return 1
     return 0

@@ -1,0 +1,97 @@
+"""sim_clock_node at topic level: start gate, lockstep with acknowledgements, late steps."""
+import time
+
+import numpy as np
+import pytest
+from rclpy.node import Node
+
+from diagnostic_msgs.msg import DiagnosticStatus
+from rosgraph_msgs.msg import Clock
+from std_msgs.msg import Empty
+
+from supersafe_ros import rosmsg
+from supersafe_ros.nodes.sim_clock_node import SimClockNode, parse_topic_counts
+
+from test_graph_support import Spinner, params, ros_context  # noqa: F401
+
+
+def ns_of(msg):
+    return msg.clock.sec * 1_000_000_000 + msg.clock.nanosec
+
+
+class FakeRobot:
+    """Acknowledges each /clock step ``delay`` wall seconds late (skipping those in ``skip``);
+    a step arriving while the previous one is still unacknowledged is a lockstep violation."""
+
+    def __init__(self, node):
+        self.ack = node.create_publisher(Clock, '/robot_0/step_done', rosmsg.QOS_CLOCK)
+        self.ticks, self.coarse, self.status = [], [], []
+        self.acked = -1
+        self.skip = set()
+        self.violations = []
+        self.pending = None          # (sim ns, wall time received)
+        self.delay = 0.01
+        node.create_subscription(Clock, '/clock', self.on_clock, rosmsg.QOS_CLOCK)
+        node.create_subscription(Clock, '/clock_coarse', lambda m: self.coarse.append(ns_of(m)),
+                                 rosmsg.QOS_CLOCK)
+        node.create_subscription(DiagnosticStatus, '/sim/clock_status',
+                                 lambda m: self.status.append(rosmsg.diagnostic_values(m)),
+                                 rosmsg.QOS_LATCHED)
+
+    def on_clock(self, msg):
+        t = ns_of(msg)
+        if self.pending is not None:
+            self.violations.append(t)          # came before the previous one was acknowledged
+        first = not self.ticks       # the start time is set, not stepped: no acknowledgement
+        self.ticks.append(t)
+        self.pending = None if first or t in self.skip else (t, time.monotonic())
+
+    def poll(self):
+        """Acknowledge the pending step once its delay is over (call while spinning)."""
+        if self.pending is not None and time.monotonic() - self.pending[1] >= self.delay:
+            msg = Clock()
+            msg.clock.sec, msg.clock.nanosec = divmod(self.pending[0], 1_000_000_000)
+            self.pending = None
+            self.ack.publish(msg)
+        return True
+
+
+def test_parse_topic_counts():
+    assert parse_topic_counts(['/a=2', '/b', '']) == [('/a', 2), ('/b', 1)]
+
+
+def test_clock_waits_for_graph_then_steps_in_lockstep(ros_context):
+    step_ns = 50_000_000
+    clock = SimClockNode(context=ros_context, parameter_overrides=params(
+        robots=['robot_0'], step=0.05, rate_factor=0.0, lockstep=True, ack_timeout=0.3,
+        start_timeout=20.0, coarse_period=0.2, status_period=0.5,
+        wait_for_publishers=['/test_gate=1']))
+    driver = Node('clock_test_driver', context=ros_context)
+    robot = FakeRobot(driver)
+    spin = Spinner(ros_context, clock, driver)
+    try:
+        spin.spin_for(1.0)                       # robot matched, but the gate has no publisher
+        assert robot.ticks == []
+        gate = driver.create_publisher(Empty, '/test_gate', 1)
+        spin.until(lambda: robot.poll() and len(robot.ticks) >= 60, 20.0, '60 steps')
+        t = np.array(robot.ticks[:60])
+        assert np.all(np.diff(t) == step_ns)     # fixed steps, none skipped
+        assert robot.violations == []            # never ahead of the robot
+        # a step the robot does not acknowledge: the clock goes on after ack_timeout
+        skip_at = robot.ticks[-1] + 3 * step_ns
+        robot.skip.add(skip_at)
+        spin.until(lambda: robot.poll() and robot.ticks[-1] > skip_at + 5 * step_ns, 10.0,
+                   'steps past the skipped one')
+        spin.until(lambda: robot.poll() and robot.status and int(robot.status[-1]['late_steps']) >= 1, 5.0,
+                   'a late step in the status')
+        assert int(robot.status[-1]['late_steps']) == 1
+        assert robot.violations == []
+        # coarse clock: every 0.2 s of sim time
+        c = np.array(robot.coarse)
+        assert len(c) >= 3 and np.all(np.diff(c) == 4 * step_ns)
+        gate.destroy()
+    finally:
+        clock.close()
+        spin.shutdown()
+        clock.destroy_node()
+        driver.destroy_node()

@@ -1,0 +1,131 @@
+"""`supersafe team`: the process list, the launch file, and a real (small) team run."""
+import ast
+import os
+from pathlib import Path
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from supersafe_ros import team
+
+REPO = Path(__file__).resolve().parents[1]
+# coarse value-function grids: the run tests the graph, not the numerics
+FAST = {
+    'supervisor': {'grid_nxy': 33, 'grid_ntheta': 16},
+    'safety_filter': {'standard_shape': [33, 33, 16]},
+    'learner': {'library_shape': [33, 33, 16]},
+}
+
+
+def option(argv, flag):
+    return [argv[i + 1] for i, a in enumerate(argv[:-1]) if a == flag]
+
+
+def test_team_processes_layout():
+    argvs = team.team_processes(3, rate_factor=7.0, seed=4, duration=30.0, with_filter=True,
+                                with_learner=True, overrides={'supervisor': {'mu': 1.25}},
+                                learner_store='/tmp/x/interventions.jsonl')
+    names = [team.process_name(a) for a in argvs]
+    assert names[0] == 'world' and names[-1] == 'sim_clock'
+    for i in range(3):
+        for kind in ('dubins_robot', 'planner', 'safety_filter'):
+            assert f'robot_{i}/{kind}' in names
+    assert names.count('supervisor') == 1 and names.count('learner') == 1
+    for a in argvs:
+        assert a[1] == '-m' and '--ros-args' in a
+        files = option(a, '--params-file')
+        assert len(files) == 1 and Path(files[0]).is_file()
+    sup = argvs[names.index('supervisor')]
+    assert 'mu:=1.25' in option(sup, '-p') and 'robots:=[robot_0,robot_1,robot_2]' in option(sup, '-p')
+    clock = option(argvs[-1], '-p')
+    assert 'rate_factor:=7.0' in clock and 'duration:=30.0' in clock and 'use_sim_time:=false' in clock
+    robot_seeds = {option(a, '-p')[[p.split(':=')[0] for p in option(a, '-p')].index('seed')]
+                   for a, n in zip(argvs, names) if n.endswith('dubins_robot')}
+    assert len(robot_seeds) == 3                      # independent sensors
+    assert 'store_path:=/tmp/x/interventions.jsonl' in option(argvs[names.index('learner')], '-p')
+    # without a filter the planner drives the robot directly
+    bare = team.team_processes(1, with_filter=False, with_learner=False)
+    planner = bare[[team.process_name(a) for a in bare].index('robot_0/planner')]
+    assert 'cmd_vel_nav:=cmd_vel' in option(planner, '-r')
+    with pytest.raises(ValueError):
+        team.team_processes(0)
+    with pytest.raises(ValueError):
+        team.team_layout(1, overrides={'nonsense': {'a': 1}})
+
+
+def test_parse_overrides():
+    assert team.parse_overrides(['supervisor.mu=1.5', 'world.robots=[a, b]']) == {
+        'supervisor': {'mu': 1.5}, 'world': {'robots': ['a', 'b']}}
+    with pytest.raises(ValueError):
+        team.parse_overrides(['mu=1.5'])
+
+
+def test_launch_file_parses_and_builds_from_the_layout():
+    src = (REPO / 'launch' / 'team.launch.py').read_text()
+    tree = ast.parse(src)
+    functions = {n.name for n in tree.body if isinstance(n, ast.FunctionDef)}
+    assert 'generate_launch_description' in functions
+    assert 'team_layout' in src
+
+
+def team_cli(tmp_path, *extra):
+    overrides = [f'--set={k}.{p}={v}'.replace(' ', '') for k, d in FAST.items() for p, v in d.items()]
+    argv = [sys.executable, '-m', 'supersafe_ros.cli', 'team', '--robots', '1', '--rate-factor', '0',
+            '--log-dir', str(tmp_path / 'logs'), *overrides, *extra]
+    return subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            env=dict(os.environ), start_new_session=True)
+
+
+def children_alive(log_dir: Path):
+    pids = [int(line.split()[0]) for line in (log_dir / 'pids.txt').read_text().splitlines()]
+    alive = []
+    for pid in pids:
+        try:
+            os.kill(pid, 0)
+            alive.append(pid)
+        except ProcessLookupError:
+            pass
+    return alive
+
+
+def test_team_runs_to_duration_and_children_exit_cleanly(tmp_path):
+    proc = team_cli(tmp_path, '--duration', '6', '--timeout', '120')
+    try:
+        out, _ = proc.communicate(timeout=150)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 0, out
+    assert 'team stopped (duration reached): sim 6.000 s' in out
+    assert 'did not exit cleanly' not in out
+    assert children_alive(tmp_path / 'logs') == []
+    logs = {p.name for p in (tmp_path / 'logs').glob('*.log')}
+    assert {'world.log', 'robot_0.dubins_robot.log', 'sim_clock.log'} <= logs
+
+
+def test_team_stops_cleanly_on_ctrl_c(tmp_path):
+    proc = team_cli(tmp_path, '--timeout', '120')
+    lines = []
+    try:
+        deadline = time.monotonic() + 100
+        while time.monotonic() < deadline:       # wait until sim time runs
+            line = proc.stdout.readline()
+            if not line:
+                break
+            lines.append(line)
+            if line.startswith('sim ') and not line.startswith('sim 0.000'):
+                break
+        assert any(l.startswith('sim ') and not l.startswith('sim 0.000') for l in lines), ''.join(lines)
+        os.kill(proc.pid, signal.SIGINT)
+        out, _ = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    out = ''.join(lines) + out
+    assert proc.returncode == 0, out
+    assert 'team stopped (signal SIGINT)' in out
+    assert 'did not exit cleanly' not in out
+    assert children_alive(tmp_path / 'logs') == []
