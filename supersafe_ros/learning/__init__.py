@@ -8,12 +8,26 @@ ROS-free: numpy/scipy over the reachability core's value functions.
   conservative prior, alpha and the predicted false-positive fraction.
 * ``cli``: ``supersafe fit``; ``plots``: the learned-safe-set figure.
 """
-from .data import (Encounter, encounters_from_phase2_interventions, intervention_states,
-                   phase2_encounters, read_encounters_csv, read_interventions_csv,
-                   write_encounters_csv)
-from .estimators import (FitResult, admissible_mask, alpha_for_fp_rate, fit_first_passage,
-                         fit_paper, predicted_false_positive_fraction)
-from .supervisor import NoisySupervisor
+import importlib
+
+# Names are resolved on first use (PEP 562): `supersafe reach` imports this
+# package's CLI module, and should not pay for scipy.optimize.
+_HOMES = {
+    'Encounter': 'data', 'encounters_from_phase2_interventions': 'data',
+    'intervention_states': 'data', 'phase2_encounters': 'data', 'read_encounters_csv': 'data',
+    'read_interventions_csv': 'data', 'write_encounters_csv': 'data',
+    'FitResult': 'estimators', 'admissible_mask': 'estimators', 'alpha_for_fp_rate': 'estimators',
+    'fit_first_passage': 'estimators', 'fit_paper': 'estimators',
+    'predicted_false_positive_fraction': 'estimators',
+    'NoisySupervisor': 'supervisor',
+}
+
+
+def __getattr__(name):
+    if name in _HOMES:
+        return getattr(importlib.import_module(f'.{_HOMES[name]}', __name__), name)
+    raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
+
 
 __all__ = [
     'Encounter', 'FitResult', 'NoisySupervisor', 'admissible_mask', 'alpha_for_fp_rate',
