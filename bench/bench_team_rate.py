@@ -25,7 +25,7 @@ def main():
     ap.add_argument('--timeout', type=float, default=300.0)
     args = ap.parse_args()
     argvs = team_processes(args.robots, args.rate_factor, seed=1, duration=args.duration,
-                           overrides={'sim_clock': {'step': args.step}},
+                           step=args.step,
                            with_filter=False if args.no_filter else None,
                            with_learner=False if args.no_learner else None,
                            learner_store=f'/tmp/supersafe-bench-{os.getpid()}/interventions.jsonl')

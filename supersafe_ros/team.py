@@ -110,7 +110,7 @@ class NodeSpec:
 
 
 def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
-                duration: float = 0.0, overrides: dict | None = None,
+                duration: float = 0.0, overrides: dict | None = None, step: float | None = None,
                 with_filter: bool | None = None, with_learner: bool | None = None,
                 with_supervisor: bool = True,
                 learner_store: str | Path | None = None) -> list[NodeSpec]:
@@ -122,6 +122,9 @@ def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
     without a filter the planner publishes straight into cmd_vel (test wiring only).
     ``learner_store``: the learner's intervention file; give each run its own (the
     learner reloads whatever the file holds), None = the learner's default.
+    ``step``: sim seconds per clock step = 1 / robot rate (None: the override
+    sim_clock.step, else 0.05). 0.1 halves the CPU per sim second; the robots then
+    move 0.3 m between control decisions instead of 0.15 m.
     """
     if n_robots < 1:
         raise ValueError('a team needs at least one robot')
@@ -146,7 +149,10 @@ def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
     coarse = {'/clock': '/clock_coarse'}
     add('world', None, {**sim, 'robots': robots, 'seed': seed}, coarse)
     # one step of the clock = one robot step (lockstep acknowledges every step)
-    step = float(overrides.get('sim_clock', {}).get('step', 0.05))
+    if step is None:
+        step = float(overrides.get('sim_clock', {}).get('step', 0.05))
+    if not (math.isfinite(step) and step > 0):
+        raise ValueError(f'step must be positive, got {step}')
     for i, (name, pose) in enumerate(zip(robots, start_poses(n_robots))):
         add('dubins_robot', name, {
             **sim, 'initial_x': pose[0], 'initial_y': pose[1], 'initial_theta': pose[2],
@@ -413,6 +419,9 @@ def add_parser(subparsers):
     parser.add_argument('--robots', type=int, default=2, help='number of robots (default 2)')
     parser.add_argument('--rate-factor', type=float, default=10.0,
                         help='sim seconds per wall second (0: as fast as possible; default 10)')
+    parser.add_argument('--step', type=float, default=0.05,
+                        help='sim seconds per clock step = 1 / robot rate (default 0.05; 0.1 runs '
+                             'about twice as fast on a busy machine)')
     parser.add_argument('--seed', type=int, default=0, help='seed of world, sensors, supervisor')
     parser.add_argument('--duration', type=float, default=0.0,
                         help='stop after this many sim seconds (default: run until Ctrl-C)')
@@ -442,7 +451,7 @@ def run(args) -> int:
     log_dir = args.log_dir or default_log_dir()
     argvs = team_processes(
         args.robots, args.rate_factor, args.seed, args.duration,
-        overrides=parse_overrides(args.set),
+        overrides=parse_overrides(args.set), step=args.step,
         with_filter=False if args.no_filter else None,
         with_learner=False if args.no_learner else None,
         with_supervisor=not args.no_supervisor,
