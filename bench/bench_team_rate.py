@@ -26,8 +26,7 @@ def main():
     args = ap.parse_args()
     argvs = team_processes(args.robots, args.rate_factor, seed=1, duration=args.duration,
                            step=args.step,
-                           with_filter=False if args.no_filter else None,
-                           with_learner=False if args.no_learner else None,
+                           with_filter=not args.no_filter, with_learner=not args.no_learner,
                            learner_store=f'/tmp/supersafe-bench-{os.getpid()}/interventions.jsonl')
     res = run_team(argvs, args.duration, args.timeout, print_period=10.0, out=sys.stderr)
     clock = res['clock']

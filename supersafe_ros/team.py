@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 from dataclasses import dataclass, field
-import importlib.util
 import math
 import os
 from pathlib import Path
@@ -49,10 +48,6 @@ def config_dir() -> Path:
     except Exception:  # not installed in an ament prefix (editable install, plain venv)
         pass
     return Path(__file__).resolve().parent.parent / 'config'
-
-
-def node_available(node: str) -> bool:
-    return importlib.util.find_spec(f'{PACKAGE}.nodes.{NODE_MODULES[node]}') is not None
 
 
 def robot_names(n_robots: int) -> list[str]:
@@ -111,15 +106,14 @@ class NodeSpec:
 
 def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
                 duration: float = 0.0, overrides: dict | None = None, step: float | None = None,
-                with_filter: bool | None = None, with_learner: bool | None = None,
+                with_filter: bool = True, with_learner: bool = True,
                 with_supervisor: bool = True,
                 learner_store: str | Path | None = None) -> list[NodeSpec]:
     """Every node of a team, in start order (the sim clock last).
 
     ``overrides``: {node kind: {param: value}} applied to every node of that kind
     (e.g. {'supervisor': {'mu': 1.0}, 'sim_clock': {'step': 0.1}}).
-    ``with_filter``/``with_learner`` None: include them when their node module exists;
-    without a filter the planner publishes straight into cmd_vel (test wiring only).
+    ``with_filter=False``: the planner publishes straight into cmd_vel (test wiring only).
     ``learner_store``: the learner's intervention file; give each run its own (the
     learner reloads whatever the file holds), None = the learner's default.
     ``step``: sim seconds per clock step = 1 / robot rate (None: the override
@@ -132,8 +126,6 @@ def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
     unknown = set(overrides) - set(NODE_MODULES)
     if unknown:
         raise ValueError(f'overrides for unknown nodes {sorted(unknown)}')
-    with_filter = node_available('safety_filter') if with_filter is None else with_filter
-    with_learner = node_available('learner') if with_learner is None else with_learner
     robots = robot_names(n_robots)
     sim = {'use_sim_time': True}
     layout = []
@@ -452,8 +444,7 @@ def run(args) -> int:
     argvs = team_processes(
         args.robots, args.rate_factor, args.seed, args.duration,
         overrides=parse_overrides(args.set), step=args.step,
-        with_filter=False if args.no_filter else None,
-        with_learner=False if args.no_learner else None,
+        with_filter=not args.no_filter, with_learner=not args.no_learner,
         with_supervisor=not args.no_supervisor,
         learner_store=args.learner_store or log_dir / 'interventions.jsonl')
     if args.print_argv:
