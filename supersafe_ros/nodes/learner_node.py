@@ -63,8 +63,9 @@ class LearnerNode(Node):
     def __init__(self, node_name='learner', **kwargs):
         super().__init__(node_name, **kwargs)
         p = lambda *a, **k: declare(self, *a, **k)  # noqa: E731
-        store_path = p('store_path', default_store_path(),
-                       'JSON-lines file of accepted interventions (one per subject)')
+        store_path = p('store_path', '', 'JSON-lines file of accepted interventions, one per subject '
+                       '("" = $XDG_DATA_HOME or ~/.local/share, supersafe_ros/interventions.jsonl)')
+        store_path = store_path or default_store_path()
         self.estimator = p('estimator', 'paper', f'estimator, one of {ESTIMATORS}')
         if self.estimator not in ESTIMATORS:
             raise ValueError(f"estimator '{self.estimator}' is not one of {ESTIMATORS}")

@@ -202,7 +202,9 @@ class SafetyFilterNode(Node):
         self._last_publish = time.monotonic()
         self.decisions += 1
         if out.action == 'fail_safe':
-            self.complain('fail_safe', f'fail safe: {out.reason}', level='error')
+            # nothing received yet is the normal start-up state (warn); losing data is an error
+            starting = self.filter.pose.value is None or self.filter.detections.value is None
+            self.complain('fail_safe', f'fail safe: {out.reason}', level='warn' if starting else 'error')
         now = time.monotonic()
         last_t, last_action = self._last_state
         if out.action != last_action or now - last_t >= self.state_period:
