@@ -214,15 +214,14 @@ def test_supervisor_intervenes_at_its_level_and_names_the_robot(ros_context):
         assert rel[1] == pytest.approx(0.0, abs=1e-9) and rel[2] == pytest.approx(0.0, abs=1e-9)
         d = decisions[0]
         assert d['robot'] == 'robot_0' and d['obstacle'] == '42'
-        v = float(d['value'])
-        assert v <= 0.8 and float(d['threshold']) == pytest.approx(0.8)
-        # the first pose at or below the level: the pose before it was above it
-        prev = rel[0] - 0.15
-        v_prev = float(sup.watcher.vf.value(np.array([[prev, 0.0, 0.0]]))[0])
-        assert v_prev > 0.8
+        assert float(d['threshold']) == pytest.approx(0.8)
+        # reported at the crossing of its level (interpolated between the poses around it)
+        v = float(sup.watcher.vf.value(rel[None])[0])
+        assert v == pytest.approx(0.8, abs=0.02) and float(d['value']) == pytest.approx(v, abs=1e-3)
+        before = float(sup.watcher.vf.value(np.array([[rel[0] - 0.15, 0.0, 0.0]]))[0])
+        assert before > 0.8                                  # not a later pose
         stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-        k = int(round((rel[0] + centre[0] + 6.0) / 0.15))
-        assert stamp == pytest.approx(k * 0.05, abs=1e-6)   # stamped with the judged pose's time
+        assert stamp == pytest.approx((rel[0] + centre[0] + 6.0) / 3.0, abs=1e-6)   # x = -6 + 3 t
     finally:
         spin.shutdown()
         sup.destroy_node()

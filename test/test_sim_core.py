@@ -183,15 +183,17 @@ def test_watcher_intervenes_at_its_level_once_per_obstacle():
     w = Watcher(distance_vf(), mu=1.0, sigma=0.0)
     ids, xy = [5], np.array([[10.0, 0.0]])
     hits = []
-    for x in np.arange(0.0, 9.0, 0.05):
+    for x in np.arange(0.0, 9.0, 0.3):                      # coarse samples
         d = w.judge('a', [x, 0.0, 0.0], x, ids, xy)
         if d is not None:
             hits.append(d)
     assert len(hits) == 1
     d = hits[0]
     assert d.obstacle_id == 5 and d.robot == 'a'
-    assert d.value <= 1.0 and d.value > 1.0 - 0.1          # first state at V <= mu
-    assert d.rel_state[0] == pytest.approx(-(d.value + 1.8), abs=0.05)
+    # the crossing of the level, interpolated between poses 0.05 m apart: V = 1 at x = 7.2
+    assert d.value == pytest.approx(1.0, abs=1e-3) and d.threshold == 1.0
+    assert d.rel_state == pytest.approx([-2.8, 0.0, 0.0], abs=1e-3)
+    assert d.time == pytest.approx(7.2, abs=1e-3)        # time = x in this test
     assert w.judge('b', [9.0, 0.0, 0.0], 9.0, ids, xy) is None   # pending removal
     w.obstacles_changed([])
     assert not w.pending
@@ -206,10 +208,11 @@ def test_watcher_noise_is_drawn_per_encounter():
             d = w.judge('a', [x, 0.0, 0.0], x, ids, xy)
             if d is not None:
                 levels.append(d.threshold)
+                assert d.value == pytest.approx(d.threshold, abs=1e-3)   # at the crossing
                 break
         w.obstacles_changed([])
     levels = np.array(levels)
-    # thresholds below the disc edge (mu + w <= -1.8) never trigger; the rest ~ N(1, 0.5^2)
+    # thresholds ~ N(1, 0.5^2) (one below -1.8 would be hit at once: probability ~1e-8)
     assert len(levels) == 200
     assert np.mean(levels) == pytest.approx(1.0, abs=0.1)
     assert np.std(levels) == pytest.approx(0.5, abs=0.08)

@@ -10,8 +10,9 @@ per approach (supersafe_ros.sim.watcher).
   sub  /<robot>/pose         geometry_msgs/PoseStamped  every pose (deep queue)
   sub  /obstacle_markers     visualization_msgs/MarkerArray  latched, obstacle ids and centres
   pub  /interventions        geometry_msgs/PoseStamped  the robot's pose relative to the obstacle
-                             (obstacle at the origin, axes as map); frame obstacle_<id>,
-                             stamp = sim time of the judged pose. The world removes that obstacle.
+                             (obstacle at the origin, axes as map) where it crossed the level,
+                             interpolated between poses (see sim.watcher); frame obstacle_<id>,
+                             stamp = sim time of the crossing. The world removes that obstacle.
   pub  /supervisor/decisions diagnostic_msgs/DiagnosticStatus  robot, obstacle, V_S, threshold
 """
 from __future__ import annotations
@@ -99,10 +100,10 @@ class SupervisorNode(Node):
         decision = self.watcher.judge(robot, state, t, ids, xy)
         if decision is None:
             return
-        out = rosmsg.state_to_pose(decision.rel_state, msg.header.stamp,
-                                   rosmsg.obstacle_frame(decision.obstacle_id))
+        stamp = Time(nanoseconds=int(round(decision.time * 1e9))).to_msg()
+        out = rosmsg.state_to_pose(decision.rel_state, stamp, rosmsg.obstacle_frame(decision.obstacle_id))
         self.intervention_pub.publish(out)
-        values = {'robot': robot, 'obstacle': decision.obstacle_id, 'time': f'{t:.3f}',
+        values = {'robot': robot, 'obstacle': decision.obstacle_id, 'time': f'{decision.time:.4f}',
                   'value': f'{decision.value:.4f}', 'threshold': f'{decision.threshold:.4f}'}
         values.update(self.params)
         self.decision_pub.publish(rosmsg.make_diagnostic('intervention', values))

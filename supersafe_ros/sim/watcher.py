@@ -16,6 +16,17 @@ stays fixed, so the noise is per approach, as in the paper's Phase II data.
 After an intervention the obstacle is pending removal: it is not judged again,
 for any robot, until the world has removed it (or ``pending_timeout`` passes, in
 which case the supervisor may intervene again).
+
+The idealized supervisor watches continuous motion; the simulation shows it poses
+every step (0.15 m apart at 3 m/s and 0.05 s). So that this sampling does not bias
+what is learned (V at the reported state would be up to |dV/ds| x 0.15 below the
+level), the reported state and time are those of the level crossing, interpolated
+linearly in V between the last pose above the level and the first at or below it:
+
+    f = (V_prev - level) / (V_prev - V),   x* = x_prev + f (x - x_prev),   t* likewise.
+
+When an encounter starts below its level there is nothing to interpolate from and
+the pose itself is reported.
 """
 from __future__ import annotations
 
@@ -24,6 +35,7 @@ import math
 
 import numpy as np
 
+from ..reach.grid import wrap_angle
 from ..reach.value_function import ValueFunction
 
 
@@ -48,6 +60,7 @@ class Watcher:
     pending_timeout: float = 5.0
     thresholds: dict = field(default_factory=dict)   # (robot, obstacle id) -> mu + w
     pending: dict = field(default_factory=dict)      # obstacle id -> time intervened
+    previous: dict = field(default_factory=dict)     # (robot, obstacle id) -> (rel state, V, t)
 
     def __post_init__(self):
         if not (math.isfinite(self.mu) and math.isfinite(self.sigma) and self.sigma >= 0):
@@ -58,6 +71,7 @@ class Watcher:
         alive = set(int(i) for i in np.asarray(ids).reshape(-1))
         self.pending = {o: t for o, t in self.pending.items() if o in alive}
         self.thresholds = {k: v for k, v in self.thresholds.items() if k[1] in alive}
+        self.previous = {k: v for k, v in self.previous.items() if k[1] in alive}
 
     def judge(self, robot: str, state, time: float, obstacle_ids, obstacle_xy) -> Decision | None:
         """Judge one robot state against every obstacle; returns an intervention or None.
@@ -82,18 +96,29 @@ class Watcher:
             key = (robot, oid)
             if not inside[k]:
                 self.thresholds.pop(key, None)       # encounter over
+                self.previous.pop(key, None)
                 continue
             if key not in self.thresholds:           # a new approach: one noisy judgement
                 self.thresholds[key] = self.mu + self.sigma * float(self.rng.standard_normal())
+            prev = self.previous.get(key)
+            self.previous[key] = (rel[k].copy(), float(values[k]), float(time))
             if oid in self.pending:
                 continue
             margin = values[k] - self.thresholds[key]
             if margin <= 0 and (best is None or margin < best[0]):
-                best = (margin, k, oid)
+                best = (margin, k, oid, prev)
         if best is None:
             return None
-        _, k, oid = best
+        _, k, oid, prev = best
+        level = self.thresholds.pop((robot, oid))
+        self.previous.pop((robot, oid), None)
         self.pending[oid] = float(time)
-        self.thresholds.pop((robot, oid), None)
-        return Decision(robot, oid, float(time), rel[k].copy(), float(values[k]),
-                        float(values[k] - best[0]))
+        x, v, t = rel[k].copy(), float(values[k]), float(time)
+        if prev is not None and prev[1] > level and prev[2] < t:
+            f = (prev[1] - level) / (prev[1] - v)
+            dth = float(wrap_angle(x[2] - prev[0][2]))
+            x = np.array([prev[0][0] + f * (x[0] - prev[0][0]), prev[0][1] + f * (x[1] - prev[0][1]),
+                          float(wrap_angle(prev[0][2] + f * dth))])
+            t = prev[2] + f * (t - prev[2])
+            v = float(self.vf.value(x[None])[0])
+        return Decision(robot, oid, t, x, v, level)
