@@ -167,8 +167,10 @@ def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
     if with_learner:
         publishers.append('/safe_set/value_function=1')
     pose_readers = 2 + int(with_filter) + int(with_supervisor)   # world, planner, filter, supervisor
+    observers = ['/world/step_done'] + (['/supervisor/step_done'] if with_supervisor else [])
     add('sim_clock', None, {
-        'use_sim_time': False, 'robots': robots, 'rate_factor': float(rate_factor),
+        'use_sim_time': False, 'robots': robots, 'observers': observers,
+        'rate_factor': float(rate_factor),
         'duration': float(duration), 'step': step, 'wait_for_publishers': publishers,
         'wait_for_subscriptions': [f'/{r}/pose={pose_readers}' for r in robots]})
     return layout

@@ -95,3 +95,42 @@ def test_clock_waits_for_graph_then_steps_in_lockstep(ros_context):
         spin.shutdown()
         clock.destroy_node()
         driver.destroy_node()
+
+
+def test_clock_keeps_observers_within_their_lag(ros_context):
+    step_ns, lag = 50_000_000, 2
+    clock = SimClockNode(context=ros_context, parameter_overrides=params(
+        robots=['robot_0'], observers=['/observer/step_done'], observer_lag=lag, step=0.05,
+        rate_factor=0.0, ack_timeout=2.0, start_timeout=20.0))
+    driver = Node('observer_test_driver', context=ros_context)
+    robot = FakeRobot(driver)
+    robot.delay = 0.0
+    obs_pub = driver.create_publisher(Clock, '/observer/step_done', rosmsg.QOS_CLOCK)
+    state = {'acked': -1, 'violations': [], 'last_ack_wall': time.monotonic()}
+
+    def check(msg):                          # every step must respect the observer's lag
+        t = ns_of(msg)
+        if t > step_ns and state['acked'] < t - (lag + 1) * step_ns:
+            state['violations'].append(t)
+    driver.create_subscription(Clock, '/clock', check, rosmsg.QOS_CLOCK)
+
+    def observer_poll():                     # a slow observer: catches up every 30 ms
+        if robot.ticks and time.monotonic() - state['last_ack_wall'] > 0.03:
+            state['acked'] = robot.ticks[-1]
+            state['last_ack_wall'] = time.monotonic()
+            m = Clock()
+            m.clock.sec, m.clock.nanosec = divmod(robot.ticks[-1], 1_000_000_000)
+            obs_pub.publish(m)
+        return robot.poll()
+    spin = Spinner(ros_context, clock, driver)
+    try:
+        spin.until(lambda: observer_poll() and len(robot.ticks) >= 40, 20.0, '40 steps')
+        assert state['violations'] == [] and robot.violations == []
+        t = np.array(robot.ticks)
+        assert np.all(np.diff(t) == step_ns)
+        assert clock.late_steps == 0         # the observer's acknowledgements released every step
+    finally:
+        clock.close()
+        spin.shutdown()
+        clock.destroy_node()
+        driver.destroy_node()

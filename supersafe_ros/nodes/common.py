@@ -82,3 +82,29 @@ def declare(node, name, default, description, lo=None, hi=None, step=0, read_onl
             desc.floating_point_range = [FloatingPointRange(from_value=float(lo), to_value=float(hi),
                                                             step=float(step))]
     return node.declare_parameter(name, default, desc).value
+
+
+class StepAcknowledger:
+    """For nodes that judge every robot pose (world, supervisor) under a lockstep clock:
+    publishes on ``~/step_done`` the newest sim time up to which the poses of every
+    robot have been processed (see sim_clock_node's ``observers``)."""
+
+    def __init__(self, node, robots):
+        from rosgraph_msgs.msg import Clock
+        from .. import rosmsg
+        self._clock_type = Clock
+        self.latest = {r: -1 for r in robots}
+        self.sent = -1
+        self.pub = node.create_publisher(Clock, '~/step_done', rosmsg.QOS_CLOCK)
+
+    def processed(self, robot, stamp) -> None:
+        """Record that ``robot``'s pose stamped ``stamp`` (builtin Time) is dealt with."""
+        t = stamp.sec * 1_000_000_000 + stamp.nanosec
+        if t > self.latest.get(robot, t):
+            self.latest[robot] = t
+        done = min(self.latest.values())
+        if done > self.sent:
+            self.sent = done
+            msg = self._clock_type()
+            msg.clock.sec, msg.clock.nanosec = divmod(done, 1_000_000_000)
+            self.pub.publish(msg)

@@ -5,7 +5,11 @@ so that sim time runs ``rate_factor`` times faster than the wall clock (0: as fa
 as the graph allows).
 
 Lockstep (default): a step is published only when every robot in ``robots`` has
-acknowledged the previous one on /<robot>/step_done. A robot acknowledges after it
+acknowledged the previous one on /<robot>/step_done, and every observer (the
+``observers`` topics: world and supervisor, which judge every pose) has
+acknowledged the poses of ``observer_lag`` steps before, so what they decide
+(crashes, interventions, removals) lags the robots by a bounded sim time at any
+rate factor, while their work still overlaps the robots' next steps. A robot acknowledges after it
 has integrated the step, published its pose and received the command that answers
 it, so each step's command is computed from that step's pose no matter how far
 the wall clock is ahead: the closed loop in sim time is the same at 1x or 30x,
@@ -65,6 +69,11 @@ class SimClockNode(Node):
                              'sim seconds per wall second (0: as fast as the graph allows)', 0.0, 1e4)
         self.lockstep = p('lockstep', True, 'wait for every robot to acknowledge each step')
         self.robots = list(p('robots', ['robot_0'], 'robot namespaces to wait for in lockstep'))
+        self.observers = [t for t in p(
+            'observers', [''],
+            'acknowledgement topics of nodes that judge the robots\' poses (world, supervisor); '
+            'the clock keeps them at most observer_lag steps behind') if t]
+        self.observer_lag = p('observer_lag', 2, 'steps an observer may lag behind the robots', 0, 1000)
         self.ack_timeout = p('ack_timeout', 0.5, 'wall seconds to wait for a robot per step', 0.001, 60.0)
         self.start_timeout = p('start_timeout', 60.0,
                                'wall seconds to wait for every robot to appear before starting',
@@ -90,13 +99,16 @@ class SimClockNode(Node):
         self.next_coarse = self.start_ns
         self.status_pub = self.create_publisher(DiagnosticStatus, '/sim/clock_status', rosmsg.QOS_LATCHED)
         self.cond = threading.Condition()
-        self.acked = {r: -1 for r in self.robots}
+        self.acked = {r: -1 for r in self.robots + self.observers}
         self.ack_subs = []
         if self.lockstep:
             for r in self.robots:
                 topic = f'/{r.strip("/")}/step_done'
                 self.ack_subs.append(self.create_subscription(
                     Clock, topic, lambda msg, r=r: self.on_ack(r, msg), rosmsg.QOS_CLOCK))
+            for o in self.observers:
+                self.ack_subs.append(self.create_subscription(
+                    Clock, o, lambda msg, o=o: self.on_ack(o, msg), rosmsg.QOS_CLOCK))
         self.now_ns = self.start_ns
         self.late_steps = 0
         self.steps = 0
@@ -119,7 +131,8 @@ class SimClockNode(Node):
         /clock subscriptions) and for every topic count in wait_for_publishers/_subscriptions."""
         deadline = time.monotonic() + self.start_timeout
         while not self.stop.is_set():
-            missing = [r for r, s in zip(self.robots, self.ack_subs) if s.get_publisher_count() == 0]
+            missing = [r for r, s in zip(self.robots + self.observers, self.ack_subs)
+                       if s.get_publisher_count() == 0]
             if self.clock_pub.get_subscription_count() < len(self.robots):
                 missing.append('(robot /clock subscriptions)')
             missing += [f'{t} publishers {self.count_publishers(t)}/{n}'
@@ -168,6 +181,8 @@ class SimClockNode(Node):
                 with self.cond:
                     while not self.stop.is_set():
                         waiting = [r for r in self.robots if self.acked[r] < self.now_ns]
+                        lagging = self.now_ns - self.observer_lag * self.step_ns
+                        waiting += [o for o in self.observers if self.acked[o] < lagging]
                         left = deadline - time.monotonic()
                         if not waiting or left <= 0:
                             break

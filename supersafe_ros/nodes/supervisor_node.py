@@ -14,6 +14,8 @@ per approach (supersafe_ros.sim.watcher).
                              interpolated between poses (see sim.watcher); frame obstacle_<id>,
                              stamp = sim time of the crossing. The world removes that obstacle.
   pub  /supervisor/decisions diagnostic_msgs/DiagnosticStatus  robot, obstacle, V_S, threshold
+  pub  /supervisor/step_done rosgraph_msgs/Clock        newest sim time whose poses of every robot
+                             are judged (lockstep observer)
 """
 from __future__ import annotations
 
@@ -28,7 +30,7 @@ from visualization_msgs.msg import MarkerArray
 from .. import rosmsg
 from ..reach.grid import Grid
 from ..sim.watcher import Watcher
-from .common import declare, run_node
+from .common import StepAcknowledger, declare, run_node
 from .markers import ObstacleMarkers
 
 
@@ -74,6 +76,7 @@ class SupervisorNode(Node):
         self.intervention_pub = self.create_publisher(PoseStamped, '/interventions', rosmsg.QOS_EVENTS)
         self.decision_pub = self.create_publisher(DiagnosticStatus, '/supervisor/decisions',
                                                   rosmsg.QOS_EVENTS)
+        self.acks = StepAcknowledger(self, self.robots)
         self.create_subscription(MarkerArray, '/obstacle_markers', self.on_markers, rosmsg.QOS_LATCHED)
         for r in self.robots:
             self.create_subscription(PoseStamped, f'/{r}/pose', lambda m, r=r: self.on_pose(r, m),
@@ -90,6 +93,12 @@ class SupervisorNode(Node):
         self.watcher.obstacles_changed(self.obstacles.arrays()[0])
 
     def on_pose(self, robot, msg: PoseStamped):
+        try:
+            self.judge(robot, msg)
+        finally:
+            self.acks.processed(robot, msg.header.stamp)   # after any intervention went out
+
+    def judge(self, robot, msg: PoseStamped):
         try:
             state = rosmsg.pose_to_state(msg)
         except rosmsg.MessageError as exc:

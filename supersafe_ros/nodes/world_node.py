@@ -11,6 +11,8 @@
   pub  /world/stats            diagnostic_msgs/DiagnosticStatus  latched, every stats_period
   pub  /world/intervention_log diagnostic_msgs/DiagnosticStatus  one per accepted intervention
   pub  /world/events           diagnostic_msgs/DiagnosticStatus  one per trip and per crash
+  pub  /world/step_done        rosgraph_msgs/Clock        newest sim time whose poses of every robot
+                                                          are counted (lockstep observer)
 
 Robots are listed in the ``robots`` parameter (namespaces). An intervention naming an
 unknown obstacle (already removed, or not an obstacle frame) is rejected and logged.
@@ -26,7 +28,7 @@ from visualization_msgs.msg import MarkerArray
 
 from .. import rosmsg
 from ..sim.world import World, WorldConfig
-from .common import declare, run_node
+from .common import StepAcknowledger, declare, run_node
 from .markers import obstacles_to_markers
 
 # deep queues: the world must see every pose (a crash can last a single step)
@@ -77,6 +79,7 @@ class WorldNode(Node):
         self.log_pub = self.create_publisher(DiagnosticStatus, '/world/intervention_log',
                                              rosmsg.QOS_EVENTS)
         self.events_pub = self.create_publisher(DiagnosticStatus, '/world/events', rosmsg.QOS_EVENTS)
+        self.acks = StepAcknowledger(self, self.robots)
         self.goal_pubs = {}
         for r in self.robots:
             self.goal_pubs[r] = self.create_publisher(PoseStamped, f'/{r}/goal', rosmsg.QOS_LATCHED)
@@ -122,6 +125,12 @@ class WorldNode(Node):
         self.stats_pub.publish(rosmsg.make_diagnostic('world', self.stats_values()))
 
     def on_pose(self, robot, msg: PoseStamped):
+        try:
+            self.count_pose(robot, msg)
+        finally:
+            self.acks.processed(robot, msg.header.stamp)   # dealt with, even if rejected
+
+    def count_pose(self, robot, msg: PoseStamped):
         try:
             state = rosmsg.pose_to_state(msg)
             first = self.world.robots[robot].position is None
