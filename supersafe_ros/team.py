@@ -172,7 +172,9 @@ def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
         'use_sim_time': False, 'robots': robots, 'observers': observers,
         'rate_factor': float(rate_factor),
         'duration': float(duration), 'step': step, 'wait_for_publishers': publishers,
-        'wait_for_subscriptions': [f'/{r}/pose={pose_readers}' for r in robots]})
+        # every robot's and filter's /clock reader, so that no one misses the first steps
+        'wait_for_subscriptions': [f'/{r}/pose={pose_readers}' for r in robots]
+        + [f'/clock={len(robots) * (1 + int(with_filter))}']})
     return layout
 
 
