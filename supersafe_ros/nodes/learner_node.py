@@ -101,6 +101,7 @@ class LearnerNode(Node):
         self.store = InterventionStore(store_path)
         self.fit = None
         self.rejected = 0
+        self.timing = {}   # seconds spent on the last store append, fit, value-function publish
         msg = f'store {self.store.path}: {len(self.store)} interventions'
         if self.store.torn_bytes:
             msg += f', cut a torn last line of {self.store.torn_bytes} bytes'
@@ -146,7 +147,10 @@ class LearnerNode(Node):
             self.get_logger().error(f'intervention rejected: {exc}')
             self.publish_status(f'intervention rejected: {exc}', level=1)
             return
-        if not self.store.append(entry):   # persisted (fsync) before anything else
+        t0 = time.perf_counter()
+        stored = self.store.append(entry)   # persisted (fsync) before anything else
+        self.timing['store_s'] = time.perf_counter() - t0
+        if not stored:
             self.get_logger().warn(f'duplicate intervention ({entry.frame}, stamp {entry.stamp_ns}) ignored')
             return
         self.get_logger().info(f'intervention {len(self.store)} stored: {entry.frame} at '
@@ -169,11 +173,13 @@ class LearnerNode(Node):
             self.publish_status(f'fit failed: {exc}', level=2)
             return None
         self.fit = fit
+        self.timing['fit_s'] = time.perf_counter() - t0
         summary = {k: v for k, v in fit.to_dict().items() if k != 'candidates'}
         extra = dict(summary, source='learned', alpha_k=self.alpha_k, conservative_prior=self.prior,
                      stamp_ns=self.get_clock().now().nanoseconds)
         extra.pop('notes', None)
         self.vf_pub.publish(value_function_to_msg(fit.value_function, **extra))
+        self.timing['publish_s'] = time.perf_counter() - t0 - self.timing['fit_s']
         self.publish_status(f'fit on {fit.interventions} interventions ({why}) in '
                             f'{time.perf_counter() - t0:.3f} s', level=1 if fit.notes else 0)
         self.get_logger().info(f'fit ({why}): omega_max {fit.omega_max:g}, mu {fit.mu:.4g}, '
@@ -192,6 +198,7 @@ class LearnerNode(Node):
             'index': f.index if f else -1, 'store': self.store.path,
             'rejected': self.rejected, 'notes': '; '.join(f.notes) if f else '',
         }
+        values.update({k: f'{v:.6f}' for k, v in self.timing.items()})
         self.fit_pub.publish(rosmsg.make_diagnostic('learner', values, message, level))
 
     # -- reset ---------------------------------------------------------------------------------
