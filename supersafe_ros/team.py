@@ -207,6 +207,17 @@ def team_env(domain_id: int | None = None, base: dict | None = None) -> dict:
     return env
 
 
+def _die_with_parent():
+    """In the child before exec (Linux): SIGTERM it if the runner dies without stopping it
+    (e.g. SIGKILL), so no orphaned node keeps a sim clock or DDS traffic going."""
+    try:
+        import ctypes
+        libc = ctypes.CDLL('libc.so.6', use_errno=True)
+        libc.prctl(1, signal.SIGTERM)          # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+
+
 @dataclass
 class Team:
     """Running child processes of a team."""
@@ -226,7 +237,8 @@ class Team:
             # own session: a terminal Ctrl-C reaches the runner only, which then
             # stops the children in order
             self.procs.append(subprocess.Popen(argv, env=self.env, stdout=log,
-                                               stderr=subprocess.STDOUT, start_new_session=True))
+                                               stderr=subprocess.STDOUT, start_new_session=True,
+                                               preexec_fn=_die_with_parent))
         # who is who, for anyone who has to clean up after a crashed runner
         (self.log_dir / 'pids.txt').write_text(''.join(
             f'{p.pid} {process_name(a)}\n' for a, p in zip(self.argvs, self.procs)))

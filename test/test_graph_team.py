@@ -129,3 +129,76 @@ def test_team_stops_cleanly_on_ctrl_c(tmp_path):
     assert 'team stopped (signal SIGINT)' in out
     assert 'did not exit cleanly' not in out
     assert children_alive(tmp_path / 'logs') == []
+
+
+def test_launch_file_builds_the_layout_with_stand_in_launch_modules(monkeypatch):
+    """No launch_ros here: stand-ins record what the launch file asks for."""
+    import importlib.util
+    import types
+
+    made = []
+
+    class Recorder:
+        def __init__(self, *args, **kwargs):
+            self.args, self.kwargs = args, kwargs
+            made.append(self)
+
+    class LaunchConfiguration:
+        def __init__(self, name):
+            self.name = name
+
+    launch = types.ModuleType('launch')
+    launch.LaunchDescription = lambda actions: actions
+    actions = types.ModuleType('launch.actions')
+    actions.DeclareLaunchArgument = Recorder
+    actions.OpaqueFunction = Recorder
+    actions.SetEnvironmentVariable = Recorder
+    substitutions = types.ModuleType('launch.substitutions')
+    substitutions.LaunchConfiguration = LaunchConfiguration
+    launch_ros = types.ModuleType('launch_ros')
+    ros_actions = types.ModuleType('launch_ros.actions')
+    ros_actions.Node = Recorder
+    for name, mod in {'launch': launch, 'launch.actions': actions, 'launch.substitutions': substitutions,
+                      'launch_ros': launch_ros, 'launch_ros.actions': ros_actions}.items():
+        monkeypatch.setitem(sys.modules, name, mod)
+    spec = importlib.util.spec_from_file_location('team_launch', REPO / 'launch' / 'team.launch.py')
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    description = module.generate_launch_description()
+    defaults = {a.args[0]: a.kwargs['default_value'] for a in description
+                if isinstance(a, Recorder) and 'default_value' in a.kwargs}
+    opaque = [a for a in description if 'function' in a.kwargs][0]
+    values = dict(defaults, robots='3')
+
+    class Context:
+        def perform_substitution(self, sub):
+            return values[sub.name]
+    made.clear()
+    nodes = opaque.kwargs['function'](Context())
+    kinds = [(n.kwargs['executable'], n.kwargs['namespace']) for n in nodes]
+    expected = [(s.executable, s.namespace or '') for s in team.team_layout(3)]
+    assert kinds == expected
+    for n, s in zip(nodes, team.team_layout(3)):
+        assert n.kwargs['package'] == 'supersafe_ros'
+        assert Path(n.kwargs['parameters'][0]).is_file() and n.kwargs['parameters'][1] == s.params
+        assert n.kwargs['remappings'] == list(s.remaps.items())
+
+
+def test_children_die_with_a_killed_runner(tmp_path):
+    proc = team_cli(tmp_path, '--no-learner', '--no-supervisor', '--timeout', '120')
+    try:
+        pids_file = tmp_path / 'logs' / 'pids.txt'
+        deadline = time.monotonic() + 30
+        while not pids_file.exists() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert pids_file.exists()
+        assert children_alive(tmp_path / 'logs')
+        proc.kill()                                  # no chance to stop its children
+        proc.wait(timeout=10)
+        deadline = time.monotonic() + 20
+        while children_alive(tmp_path / 'logs') and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert children_alive(tmp_path / 'logs') == []
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
