@@ -33,7 +33,6 @@ setup(
     maintainer_email='supersafe@example.org',
     description='Supervisor safe sets for robot teams (HJI reachability, learning, safety filter).',
     license='Apache-2.0',
-    tests_require=['pytest'],
     entry_points={
         'console_scripts': [
             'supersafe = supersafe_ros.cli:main',
