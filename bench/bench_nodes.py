@@ -23,7 +23,6 @@ processes of the machine.
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import subprocess
 import sys
@@ -38,10 +37,6 @@ sys.path.insert(0, os.path.dirname(HERE))
 from supersafe_ros.rosenv import ensure_local_ros_env  # noqa: E402
 
 OBSTACLE = (3.0, -1.0)
-
-
-def pct(values, q):
-    return float(np.percentile(np.asarray(values, dtype=float), q)) if len(values) else math.nan
 
 
 def ms(values):

@@ -94,11 +94,13 @@ class SafetyFilterNode(Node):
                                     'action does not change [Hz]', 0.1, 1000.0)
         self.publish_on_pose = p('publish_on_pose', False, 'also decide and publish on every pose')
         self.frame = p('frame_id', rosmsg.MAP_FRAME, 'frame of pose and detections')
-        cache_dir = p('cache_dir', '', 'value-function cache ("" = $SUPERSAFE_CACHE or ~/.cache/supersafe_ros)')
+        cache_dir = p('cache_dir', '',
+                      'value-function cache ("" = $SUPERSAFE_CACHE or ~/.cache/supersafe_ros)')
         lo = p('standard_lo', [-8.0, -8.0], 'standard set grid: (xmin, ymin) relative to the obstacle [m]')
         hi = p('standard_hi', [8.0, 8.0], 'standard set grid: (xmax, ymax) [m]')
         shape = p('standard_shape', [65, 65, 42], 'standard set grid: nodes (nx, ny, ntheta)')
-        horizon = p('standard_horizon', 3.0, 'standard set horizon [s] (as the library; 0 = to convergence)', 0.0, 1000.0)
+        horizon = p('standard_horizon', 3.0, 'standard set horizon [s] (as the library; 0 = to convergence)',
+                    0.0, 1000.0)
 
         self.filter = RobotFilter(cfg, self.get_namespace())
         t0 = time.perf_counter()
