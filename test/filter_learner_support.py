@@ -1,8 +1,9 @@
 """Shared plumbing of the filter and learner topic-level tests (not a test module).
 
-Every test session gets its own ROS_DOMAIN_ID (set in os.environ before any
-rclpy.init) and loopback-only discovery; each test module runs its nodes in its
-own rclpy Context, spun by hand with deadlines (never sleep-and-hope).
+The session's ROS_DOMAIN_ID and loopback-only discovery come from test/conftest.py
+(set before any rclpy.init); ``ros_context`` re-asserts them in case these modules
+run without it. Each test module runs its nodes in its own rclpy Context, spun by
+hand with deadlines (never sleep-and-hope).
 """
 from __future__ import annotations
 
@@ -14,17 +15,20 @@ import pytest
 from supersafe_ros.rosenv import ensure_local_ros_env
 
 
-def session_domain_id() -> int:
-    """A domain for this pytest process: $SUPERSAFE_TEST_DOMAIN or one derived from the pid."""
-    return int(os.environ.get('SUPERSAFE_TEST_DOMAIN', 130 + os.getpid() % 100))
+def ensure_session_domain() -> int:
+    """The session's domain: conftest's, else one derived from the pid (set once)."""
+    if 'SUPERSAFE_TEST_DOMAIN_SET' not in os.environ:
+        os.environ['ROS_DOMAIN_ID'] = str(110 + os.getpid() % 90)
+        os.environ['SUPERSAFE_TEST_DOMAIN_SET'] = '1'
+    return int(os.environ['ROS_DOMAIN_ID'])
 
 
 @pytest.fixture(scope='module')
 def ros_context(tmp_path_factory):
     ensure_local_ros_env()
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    os.environ['ROS_DOMAIN_ID'] = str(session_domain_id())
-    # value-function cache shared by this session's tests (coarse grids solve in ~0.2 s)
+    ensure_session_domain()
+    # value-function cache shared by the tests (conftest sets one; coarse grids solve in ~0.2 s)
     os.environ.setdefault('SUPERSAFE_CACHE', str(tmp_path_factory.getbasetemp() / 'vf-cache'))
     import rclpy
     ctx = rclpy.Context()
