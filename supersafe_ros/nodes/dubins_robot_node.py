@@ -124,6 +124,8 @@ class DubinsRobotNode(Node):
         # detections change rarely: send them on change and as a heartbeat, which keeps
         # every consumer fresh at a fraction of the per-step traffic
         seen_key = tuple(seen_ids.tolist())
+        if now < self.last_detections_t:          # sim time restarted
+            self.last_detections_t = -float('inf')
         if (seen_key != self.last_seen
                 or now - self.last_detections_t >= self.detections_period - 1e-9):
             self.det_pub.publish(rosmsg.xy_to_posearray(seen, msg_stamp, self.frame))
