@@ -171,7 +171,11 @@ class WorldNode(Node):
         centre = self.world.obstacles[oid]
         robot = self.world.robot_at(centre + rel[:2], self.match_tolerance)
         t = Time.from_msg(msg.header.stamp).nanoseconds * 1e-9 or self.now_s()
+        relaxed = self.world.relaxed_spawns
         record, new_id = self.world.intervene(oid, t, robot)
+        if self.world.relaxed_spawns > relaxed:
+            self.get_logger().warn(f'no room for obstacle {new_id} with the full spacing and clearance: '
+                                   'placed with relaxed rules (see relaxed_spawns in /world/stats)')
         self.publish_obstacles()
         self.log_pub.publish(rosmsg.make_diagnostic('intervention', {
             'obstacle': oid, 'robot': robot or 'unknown', 'false_positive': record.false_positive,
