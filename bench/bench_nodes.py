@@ -420,7 +420,7 @@ def bench_learner(args):
         d.spin_until(lambda: pub.get_subscription_count() and fit_sub.get_publisher_count()
                      and vf_sub.get_publisher_count(), 120.0, 'the learner to start')
         print(f'[learner] learner_node up (library from cache) {time.monotonic() - t_start:.2f} s after launch')
-        to_fit, to_vf, inside = [], [], {'store_s': [], 'fit_s': [], 'publish_s': []}
+        to_fit, to_vf, to_learner, inside = [], [], [], {'store_s': [], 'fit_s': [], 'publish_s': []}
         for i, s in enumerate(states):
             fits.clear()
             vfs.clear()
@@ -433,9 +433,11 @@ def bench_learner(args):
             t_fit = min(t for t, m in fits if rosmsg.diagnostic_values(m).get('fitted_interventions') == str(i + 1))
             to_fit.append((t_fit - t0) * 1e-9)
             vals = rosmsg.diagnostic_values(fits[-1][1])
+            to_learner.append((int(vals['received_monotonic_ns']) - t0) * 1e-9)
             for k in inside:
                 inside[k].append(float(vals.get(k, 'nan')))
             to_vf.append((vfs[0] - t0) * 1e-9)
+        print(f'[learner] intervention published -> learner callback: {ms(to_learner)}')
         print('[learner] inside the learner: ' + '; '.join(f'{k[:-2]} {ms(v)}' for k, v in inside.items()))
         last = rosmsg.diagnostic_values(fits[-1][1])
         print(f'[learner] intervention -> /safe_set/fit received: {ms(to_fit)}')

@@ -140,6 +140,7 @@ class LearnerNode(Node):
         return Intervention(int(stamp_ns), frame, x, y, theta, time.time())
 
     def on_intervention(self, msg: PoseStamped):
+        self.timing['received_monotonic_ns'] = time.monotonic_ns()   # for latency breakdowns
         try:
             entry = self.parse(msg)
         except ValueError as exc:
@@ -198,7 +199,7 @@ class LearnerNode(Node):
             'index': f.index if f else -1, 'store': self.store.path,
             'rejected': self.rejected, 'notes': '; '.join(f.notes) if f else '',
         }
-        values.update({k: f'{v:.6f}' for k, v in self.timing.items()})
+        values.update({k: (str(v) if isinstance(v, int) else f'{v:.6f}') for k, v in self.timing.items()})
         self.fit_pub.publish(rosmsg.make_diagnostic('learner', values, message, level))
 
     # -- reset ---------------------------------------------------------------------------------
