@@ -62,8 +62,7 @@ def test_robot_rejects_bad_parameters():
 
 # ----- sensor ---------------------------------------------------------------------------
 def test_sensor_range_and_per_trip_misses():
-    rng = np.random.default_rng(1)
-    sensor = LossySensor(sensor_range=5.0, miss_probability=0.2, rng=rng)
+    sensor = LossySensor(sensor_range=5.0, miss_probability=0.2, seed=1)
     ids = np.arange(4)
     xy = np.array([[1.0, 0.0], [4.9, 0.0], [5.1, 0.0], [0.0, -3.0]])
     missed_fraction = []
@@ -200,7 +199,7 @@ def test_watcher_intervenes_at_its_level_once_per_obstacle():
 
 
 def test_watcher_noise_is_drawn_per_encounter():
-    w = Watcher(distance_vf(), mu=1.0, sigma=0.5, rng=np.random.default_rng(0))
+    w = Watcher(distance_vf(), mu=1.0, sigma=0.5, seed=0)
     levels = []
     for trial in range(200):
         ids, xy = [trial], np.array([[0.0, 0.0]])
@@ -216,3 +215,39 @@ def test_watcher_noise_is_drawn_per_encounter():
     assert len(levels) == 200
     assert np.mean(levels) == pytest.approx(1.0, abs=0.1)
     assert np.std(levels) == pytest.approx(0.5, abs=0.08)
+
+
+def test_draws_do_not_depend_on_processing_order():
+    """Keyed draws: the same seed gives the same misses and thresholds in any order."""
+    ids, xy = np.arange(6), np.array([[float(i), 0.0] for i in range(6)])
+    a = LossySensor(sensor_range=50.0, miss_probability=0.5, seed=9)
+    b = LossySensor(sensor_range=50.0, miss_probability=0.5, seed=9)
+    for _ in range(3):
+        a.new_trip()
+        b.new_trip()
+    seen_a = set(a.sense((0, 0), ids, xy)[0].tolist())
+    seen_b = set()
+    for i in ids[::-1]:                          # one at a time, reversed
+        seen_b |= set(b.sense((0, 0), [i], xy[i:i + 1])[0].tolist())
+    assert seen_a == seen_b
+    w1 = Watcher(distance_vf(), mu=0.0, sigma=1.0, seed=4)
+    w2 = Watcher(distance_vf(), mu=0.0, sigma=1.0, seed=4)
+    ids, xy = [1, 2], np.array([[0.0, 0.0], [4.0, 4.0]])
+    for robot in ('a', 'b'):
+        w1.judge(robot, [6.0, 6.0, 0.0], 0.0, ids, xy)     # inside the grid of both
+    for robot in ('b', 'a'):
+        w2.judge(robot, [6.0, 6.0, 0.0], 0.0, ids, xy)
+    assert w1.thresholds == w2.thresholds and len(w1.thresholds) == 4
+
+
+def test_world_goals_do_not_depend_on_which_robot_finishes_first():
+    cfg = WorldConfig(n_obstacles=3)
+    goals = []
+    for order in (['a', 'b'], ['b', 'a']):
+        w = World(cfg, ['a', 'b'], seed=2)
+        for name in order:
+            w.update_pose(name, [-17.0, 0.0, 0.0])
+        for name in order:
+            w.update_pose(name, [16.5, 0.0, 0.0])       # both complete a trip
+        goals.append({n: tuple(w.robots[n].goal) for n in 'ab'})
+    assert goals[0] == goals[1]

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 import rclpy
 from rclpy.node import Node
 
@@ -63,8 +62,7 @@ class DubinsRobotNode(Node):
 
         self.robot = RobotSim([x0, y0, th0], speed=speed, omega_max=w_max,
                               command_timeout=timeout, timeout_behavior=behavior)
-        rng = np.random.default_rng(None if seed < 0 else seed)
-        self.sensor = LossySensor(sensor_range=rng_, miss_probability=miss, rng=rng)
+        self.sensor = LossySensor(sensor_range=rng_, miss_probability=miss, seed=seed)
         self.obstacles = ObstacleMarkers()
         self.pending_ack = None     # sim time (ns) of a step awaiting its command
         self.last_seen = None       # ids in the last detections message

@@ -19,7 +19,6 @@ per approach (supersafe_ros.sim.watcher).
 """
 from __future__ import annotations
 
-import numpy as np
 from rclpy.node import Node
 from rclpy.time import Time
 
@@ -70,7 +69,7 @@ class SupervisorNode(Node):
         grid = Grid((-half, -half), (half, half), (nxy, nxy, nth))
         vf = supervisor_value_function(grid, speed, w_max, radius, horizon)
         self.watcher = Watcher(vf, mu=mu, sigma=sigma, pending_timeout=pending,
-                               rng=np.random.default_rng(None if seed < 0 else seed))
+                               seed=seed)
         self.params = {'w_max': w_max, 'mu': mu, 'sigma': sigma, 'horizon': horizon, 'radius': radius}
         self.obstacles = ObstacleMarkers()
         self.intervention_pub = self.create_publisher(PoseStamped, '/interventions', rosmsg.QOS_EVENTS)

@@ -17,14 +17,16 @@ the previous command stays in force. Fail-safe without commands:
 
 Sensor: every obstacle within ``sensor_range`` of the robot is reported, except
 that each (trip, obstacle) pair is missed with probability ``miss_probability``;
-the draw is made the first time the obstacle is considered in a trip and kept for
-the rest of the trip (a robot that missed an obstacle keeps missing it, as in the
-paper's task), and drawn again when a new trip starts.
+the draw is kept for the whole trip (a robot that missed an obstacle keeps missing
+it, as in the paper's task) and made again when a new trip starts. Each draw is
+keyed by (seed, trip, obstacle id), so it does not depend on when the obstacle
+was first seen.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 import math
+import zlib
 
 import numpy as np
 
@@ -32,6 +34,24 @@ from ..reach.dynamics import DubinsCar
 from ..reach.grid import wrap_angle
 
 TIMEOUT_BEHAVIORS = ('loiter', 'straight')
+
+
+def base_seed(seed: int | None) -> int:
+    """``seed`` itself, or fresh OS entropy when None (or negative)."""
+    if seed is None or seed < 0:
+        return int(np.random.SeedSequence().entropy)
+    return int(seed)
+
+
+def keyed_rng(seed: int, *key) -> np.random.Generator:
+    """A generator determined by (seed, key...) alone; strings are keyed by their CRC32.
+
+    Draws keyed by what they are about (robot, obstacle, trip, encounter) do not
+    depend on the order in which messages happen to be processed, so a run with a
+    given seed does not change with the real-time factor or the machine's load.
+    """
+    words = [zlib.crc32(k.encode()) if isinstance(k, str) else int(k) for k in key]
+    return np.random.default_rng([int(seed), *words])
 
 
 @dataclass
@@ -112,7 +132,7 @@ class LossySensor:
 
     sensor_range: float = 10.0
     miss_probability: float = 0.2
-    rng: np.random.Generator = field(default_factory=np.random.default_rng)
+    seed: int | None = None
     trip: int = 0
     _missed: dict = field(default_factory=dict)   # obstacle id -> bool, this trip
 
@@ -121,6 +141,7 @@ class LossySensor:
             raise ValueError(f'sensor_range must be positive, got {self.sensor_range}')
         if not 0.0 <= self.miss_probability <= 1.0:
             raise ValueError(f'miss_probability must be in [0, 1], got {self.miss_probability}')
+        self.seed = base_seed(self.seed)
 
     def new_trip(self) -> None:
         """Forget this trip's draws: every obstacle gets a fresh miss draw."""
@@ -130,7 +151,8 @@ class LossySensor:
     def is_missed(self, obstacle_id: int) -> bool:
         oid = int(obstacle_id)
         if oid not in self._missed:
-            self._missed[oid] = bool(self.rng.random() < self.miss_probability)
+            draw = keyed_rng(self.seed, self.trip, oid).random()
+            self._missed[oid] = bool(draw < self.miss_probability)
         return self._missed[oid]
 
     def sense(self, position, obstacle_ids, obstacle_xy) -> tuple[np.ndarray, np.ndarray]:

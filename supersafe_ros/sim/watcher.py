@@ -8,7 +8,8 @@ intervenes when the robot reaches the mu + w level set:
     intervene  iff  V_S(x_rel) <= mu + w,
 
 with x_rel the robot's state relative to the obstacle (obstacle at the origin, axes
-as the map). One judgement - one draw of w - per *encounter*: an encounter of
+as the map). One judgement - one draw of w, keyed by (seed, robot, obstacle,
+approach number) so it does not depend on message order - per *encounter*: an encounter of
 (robot, obstacle) starts when the relative state enters V_S's grid and ends when it
 leaves it again (or the obstacle disappears). Within an encounter the threshold
 stays fixed, so the noise is per approach, as in the paper's Phase II data.
@@ -37,6 +38,7 @@ import numpy as np
 
 from ..reach.grid import wrap_angle
 from ..reach.value_function import ValueFunction
+from .dubins_sim import base_seed, keyed_rng
 
 
 @dataclass
@@ -56,15 +58,17 @@ class Watcher:
     vf: ValueFunction
     mu: float = 0.0
     sigma: float = 0.0
-    rng: np.random.Generator = field(default_factory=np.random.default_rng)
+    seed: int | None = None
     pending_timeout: float = 5.0
     thresholds: dict = field(default_factory=dict)   # (robot, obstacle id) -> mu + w
     pending: dict = field(default_factory=dict)      # obstacle id -> time intervened
     previous: dict = field(default_factory=dict)     # (robot, obstacle id) -> (rel state, V, t)
+    encounters: dict = field(default_factory=dict)   # (robot, obstacle id) -> approaches so far
 
     def __post_init__(self):
         if not (math.isfinite(self.mu) and math.isfinite(self.sigma) and self.sigma >= 0):
             raise ValueError(f'mu must be finite and sigma >= 0, got mu={self.mu}, sigma={self.sigma}')
+        self.seed = base_seed(self.seed)
 
     def obstacles_changed(self, ids) -> None:
         """Forget encounters and pending removals of obstacles that are gone."""
@@ -99,7 +103,10 @@ class Watcher:
                 self.previous.pop(key, None)
                 continue
             if key not in self.thresholds:           # a new approach: one noisy judgement
-                self.thresholds[key] = self.mu + self.sigma * float(self.rng.standard_normal())
+                n = self.encounters.get(key, 0)
+                self.encounters[key] = n + 1
+                w = float(keyed_rng(self.seed, robot, oid, n).standard_normal())
+                self.thresholds[key] = self.mu + self.sigma * w
             prev = self.previous.get(key)
             self.previous[key] = (rel[k].copy(), float(values[k]), float(time))
             if oid in self.pending:

@@ -31,6 +31,7 @@ import math
 
 import numpy as np
 
+from .dubins_sim import base_seed, keyed_rng
 
 @dataclass(frozen=True)
 class WorldConfig:
@@ -91,8 +92,12 @@ class World:
 
     def __init__(self, config: WorldConfig, robots, seed: int | None = 0):
         self.config = config
-        self.rng = np.random.default_rng(seed)
+        self.seed = base_seed(seed)
+        # separate streams: obstacle placement, and each robot's goals, so the order in
+        # which robots' events are processed does not change what anyone draws
+        self.rng = keyed_rng(self.seed, 'obstacles')
         self.robots = {name: RobotRecord(name) for name in robots}
+        self.goal_rngs = {name: keyed_rng(self.seed, 'goals', name) for name in robots}
         if not self.robots:
             raise ValueError('the world needs at least one robot')
         self.obstacles: dict[int, np.ndarray] = {}
@@ -145,7 +150,7 @@ class World:
         r = self.robots[name]
         c = self.config
         r.goal = np.array([r.side * c.goal_x,
-                           self.rng.uniform(-(c.half_height - 2.0), c.half_height - 2.0)])
+                           self.goal_rngs[name].uniform(-(c.half_height - 2.0), c.half_height - 2.0)])
         return r.goal
 
     def initial_side(self, name: str, x: float) -> None:
