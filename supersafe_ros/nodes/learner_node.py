@@ -36,6 +36,8 @@ from std_srvs.srv import Empty
 
 from .. import rosmsg
 from ..intervention_store import Intervention, InterventionStore
+# imported here, not in the first refit: scipy takes ~1 s to import on a busy machine
+from ..learning.estimators import fit_paper
 from ..reach.library import PAPER_OMEGAS, LibrarySpec, load_or_build_library
 from ..vfmsg import value_function_to_msg
 from .common import declare, run_node
@@ -164,7 +166,6 @@ class LearnerNode(Node):
 
     # -- fit ------------------------------------------------------------------------------------
     def refit(self, why: str):
-        from ..learning.estimators import fit_paper
         t0 = time.perf_counter()
         try:
             fit = fit_paper(self.entries, self.store.states(),
@@ -216,7 +217,10 @@ class LearnerNode(Node):
 
 
 def main(args=None):
-    return run_node(LearnerNode, args)
+    try:
+        return run_node(LearnerNode, args)
+    except KeyboardInterrupt:   # a Ctrl-C that lands during shutdown: data are fsynced already
+        return 0
 
 
 if __name__ == '__main__':
