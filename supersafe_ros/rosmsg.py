@@ -33,6 +33,11 @@ QOS_EVERY_SAMPLE = QoSProfile(depth=200, history=HistoryPolicy.KEEP_LAST,
 QOS_EVENTS = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST,
                         reliability=ReliabilityPolicy.RELIABLE,
                         durability=DurabilityPolicy.VOLATILE)
+# Logs of records (interventions, trips, crashes): like events, and a late joiner
+# (a monitor started with the team) still gets the last 1000 records.
+QOS_LOG = QoSProfile(depth=1000, history=HistoryPolicy.KEEP_LAST,
+                     reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
 # Latched state a late joiner needs at once (obstacle markers, stats, value function).
 QOS_LATCHED = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
                          reliability=ReliabilityPolicy.RELIABLE,

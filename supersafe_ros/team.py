@@ -307,7 +307,7 @@ class TeamMonitor:
                                       rosmsg.QOS_LATCHED)
         self.node.create_subscription(DiagnosticStatus, '/world/intervention_log',
                                       lambda m: self.interventions.append(rosmsg.diagnostic_values(m)),
-                                      rosmsg.QOS_EVENTS)
+                                      rosmsg.QOS_LOG)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self.thread = threading.Thread(target=self._spin, daemon=True)

@@ -226,3 +226,22 @@ def test_supervisor_intervenes_at_its_level_and_names_the_robot(ros_context):
         spin.shutdown()
         sup.destroy_node()
         driver.destroy_node()
+
+
+def test_world_intervention_log_reaches_late_joiners(world_rig, ros_context):
+    world, robots, rosout, spin = world_rig
+    ids, _ = robots.obstacles.arrays()
+    n0 = len(robots.log)
+    robots.intervention(int(ids[0]), (2.0, 0.0, 0.0), t=6.0)
+    spin.until(lambda: len(robots.log) == n0 + 1, 5.0, 'the intervention record')
+    late = Node('late_log_reader', context=ros_context)
+    got = []
+    late.create_subscription(DiagnosticStatus, '/world/intervention_log',
+                             lambda m: got.append(rosmsg.diagnostic_values(m)), rosmsg.QOS_LOG)
+    spin.executor.add_node(late)
+    try:
+        spin.until(lambda: len(got) == len(robots.log), 10.0, 'the whole log for a late joiner')
+        assert [g['obstacle'] for g in got] == [r['obstacle'] for r in robots.log]
+    finally:
+        spin.executor.remove_node(late)
+        late.destroy_node()

@@ -74,7 +74,7 @@ class SupervisorNode(Node):
         self.obstacles = ObstacleMarkers()
         self.intervention_pub = self.create_publisher(PoseStamped, '/interventions', rosmsg.QOS_EVENTS)
         self.decision_pub = self.create_publisher(DiagnosticStatus, '/supervisor/decisions',
-                                                  rosmsg.QOS_EVENTS)
+                                                  rosmsg.QOS_LOG)
         self.acks = StepAcknowledger(self, self.robots)
         self.create_subscription(MarkerArray, '/obstacle_markers', self.on_markers, rosmsg.QOS_LATCHED)
         for r in self.robots:

@@ -77,8 +77,8 @@ class WorldNode(Node):
         self.markers_pub = self.create_publisher(MarkerArray, '/obstacle_markers', rosmsg.QOS_LATCHED)
         self.stats_pub = self.create_publisher(DiagnosticStatus, '/world/stats', rosmsg.QOS_LATCHED)
         self.log_pub = self.create_publisher(DiagnosticStatus, '/world/intervention_log',
-                                             rosmsg.QOS_EVENTS)
-        self.events_pub = self.create_publisher(DiagnosticStatus, '/world/events', rosmsg.QOS_EVENTS)
+                                             rosmsg.QOS_LOG)
+        self.events_pub = self.create_publisher(DiagnosticStatus, '/world/events', rosmsg.QOS_LOG)
         self.acks = StepAcknowledger(self, self.robots)
         self.goal_pubs = {}
         for r in self.robots:
