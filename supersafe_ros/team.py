@@ -286,14 +286,13 @@ class TeamMonitor:
     def __init__(self, env: dict):
         from .rosenv import ensure_local_ros_env
         ensure_local_ros_env()
-        os.environ['ROS_DOMAIN_ID'] = env['ROS_DOMAIN_ID']
         import rclpy
         from rclpy.executors import SingleThreadedExecutor
         from diagnostic_msgs.msg import DiagnosticStatus
         from . import rosmsg
         self.rclpy = rclpy
         self.context = rclpy.Context()
-        rclpy.init(context=self.context, args=[])
+        rclpy.init(context=self.context, args=[], domain_id=int(env['ROS_DOMAIN_ID']))
         self.node = rclpy.create_node('team_monitor', context=self.context)
         self.stats = {}
         self.clock = {}
@@ -385,7 +384,11 @@ def run_team(argvs: list[list[str]], duration: float = 0.0, timeout: float = 0.0
                 break
             if duration > 0 and float(clock.get('sim_time', 0.0)) >= duration - 1e-6:
                 reason[0] = 'duration reached'
-                time.sleep(0.5)   # let the last stats arrive
+                # the world's final counts: stats whose sim_time is the last step
+                deadline = time.monotonic() + 10.0
+                while (float(monitor.snapshot()[0].get('sim_time', 0.0)) < duration - 1e-6
+                       and time.monotonic() < deadline and not stop.is_set()):
+                    time.sleep(0.05)
                 break
             if timeout > 0 and time.monotonic() - wall0 > timeout:
                 reason[0] = 'wall-clock timeout'

@@ -74,7 +74,7 @@ class Robots:
 @pytest.fixture(scope='module')
 def world_rig(ros_context):
     world = WorldNode(context=ros_context, parameter_overrides=params(
-        robots=ROBOTS, seed=5, n_obstacles=4, stats_period=0.05, near_distance=6.0,
+        robots=ROBOTS, seed=5, n_obstacles=4, stats_heartbeat=0.05, near_distance=6.0,
         respawn_clearance=8.0))
     driver = Node('world_test_driver', context=ros_context)
     robots = Robots(driver)
@@ -245,3 +245,14 @@ def test_world_intervention_log_reaches_late_joiners(world_rig, ros_context):
     finally:
         spin.executor.remove_node(late)
         late.destroy_node()
+
+
+def test_world_stats_follow_the_poses_of_every_robot(world_rig):
+    world, robots, rosout, spin = world_rig
+    robots.send_pose('robot_0', 0.0, 14.0, 0.0, t=20.0)
+    spin.until(lambda: latest(robots, 'robot_0/detected') is not None, 5.0, 'stats')
+    robots.send_pose('robot_1', 0.0, -14.0, 0.0, t=20.5)
+    # counted up to 20.0 for every robot: the report for t = 20 (a multiple of stats_period)
+    spin.until(lambda: any(s['sim_time'] == '20.000' for s in robots.stats), 5.0, 'stats at t=20')
+    robots.send_pose('robot_0', 0.0, 14.0, 0.0, t=20.5)
+    spin.until(lambda: latest(robots, 'sim_time') == '20.500', 5.0, 'stats at t=20.5 (heartbeat)')

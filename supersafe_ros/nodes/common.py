@@ -97,14 +97,17 @@ class StepAcknowledger:
         self.sent = -1
         self.pub = node.create_publisher(Clock, '~/step_done', rosmsg.QOS_CLOCK)
 
-    def processed(self, robot, stamp) -> None:
-        """Record that ``robot``'s pose stamped ``stamp`` (builtin Time) is dealt with."""
+    def processed(self, robot, stamp):
+        """Record that ``robot``'s pose stamped ``stamp`` (builtin Time) is dealt with;
+        returns (previous, new) acknowledged time in ns when it advanced, else None."""
         t = stamp.sec * 1_000_000_000 + stamp.nanosec
         if t > self.latest.get(robot, t):
             self.latest[robot] = t
         done = min(self.latest.values())
         if done > self.sent:
-            self.sent = done
+            before, self.sent = self.sent, done
             msg = self._clock_type()
             msg.clock.sec, msg.clock.nanosec = divmod(done, 1_000_000_000)
             self.pub.publish(msg)
+            return before, done
+        return None

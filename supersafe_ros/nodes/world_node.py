@@ -8,7 +8,11 @@
   pub  /obstacle_markers       visualization_msgs/MarkerArray  latched, DELETEALL + one
                                                           CYLINDER per obstacle (id = obstacle id)
   pub  /<robot>/goal           geometry_msgs/PoseStamped  latched; each new goal = a new trip
-  pub  /world/stats            diagnostic_msgs/DiagnosticStatus  latched, every stats_period
+  pub  /world/stats            diagnostic_msgs/DiagnosticStatus  latched; sim_time = the time up to
+                                                          which every robot's poses are counted;
+                                                          each time that passes a multiple of
+                                                          stats_period, after every intervention,
+                                                          and (if anything changed) every wall second
   pub  /world/intervention_log diagnostic_msgs/DiagnosticStatus  one per accepted intervention
   pub  /world/events           diagnostic_msgs/DiagnosticStatus  one per trip and per crash
   pub  /world/step_done        rosgraph_msgs/Clock        newest sim time whose poses of every robot
@@ -19,6 +23,7 @@ unknown obstacle (already removed, or not an obstacle frame) is rejected and log
 """
 from __future__ import annotations
 
+from rclpy.clock import Clock as RosClock, ClockType
 from rclpy.node import Node
 from rclpy.time import Time
 
@@ -89,7 +94,14 @@ class WorldNode(Node):
                                      lambda m, r=r: self.on_detections(r, m), QOS_EVERY_POSE)
         self.create_subscription(PoseStamped, '/interventions', self.on_intervention,
                                  rosmsg.QOS_EVENTS)
-        self.create_timer(stats_period, self.publish_stats)
+        heartbeat = p('stats_heartbeat', 1.0,
+                      'wall seconds between /world/stats messages sent because counts changed '
+                      'between sim-time reports (e.g. after the clock stopped)', 0.01, 3600.0)
+        self.stats_period_ns = int(round(stats_period * 1e9))
+        self.stats_sent = None
+        # sim-time statistics are driven by the poses themselves (below); this steady
+        # timer only makes sure changed counts go out when no report is due
+        self.create_timer(heartbeat, self.stats_heartbeat, clock=RosClock(clock_type=ClockType.STEADY_TIME))
         self.publish_obstacles()
         self.publish_stats()
         self.get_logger().info(f'world: {cfg.n_obstacles} obstacles r={cfg.radius}, '
@@ -113,7 +125,7 @@ class WorldNode(Node):
 
     def stats_values(self) -> dict:
         values = dict(self.world.stats())
-        values['sim_time'] = f'{self.now_s():.3f}'
+        values['sim_time'] = f'{max(self.acks.sent, 0) * 1e-9:.3f}'
         for name, r in self.world.robots.items():
             values[f'{name}/trips'] = r.trips
             values[f'{name}/crashes'] = r.crashes
@@ -121,14 +133,22 @@ class WorldNode(Node):
         values['relaxed_spawns'] = self.world.relaxed_spawns
         return values
 
-    def publish_stats(self):
-        self.stats_pub.publish(rosmsg.make_diagnostic('world', self.stats_values()))
+    def publish_stats(self, values=None):
+        self.stats_sent = values or self.stats_values()
+        self.stats_pub.publish(rosmsg.make_diagnostic('world', self.stats_sent))
+
+    def stats_heartbeat(self):
+        values = self.stats_values()
+        if values != self.stats_sent:
+            self.publish_stats(values)
 
     def on_pose(self, robot, msg: PoseStamped):
         try:
             self.count_pose(robot, msg)
         finally:
-            self.acks.processed(robot, msg.header.stamp)   # dealt with, even if rejected
+            advanced = self.acks.processed(robot, msg.header.stamp)   # dealt with, even if rejected
+            if advanced and advanced[1] // self.stats_period_ns > max(advanced[0], 0) // self.stats_period_ns:
+                self.publish_stats()
 
     def count_pose(self, robot, msg: PoseStamped):
         try:
