@@ -49,6 +49,13 @@ QOS_CLOCK = QoSProfile(depth=10, history=HistoryPolicy.KEEP_LAST,
                        durability=DurabilityPolicy.VOLATILE)
 
 
+# Lockstep acknowledgements (step_done): only the newest matters, and a clock that
+# matches late must still see it (an observer's 'ready' is sent once).
+QOS_ACK = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
+                     reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
 class MessageError(ValueError):
     """A message that cannot be used, with the reason why."""
 

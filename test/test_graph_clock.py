@@ -24,7 +24,7 @@ class FakeRobot:
     a step arriving while the previous one is still unacknowledged is a lockstep violation."""
 
     def __init__(self, node):
-        self.ack = node.create_publisher(Clock, '/robot_0/step_done', rosmsg.QOS_CLOCK)
+        self.ack = node.create_publisher(Clock, '/robot_0/step_done', rosmsg.QOS_ACK)
         self.ticks, self.coarse, self.status = [], [], []
         self.acked = -1
         self.skip = set()
@@ -105,7 +105,7 @@ def test_clock_keeps_observers_within_their_lag(ros_context):
     driver = Node('observer_test_driver', context=ros_context)
     robot = FakeRobot(driver)
     robot.delay = 0.0
-    obs_pub = driver.create_publisher(Clock, '/observer/step_done', rosmsg.QOS_CLOCK)
+    obs_pub = driver.create_publisher(Clock, '/observer/step_done', rosmsg.QOS_ACK)
     state = {'acked': -1, 'violations': [], 'last_ack_wall': time.monotonic()}
 
     def check(msg):                          # every step must respect the observer's lag
@@ -124,6 +124,10 @@ def test_clock_keeps_observers_within_their_lag(ros_context):
         return robot.poll()
     spin = Spinner(ros_context, clock, driver)
     try:
+        spin.spin_for(1.0)
+        assert robot.ticks == []                 # the observer has not said it is ready
+        obs_pub.publish(Clock())                 # ready: acknowledges t = 0
+        state['acked'] = 0
         spin.until(lambda: observer_poll() and len(robot.ticks) >= 40, 20.0, '40 steps')
         assert state['violations'] == [] and robot.violations == []
         t = np.array(robot.ticks)

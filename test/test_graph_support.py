@@ -89,7 +89,7 @@ class ClockDriver:
         self.pub = node.create_publisher(Clock, '/clock', rosmsg.QOS_CLOCK)
         self.acks = {r: -1 for r in robots}
         self.subs = [node.create_subscription(Clock, f'/{r}/step_done',
-                                              lambda m, r=r: self._ack(r, m), rosmsg.QOS_CLOCK)
+                                              lambda m, r=r: self._ack(r, m), rosmsg.QOS_ACK)
                      for r in robots]
         self.now_ns = 0
 

@@ -256,3 +256,25 @@ def test_world_stats_follow_the_poses_of_every_robot(world_rig):
     spin.until(lambda: any(s['sim_time'] == '20.000' for s in robots.stats), 5.0, 'stats at t=20')
     robots.send_pose('robot_0', 0.0, 14.0, 0.0, t=20.5)
     spin.until(lambda: latest(robots, 'sim_time') == '20.500', 5.0, 'stats at t=20.5 (heartbeat)')
+
+
+def test_world_acknowledges_counted_poses_for_the_lockstep(world_rig, ros_context):
+    world, robots, rosout, spin = world_rig
+    late = Node('ack_reader', context=ros_context)
+    acks = []
+    from rosgraph_msgs.msg import Clock
+    late.create_subscription(Clock, '/world/step_done',
+                             lambda m: acks.append(m.clock.sec + m.clock.nanosec * 1e-9), rosmsg.QOS_ACK)
+    spin.executor.add_node(late)
+    try:
+        spin.until(lambda: acks, 10.0, 'the latest acknowledgement (transient local)')
+        last = acks[-1]
+        assert last >= 0.0                        # ready (0) or counted up to a pose time
+        robots.send_pose('robot_0', 0.0, 14.0, 0.0, t=last + 30.0)
+        spin.spin_for(0.2)
+        assert acks[-1] == last                   # robot_1 has not reached that time yet
+        robots.send_pose('robot_1', 0.0, -14.0, 0.0, t=last + 31.0)
+        spin.until(lambda: acks[-1] == pytest.approx(last + 30.0), 5.0, 'the min over robots')
+    finally:
+        spin.executor.remove_node(late)
+        late.destroy_node()

@@ -87,15 +87,33 @@ def declare(node, name, default, description, lo=None, hi=None, step=0, read_onl
 class StepAcknowledger:
     """For nodes that judge every robot pose (world, supervisor) under a lockstep clock:
     publishes on ``~/step_done`` the newest sim time up to which the poses of every
-    robot have been processed (see sim_clock_node's ``observers``)."""
+    robot have been processed (see sim_clock_node's ``observers``).
+
+    Before that it announces readiness with 0 once every subscription passed to
+    ``watch`` has a matched publisher, so the clock does not step while a robot's
+    first poses could still miss this node."""
 
     def __init__(self, node, robots):
+        from rclpy.clock import Clock as RosClock, ClockType
         from rosgraph_msgs.msg import Clock
         from .. import rosmsg
         self._clock_type = Clock
         self.latest = {r: -1 for r in robots}
         self.sent = -1
-        self.pub = node.create_publisher(Clock, '~/step_done', rosmsg.QOS_CLOCK)
+        self.watched = []
+        self.pub = node.create_publisher(Clock, '~/step_done', rosmsg.QOS_ACK)
+        self._ready_timer = node.create_timer(0.05, self._check_ready,
+                                              clock=RosClock(clock_type=ClockType.STEADY_TIME))
+
+    def watch(self, *subscriptions) -> None:
+        self.watched.extend(subscriptions)
+
+    def _check_ready(self):
+        if all(s.get_publisher_count() > 0 for s in self.watched):
+            self._ready_timer.cancel()
+            if self.sent < 0:
+                self.sent = 0
+                self.pub.publish(self._clock_type())
 
     def processed(self, robot, stamp):
         """Record that ``robot``'s pose stamped ``stamp`` (builtin Time) is dealt with;

@@ -71,7 +71,7 @@ class DubinsRobotNode(Node):
 
         self.pose_pub = self.create_publisher(PoseStamped, 'pose', rosmsg.QOS_STREAM)
         self.det_pub = self.create_publisher(PoseArray, 'detections', rosmsg.QOS_STREAM)
-        self.ack_pub = self.create_publisher(Clock, 'step_done', rosmsg.QOS_CLOCK)
+        self.ack_pub = self.create_publisher(Clock, 'step_done', rosmsg.QOS_ACK)
         self.create_subscription(Twist, 'cmd_vel', self.on_cmd, rosmsg.QOS_STREAM)
         self.create_subscription(PoseStamped, 'goal', self.on_goal, rosmsg.QOS_LATCHED)
         self.create_subscription(MarkerArray, '/obstacle_markers', self.on_markers,

@@ -105,10 +105,10 @@ class SimClockNode(Node):
             for r in self.robots:
                 topic = f'/{r.strip("/")}/step_done'
                 self.ack_subs.append(self.create_subscription(
-                    Clock, topic, lambda msg, r=r: self.on_ack(r, msg), rosmsg.QOS_CLOCK))
+                    Clock, topic, lambda msg, r=r: self.on_ack(r, msg), rosmsg.QOS_ACK))
             for o in self.observers:
                 self.ack_subs.append(self.create_subscription(
-                    Clock, o, lambda msg, o=o: self.on_ack(o, msg), rosmsg.QOS_CLOCK))
+                    Clock, o, lambda msg, o=o: self.on_ack(o, msg), rosmsg.QOS_ACK))
         self.now_ns = self.start_ns
         self.late_steps = 0
         self.steps = 0
@@ -135,6 +135,8 @@ class SimClockNode(Node):
                        if s.get_publisher_count() == 0]
             if self.clock_pub.get_subscription_count() < len(self.robots):
                 missing.append('(robot /clock subscriptions)')
+            with self.cond:
+                missing += [f'{o} (not ready)' for o in self.observers if self.acked[o] < 0]
             missing += [f'{t} publishers {self.count_publishers(t)}/{n}'
                         for t, n in self.wait_publishers if self.count_publishers(t) < n]
             missing += [f'{t} subscriptions {self.count_subscribers(t)}/{n}'

@@ -78,8 +78,8 @@ class SupervisorNode(Node):
         self.acks = StepAcknowledger(self, self.robots)
         self.create_subscription(MarkerArray, '/obstacle_markers', self.on_markers, rosmsg.QOS_LATCHED)
         for r in self.robots:
-            self.create_subscription(PoseStamped, f'/{r}/pose', lambda m, r=r: self.on_pose(r, m),
-                                     rosmsg.QOS_EVERY_SAMPLE)
+            self.acks.watch(self.create_subscription(
+                PoseStamped, f'/{r}/pose', lambda m, r=r: self.on_pose(r, m), rosmsg.QOS_EVERY_SAMPLE))
         self.get_logger().info(f'supervisor: V_S with w_max={w_max}, radius={radius}, '
                                f'horizon={horizon}; mu={mu}, sigma={sigma}; watching {self.robots}')
 

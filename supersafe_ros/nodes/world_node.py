@@ -88,8 +88,8 @@ class WorldNode(Node):
         self.goal_pubs = {}
         for r in self.robots:
             self.goal_pubs[r] = self.create_publisher(PoseStamped, f'/{r}/goal', rosmsg.QOS_LATCHED)
-            self.create_subscription(PoseStamped, f'/{r}/pose',
-                                     lambda m, r=r: self.on_pose(r, m), QOS_EVERY_POSE)
+            self.acks.watch(self.create_subscription(PoseStamped, f'/{r}/pose',
+                                                     lambda m, r=r: self.on_pose(r, m), QOS_EVERY_POSE))
             self.create_subscription(PoseArray, f'/{r}/detections',
                                      lambda m, r=r: self.on_detections(r, m), QOS_EVERY_POSE)
         self.create_subscription(PoseStamped, '/interventions', self.on_intervention,
