@@ -100,7 +100,7 @@ def test_team_runs_to_duration_and_children_exit_cleanly(tmp_path):
             os.killpg(proc.pid, signal.SIGKILL)
     assert proc.returncode == 0, out
     assert 'team stopped (duration reached): sim 6.000 s' in out
-    assert 'did not exit cleanly' not in out
+    assert 'did not exit cleanly' not in out, out
     assert children_alive(tmp_path / 'logs') == []
     logs = {p.name for p in (tmp_path / 'logs').glob('*.log')}
     assert {'world.log', 'robot_0.dubins_robot.log', 'sim_clock.log'} <= logs
@@ -127,7 +127,7 @@ def test_team_stops_cleanly_on_ctrl_c(tmp_path):
     out = ''.join(lines) + out
     assert proc.returncode == 0, out
     assert 'team stopped (signal SIGINT)' in out
-    assert 'did not exit cleanly' not in out
+    assert 'did not exit cleanly' not in out, out
     assert children_alive(tmp_path / 'logs') == []
 
 

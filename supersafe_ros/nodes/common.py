@@ -49,9 +49,14 @@ def run_node(node_class, args=None, executor_class=None) -> int:
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except Exception:  # a node that cannot start or crashes: say why, exit non-zero
-        traceback.print_exc()
-        code = 1
+    except Exception as exc:
+        if not rclpy.ok():
+            # rclpy can fail inside spin while a signal shuts the context down (e.g. a
+            # message being taken); the stop was asked for, so this is a clean exit
+            print(f'{type(exc).__name__} during shutdown: {exc}', file=sys.stderr)
+        else:  # a node that cannot start or crashes: say why, exit non-zero
+            traceback.print_exc()
+            code = 1
     finally:
         if node is not None:
             try:
