@@ -142,3 +142,38 @@ def test_robot_detections_within_range_missed_20_percent_per_trip(ros_context):
         spin.shutdown()
         robot.destroy_node()
         driver.destroy_node()
+
+
+def test_planner_steers_to_its_goal_and_rejects_bad_poses(ros_context):
+    from supersafe_ros.nodes.planner_node import PlannerNode
+    planner = PlannerNode(context=ros_context, namespace='robot_7',
+                          parameter_overrides=params(gain=2.0, w_max=0.8))
+    driver = Node('planner_test_driver', context=ros_context)
+    pose = driver.create_publisher(PoseStamped, '/robot_7/pose', rosmsg.QOS_STREAM)
+    goal = driver.create_publisher(PoseStamped, '/robot_7/goal', rosmsg.QOS_LATCHED)
+    out = []
+    sub = driver.create_subscription(Twist, '/robot_7/cmd_vel_nav', out.append, rosmsg.QOS_STREAM)
+    rosout = Rosout(driver)
+    spin = Spinner(ros_context, planner, driver)
+    try:
+        spin.until(lambda: matched(pose, goal, sub), 10.0, 'matching')
+        pose.publish(rosmsg.state_to_pose((0.0, 0.0, 0.0)))
+        spin.until(lambda: rosout.has('planner', 'no goal yet'), 5.0, 'the no-goal warning')
+        assert out == []                                   # no goal: no command
+        goal.publish(rosmsg.state_to_pose((0.0, 10.0, 0.0)))
+        spin.until(lambda: planner.goal is not None, 5.0, 'the goal')
+        pose.publish(rosmsg.state_to_pose((0.0, 0.0, 0.0)))
+        spin.until(lambda: out, 5.0, 'a command')
+        assert out[-1].angular.z == pytest.approx(0.8)     # pi/2 to the left, saturated
+        bad = rosmsg.state_to_pose((0.0, 0.0, 0.0))
+        bad.pose.orientation.w = float('nan')
+        pose.publish(bad)
+        spin.until(lambda: rosout.has('planner', 'pose rejected'), 5.0, 'the rejection log')
+        n = len(out)
+        pose.publish(rosmsg.state_to_pose((0.0, 0.0, math.pi / 2 - 0.1)))
+        spin.until(lambda: len(out) == n + 1, 5.0, 'a command after the bad pose')
+        assert out[-1].angular.z == pytest.approx(0.2)     # gain 2 x 0.1 rad
+    finally:
+        spin.shutdown()
+        planner.destroy_node()
+        driver.destroy_node()
