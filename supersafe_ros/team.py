@@ -14,7 +14,6 @@ returns the last stats.
 """
 from __future__ import annotations
 
-import argparse
 from dataclasses import dataclass, field
 import math
 import os

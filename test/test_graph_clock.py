@@ -2,7 +2,6 @@
 import time
 
 import numpy as np
-import pytest
 from rclpy.node import Node
 
 from diagnostic_msgs.msg import DiagnosticStatus

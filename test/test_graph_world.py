@@ -7,7 +7,7 @@ from rclpy.node import Node
 
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import Pose, PoseArray, PoseStamped
-from visualization_msgs.msg import Marker, MarkerArray
+from visualization_msgs.msg import MarkerArray
 
 from supersafe_ros import rosmsg
 from supersafe_ros.nodes.markers import ObstacleMarkers, obstacles_to_markers

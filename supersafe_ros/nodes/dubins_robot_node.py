@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import math
 
-import rclpy
 from rclpy.node import Node
 
 from geometry_msgs.msg import PoseStamped, Twist, PoseArray
