@@ -296,6 +296,7 @@ class TeamMonitor:
         self.stats = {}
         self.clock = {}
         self.interventions = []
+        self.events = []
         self.lock = threading.Lock()
         self.node.create_subscription(DiagnosticStatus, '/world/stats',
                                       lambda m: self._set('stats', rosmsg.diagnostic_values(m)),
@@ -303,6 +304,10 @@ class TeamMonitor:
         self.node.create_subscription(DiagnosticStatus, '/sim/clock_status',
                                       lambda m: self._set('clock', rosmsg.diagnostic_values(m)),
                                       rosmsg.QOS_LATCHED)
+        self.node.create_subscription(
+            DiagnosticStatus, '/world/events',
+            lambda m: self.events.append({'event': m.name, **rosmsg.diagnostic_values(m)}),
+            rosmsg.QOS_LOG)
         self.node.create_subscription(DiagnosticStatus, '/world/intervention_log',
                                       lambda m: self.interventions.append(rosmsg.diagnostic_values(m)),
                                       rosmsg.QOS_LOG)
@@ -338,8 +343,8 @@ class TeamMonitor:
 
 def format_stats(stats: dict, clock: dict) -> str:
     keys = ('trips', 'crashes', 'interventions', 'false_positives', 'score')
-    parts = [f'sim {clock.get("sim_time", stats.get("sim_time", "?"))} s',
-             f'x{clock.get("rate_factor_achieved", "?")}']
+    parts = [f'sim {clock.get("sim_time", "?")} s', f'x{clock.get("rate_factor_achieved", "?")}',
+             f'counted to {stats.get("sim_time", "?")} s']
     parts += [f'{k} {stats[k]}' for k in keys if k in stats]
     return '  '.join(parts)
 
@@ -348,7 +353,8 @@ def run_team(argvs: list[list[str]], duration: float = 0.0, timeout: float = 0.0
              domain_id: int | None = None, log_dir: Path | None = None,
              print_period: float = 5.0, out=sys.stdout) -> dict:
     """Run a team until ``duration`` sim seconds pass (0: until interrupted) or ``timeout``
-    wall seconds; returns {'stats', 'clock', 'interventions', 'exit_codes', 'dead', 'reason'}."""
+    wall seconds; returns {'stats', 'clock', 'interventions', 'events' (trips and crashes),
+    'exit_codes', 'dead', 'reason', 'cpu_seconds', 'cpu_seconds_at_start'}."""
     env = team_env(domain_id)
     log_dir = Path(log_dir or default_log_dir())
     stop = threading.Event()
@@ -398,12 +404,13 @@ def run_team(argvs: list[list[str]], duration: float = 0.0, timeout: float = 0.0
         codes = team.stop()
         stats, clock = monitor.snapshot() if monitor else ({}, {})
         interventions = list(monitor.interventions) if monitor else []
+        events = list(monitor.events) if monitor else []
         if monitor:
             monitor.close()
         for s, h in old.items():
             signal.signal(s, h)
     print(f'team stopped ({reason[0]}): {format_stats(stats, clock)}', file=out, flush=True)
-    return {'stats': stats, 'clock': clock, 'interventions': interventions,
+    return {'stats': stats, 'clock': clock, 'interventions': interventions, 'events': events,
             'exit_codes': codes, 'dead': dead, 'reason': reason[0], 'cpu_seconds': cpu,
             'cpu_seconds_at_start': cpu_at_start or {}}
 

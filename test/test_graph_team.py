@@ -100,6 +100,7 @@ def test_team_runs_to_duration_and_children_exit_cleanly(tmp_path):
             os.killpg(proc.pid, signal.SIGKILL)
     assert proc.returncode == 0, out
     assert 'team stopped (duration reached): sim 6.000 s' in out
+    assert 'counted to 6.000 s' in out.splitlines()[-1]     # the world's final counts
     assert 'did not exit cleanly' not in out, out
     assert children_alive(tmp_path / 'logs') == []
     logs = {p.name for p in (tmp_path / 'logs').glob('*.log')}
