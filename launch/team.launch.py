@@ -6,7 +6,8 @@ and supervisor, parameters from share/supersafe_ros/config/*.yaml plus the
 per-node values of the layout.
 
 Arguments: robots (2), rate_factor (10.0), seed (0), duration (0 = run until
-stopped; the clock stops advancing there), learner_store ('' = the learner's default).
+stopped; the clock stops advancing there), learner_store ('' = the learner's default),
+discovery_range (LOCALHOST).
 Example: ros2 launch supersafe_ros team.launch.py robots:=3 rate_factor:=5.0
 """
 
@@ -54,7 +55,9 @@ def generate_launch_description():
                               description='sim seconds after which the clock stops (0: never)'),
         DeclareLaunchArgument('learner_store', default_value='',
                               description="the learner's intervention file ('' = its default)"),
-        # DDS stays on this machine, as with `supersafe team`
-        SetEnvironmentVariable('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST'),
+        DeclareLaunchArgument('discovery_range', default_value='LOCALHOST',
+                              description='ROS_AUTOMATIC_DISCOVERY_RANGE of the team (LOCALHOST: '
+                                          'DDS stays on this machine, as with `supersafe team`)'),
+        SetEnvironmentVariable('ROS_AUTOMATIC_DISCOVERY_RANGE', _lc('discovery_range')),
         OpaqueFunction(function=_nodes),
     ])
