@@ -177,3 +177,39 @@ def test_planner_steers_to_its_goal_and_rejects_bad_poses(ros_context):
         spin.shutdown()
         planner.destroy_node()
         driver.destroy_node()
+
+
+def test_robot_teleports_on_initialpose_and_rejects_nan(rig):
+    from geometry_msgs.msg import PoseWithCovarianceStamped
+    robot, ctl, clock, rosout, spin = rig
+    driver_pub = ctl.cmd  # any node of the rig's driver can publish; reuse its node
+    node = [n for n in spin.executor.get_nodes() if n.get_name() == 'robot_test_driver'][0]
+    pub = node.create_publisher(PoseWithCovarianceStamped, '/robot_0/initialpose', rosmsg.QOS_EVENTS)
+    spin.until(lambda: pub.get_subscription_count() > 0, 10.0, 'initialpose to match')
+    # other tests drove /clock with their own drivers: resume past all of them
+    clock.now_ns = 100 * 10**9
+    ctl.omega = 0.0
+    clock.step(spin)
+    msg = PoseWithCovarianceStamped()
+    msg.header.frame_id = 'map'
+    msg.pose.pose = rosmsg.state_to_pose((-8.0, 1.25, 0.0)).pose
+    ctl.omega = 0.0
+    pub.publish(msg)
+    spin.until(lambda: rosout.has('dubins_robot', 'teleported'), 5.0, 'the teleport')
+    n0 = len(ctl.poses)
+    clock.step(spin)
+    clock.step(spin)
+    spin.until(lambda: len(ctl.poses) >= n0 + 2, 5.0, 'poses after the teleport')
+    x, y, th = ctl.poses[-1][1]
+    assert y == pytest.approx(1.25, abs=1e-6) and th == pytest.approx(0.0, abs=1e-6)
+    assert -8.0 <= x <= -8.0 + 3.0 * 0.1 + 1e-6      # straight on from the new pose
+    bad = PoseWithCovarianceStamped()
+    bad.header.frame_id = 'map'
+    bad.pose.pose.position.x = float('nan')
+    bad.pose.pose.orientation.w = 1.0
+    pub.publish(bad)
+    spin.until(lambda: rosout.has('dubins_robot', 'initialpose rejected'), 5.0, 'the rejection')
+    clock.step(spin)
+    spin.until(lambda: len(ctl.poses) >= n0 + 3, 5.0, 'the next pose')
+    assert np.all(np.isfinite(ctl.poses[-1][1])) and ctl.poses[-1][1][0] > x
+    del driver_pub

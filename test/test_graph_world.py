@@ -278,3 +278,37 @@ def test_world_acknowledges_counted_poses_for_the_lockstep(world_rig, ros_contex
     finally:
         spin.executor.remove_node(late)
         late.destroy_node()
+
+
+def test_world_scene_reset_and_no_respawn(ros_context):
+    """Phase II scenes: /world/set_obstacles puts one disc at the origin; with respawn
+    false an intervention only removes it; NaN centres are rejected."""
+    world = WorldNode('world_scene', context=ros_context, parameter_overrides=params(
+        robots=ROBOTS, seed=1, n_obstacles=3, stats_heartbeat=0.05, respawn=False))
+    driver = Node('world_scene_driver', context=ros_context)
+    robots = Robots(driver)
+    rosout = Rosout(driver)
+    set_pub = driver.create_publisher(PoseArray, '/world/set_obstacles', rosmsg.QOS_EVENTS)
+    spin = Spinner(ros_context, world, driver)
+    try:
+        spin.until(lambda: matched(*robots.endpoints(), set_pub), 10.0, 'world and driver to match')
+        spin.until(lambda: len(robots.obstacles.centres) == 3, 5.0, 'the initial obstacles')
+        old = set(robots.obstacles.centres)
+        set_pub.publish(rosmsg.xy_to_posearray(np.array([[0.0, 0.0]])))
+        spin.until(lambda: len(robots.obstacles.centres) == 1, 5.0, 'the scene obstacle')
+        (oid, centre), = robots.obstacles.centres.items()
+        assert oid not in old and np.allclose(centre, [0.0, 0.0])
+        n0 = len(robots.log)
+        robots.intervention(oid, (-3.0, 0.5, 0.0), t=1.0)
+        spin.until(lambda: len(robots.log) == n0 + 1, 5.0, 'the intervention record')
+        assert robots.log[-1]['new_obstacle'] == 'none'
+        spin.until(lambda: len(robots.obstacles.centres) == 0, 5.0, 'the obstacle to go, for good')
+        bad = rosmsg.xy_to_posearray(np.array([[1.0, 2.0]]))
+        bad.poses[0].position.x = float('nan')
+        set_pub.publish(bad)
+        spin.until(lambda: rosout.has('world', 'set_obstacles rejected'), 5.0, 'the rejection')
+        assert len(robots.obstacles.centres) == 0
+    finally:
+        spin.shutdown()
+        world.destroy_node()
+        driver.destroy_node()

@@ -5,6 +5,9 @@ Topics (relative; run it in a namespace such as /robot_0):
   sub  goal               geometry_msgs/PoseStamped  latched, from the world: a new goal = a new
                                                      trip (the sensor's miss draws start afresh)
   sub  /obstacle_markers  visualization_msgs/MarkerArray  latched, obstacle ids and centres
+  sub  initialpose        geometry_msgs/PoseWithCovarianceStamped  frame map: teleport (scene
+                                                     reset, as RViz's "2D Pose Estimate"); starts
+                                                     a new trip (misses redrawn)
   pub  pose               geometry_msgs/PoseStamped  frame map, every step
   pub  detections         geometry_msgs/PoseArray    frame map, obstacle centres seen; on every
                                                      change and every detections_period
@@ -22,7 +25,7 @@ import math
 
 from rclpy.node import Node
 
-from geometry_msgs.msg import PoseStamped, Twist, PoseArray
+from geometry_msgs.msg import PoseArray, PoseStamped, PoseWithCovarianceStamped, Twist
 from rosgraph_msgs.msg import Clock
 from visualization_msgs.msg import MarkerArray
 
@@ -75,6 +78,8 @@ class DubinsRobotNode(Node):
         self.create_subscription(PoseStamped, 'goal', self.on_goal, rosmsg.QOS_LATCHED)
         self.create_subscription(MarkerArray, '/obstacle_markers', self.on_markers,
                                  rosmsg.QOS_LATCHED)
+        self.create_subscription(PoseWithCovarianceStamped, 'initialpose', self.on_initialpose,
+                                 rosmsg.QOS_EVENTS)
         self.timer = self.create_timer(1.0 / rate, self.step)
         self.get_logger().info(
             f'robot at ({x0:.2f}, {y0:.2f}, {th0:.2f}) speed {speed} w_max {w_max} rate {rate} Hz, '
@@ -96,6 +101,17 @@ class DubinsRobotNode(Node):
 
     def on_goal(self, msg: PoseStamped):
         self.sensor.new_trip()
+
+    def on_initialpose(self, msg: PoseWithCovarianceStamped):
+        try:
+            state = rosmsg.pose_to_state(PoseStamped(header=msg.header, pose=msg.pose.pose),
+                                         self.frame)
+            self.robot.teleport(state)
+        except ValueError as exc:
+            self.get_logger().error(f'initialpose rejected: {exc}; staying where it is')
+            return
+        self.sensor.new_trip()
+        self.get_logger().info(f'teleported to ({state[0]:.2f}, {state[1]:.2f}, {state[2]:.2f})')
 
     def on_markers(self, msg: MarkerArray):
         try:

@@ -4,6 +4,8 @@
   sub  /<robot>/detections     geometry_msgs/PoseArray    what each robot saw (FP classification)
   sub  /interventions          geometry_msgs/PoseStamped  removal request: frame obstacle_<id>,
                                                           pose of the robot relative to it
+  sub  /world/set_obstacles    geometry_msgs/PoseArray    frame map: replace every obstacle by discs
+                                                          at these centres, with new ids (scene reset)
   pub  /obstacles              geometry_msgs/PoseArray    latched, centres (map), on change
   pub  /obstacle_markers       visualization_msgs/MarkerArray  latched, DELETEALL + one
                                                           CYLINDER per obstacle (id = obstacle id)
@@ -76,6 +78,8 @@ class WorldNode(Node):
         self.match_tolerance = p('robot_match_tolerance', 1.0,
                                  'an intervention pose names the robot within this distance [m]',
                                  0.001, 100.0)
+        self.respawn = p('respawn', True, 'an intervention spawns a replacement obstacle '
+                         '(false: it only removes, as in the Phase II scenes)')
         self.world = World(cfg, self.robots, seed=None if seed < 0 else seed)
 
         self.obstacles_pub = self.create_publisher(PoseArray, '/obstacles', rosmsg.QOS_LATCHED)
@@ -93,6 +97,8 @@ class WorldNode(Node):
             self.create_subscription(PoseArray, f'/{r}/detections',
                                      lambda m, r=r: self.on_detections(r, m), QOS_EVERY_POSE)
         self.create_subscription(PoseStamped, '/interventions', self.on_intervention,
+                                 rosmsg.QOS_EVENTS)
+        self.create_subscription(PoseArray, '/world/set_obstacles', self.on_set_obstacles,
                                  rosmsg.QOS_EVENTS)
         heartbeat = p('stats_heartbeat', 1.0,
                       'wall seconds between /world/stats messages sent because counts changed '
@@ -177,6 +183,15 @@ class WorldNode(Node):
         except ValueError as exc:
             self.get_logger().error(f'detections of {robot} rejected: {exc}', throttle_duration_sec=1.0)
 
+    def on_set_obstacles(self, msg: PoseArray):
+        try:
+            ids = self.world.set_obstacles(rosmsg.posearray_to_xy(msg))
+        except ValueError as exc:
+            self.get_logger().error(f'/world/set_obstacles rejected: {exc}; obstacles unchanged')
+            return
+        self.publish_obstacles()
+        self.get_logger().info(f'obstacles replaced: ids {ids}')
+
     def on_intervention(self, msg: PoseStamped):
         try:
             oid = rosmsg.parse_obstacle_frame(msg.header.frame_id)
@@ -192,7 +207,7 @@ class WorldNode(Node):
         robot = self.world.robot_at(centre + rel[:2], self.match_tolerance)
         t = Time.from_msg(msg.header.stamp).nanoseconds * 1e-9 or self.now_s()
         relaxed = self.world.relaxed_spawns
-        record, new_id = self.world.intervene(oid, t, robot)
+        record, new_id = self.world.intervene(oid, t, robot, respawn=self.respawn)
         if self.world.relaxed_spawns > relaxed:
             self.get_logger().warn(f'no room for obstacle {new_id} with the full spacing and clearance: '
                                    'placed with relaxed rules (see relaxed_spawns in /world/stats)')
@@ -200,11 +215,12 @@ class WorldNode(Node):
         self.log_pub.publish(rosmsg.make_diagnostic('intervention', {
             'obstacle': oid, 'robot': robot or 'unknown', 'false_positive': record.false_positive,
             'time': f'{t:.3f}', 'near_robots': ','.join(record.near_robots),
-            'undetected_by': ','.join(record.undetected_by), 'new_obstacle': new_id,
+            'undetected_by': ','.join(record.undetected_by),
+            'new_obstacle': 'none' if new_id is None else new_id,
             'rel_x': f'{rel[0]:.4f}', 'rel_y': f'{rel[1]:.4f}', 'rel_theta': f'{rel[2]:.4f}'}))
         self.get_logger().info(f'intervention on obstacle {oid} for {robot}: '
                                f'{"false positive" if record.false_positive else "needed"}; '
-                               f'new obstacle {new_id}')
+                               f'new obstacle {"none" if new_id is None else new_id}')
         self.publish_stats()
 
 

@@ -91,6 +91,14 @@ class RobotSim:
         self.last_command_time = float(now)
         return clipped
 
+    def teleport(self, state) -> None:
+        """Put the robot at ``state`` (a scene reset); the clock and command stay as they are."""
+        state = np.asarray(state, dtype=float).reshape(3)
+        if not np.all(np.isfinite(state)):
+            raise ValueError(f'teleport state must be finite, got {state}')
+        self.state = state.copy()
+        self.state[2] = wrap_angle(self.state[2])
+
     def mode(self, now: float) -> str:
         """'parked' (no command yet), 'commanded', or 'timeout' (commands went stale)."""
         if self.last_command_time is None:

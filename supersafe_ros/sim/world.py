@@ -222,10 +222,30 @@ class World:
         undetected = tuple(n for n in near if not self.had_detected(n, obstacle_id))
         return len(undetected) == 0, near, undetected
 
-    def intervene(self, obstacle_id: int, time: float, robot: str | None = None):
-        """Remove an obstacle (classifying the intervention first) and spawn a replacement.
+    def set_obstacles(self, centres) -> list[int]:
+        """Replace every obstacle by discs at ``centres`` (K, 2), with new ids (a scene reset).
 
-        Returns (Intervention, new obstacle id). KeyError for an unknown obstacle.
+        ValueError for non-finite centres; the obstacles stay as they were then.
+        """
+        xy = np.asarray(centres, dtype=float).reshape(-1, 2)
+        if not np.all(np.isfinite(xy)):
+            raise ValueError('obstacle centres must be finite')
+        self.obstacles.clear()
+        for r in self.robots.values():
+            r.inside.clear()
+        ids = []
+        for p in xy:
+            self.obstacles[self.next_id] = p.copy()
+            ids.append(self.next_id)
+            self.next_id += 1
+        return ids
+
+    def intervene(self, obstacle_id: int, time: float, robot: str | None = None,
+                  respawn: bool = True):
+        """Remove an obstacle (classifying the intervention first) and, with ``respawn``,
+        spawn a replacement.
+
+        Returns (Intervention, new obstacle id or None). KeyError for an unknown obstacle.
         """
         if obstacle_id not in self.obstacles:
             raise KeyError(f'no obstacle {obstacle_id} (already removed or never existed)')
@@ -235,7 +255,7 @@ class World:
         del self.obstacles[obstacle_id]
         for r in self.robots.values():
             r.inside.discard(obstacle_id)
-        new_id = self._spawn(self.config.respawn_clearance)
+        new_id = self._spawn(self.config.respawn_clearance) if respawn else None
         return record, new_id
 
     # ----- counts ----------------------------------------------------------------------
