@@ -15,6 +15,13 @@ state relative to every detected obstacle; the smallest V governs:
     override  V_min <= alpha                u* = w_max sign(dV/dtheta) of that obstacle
     fail_safe pose or detections stale/invalid (see below)
 
+Lookahead (discrete control). Commands hold for a control period, so V sampled
+once per period can jump from just above alpha to below it (by up to speed x
+period): the filter also overrides when the planner's command, held for
+``lookahead`` seconds from the current state, would end at V <= alpha. With
+lookahead = the control period the sampled V never falls below alpha on the
+planner's account.
+
 Hysteresis ("until the robot is clear"): once overriding, the filter keeps
 overriding until V_min > alpha + clear_margin. Without it the robot would leave
 the override the instant V crosses alpha, turn back toward the obstacle under the
@@ -44,6 +51,7 @@ import math
 
 import numpy as np
 
+from .reach.dynamics import DubinsCar
 from .reach.value_function import ValueFunction
 
 PASS = 'pass'
@@ -66,10 +74,11 @@ class FilterConfig:
     hold_timeout: float = 1.0        # last valid state still usable for fail-safe avoidance
     cmd_timeout: float = 0.5         # planner silent longer than this: zero twist
     clear_margin: float = 0.2        # hysteresis: release override when V > alpha + margin
+    lookahead: float = 0.1           # override if the planner's command would reach alpha this soon
 
     def __post_init__(self):
         for name in ('speed', 'omega_max', 'pose_timeout', 'detections_timeout', 'hold_timeout',
-                     'cmd_timeout', 'clear_margin'):
+                     'cmd_timeout', 'clear_margin', 'lookahead'):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0.0):
                 raise ValueError(f'{name} must be finite and >= 0, got {v}')
@@ -258,6 +267,7 @@ def step_many(filters, safe_set: SafeSet, t) -> list:
     omega_law = np.array([filters[i].config.omega_max for i in robot]) if len(robot) else np.zeros(0)
     value, turn = evaluate_pairs(safe_set.vf, rel)
     control = turn * omega_law
+    value_next = _lookahead_values(filters, safe_set.vf, rel, robot, t)
 
     # the smallest V per robot (its pair index), by a stable sort: largest first, smallest last
     best = np.full(n, -1)
@@ -291,11 +301,25 @@ def step_many(filters, safe_set: SafeSet, t) -> list:
                                         f'{problems[i]}; {why}: stop-turn', **common))
             continue
         enter = v_min <= alpha
+        mine = robot == i
+        next_min = float(np.min(value_next[mine])) if np.any(mine) else math.inf
+        ahead = not enter and next_min <= alpha
+        if ahead:
+            # the pair that would cross governs the avoid turn
+            p = int(np.flatnonzero(mine)[np.argmin(value_next[mine])])
+            obst_index = int(obstacle[p])
+            common['obstacle_index'] = obst_index
+            common['obstacle_xy'] = tuple(float(v) for v in f.detections.value[obst_index])
         stay = f.overriding and v_min <= alpha + cfg.clear_margin
-        if enter or stay:
+        if enter or ahead or stay:
             f.overriding = True
-            why = (f'V={v_min:.3g} <= alpha={alpha:.3g} at obstacle {obst_index}' if enter else
-                   f'V={v_min:.3g} <= alpha+margin={alpha + cfg.clear_margin:.3g}: not clear yet')
+            if enter:
+                why = f'V={v_min:.3g} <= alpha={alpha:.3g} at obstacle {obst_index}'
+            elif ahead:
+                why = (f'the planner\'s command would reach V={next_min:.3g} <= alpha={alpha:.3g} '
+                       f'within {cfg.lookahead:g} s (obstacle {int(obstacle[p])})')
+            else:
+                why = f'V={v_min:.3g} <= alpha+margin={alpha + cfg.clear_margin:.3g}: not clear yet'
             out.append(FilterOutput(float(control[p]), cfg.speed, OVERRIDE, why, **common))
             continue
         f.overriding = False
@@ -308,6 +332,35 @@ def step_many(filters, safe_set: SafeSet, t) -> list:
                    f'clear: V={v_min:.3g} > alpha={alpha:.3g}')
             out.append(FilterOutput(float(f.command.value), cfg.speed, PASS, why, **common))
     return out
+
+
+def _lookahead_values(filters, vf: ValueFunction, rel, robot, t) -> np.ndarray:
+    """V of every pair after its robot holds the planner's command for ``lookahead`` s.
+
+    A silent planner counts as a zero command (what the filter would forward).
+    Translation invariance: the relative state moves like the robot itself.
+    """
+    if len(rel) == 0:
+        return np.zeros(0)
+    omega = np.zeros(len(robot))
+    horizon = np.zeros(len(robot))
+    speed = np.zeros(len(robot))
+    for i in np.unique(robot):
+        f = filters[i]
+        cfg = f.config
+        fresh = f.command.value is not None and t - f.command.t <= cfg.cmd_timeout
+        u = float(np.clip(f.command.value, -cfg.omega_max, cfg.omega_max)) if fresh else 0.0
+        sel = robot == i
+        omega[sel], horizon[sel], speed[sel] = u, cfg.lookahead, cfg.speed
+    if not np.any(horizon > 0):
+        return np.full(len(rel), np.inf)
+    # one flow per distinct speed (normally one for the whole team)
+    ahead = np.empty_like(rel)
+    for v in np.unique(speed):
+        sel = speed == v
+        ahead[sel] = DubinsCar(max(float(v), 1e-9), 1.0).flow(rel[sel], omega[sel], horizon[sel])
+    value, _ = evaluate_pairs(vf, ahead)
+    return np.where(horizon > 0, value, np.inf)
 
 
 def evaluate_pairs(vf: ValueFunction, rel_states):

@@ -154,11 +154,27 @@ def test_silent_planner_gives_a_zero_command(standard):
 
 
 def test_alpha_raises_the_override_level(standard):
-    f = robot(pose=at(-6.0, 0.0, 0.0))
+    # lookahead off: the level alone decides
+    f = robot(pose=at(-6.0, 0.0, 0.0), lookahead=0.0)
     v = f.step(standard, 0.0).value
     assert f.step(SafeSet(standard.vf, v - 0.1), 0.0).action == PASS
-    g = robot(pose=at(-6.0, 0.0, 0.0))
+    g = robot(pose=at(-6.0, 0.0, 0.0), lookahead=0.0)
     assert g.step(SafeSet(standard.vf, v + 0.1), 0.0).action == OVERRIDE
+
+
+def test_lookahead_overrides_before_the_planner_crosses_alpha(standard):
+    """Head-on at V just above alpha: one control period of the planner's command
+    would end below alpha, so the filter acts now rather than a period too late."""
+    probe = robot(pose=at(-6.0, 0.0, 0.0), cmd=0.0, lookahead=0.0)
+    v = probe.step(standard, 0.0).value
+    level = SafeSet(standard.vf, v - 0.05)
+    late = robot(pose=at(-6.0, 0.0, 0.0), cmd=0.0, lookahead=0.0).step(level, 0.0)
+    assert late.action == PASS
+    early = robot(pose=at(-6.0, 0.0, 0.0), cmd=0.0, lookahead=0.1).step(level, 0.0)
+    assert early.action == OVERRIDE and 'would reach' in early.reason
+    # alpha further below than one period can lose: nothing to prevent, the command passes
+    away = robot(pose=at(-6.0, 0.0, 0.0), cmd=0.0, lookahead=0.1).step(SafeSet(standard.vf, v - 0.6), 0.0)
+    assert away.action == PASS
 
 
 def test_step_many_matches_single_steps(standard):

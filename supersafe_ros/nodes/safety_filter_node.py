@@ -87,6 +87,8 @@ class SafetyFilterNode(Node):
                           0.001, 60.0),
             clear_margin=p('clear_margin', 0.2, 'hysteresis: keep overriding until V > alpha + margin',
                            0.0, 10.0),
+            lookahead=p('lookahead', 0.1, 'also override when the planner\'s command, held this long, '
+                        'would reach V <= alpha; set it to the robot\'s control period [s]', 0.0, 10.0),
         )
         rate = p('rate', 50.0, 'watchdog rate [Hz, steady clock]: publish if nothing went out for 1/rate',
                  0.1, 1000.0)
