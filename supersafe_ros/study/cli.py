@@ -1,0 +1,116 @@
+"""`supersafe study` and `supersafe demo`: the paper's study in simulation, through the node graph.
+
+See docs/study.md and ``supersafe_ros.study.runner``.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+import sys
+import time
+
+DEMO_SUBJECTS = 3
+DEMO_SEED = 7
+
+
+def _add_common(parser, subjects_default):
+    parser.add_argument('--subjects', type=int, default=subjects_default, help='number of simulated subjects')
+    parser.add_argument('--seed', type=int, default=0, help='seed of subjects and world layouts')
+    parser.add_argument('--out', type=Path, default=Path('study-out'), help='plots, logs and results go here')
+    parser.add_argument('--json', type=Path, default=None, help='results JSON (default <out>/study.json)')
+    parser.add_argument('--estimator', choices=('paper', 'first-passage'), default='paper',
+                        help="paper: the learner node's fit (eqs. 3-4); first-passage: fitted by the "
+                             'runner from the recorded Phase II approaches')
+    parser.add_argument('--step', type=float, default=0.2,
+                        help='sim seconds per lockstep step (default 0.2: ~20x real time on 2 cores; '
+                             '0.05 is the team default, ~4x slower)')
+    parser.add_argument('--rate-factor', type=float, default=0.0,
+                        help='sim seconds per wall second (0: as fast as the graph allows)')
+    parser.add_argument('--game-seconds', type=float, default=120.0, help='sim seconds per Phase III game')
+    parser.add_argument('--phase2-offsets', type=str, default=None,
+                        help='comma-separated lateral offsets [m] (default the 0.25 m ladder in [-2.25, 2.25])')
+    parser.add_argument('--sweep-subjects', type=int, default=2,
+                        help='observed alpha sweep (extra Learned games at mu+sigma, mu+2sigma) for the '
+                             'first k subjects (default 2; 0 = predicted sweep only)')
+    parser.add_argument('--domain-id', type=int, default=None, help='ROS_DOMAIN_ID (default inherited)')
+    parser.add_argument('--no-plots', action='store_true', help='skip the PNG figures')
+
+
+def add_parser(subparsers):
+    study = subparsers.add_parser('study', help='the paper study in simulation (Phase II, fit, Phase III)',
+                                  description=__doc__.splitlines()[0])
+    _add_common(study, 12)
+    study.set_defaults(func=run)
+    demo = subparsers.add_parser(
+        'demo', help=f'a small study: {DEMO_SUBJECTS} subjects, seed {DEMO_SEED}, out ./study-out',
+        description='A small study (3 simulated supervisors) through the node graph; prints Table 1 '
+                    'and where the plots are. Builds the value-function cache on first use.')
+    demo.add_argument('--domain-id', type=int, default=None, help='ROS_DOMAIN_ID (default inherited)')
+    demo.add_argument('--out', type=Path, default=Path('study-out'), help='output directory')
+    demo.set_defaults(func=run_demo)
+    return study
+
+
+def run_demo(args) -> int:
+    args.subjects, args.seed, args.json, args.estimator = DEMO_SUBJECTS, DEMO_SEED, None, 'paper'
+    args.step, args.rate_factor, args.game_seconds = 0.2, 0.0, 120.0
+    args.phase2_offsets, args.sweep_subjects, args.no_plots = None, 1, False
+    return run(args)
+
+
+def options_from_args(args):
+    from .runner import StudyOptions
+    opts = StudyOptions(subjects=args.subjects, seed=args.seed, step=args.step,
+                        rate_factor=args.rate_factor, game_seconds=args.game_seconds,
+                        estimator=args.estimator, out_dir=Path(args.out), domain_id=args.domain_id,
+                        sweep_subjects=max(0, args.sweep_subjects), plots=not args.no_plots)
+    if args.phase2_offsets:
+        opts.phase2_offsets = tuple(float(v) for v in args.phase2_offsets.split(',') if v.strip())
+    return opts
+
+
+def run(args, out=sys.stdout) -> int:
+    from ..rosenv import ensure_local_ros_env
+    ensure_local_ros_env()
+    from .analysis import format_table1, significance_stars
+    from .population import draw_subjects
+    from .runner import jsonable, make_plots, reference_sets, run_study, summarize
+    if args.subjects < 1 or args.game_seconds <= 0 or args.step <= 0:
+        print('need --subjects >= 1, --game-seconds > 0, --step > 0', file=sys.stderr)
+        return 2
+    opts = options_from_args(args)
+    t0 = time.monotonic()
+    print('preparing the value functions (cached after the first run) ...', file=out, flush=True)
+    from ..reach.library import load_or_build_library
+    load_or_build_library()          # the learner's library, built once into the cache
+    standard_vf, conservative_vf = reference_sets()
+    print(f'ready in {time.monotonic() - t0:.1f} s', file=out, flush=True)
+    subjects = draw_subjects(opts.subjects, opts.seed)
+    raw = run_study(subjects, opts, out=out)
+    summary = summarize(raw['records'], standard_vf, conservative_vf, opts.sweep_k)
+    total = time.monotonic() - t0
+    summary['timing'] = {'study_wall_s': raw['wall'], 'total_wall_s': total,
+                         'phase2_wall_s': [r['phase2']['wall'] for r in raw['records']],
+                         'game_wall_s': [g['wall'] for r in raw['records'] for g in r['games'].values()]}
+    summary['options'] = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(opts).items()}
+    out_dir = Path(opts.out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = make_plots(out_dir, summary, raw['records'], standard_vf, conservative_vf) if opts.plots else []
+    json_path = args.json or out_dir / 'study.json'
+    json_path.parent.mkdir(parents=True, exist_ok=True)
+    json_path.write_text(json.dumps(jsonable(summary), indent=1))
+    print('', file=out)
+    print(format_table1(summary['table1']), file=out)
+    a = summary['anova']
+    print(f"\nrepeated-measures ANOVA (false positives): F({a['df_num']:g}, {a['df_den']:g}) = "
+          f"{a['F']:.3g}, p = {a['p']:.3g}" + (f"  ({a['note']})" if 'note' in a else ''), file=out)
+    for pair, t in summary['tukey'].items():
+        print(f"Tukey {pair}: mean difference {t['mean_difference']:+.2f}, p = {t['p']:.3g} "
+              f"{significance_stars(t['p'])}", file=out)
+    for c, v in summary['conditions'].items():
+        print(f"{c:13s} interventions {sum(v['interventions']):4d}  crashes {sum(v['crashes']):3d}  "
+              f"trips {sum(v['trips']):4d}  (sums over subjects)", file=out)
+    print(f'\n{len(subjects)} subjects in {total:.0f} s wall; results {json_path}', file=out)
+    if paths:
+        print('plots: ' + ', '.join(str(p) for p in paths), file=out)
+    return 0

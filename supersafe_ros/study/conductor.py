@@ -1,0 +1,232 @@
+"""The study's Phase II conductor: an rclpy node inside the study runner.
+
+It plays the authors' Phase II protocol on the running graph (one robot, world with
+``respawn`` false, supervisor, learner): for every lateral offset y0 a scene
+
+  A. ``/world/set_obstacles`` with no obstacle, ``robot_0/initialpose`` at (x0, y0, 0);
+     wait for a pose there (the robot teleports at its next step);
+  B. ``/world/set_obstacles`` with one disc at the origin; wait for its marker (a new
+     obstacle id, hence a new encounter for the supervisor);
+  C. ``initialpose`` (x0, y0, 0) again (the robot drove on while B settled); wait for it;
+  D. drive: the scene's frames are recorded from here; it ends at the supervisor's
+     intervention on this obstacle (``/interventions``, frame obstacle_<id>) or when the
+     robot is past the obstacle (x > x_end).
+
+The conductor is also the robot's controller: it answers every pose with a zero Twist
+on ``robot_0/cmd_vel`` (u = 0; the lockstep robot acknowledges its step when a command
+arrives). Before the first scene is set, it sends nothing (the robot stays parked).
+"""
+from __future__ import annotations
+
+import math
+import threading
+import time
+
+import numpy as np
+
+ROBOT = 'robot_0'
+POSE_TOL = 0.05
+LEAD_IN = 6.0     # m behind the start line where the robot waits while a scene is set
+
+
+def yaw_of(q) -> float:
+    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+
+
+class Phase2Conductor:
+    def __init__(self, env: dict, offsets, x0: float = -8.0, x_end: float = 2.5,
+                 step_length: float = 0.6):
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.qos import QoSProfile, DurabilityPolicy, HistoryPolicy, ReliabilityPolicy
+        from geometry_msgs.msg import PoseArray, PoseStamped, PoseWithCovarianceStamped, Twist
+        from std_msgs.msg import Float32MultiArray
+        from visualization_msgs.msg import MarkerArray
+        from .. import rosmsg
+        self.rclpy = rclpy
+        self.msgs = {'PoseArray': PoseArray, 'PoseWithCovarianceStamped': PoseWithCovarianceStamped,
+                     'Twist': Twist}
+        self.offsets = [float(v) for v in offsets]
+        self.x0, self.x_end = float(x0), float(x_end)
+        # a teleported, commanded robot moves one step before its next pose: teleport that
+        # much behind x0 so that the scene's first pose is at x0
+        self.step_length = float(step_length)
+        self.scenes = []
+        self.scene_index = -1
+        self.stage = 'idle'
+        self.obstacle_id = None
+        self.marker_ids = None          # ids of the latest marker set
+        self.sim_time = 0.0
+        self.frames = []
+        self.done = threading.Event()
+        self.lock = threading.Lock()
+        self.vf_msgs = []
+        self.fit_event = threading.Condition()
+
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, args=[], domain_id=int(env['ROS_DOMAIN_ID']))
+        self.node = rclpy.create_node('study_conductor', context=self.context)
+        # transient local + reliable is compatible with volatile and transient-local readers
+        request_qos = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
+                                 reliability=ReliabilityPolicy.RELIABLE,
+                                 durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self.obstacles_pub = self.node.create_publisher(PoseArray, '/world/set_obstacles', request_qos)
+        self.pose_pub = self.node.create_publisher(PoseWithCovarianceStamped, f'/{ROBOT}/initialpose',
+                                                   request_qos)
+        self.cmd_pub = self.node.create_publisher(Twist, f'/{ROBOT}/cmd_vel', rosmsg.QOS_STREAM)
+        self.node.create_subscription(PoseStamped, f'/{ROBOT}/pose', self.on_pose, rosmsg.QOS_EVERY_SAMPLE)
+        self.node.create_subscription(PoseStamped, '/interventions', self.on_intervention,
+                                      rosmsg.QOS_EVENTS)
+        self.node.create_subscription(MarkerArray, '/obstacle_markers', self.on_markers,
+                                      rosmsg.QOS_LATCHED)
+        self.node.create_subscription(Float32MultiArray, '/safe_set/value_function', self.on_vf,
+                                      rosmsg.QOS_LATCHED)
+        from rosgraph_msgs.msg import Clock
+        self.judged = -1.0            # newest sim time whose poses the supervisor has judged
+        self.node.create_subscription(Clock, '/supervisor/step_done', self.on_judged, rosmsg.QOS_ACK)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.thread = threading.Thread(target=self._spin, daemon=True)
+        self.thread.start()
+
+    def _spin(self):
+        try:
+            self.executor.spin()
+        except Exception:
+            pass
+
+    # -- requests -----------------------------------------------------------------------
+    def _set_obstacles(self, centres):
+        msg = self.msgs['PoseArray']()
+        msg.header.frame_id = 'map'
+        for cx, cy in centres:
+            from geometry_msgs.msg import Pose
+            p = Pose()
+            p.position.x, p.position.y = float(cx), float(cy)
+            p.orientation.w = 1.0
+            msg.poses.append(p)
+        self.obstacles_pub.publish(msg)
+
+    def _teleport(self, x, y, theta=0.0):
+        msg = self.msgs['PoseWithCovarianceStamped']()
+        msg.header.frame_id = 'map'
+        msg.pose.pose.position.x, msg.pose.pose.position.y = float(x), float(y)
+        msg.pose.pose.orientation.z = math.sin(theta / 2)
+        msg.pose.pose.orientation.w = math.cos(theta / 2)
+        self.pose_pub.publish(msg)
+
+    def _start_scene(self, k):
+        self.scene_index = k
+        if k >= len(self.offsets):
+            self.stage = 'finished'
+            self._set_obstacles([])
+            self.done.set()
+            return
+        self.stage = 'A'
+        self.previous_id = self.obstacle_id
+        self._set_obstacles([])
+        # park the robot far behind the start (outside the supervisor's grid) while the
+        # obstacle is set: it drives on a few steps meanwhile
+        self._teleport(self.x0 - LEAD_IN - self.step_length, self.offsets[k])
+
+    def _at(self, x, y, target_x):
+        return (target_x - self.step_length - POSE_TOL <= x <= target_x + POSE_TOL
+                and abs(y - self.offsets[self.scene_index]) < POSE_TOL)
+
+    # -- callbacks ----------------------------------------------------------------------
+    def on_pose(self, msg):
+        x, y = msg.pose.position.x, msg.pose.position.y
+        th = yaw_of(msg.pose.orientation)
+        t = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        with self.lock:
+            self.sim_time = t
+            if self.stage == 'idle':
+                self._start_scene(0)
+            elif self.stage == 'A' and self._at(x, y, self.x0 - LEAD_IN):
+                self.stage = 'A2'
+                self.wait_until = t
+            elif self.stage == 'A2' and self.judged >= self.wait_until - 1e-9:
+                # the supervisor lags the robot by up to two steps: place the obstacle only
+                # once it has judged the teleported pose, or it would judge the old ones
+                # against the new obstacle
+                self.stage = 'B'
+                self._set_obstacles([(0.0, 0.0)])
+            elif self.stage == 'B' and self.marker_ids and len(self.marker_ids) == 1 and \
+                    self.marker_ids[0] != self.previous_id:
+                self.obstacle_id = self.marker_ids[0]
+                self.stage = 'C'
+                self._teleport(self.x0 - self.step_length, self.offsets[self.scene_index])
+            elif self.stage == 'C' and self._at(x, y, self.x0):
+                self.stage = 'D'
+                self.scene_start = t
+                self.frames = [(x, y, th)]
+            elif self.stage == 'D':
+                self.frames.append((x, y, th))
+                if x > self.x_end:
+                    self.stage = 'E'          # past the obstacle: let the supervisor catch up
+                    self.wait_until = t
+            elif self.stage == 'E' and self.judged >= self.wait_until - 1e-9:
+                self._end_scene(None)
+        if self.stage != 'idle':
+            self.cmd_pub.publish(self.msgs['Twist']())   # u = 0; also the lockstep's answer
+
+    def _end_scene(self, state):
+        self.scenes.append({'y0': self.offsets[self.scene_index], 'intervened': state is not None,
+                            'state': list(state) if state is not None else None,
+                            'obstacle': self.obstacle_id, 'start_time': self.scene_start,
+                            'end_time': self.sim_time,
+                            'frames': list(self.frames) + ([tuple(state)] if state is not None else [])})
+        self._start_scene(self.scene_index + 1)
+
+    def on_intervention(self, msg):
+        frame = msg.header.frame_id
+        with self.lock:
+            # C: an eager supervisor may intervene on poses just before the teleport back
+            # (at the start line too); E: on the last poses before the end of the scene
+            if self.stage not in ('C', 'D', 'E') or frame != f'obstacle_{self.obstacle_id}':
+                return
+            if self.stage == 'C':
+                self.scene_start = self.sim_time
+                self.frames = []
+            p = msg.pose
+            self._end_scene((p.position.x, p.position.y, yaw_of(p.orientation)))
+
+    def on_markers(self, msg):
+        ids = [m.id for m in msg.markers if m.action == m.ADD]
+        with self.lock:
+            self.marker_ids = ids
+
+    def on_judged(self, msg):
+        with self.lock:
+            self.judged = msg.clock.sec + msg.clock.nanosec * 1e-9
+
+    def on_vf(self, msg):
+        with self.fit_event:
+            self.vf_msgs.append(msg)
+            self.fit_event.notify_all()
+
+    def wait_for_fit(self, n_interventions: int, timeout: float = 15.0):
+        """The learner's newest value-function message once it is fitted on
+        ``n_interventions`` (or the newest one at the timeout; None if none came)."""
+        from ..vfmsg import msg_metadata
+        deadline = time.monotonic() + timeout
+        with self.fit_event:
+            while True:
+                if self.vf_msgs:
+                    meta = msg_metadata(self.vf_msgs[-1])
+                    if meta.get('source') == 'learned' and int(meta.get('interventions') or 0) >= n_interventions:
+                        return self.vf_msgs[-1]
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    learned = [m for m in self.vf_msgs if msg_metadata(m).get('source') == 'learned']
+                    return learned[-1] if learned else None
+                self.fit_event.wait(left)
+
+    def close(self):
+        self.rclpy.try_shutdown(context=self.context)
+        self.thread.join(timeout=2.0)
+        try:
+            self.executor.shutdown()
+            self.node.destroy_node()
+        except Exception:
+            pass
