@@ -46,6 +46,7 @@ HORIZON = 3.0
 GRID_LO, GRID_HI, GRID_SHAPE = (-8.0, -8.0), (8.0, 8.0), (65, 65, 42)
 PHASE2_X0 = -8.0
 PHASE2_X_END = 2.5
+READY_TOPIC = '/study/learned_set_ready'
 
 
 @dataclass
@@ -118,8 +119,8 @@ def game_argvs(condition: str, world_seed: int, subject: Subject, opts: StudyOpt
         if spec.kind == 'supervisor':
             params['seed'] = (subject.seed + 7919 * world_seed) % (2**31 - 1)   # the subject's noise
         if spec.kind == 'sim_clock' and condition == 'learned':
-            params['wait_for_publishers'] = list(params['wait_for_publishers']) + \
-                ['/safe_set/value_function=1']
+            # the runner opens this gate once both filters have the learned set in force
+            params['wait_for_publishers'] = list(params['wait_for_publishers']) + [f'{READY_TOPIC}=1']
         argvs.append(node_argv(spec.kind, spec.namespace, params, spec.remaps))
     return argvs
 
@@ -205,25 +206,58 @@ def first_passage_fit(scenes: list):
 
 # -- Phase III --------------------------------------------------------------------------
 class LatchedValueFunction:
-    """Publishes one value-function message, latched, on /safe_set/value_function."""
+    """Publishes one value-function message, latched, on /safe_set/value_function, and
+    opens the gate ``READY_TOPIC`` (a publisher the sim clock waits for) once every
+    filter has logged (on /rosout) that the learned set is in force: the first step of
+    a Learned game then runs on the learned set, not on the standard one."""
 
-    def __init__(self, env: dict, msg):
+    def __init__(self, env: dict, msg, n_filters: int = 2):
         import rclpy
-        from std_msgs.msg import Float32MultiArray
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.qos import QoSProfile, DurabilityPolicy, HistoryPolicy, ReliabilityPolicy
+        from rcl_interfaces.msg import Log
+        from std_msgs.msg import Empty, Float32MultiArray
         from .. import rosmsg
-        self.rclpy = rclpy
+        import threading
+        self.rclpy, self.Empty = rclpy, Empty
+        self.n_filters = n_filters
+        self.in_force = set()
+        self.gate = None
         self.context = rclpy.Context()
         rclpy.init(context=self.context, args=[], domain_id=int(env['ROS_DOMAIN_ID']))
         self.node = rclpy.create_node('study_learned_set', context=self.context)
+        rosout_qos = QoSProfile(depth=1000, history=HistoryPolicy.KEEP_LAST,
+                                reliability=ReliabilityPolicy.RELIABLE,
+                                durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self.node.create_subscription(Log, '/rosout', self.on_log, rosout_qos)
         self.pub = self.node.create_publisher(Float32MultiArray, '/safe_set/value_function',
                                               rosmsg.QOS_LATCHED)
         self.pub.publish(msg)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.thread = threading.Thread(target=self._spin, daemon=True)
+        self.thread.start()
+
+    def _spin(self):
+        try:
+            self.executor.spin()
+        except Exception:
+            pass
+
+    def on_log(self, log):
+        if log.name.endswith('safety_filter') and log.msg.startswith('learned set in force'):
+            self.in_force.add(log.name)
+            if len(self.in_force) >= self.n_filters and self.gate is None:
+                self.gate = self.node.create_publisher(self.Empty, READY_TOPIC, 1)
 
     def close(self):
+        self.rclpy.try_shutdown(context=self.context)
+        self.thread.join(timeout=2.0)
         try:
+            self.executor.shutdown()
             self.node.destroy_node()
-        finally:
-            self.rclpy.try_shutdown(context=self.context)
+        except Exception:
+            pass
 
 
 def game_counts(result: dict) -> dict:
