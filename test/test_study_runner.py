@@ -1,0 +1,162 @@
+"""The study's bookkeeping: per-subject records -> JSON conditions, Table 1, sweep; counts
+from the world's stats; Phase II scenes -> encounters; the CLI's subcommands."""
+import argparse
+import json
+import math
+
+import numpy as np
+import pytest
+
+from supersafe_ros.study import runner
+from supersafe_ros.study.analysis import CONDITIONS
+from supersafe_ros.study.population import Subject
+
+
+class XValue:
+    """A stand-in value function: V(x, y, theta) = x + offset (inside the set iff V > alpha)."""
+
+    def __init__(self, offset=0.0):
+        self.offset = offset
+
+    def value(self, states):
+        return np.asarray(states, dtype=float).reshape(-1, 3)[:, 0] + self.offset
+
+
+def game(fp, interventions, crashes=0, trips=5):
+    return {'false_positives': fp, 'interventions': interventions, 'crashes': crashes, 'trips': trips}
+
+
+def record(i, states, fit, learned_vf, games, sweep=None):
+    return {'subject': Subject(i, 0.5, 1.0, 0.2, 100 + i).to_dict(), 'fit': fit, 'states': states,
+            'learned_vf': learned_vf, 'games': games, 'sweep': sweep or {}}
+
+
+def two_subjects():
+    # x of the intervention states: subject 0 -> [-3, -1, 1, 2]; subject 1 -> [-2, 0.5, 3]
+    s0 = [[-3, 0, 0], [-1, 0, 0], [1, 0, 0], [2, 0, 0]]
+    s1 = [[-2, 0, 0], [0.5, 0, 0], [3, 0, 0]]
+    r0 = record(0, s0, {'mu': 0.5, 'sigma': 1.0}, XValue(0.0),
+                {'standard': game(6, 8), 'learned': game(3, 5), 'conservative': game(1, 2)},
+                sweep={0.0: game(3, 5), 1.0: game(2, 4), 2.0: game(0, 3)})
+    r1 = record(1, s1, {'mu': 1.0, 'sigma': 0.5}, XValue(0.0),
+                {'standard': game(4, 6), 'learned': game(3, 4), 'conservative': game(0, 1)})
+    return [r0, r1]
+
+
+def test_summarize_pools_table1_and_lists_one_value_per_subject():
+    # standard: V = x, alpha 0 -> inside x > 0: 2 + 2 = 4 of 7
+    # conservative: V = x - 2, alpha 0 -> x > 2: 0 + 1 = 1
+    # learned: V = x, alpha = mu -> s0: x > 0.5 -> 2; s1: x > 1.0 -> 1 => 3
+    s = runner.summarize(two_subjects(), XValue(0.0), XValue(-2.0))
+    t = s['table1']
+    assert (t['standard']['inside'], t['standard']['total']) == (4, 7)
+    assert (t['learned']['inside'], t['conservative']['inside']) == (3, 1)
+    assert t['learned']['predicted_fp_ratio'] == pytest.approx(3 / 4)
+    assert t['conservative']['predicted_fp_ratio'] == pytest.approx(1 / 4)
+    c = s['conditions']
+    assert set(c) == set(CONDITIONS)
+    assert c['standard']['false_positives'] == [6, 4]
+    assert c['learned']['interventions'] == [5, 4]
+    assert c['conservative']['trips'] == [5, 5]
+    assert c['standard']['predicted_fp_ratio'] == 1.0 and c['standard']['observed_fp_ratio'] == 1.0
+    assert c['learned']['average_fp'] == pytest.approx(3.0)
+    assert c['learned']['observed_fp_ratio'] == pytest.approx(3.0 / 5.0)
+    assert c['conservative']['observed_fp_ratio'] == pytest.approx(0.5 / 5.0)
+    assert set(s['anova']) >= {'F', 'p'}
+    assert set(s['tukey']) == {'standard-learned', 'standard-conservative', 'learned-conservative'}
+
+
+def test_alpha_sweep_predicted_per_subject_and_observed_for_the_swept_ones():
+    s = runner.summarize(two_subjects(), XValue(0.0), XValue(-2.0))
+    sw = s['alpha_sweep']
+    assert list(sw) == ['mu', 'mu+1sigma', 'mu+2sigma']
+    # s0: alpha 0.5, 1.5, 2.5 over x [-3,-1,1,2] -> 2/4, 1/4, 0; s1: alpha 1, 1.5, 2 over [-2,.5,3] -> 1/3 each
+    assert sw['mu']['predicted'] == pytest.approx([0.5, 1 / 3])
+    assert sw['mu+1sigma']['predicted'] == pytest.approx([0.25, 1 / 3])
+    assert sw['mu+2sigma']['predicted'] == pytest.approx([0.0, 1 / 3])
+    assert sw['mu+2sigma']['observed'] == [0] and sw['mu+2sigma']['observed_subjects'] == [0]
+    # predicted shares never rise with alpha
+    for k in range(2):
+        a, b = sw[['mu', 'mu+1sigma', 'mu+2sigma'][k]], sw[['mu', 'mu+1sigma', 'mu+2sigma'][k + 1]]
+        assert all(y <= x for x, y in zip(a['predicted'], b['predicted']))
+
+
+def test_subject_without_fit_counts_the_standard_set_for_learned():
+    recs = two_subjects()
+    recs[1]['fit'], recs[1]['learned_vf'] = None, None
+    s = runner.summarize(recs, XValue(0.0), XValue(-2.0))
+    # s0 learned 2 (as before) + s1 with the standard set (x > 0: 2)
+    assert s['table1']['learned']['inside'] == 4
+    assert len(s['alpha_sweep']['mu']['predicted']) == 1
+
+
+def test_json_output_is_strict_json():
+    s = runner.summarize(two_subjects(), XValue(0.0), XValue(-2.0))
+    s['nan'] = float('nan')
+    s['np'] = np.float32(1.5)
+    text = json.dumps(runner.jsonable(s), allow_nan=False)
+    back = json.loads(text)
+    assert back['nan'] is None and back['np'] == 1.5
+    assert back['conditions']['standard']['false_positives'] == [6, 4]
+
+
+def test_game_counts_from_world_stats_and_log():
+    result = {'stats': {'trips': '12', 'crashes': '1', 'interventions': '7', 'false_positives': '5',
+                        'sim_time': '120.0'},
+              'interventions': [{'false_positive': 'true'}, {'false_positive': 'false'},
+                                {'false_positive': 'True'}]}
+    c = runner.game_counts(result)
+    assert (c['trips'], c['crashes'], c['interventions'], c['false_positives']) == (12, 1, 7, 5)
+    assert c['sim_time'] == 120.0
+    assert (c['logged_interventions'], c['logged_false_positives']) == (3, 2)
+    empty = runner.game_counts({'stats': {}, 'interventions': []})
+    assert empty['trips'] == 0 and empty['sim_time'] == 0.0
+
+
+def test_phase2_scenes_become_encounters_ending_at_the_intervention():
+    frames = [(-8.0 + 0.6 * k, 1.0, 0.0) for k in range(10)]
+    scenes = [
+        {'y0': 1.0, 'intervened': True, 'state': [-5.1, 1.0, 0.0], 'frames': frames[:6] + [(-5.1, 1.0, 0.0)]},
+        {'y0': 2.0, 'intervened': False, 'state': None, 'frames': frames},
+    ]
+    enc = runner.phase2_encounters_from_scenes(scenes)
+    assert [e.intervened for e in enc] == [True, False]
+    assert np.allclose(enc[0].states[-1], [-5.1, 1.0, 0.0])
+    assert np.all(enc[0].states[:-1, 0] < -5.1)
+    assert len(enc[1].states) == 10
+
+
+def test_game_graph_per_condition():
+    subj = Subject(0, 0.5, 0.8, 0.2, 12345)
+    opts = runner.StudyOptions(game_seconds=30.0)
+
+    def params(argvs, name):
+        argv = next(a for a in argvs if f'supersafe_ros.nodes.{name}' in a)
+        return [argv[i + 1] for i, a in enumerate(argv) if a == '-p']
+
+    std = runner.game_argvs('standard', 3, subj, opts)
+    cons = runner.game_argvs('conservative', 3, subj, opts)
+    learned = runner.game_argvs('learned', 3, subj, opts, alpha_offset=2.0)
+    assert not any('learner_node' in ' '.join(a) for a in std)
+    assert 'radius:=3.6' in params(cons, 'safety_filter_node')
+    assert 'use_learned:=false' in params(std, 'safety_filter_node')
+    assert 'use_learned:=true' in params(learned, 'safety_filter_node')
+    assert 'alpha_offset:=2.0' in params(learned, 'safety_filter_node')
+    assert any(runner.READY_TOPIC in p for p in params(learned, 'sim_clock_node'))
+    for argvs in (std, cons, learned):   # same world seed, the subject's supervisor
+        assert 'seed:=3' in params(argvs, 'world_node')
+        assert 'w_max:=0.5' in params(argvs, 'supervisor_node')
+        assert 'duration:=30.0' in params(argvs, 'sim_clock_node')
+
+
+def test_cli_registers_study_and_demo():
+    from supersafe_ros.study import cli
+    parser = argparse.ArgumentParser()
+    sub = parser.add_subparsers(dest='command')
+    cli.add_parser(sub)
+    args = parser.parse_args(['study', '--subjects', '2', '--phase2-offsets=-1,0.5', '--estimator',
+                              'first-passage'])
+    opts = cli.options_from_args(args)
+    assert opts.subjects == 2 and opts.phase2_offsets == (-1.0, 0.5) and opts.estimator == 'first-passage'
+    assert parser.parse_args(['demo']).func is cli.run_demo
+    assert math.isclose(runner.learned_alpha({'mu': 1.0, 'sigma': 0.5}, 2.0), 2.0)
