@@ -44,13 +44,48 @@ class ValueFunction:
         self._grad = None
 
     # -- evaluation -------------------------------------------------------
+    @property
+    def rotationally_symmetric(self) -> bool:
+        """A Dubins car and one disc at the origin: V(R x, R y, th + b) = V(x, y, th)."""
+        k = self.meta.get('keepout')
+        return (self.meta.get('model') == 'dubins' and isinstance(k, dict)
+                and k.get('type') == 'disc' and k.get('cx') == 0.0 and k.get('cy') == 0.0)
+
     def value(self, states, outside=None) -> np.ndarray:
         """V at states (..., 3). Outside the (x, y) rectangle: ``outside`` if given,
-        else the value at the nearest edge."""
-        v = self.grid.interpolate(self.values, states)
+        else the value at the nearest edge.
+
+        Rotationally symmetric value functions are not interpolated across heading
+        nodes: V has a V-shaped valley in theta (heading straight at the obstacle)
+        that linear interpolation between nodes 2 pi / nth apart overestimates by up
+        to |dV/dtheta| dtheta / 2 (0.2 on the paper's grid), which is exactly where a
+        filter must not act late. The state is rotated about the obstacle onto each
+        of the two neighbouring heading nodes and interpolated in (x, y) there; both
+        are estimates of the same V, and the interpolation of a convex kink only
+        overestimates, so the smaller one is kept.
+        """
+        s = np.asarray(states, dtype=float)
+        if self.rotationally_symmetric:
+            v = self._value_rotated(s)
+        else:
+            v = self.grid.interpolate(self.values, s)
         if outside is not None:
-            v = np.where(self.grid.contains(states), v, outside)
+            v = np.where(self.grid.contains(s), v, outside)
         return v
+
+    def _value_rotated(self, s) -> np.ndarray:
+        dth = self.grid.spacing[2]
+        k0 = np.floor((s[..., 2] + np.pi) / dth)
+        out = None
+        for k in (k0, k0 + 1.0):
+            node = -np.pi + k * dth
+            beta = node - s[..., 2]
+            c, sn = np.cos(beta), np.sin(beta)
+            rotated = np.stack([c * s[..., 0] - sn * s[..., 1], sn * s[..., 0] + c * s[..., 1], node],
+                               axis=-1)
+            v = self.grid.interpolate(self.values, rotated)
+            out = v if out is None else np.minimum(out, v)
+        return out
 
     def node_gradient(self) -> np.ndarray:
         if self._grad is None:

@@ -13,8 +13,12 @@ rule and at least ``respawn_clearance`` from every robot (rejection sampling; if
 no place qualifies after ``max_tries`` the clearance is halved, and so on, so the
 world never stalls - the relaxation is reported).
 
-Crash: a robot's centre inside an obstacle disc. One crash is counted per entry:
-the robot must leave the disc before the same obstacle can count again.
+Crash: a robot's centre more than ``crash_tolerance`` inside an obstacle disc. One
+crash is counted per entry: the robot must leave the disc before the same obstacle
+can count again. The tolerance (5 cm) is for grazes: a filter acting on the zero
+level set of the standard value function skims the rim by design (V = 0 means a
+closest approach of exactly the radius), and the value function's numerical error
+and the discrete control steps put that skim a few millimetres either side.
 
 Intervention classification (paper Sec. V-A): a false positive iff every robot
 within ``near_distance`` of the removed obstacle had detected it (its latest
@@ -40,6 +44,7 @@ class WorldConfig:
     goal_x: float = 16.0
     n_obstacles: int = 10
     radius: float = 1.8
+    crash_tolerance: float = 0.05   # a graze this close to the rim is not a crash
     spacing: float = 2.0            # extra gap between obstacle discs
     goal_margin: float = 4.0        # obstacles keep this far inside the goal lines
     respawn_clearance: float = 8.0  # new obstacles appear at least this far from robots
@@ -173,7 +178,8 @@ class World:
         events = {'trip': False, 'crashed': []}
         ids, xy = self.obstacle_arrays()
         if len(ids):
-            inside_now = set(ids[np.hypot(*(xy - s[:2]).T) < self.config.radius].tolist())
+            inside_now = set(ids[np.hypot(*(xy - s[:2]).T)
+                                    < self.config.radius - self.config.crash_tolerance].tolist())
             for oid in sorted(inside_now - r.inside):
                 r.crashes += 1
                 events['crashed'].append(int(oid))
