@@ -203,3 +203,18 @@ def test_children_die_with_a_killed_runner(tmp_path):
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
+
+
+def test_team_with_filter_and_perfect_detection_never_crashes(tmp_path):
+    """The whole graph as processes, no supervisor, sensors that never miss: the
+    filter alone keeps both robots out of every obstacle while they make trips."""
+    from supersafe_ros.team import run_team, team_processes
+    argvs = team_processes(n_robots=2, rate_factor=0.0, seed=4, duration=80.0, step=0.1,
+                           with_supervisor=False, learner_store=tmp_path / 'interventions.jsonl',
+                           overrides={'dubins_robot': {'miss_probability': 0.0}})
+    result = run_team(argvs, duration=80.0, timeout=240.0, log_dir=tmp_path / 'logs',
+                      print_period=1e9, out=open(os.devnull, 'w'))
+    stats = result['stats']
+    assert result['reason'] == 'duration reached', result['reason']
+    assert int(stats['trips']) >= 8                  # they really drove past obstacles
+    assert int(stats['crashes']) == 0, result['events']
