@@ -26,6 +26,8 @@ import numpy as np
 
 ROBOT = 'robot_0'
 POSE_TOL = 0.05
+READERS = 3       # world, learner, this conductor
+SETTLE_S = 1.0
 LEAD_IN = 6.0     # m behind the start line where the robot waits while a scene is set
 
 
@@ -59,6 +61,8 @@ class Phase2Conductor:
         self.sim_time = 0.0
         self.frames = []
         self.done = threading.Event()
+        self.settle_until = None
+        self.received = []             # every intervention on a scene's obstacle, as sent
         self.lock = threading.Lock()
         self.vf_msgs = []
         self.fit_event = threading.Condition()
@@ -141,7 +145,14 @@ class Phase2Conductor:
         with self.lock:
             self.sim_time = t
             if self.stage == 'idle':
-                self._start_scene(0)
+                # every /interventions reader (world, learner, this node) visible, then a
+                # settling second of wall time: the graph's counts come before the pairwise
+                # matches, and an intervention sent before the learner's match is lost
+                if self.node.count_subscribers('/interventions') >= READERS:
+                    if self.settle_until is None:
+                        self.settle_until = time.monotonic() + SETTLE_S
+                    elif time.monotonic() >= self.settle_until:
+                        self._start_scene(0)
             elif self.stage == 'A' and self._at(x, y, self.x0 - LEAD_IN):
                 self.stage = 'A2'
                 self.wait_until = t
@@ -185,6 +196,7 @@ class Phase2Conductor:
             # (at the start line too); E: on the last poses before the end of the scene
             if self.stage not in ('C', 'D', 'E') or frame != f'obstacle_{self.obstacle_id}':
                 return
+            self.received.append(msg)
             if self.stage == 'C':
                 self.scene_start = self.sim_time
                 self.frames = []
@@ -221,6 +233,23 @@ class Phase2Conductor:
                     learned = [m for m in self.vf_msgs if msg_metadata(m).get('source') == 'learned']
                     return learned[-1] if learned else None
                 self.fit_event.wait(left)
+
+    def resend(self, frames_stored: set) -> int:
+        """Send again the scenes' interventions whose frame the learner has not stored
+        (the world rejects them: those obstacles are gone). Returns how many."""
+        pub = getattr(self, 'resend_pub', None)
+        if pub is None:
+            from geometry_msgs.msg import PoseStamped
+            from .. import rosmsg
+            pub = self.resend_pub = self.node.create_publisher(PoseStamped, '/interventions',
+                                                               rosmsg.QOS_EVENTS)
+            deadline = time.monotonic() + 3.0
+            while pub.get_subscription_count() < 2 and time.monotonic() < deadline:
+                time.sleep(0.05)
+        missing = [m for m in self.received if m.header.frame_id not in frames_stored]
+        for m in missing:
+            pub.publish(m)
+        return len(missing)
 
     def close(self):
         self.rclpy.try_shutdown(context=self.context)

@@ -161,9 +161,15 @@ def run_phase2(subject: Subject, opts: StudyOptions, domain_id: int, log_dir: Pa
                 raise RuntimeError(f'Phase II did not finish in time (scene {conductor.scene_index}, '
                                    f'logs in {log_dir})')
         n = sum(1 for s in conductor.scenes if s['intervened'])
-        vf_msg = conductor.wait_for_fit(n, timeout=15.0) if n >= 3 else None
-        if n >= 3 and vf_msg is None:
-            notes.append('the learner did not publish a fit on all interventions in time')
+        vf_msg = conductor.wait_for_fit(n, timeout=5.0) if n >= 3 else None
+        if n >= 3 and (vf_msg is None or _fit_count(vf_msg) < n):
+            # the learner missed some (e.g. sent before its subscription matched): send again
+            stored = _stored_frames(store)
+            k = conductor.resend(stored)
+            notes.append(f'the learner had {len(stored)} of {n} interventions; {k} sent again')
+            vf_msg = conductor.wait_for_fit(n, timeout=10.0)
+            if vf_msg is None or _fit_count(vf_msg) < n:
+                notes.append(f'the learner fitted {_fit_count(vf_msg) if vf_msg else 0} of {n} interventions')
     finally:
         team.stop()
         conductor.close()
@@ -176,6 +182,25 @@ def run_phase2(subject: Subject, opts: StudyOptions, domain_id: int, log_dir: Pa
         fit = {k: meta.get(k) for k in ('omega_max', 'mu', 'sigma', 'alpha', 'log_likelihood',
                                         'estimator', 'interventions')}
     return Phase2Result(scenes, states, vf_msg, fit, conductor.sim_time, time.monotonic() - t0, notes)
+
+
+def _fit_count(vf_msg) -> int:
+    from ..vfmsg import msg_metadata
+    return int(msg_metadata(vf_msg).get('interventions') or 0)
+
+
+def _stored_frames(store: Path) -> set:
+    """Obstacle frames of the interventions in the learner's store (JSON lines)."""
+    out = set()
+    try:
+        for line in store.read_text().splitlines():
+            try:
+                out.add(json.loads(line).get('frame'))
+            except ValueError:
+                pass
+    except OSError:
+        pass
+    return out
 
 
 def phase2_encounters_from_scenes(scenes: list) -> list:
@@ -331,7 +356,8 @@ def run_study(subjects: list, opts: StudyOptions, out=sys.stdout) -> dict:
         progress.line(i, 'phase II done', p2.sim_time,
                       f'{len(p2.states)} interventions; fit ' + (
                           f'w {fit["omega_max"]:g} mu {fit["mu"]:.3g} sigma {fit["sigma"]:.3g}'
-                          if fit else 'none (too few interventions): Learned = Standard'))
+                          if fit else 'none (too few interventions): Learned = Standard')
+                      + ''.join(f'; {n}' for n in p2.notes))
         rec['learned_vf'] = msg_to_value_function(vf_msg) if vf_msg is not None else None
         world_seed = opts.seed * 1000 + i
         for cond in ('standard', 'learned', 'conservative'):
