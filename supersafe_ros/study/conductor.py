@@ -1,20 +1,29 @@
 """The study's Phase II conductor: an rclpy node inside the study runner.
 
 It plays the authors' Phase II protocol on the running graph (one robot, world with
-``respawn`` false, supervisor, learner): for every lateral offset y0 a scene
+``respawn`` false and no obstacles, supervisor, learner). First it waits until every
+``/interventions`` reader (world, learner, itself) is in the graph, plus one settling
+wall second (an intervention sent before the learner's subscription has matched
+would be lost); the robot stays parked meanwhile. Then, for every lateral offset y0,
+a scene:
 
-  A. ``/world/set_obstacles`` with no obstacle, ``robot_0/initialpose`` at (x0, y0, 0);
-     wait for a pose there (the robot teleports at its next step);
+  A. ``/world/set_obstacles`` with no obstacle; ``robot_0/initialpose`` 6 m behind the
+     start line (outside the supervisor's grid); wait for a pose there;
+  A2. wait until the supervisor has judged that pose (``/supervisor/step_done``): it lags
+     the robot by up to two steps and would judge the old poses against the new obstacle;
   B. ``/world/set_obstacles`` with one disc at the origin; wait for its marker (a new
      obstacle id, hence a new encounter for the supervisor);
-  C. ``initialpose`` (x0, y0, 0) again (the robot drove on while B settled); wait for it;
+  C. ``initialpose`` one step behind (x0, y0, 0), so the first pose of the scene is at
+     x0; wait for it;
   D. drive: the scene's frames are recorded from here; it ends at the supervisor's
-     intervention on this obstacle (``/interventions``, frame obstacle_<id>) or when the
-     robot is past the obstacle (x > x_end).
+     intervention on this obstacle (``/interventions``, frame obstacle_<id>), or
+  E. once the robot is past the obstacle (x > x_end) and the supervisor has judged
+     that pose (an intervention on those last poses still counts).
 
 The conductor is also the robot's controller: it answers every pose with a zero Twist
 on ``robot_0/cmd_vel`` (u = 0; the lockstep robot acknowledges its step when a command
-arrives). Before the first scene is set, it sends nothing (the robot stays parked).
+arrives). The requests use reliable transient-local publishers (compatible with
+volatile and transient-local readers).
 """
 from __future__ import annotations
 
