@@ -160,3 +160,10 @@ def test_cli_registers_study_and_demo():
     assert opts.subjects == 2 and opts.phase2_offsets == (-1.0, 0.5) and opts.estimator == 'first-passage'
     assert parser.parse_args(['demo']).func is cli.run_demo
     assert math.isclose(runner.learned_alpha({'mu': 1.0, 'sigma': 0.5}, 2.0), 2.0)
+
+
+def test_stored_frames_of_the_learner_store(tmp_path):
+    store = tmp_path / 'interventions.jsonl'
+    assert runner._stored_frames(store) == set()          # no file yet: nothing stored
+    store.write_text('{"frame": "obstacle_3", "x": -5.0}\nnot json\n{"frame": "obstacle_7"}\n')
+    assert runner._stored_frames(store) == {'obstacle_3', 'obstacle_7'}
