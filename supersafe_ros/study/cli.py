@@ -86,7 +86,11 @@ def run(args, out=sys.stdout) -> int:
     standard_vf, conservative_vf = reference_sets()
     print(f'ready in {time.monotonic() - t0:.1f} s', file=out, flush=True)
     subjects = draw_subjects(opts.subjects, opts.seed)
-    raw = run_study(subjects, opts, out=out)
+    try:
+        raw = run_study(subjects, opts, out=out)
+    except KeyboardInterrupt:
+        print('study interrupted; every process of the running phase was stopped', file=out)
+        return 130
     summary = summarize(raw['records'], standard_vf, conservative_vf, opts.sweep_k)
     total = time.monotonic() - t0
     summary['timing'] = {'study_wall_s': raw['wall'], 'total_wall_s': total,

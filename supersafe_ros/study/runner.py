@@ -316,6 +316,8 @@ def run_game(condition: str, subject: Subject, world_seed: int, opts: StudyOptio
     finally:
         if latched:
             latched.close()
+    if result['reason'].startswith('signal'):
+        raise KeyboardInterrupt(result['reason'])   # Ctrl-C in a game stops the study
     counts = game_counts(result)
     counts.update(wall=time.monotonic() - t0, reason=result['reason'],
                   complete=counts['sim_time'] >= opts.game_seconds - 1e-6)
