@@ -181,7 +181,10 @@ def run_phase2(subject: Subject, opts: StudyOptions, domain_id: int, log_dir: Pa
         meta = msg_metadata(vf_msg)
         fit = {k: meta.get(k) for k in ('omega_max', 'mu', 'sigma', 'alpha', 'log_likelihood',
                                         'estimator', 'interventions')}
-    return Phase2Result(scenes, states, vf_msg, fit, conductor.sim_time, time.monotonic() - t0, notes)
+    # sim time the scenes spanned (the clock also ran, parked, while the graph settled
+    # and while the learner fitted)
+    span = scenes[-1]['end_time'] - scenes[0]['start_time'] if scenes else 0.0
+    return Phase2Result(scenes, states, vf_msg, fit, span, time.monotonic() - t0, notes)
 
 
 def _fit_count(vf_msg) -> int:
