@@ -68,7 +68,14 @@ def _step_plan(grid: Grid, dyn: DubinsCar, settings: SolverSettings):
 
 
 class _SlabStepper:
-    """One DP step for every slice and control, on a padded copy of V."""
+    """One DP step for every slice and control, on a padded copy of V.
+
+    Internally V is laid out slice-major, (nth, nx, ny). For one control every
+    slice k reads the padded slice it lands on through a window at its own
+    integer (x, y) offset; one fancy-indexed gather over a sliding-window view
+    fetches all of them at once, and the bilinear weights are one scalar pair
+    per slice.
+    """
 
     def __init__(self, grid: Grid, dyn: DubinsCar, keepout, dt: float, settings: SolverSettings):
         self.grid, self.dyn, self.dt = grid, dyn, dt
@@ -80,76 +87,78 @@ class _SlabStepper:
         ys = grid.lo[1] + dy * np.arange(-p, ny + p)
         X, Y = np.meshgrid(xs, ys, indexing='ij')
         # l on the padded plane: the value assumed beyond the grid
-        self.l_pad = keepout.signed_distance(np.stack([X, Y], axis=-1)).astype(np.float32)
-        self.l_grid = self.l_pad[p:p + nx, p:p + ny]
+        l_pad = keepout.signed_distance(np.stack([X, Y], axis=-1)).astype(np.float32)
+        self.l_grid = np.ascontiguousarray(l_pad[p:p + nx, p:p + ny])
+        # padded V, slice-major; the rim keeps l, each step overwrites the interior
+        self.Vp = np.repeat(l_pad[None], nth, axis=0)
+        self.windows = np.lib.stride_tricks.sliding_window_view(self.Vp, (nx + 1, ny + 1), axis=(1, 2))
         self.controls = dyn.extreme_controls()
         self.theta = grid.theta
-        self.xs_in = xs[p:p + nx]
-        self.ys_in = ys[p:p + ny]
+        self.X, self.Y = np.meshgrid(xs[p:p + nx], ys[p:p + ny], indexing='ij')
         self.keepout = keepout
         self.samples = settings.path_samples
-        self._path_min_cache = {}
+        self._plans = {}
 
-    def path_min(self, u: float, dt: float, k: int) -> np.ndarray:
-        """min of l over interior points of the step from every node of slice k (cached)."""
-        key = (u, dt, k)
-        hit = self._path_min_cache.get(key)
-        if hit is not None:
-            return hit
-        X, Y = np.meshgrid(self.xs_in, self.ys_in, indexing='ij')
-        th = self.theta[k]
-        out = None
+    def _displacement(self, u: float, t: float):
+        """(x, y) displacement of every slice's heading after t under control u."""
+        v, th = self.dyn.speed, self.theta
+        if abs(u * t) < 1e-12:
+            return v * t * np.cos(th), v * t * np.sin(th)
+        return (v / u * (np.sin(th + u * t) - np.sin(th)),
+                v / u * (np.cos(th) - np.cos(th + u * t)))
+
+    def _plan(self, u: float, dt: float, shift: float):
+        """Per-slice gather indices, weights and path minimum of l (cached per step kind)."""
+        key = (u, dt, shift)
+        plan = self._plans.get(key)
+        if plan is not None:
+            return plan
+        nth = self.grid.shape[2]
+        dx, dy, _ = self.grid.spacing
+        ddx, ddy = self._displacement(u, dt)
+        a, b = ddx / dx, ddy / dy
+        ia, ib = np.floor(a).astype(np.intp), np.floor(b).astype(np.intp)
+        k0 = math.floor(shift)
+        ks = np.arange(nth)
+        path = np.full((nth,) + self.X.shape, np.inf, dtype=np.float32)
         for i in range(1, self.samples + 1):
             t = dt * i / (self.samples + 1)
-            ddx, ddy = self._displacement(th, u, t)
-            li = self.keepout.signed_distance(np.stack([X + ddx, Y + ddy], axis=-1)).astype(np.float32)
-            out = li if out is None else np.minimum(out, li)
-        if out is None:
-            out = np.full(X.shape, np.inf, dtype=np.float32)
-        self._path_min_cache[key] = out
-        return out
+            sx, sy = self._displacement(u, t)
+            pts = np.stack([self.X[None] + sx[:, None, None], self.Y[None] + sy[:, None, None]], -1)
+            np.minimum(path, self.keepout.signed_distance(pts).astype(np.float32), out=path)
+        plan = {
+            'k': (ks + k0) % nth, 'k_next': (ks + k0 + 1) % nth, 'ft': shift - k0,
+            'ia': ia + self.pad, 'ib': ib + self.pad,
+            'fa': (a - ia).astype(np.float32)[:, None, None],
+            'fb': (b - ib).astype(np.float32)[:, None, None],
+            'path_min': path,
+        }
+        self._plans[key] = plan
+        return plan
 
-    def _displacement(self, th: float, u: float, t: float):
-        v = self.dyn.speed
-        if abs(u * t) < 1e-12:
-            return v * t * math.cos(th), v * t * math.sin(th)
-        return (v / u * (math.sin(th + u * t) - math.sin(th)),
-                v / u * (math.cos(th) - math.cos(th + u * t)))
+    def _gather(self, plan, k):
+        src = self.windows[k, plan['ia'], plan['ib']]          # (nth, nx + 1, ny + 1)
+        fb = plan['fb']
+        lo = src[:, :-1, :-1] + fb * (src[:, :-1, 1:] - src[:, :-1, :-1])
+        hi = src[:, 1:, :-1] + fb * (src[:, 1:, 1:] - src[:, 1:, :-1])
+        return lo + plan['fa'] * (hi - lo)
 
     def step(self, V: np.ndarray, dt: float, heading_cells: dict) -> np.ndarray:
-        """V_{n+1} from V_n over a step dt; heading_cells[u] = heading shift in cells."""
-        nx, ny, nth = self.grid.shape
-        dx, dy, _ = self.grid.spacing
+        """V_{n+1} from V_n (both slice-major) over a step dt; heading_cells[u] = shift in cells."""
+        nx, ny, _ = self.grid.shape
         p = self.pad
-        Vp = np.empty((nx + 2 * p, ny + 2 * p, nth), dtype=np.float32)
-        Vp[...] = self.l_pad[:, :, None]
-        Vp[p:p + nx, p:p + ny, :] = V
-        out = np.full((nx, ny, nth), -np.inf, dtype=np.float32)
+        self.Vp[:, p:p + nx, p:p + ny] = V
+        out = None
         for u in self.controls:
-            shift = heading_cells[u]
-            k0 = math.floor(shift)
-            ft = shift - k0
-            for k in range(nth):
-                ddx, ddy = self._displacement(self.theta[k], u, dt)
-                cand = self._shifted(Vp, (k + k0) % nth, ddx / dx, ddy / dy, nx, ny, p)
-                if ft > 1e-9:
-                    cand = (1.0 - ft) * cand + ft * self._shifted(Vp, (k + k0 + 1) % nth,
-                                                                  ddx / dx, ddy / dy, nx, ny, p)
-                np.minimum(cand, self.path_min(u, dt, k), out=cand)
-                np.maximum(out[:, :, k], cand, out=out[:, :, k])
+            plan = self._plan(u, dt, heading_cells[u])
+            cand = self._gather(plan, plan['k'])
+            if plan['ft'] > 1e-9:
+                cand = (1.0 - plan['ft']) * cand + plan['ft'] * self._gather(plan, plan['k_next'])
+            np.minimum(cand, plan['path_min'], out=cand)
+            out = cand if out is None else np.maximum(out, cand, out=out)
         # the trajectory starts at x itself: V <= l(x)
-        np.minimum(out, self.l_grid[:, :, None], out=out)
+        np.minimum(out, self.l_grid[None], out=out)
         return out
-
-    @staticmethod
-    def _shifted(Vp, k, a, b, nx, ny, p):
-        """Bilinear samples of padded slice k at every node displaced by (a, b) cells."""
-        ia, ib = math.floor(a), math.floor(b)
-        fa, fb = np.float32(a - ia), np.float32(b - ib)
-        src = Vp[p + ia:p + ia + nx + 1, p + ib:p + ib + ny + 1, k]
-        lo = src[:-1, :-1] + fb * (src[:-1, 1:] - src[:-1, :-1])
-        hi = src[1:, :-1] + fb * (src[1:, 1:] - src[1:, :-1])
-        return lo + fa * (hi - lo)
 
 
 def solve_avoid(grid: Grid, dynamics: DubinsCar, keepout, horizon=None,
@@ -167,7 +176,7 @@ def solve_avoid(grid: Grid, dynamics: DubinsCar, keepout, horizon=None,
     dt, q, cells = _step_plan(grid, dynamics, settings)
     fine = Grid(grid.lo, grid.hi, (grid.shape[0], grid.shape[1], grid.shape[2] * q))
     stepper = _SlabStepper(fine, dynamics, keepout, dt, settings)
-    V = np.repeat(stepper.l_grid[:, :, None], fine.shape[2], axis=2)
+    V = np.repeat(stepper.l_grid[None], fine.shape[2], axis=0)      # slice-major
     whole = {u: cells * np.sign(u) for u in stepper.controls}
     steps, elapsed, converged, change = 0, 0.0, None, float('nan')
 
@@ -197,7 +206,7 @@ def solve_avoid(grid: Grid, dynamics: DubinsCar, keepout, horizon=None,
                 converged = True
                 break
 
-    V = V[:, :, ::q]
+    V = np.ascontiguousarray(np.moveaxis(V[::q], 0, -1))          # back to (x, y, theta)
     solve_time = time.perf_counter() - t0
     meta = dict(dynamics.params())
     meta.update({
