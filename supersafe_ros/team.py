@@ -286,16 +286,11 @@ class TeamMonitor:
     """A small rclpy node in the runner: collects /world/stats and /sim/clock_status."""
 
     def __init__(self, env: dict):
-        from .rosenv import ensure_local_ros_env
-        ensure_local_ros_env()
-        import rclpy
-        from rclpy.executors import SingleThreadedExecutor
+        from .background_node import BackgroundNode
         from diagnostic_msgs.msg import DiagnosticStatus
         from . import rosmsg
-        self.rclpy = rclpy
-        self.context = rclpy.Context()
-        rclpy.init(context=self.context, args=[], domain_id=int(env['ROS_DOMAIN_ID']))
-        self.node = rclpy.create_node('team_monitor', context=self.context)
+        self.ros = BackgroundNode('team_monitor', env['ROS_DOMAIN_ID'])
+        self.node = self.ros.node
         self.stats = {}
         self.clock = {}
         self.interventions = []
@@ -314,34 +309,18 @@ class TeamMonitor:
         self.node.create_subscription(DiagnosticStatus, '/world/intervention_log',
                                       lambda m: self.interventions.append(rosmsg.diagnostic_values(m)),
                                       rosmsg.QOS_LOG)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self.thread = threading.Thread(target=self._spin, daemon=True)
-        self.thread.start()
+        self.ros.start()
 
     def _set(self, attr, values):
         with self.lock:
             setattr(self, attr, values)
-
-    def _spin(self):
-        try:
-            self.executor.spin()
-        except Exception:
-            pass
 
     def snapshot(self):
         with self.lock:
             return dict(self.stats), dict(self.clock)
 
     def close(self):
-        # stop the context first so spin() returns, then tear down in this thread
-        self.rclpy.try_shutdown(context=self.context)
-        self.thread.join(timeout=2.0)
-        try:
-            self.executor.shutdown()
-            self.node.destroy_node()
-        except Exception:
-            pass
+        self.ros.close()
 
 
 def format_stats(stats: dict, clock: dict) -> str:

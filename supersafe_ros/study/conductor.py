@@ -31,7 +31,6 @@ import math
 import threading
 import time
 
-import numpy as np
 
 ROBOT = 'robot_0'
 POSE_TOL = 0.05
@@ -47,14 +46,12 @@ def yaw_of(q) -> float:
 class Phase2Conductor:
     def __init__(self, env: dict, offsets, x0: float = -8.0, x_end: float = 2.5,
                  step_length: float = 0.6):
-        import rclpy
-        from rclpy.executors import SingleThreadedExecutor
+        from ..background_node import BackgroundNode
         from rclpy.qos import QoSProfile, DurabilityPolicy, HistoryPolicy, ReliabilityPolicy
         from geometry_msgs.msg import PoseArray, PoseStamped, PoseWithCovarianceStamped, Twist
         from std_msgs.msg import Float32MultiArray
         from visualization_msgs.msg import MarkerArray
         from .. import rosmsg
-        self.rclpy = rclpy
         self.msgs = {'PoseArray': PoseArray, 'PoseWithCovarianceStamped': PoseWithCovarianceStamped,
                      'Twist': Twist}
         self.offsets = [float(v) for v in offsets]
@@ -76,9 +73,8 @@ class Phase2Conductor:
         self.vf_msgs = []
         self.fit_event = threading.Condition()
 
-        self.context = rclpy.Context()
-        rclpy.init(context=self.context, args=[], domain_id=int(env['ROS_DOMAIN_ID']))
-        self.node = rclpy.create_node('study_conductor', context=self.context)
+        self.ros = BackgroundNode('study_conductor', env['ROS_DOMAIN_ID'])
+        self.node = self.ros.node
         # transient local + reliable is compatible with volatile and transient-local readers
         request_qos = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
                                  reliability=ReliabilityPolicy.RELIABLE,
@@ -97,16 +93,7 @@ class Phase2Conductor:
         from rosgraph_msgs.msg import Clock
         self.judged = -1.0            # newest sim time whose poses the supervisor has judged
         self.node.create_subscription(Clock, '/supervisor/step_done', self.on_judged, rosmsg.QOS_ACK)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self.thread = threading.Thread(target=self._spin, daemon=True)
-        self.thread.start()
-
-    def _spin(self):
-        try:
-            self.executor.spin()
-        except Exception:
-            pass
+        self.ros.start()
 
     # -- requests -----------------------------------------------------------------------
     def _set_obstacles(self, centres):
@@ -261,10 +248,4 @@ class Phase2Conductor:
         return len(missing)
 
     def close(self):
-        self.rclpy.try_shutdown(context=self.context)
-        self.thread.join(timeout=2.0)
-        try:
-            self.executor.shutdown()
-            self.node.destroy_node()
-        except Exception:
-            pass
+        self.ros.close()

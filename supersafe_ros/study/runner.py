@@ -34,7 +34,7 @@ import time
 
 import numpy as np
 
-from ..team import Team, TeamMonitor, run_team, team_env, team_layout, node_argv
+from ..team import Team, run_team, team_env, team_layout, node_argv
 from ..learning.data import PHASE2_OFFSETS, Encounter
 from .population import Subject
 
@@ -240,20 +240,17 @@ class LatchedValueFunction:
     a Learned game then runs on the learned set, not on the standard one."""
 
     def __init__(self, env: dict, msg, n_filters: int = 2):
-        import rclpy
-        from rclpy.executors import SingleThreadedExecutor
+        from ..background_node import BackgroundNode
         from rclpy.qos import QoSProfile, DurabilityPolicy, HistoryPolicy, ReliabilityPolicy
         from rcl_interfaces.msg import Log
         from std_msgs.msg import Empty, Float32MultiArray
         from .. import rosmsg
-        import threading
-        self.rclpy, self.Empty = rclpy, Empty
+        self.Empty = Empty
         self.n_filters = n_filters
         self.in_force = set()
         self.gate = None
-        self.context = rclpy.Context()
-        rclpy.init(context=self.context, args=[], domain_id=int(env['ROS_DOMAIN_ID']))
-        self.node = rclpy.create_node('study_learned_set', context=self.context)
+        self.ros = BackgroundNode('study_learned_set', env['ROS_DOMAIN_ID'])
+        self.node = self.ros.node
         rosout_qos = QoSProfile(depth=1000, history=HistoryPolicy.KEEP_LAST,
                                 reliability=ReliabilityPolicy.RELIABLE,
                                 durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -261,16 +258,7 @@ class LatchedValueFunction:
         self.pub = self.node.create_publisher(Float32MultiArray, '/safe_set/value_function',
                                               rosmsg.QOS_LATCHED)
         self.pub.publish(msg)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self.thread = threading.Thread(target=self._spin, daemon=True)
-        self.thread.start()
-
-    def _spin(self):
-        try:
-            self.executor.spin()
-        except Exception:
-            pass
+        self.ros.start()
 
     def on_log(self, log):
         if log.name.endswith('safety_filter') and log.msg.startswith('learned set in force'):
@@ -279,13 +267,7 @@ class LatchedValueFunction:
                 self.gate = self.node.create_publisher(self.Empty, READY_TOPIC, 1)
 
     def close(self):
-        self.rclpy.try_shutdown(context=self.context)
-        self.thread.join(timeout=2.0)
-        try:
-            self.executor.shutdown()
-            self.node.destroy_node()
-        except Exception:
-            pass
+        self.ros.close()
 
 
 def game_counts(result: dict) -> dict:
