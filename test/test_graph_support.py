@@ -43,6 +43,12 @@ class Spinner:
         for n in nodes:
             self.executor.add_node(n)
 
+    def add(self, node):
+        self.executor.add_node(node)
+
+    def remove(self, node):
+        self.executor.remove_node(node)
+
     def until(self, condition, timeout=5.0, what='condition'):
         deadline = time.monotonic() + timeout
         while True:
