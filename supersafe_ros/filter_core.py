@@ -51,6 +51,7 @@ import math
 
 import numpy as np
 
+from .filter_law import evaluate_pairs  # noqa: F401  (the law's rule; re-exported)
 from .reach.dynamics import DubinsCar
 from .reach.value_function import ValueFunction
 
@@ -359,25 +360,5 @@ def _lookahead_values(filters, vf: ValueFunction, rel, robot, t) -> np.ndarray:
     for v in np.unique(speed):
         sel = speed == v
         ahead[sel] = DubinsCar(max(float(v), 1e-9), 1.0).flow(rel[sel], omega[sel], horizon[sel])
-    value, _ = evaluate_pairs(vf, ahead)
+    value = vf.value(ahead, outside=np.inf)      # values only: no turn is taken from here
     return np.where(horizon > 0, value, np.inf)
-
-
-def evaluate_pairs(vf: ValueFunction, rel_states):
-    """V and the unit avoid control sign(dV/dtheta) at relative states (N, 3).
-
-    The rule of ``filter_law.filter_law`` (pairs outside the grid: V = +inf, never
-    constraining; ties dV/dtheta = 0 turn left), but evaluated at *every* pair: the
-    hysteresis band and the fail-safe hold need u* where V > alpha too. Only the
-    theta component of the gradient is interpolated.
-    """
-    s = np.asarray(rel_states, dtype=float).reshape(-1, 3)
-    value = np.full(len(s), np.inf)
-    turn = np.zeros(len(s))
-    inside = vf.grid.contains(s)
-    if np.any(inside):
-        si = s[inside]
-        value[inside] = vf.value(si)
-        grad_th = vf.grid.interpolate(vf.node_gradient()[..., 2], si)
-        turn[inside] = np.where(grad_th >= 0.0, 1.0, -1.0)
-    return value, turn

@@ -26,6 +26,27 @@ class FilterDecision:
     value: np.ndarray      # float[N]: V at each state (+inf outside the grid)
 
 
+def evaluate_pairs(vf: ValueFunction, rel_states):
+    """V and the unit avoid control sign(dV/dtheta) at every relative state (N, 3).
+
+    Pairs outside the grid: V = +inf (never constraining), turn 0. On a ridge of V
+    (dV/dtheta == 0, e.g. heading straight at the obstacle) the turn is left (+1)
+    rather than straight into it. Only the theta component of the gradient is
+    interpolated. Callers that hold a robot in an override band (filter_core) need
+    the turn where V > alpha too, so it is evaluated at every pair.
+    """
+    s = np.asarray(rel_states, dtype=float).reshape(-1, 3)
+    value = np.full(len(s), np.inf)
+    turn = np.zeros(len(s))
+    inside = vf.grid.contains(s)
+    if np.any(inside):
+        si = s[inside]
+        value[inside] = vf.value(si)
+        grad_th = vf.grid.interpolate(vf.node_gradient()[..., 2], si)
+        turn[inside] = np.where(grad_th >= 0.0, 1.0, -1.0)
+    return value, turn
+
+
 def filter_law(vf: ValueFunction, alpha: float, rel_states, omega_max: float) -> FilterDecision:
     """Decide, for N relative states (N, 3), whether to override and with which turn rate."""
     s = np.asarray(rel_states, dtype=float).reshape(-1, 3)
@@ -33,16 +54,9 @@ def filter_law(vf: ValueFunction, alpha: float, rel_states, omega_max: float) ->
         raise ValueError(f'alpha must be finite, got {alpha}')
     if not np.all(np.isfinite(s)):
         raise ValueError('relative states contain NaN or infinite values')
-    inside = vf.grid.contains(s)
-    value = np.where(inside, vf.value(s), np.inf)
+    value, turn = evaluate_pairs(vf, s)
     override = value <= alpha
-    control = np.zeros(len(s))
-    if np.any(override):
-        grad_th = vf.gradient(s[override])[:, 2]
-        # On a ridge of V (dV/dtheta == 0, e.g. heading straight at the obstacle) pick
-        # a fixed side rather than going straight into it.
-        control[override] = omega_max * np.where(grad_th >= 0.0, 1.0, -1.0)
-    return FilterDecision(override, control, value)
+    return FilterDecision(override, np.where(override, omega_max * turn, 0.0), value)
 
 
 def most_constraining(robot_index, decision: FilterDecision, n_robots: int):

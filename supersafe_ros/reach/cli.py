@@ -1,7 +1,6 @@
 """`supersafe reach`, `supersafe library` and `supersafe convert`."""
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 
@@ -116,9 +115,3 @@ def run_convert(args) -> int:
     print(f'wrote {args.dst} ({vf.grid.shape})')
     return 0
 
-
-if __name__ == '__main__':
-    parser = argparse.ArgumentParser(prog='supersafe')
-    add_parser(parser.add_subparsers())
-    a = parser.parse_args()
-    sys.exit(a.func(a))

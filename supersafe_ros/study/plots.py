@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..reach.plots import theta_slice as _slice
 from .analysis import CONDITIONS, significance_stars
 
 
@@ -12,11 +13,6 @@ def _plt():
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
     return plt
-
-
-def _slice(vf, theta=0.0):
-    X, Y = np.meshgrid(vf.grid.x, vf.grid.y, indexing='ij')
-    return vf.value(np.stack([X, Y, np.full_like(X, theta)], -1))
 
 
 def plot_false_positives(path, fp: dict, tukey: dict) -> None:
