@@ -115,9 +115,9 @@ def serve_vf_echo():
     import rclpy
     from diagnostic_msgs.msg import DiagnosticStatus
     from std_msgs.msg import Float32MultiArray
-    from supersafe_ros import rosmsg
+    from supersafe_ros.ros_io import rosmsg
     from supersafe_ros.reach.library import LibrarySpec, load_or_build_library
-    from supersafe_ros.vfmsg import msg_to_value_function
+    from supersafe_ros.ros_io.vfmsg import msg_to_value_function
     ensure_local_ros_env()
     rclpy.init()
     reference = load_or_build_library(LibrarySpec()).entry(1.0).values
@@ -143,9 +143,9 @@ def serve_vf_echo():
 def bench_vfmsg(args):
     from diagnostic_msgs.msg import DiagnosticStatus
     from std_msgs.msg import Float32MultiArray
-    from supersafe_ros import rosmsg
+    from supersafe_ros.ros_io import rosmsg
     from supersafe_ros.reach.library import LibrarySpec, load_or_build_library
-    from supersafe_ros.vfmsg import msg_to_value_function, value_function_to_msg
+    from supersafe_ros.ros_io.vfmsg import msg_to_value_function, value_function_to_msg
     vf = load_or_build_library(LibrarySpec()).entry(1.0)
     n_bytes = vf.values.nbytes
     to_t, from_t = [], []
@@ -191,7 +191,7 @@ def bench_vfmsg(args):
 # -- latency ---------------------------------------------------------------------------------
 def bench_latency(args):
     from geometry_msgs.msg import PoseArray, PoseStamped, Twist
-    from supersafe_ros import rosmsg
+    from supersafe_ros.ros_io import rosmsg
     results = {}
     for chain in ('filter', 'planner+filter'):
         ns = '/bench_robot'
@@ -247,7 +247,7 @@ def bench_latency(args):
 
 # -- core ---------------------------------------------------------------------------------------
 def bench_core(args):
-    from supersafe_ros.filter_core import FilterConfig, RobotFilter, SafeSet, step_many
+    from supersafe_ros.filter.core import FilterConfig, RobotFilter, SafeSet, step_many
     from supersafe_ros.reach.grid import Grid
     from supersafe_ros.reach.library import load_or_solve
     vf = load_or_solve(Grid((-8, -8), (8, 8), (65, 65, 42)), 3.0, 1.0, 1.8, 3.0)
@@ -300,7 +300,7 @@ def serve_filters(m):
     ex = SingleThreadedExecutor()
     nodes = []
     from diagnostic_msgs.msg import DiagnosticStatus
-    from supersafe_ros import rosmsg
+    from supersafe_ros.ros_io import rosmsg
     reporter = rclpy.create_node('bench_filters_report')
     report = reporter.create_publisher(DiagnosticStatus, '/bench/decisions', rosmsg.QOS_EVENTS)
     reporter.create_timer(0.25, lambda: report.publish(rosmsg.make_diagnostic(
@@ -328,7 +328,7 @@ def cpu_seconds(pid):
 
 def bench_nodes(args):
     from geometry_msgs.msg import PoseArray, PoseStamped, Twist
-    from supersafe_ros import rosmsg
+    from supersafe_ros.ros_io import rosmsg
     print('[nodes] M filter nodes in one process; the bench feeds each pose + planner command at 50 Hz '
           'and detections at 10 Hz, for %.0f s; decisions counted inside the filter process' % args.window)
     for m in args.node_counts:
@@ -396,7 +396,7 @@ def bench_learner(args):
     from diagnostic_msgs.msg import DiagnosticStatus
     from geometry_msgs.msg import PoseStamped
     from std_msgs.msg import Float32MultiArray
-    from supersafe_ros import rosmsg
+    from supersafe_ros.ros_io import rosmsg
     from supersafe_ros.learning.data import PHASE2_OFFSETS, intervention_states, phase2_encounters
     from supersafe_ros.learning.supervisor import NoisySupervisor
     from supersafe_ros.reach.library import LibrarySpec, load_or_build_library

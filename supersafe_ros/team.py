@@ -286,9 +286,9 @@ class TeamMonitor:
     """A small rclpy node in the runner: collects /world/stats and /sim/clock_status."""
 
     def __init__(self, env: dict):
-        from .background_node import BackgroundNode
+        from .ros_io.background_node import BackgroundNode
         from diagnostic_msgs.msg import DiagnosticStatus
-        from . import rosmsg
+        from .ros_io import rosmsg
         self.ros = BackgroundNode('team_monitor', env['ROS_DOMAIN_ID'])
         self.node = self.ros.node
         self.stats = {}

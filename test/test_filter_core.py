@@ -1,12 +1,12 @@
-"""ROS-free tests of the per-robot filter state machine (supersafe_ros.filter_core)."""
+"""ROS-free tests of the per-robot filter state machine (supersafe_ros.filter.core)."""
 import math
 
 import numpy as np
 import pytest
 
-from supersafe_ros.filter_core import (FAIL_SAFE, OVERRIDE, PASS, FilterConfig, RobotFilter, SafeSet,
+from supersafe_ros.filter.core import (FAIL_SAFE, OVERRIDE, PASS, FilterConfig, RobotFilter, SafeSet,
                                        evaluate_pairs, step_many)
-from supersafe_ros.filter_law import filter_law
+from supersafe_ros.filter.law import filter_law
 from supersafe_ros.reach.dynamics import DubinsCar
 from supersafe_ros.reach.grid import Grid
 from supersafe_ros.reach.sets import Disc

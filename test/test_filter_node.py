@@ -9,9 +9,9 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import Pose, PoseArray, PoseStamped, Twist
 from std_msgs.msg import Float32MultiArray
 
-from supersafe_ros import rosmsg
+from supersafe_ros.ros_io import rosmsg
 from supersafe_ros.nodes.safety_filter_node import VALUE_FUNCTION_TOPIC, SafetyFilterNode
-from supersafe_ros.vfmsg import value_function_to_msg
+from supersafe_ros.ros_io.vfmsg import value_function_to_msg
 
 from filter_learner_support import Spinner, matched, ros_context  # noqa: F401  (fixture)
 

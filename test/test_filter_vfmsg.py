@@ -1,4 +1,4 @@
-"""Value function <-> std_msgs/Float32MultiArray (supersafe_ros.vfmsg): exact and validated."""
+"""Value function <-> std_msgs/Float32MultiArray (supersafe_ros.ros_io.vfmsg): exact and validated."""
 import array
 import json
 
@@ -7,7 +7,7 @@ import pytest
 
 from supersafe_ros.reach.grid import Grid
 from supersafe_ros.reach.value_function import ValueFunction
-from supersafe_ros.vfmsg import (ValueFunctionMessageError, msg_metadata, msg_to_value_function,
+from supersafe_ros.ros_io.vfmsg import (ValueFunctionMessageError, msg_metadata, msg_to_value_function,
                                  value_function_to_msg)
 
 

@@ -8,7 +8,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Empty
 
-from supersafe_ros import rosmsg
+from supersafe_ros.ros_io import rosmsg
 from supersafe_ros.nodes.sim_clock_node import SimClockNode, parse_topic_counts
 
 from test_graph_support import Spinner, params, ros_context  # noqa: F401

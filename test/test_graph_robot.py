@@ -8,7 +8,7 @@ from rclpy.node import Node
 from geometry_msgs.msg import PoseArray, PoseStamped, Twist
 from visualization_msgs.msg import MarkerArray
 
-from supersafe_ros import rosmsg
+from supersafe_ros.ros_io import rosmsg
 from supersafe_ros.nodes.dubins_robot_node import DubinsRobotNode
 from supersafe_ros.nodes.markers import obstacles_to_markers
 from supersafe_ros.reach.dynamics import DubinsCar

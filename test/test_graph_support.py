@@ -14,7 +14,7 @@ from rclpy.parameter import Parameter
 from rcl_interfaces.msg import Log
 from rosgraph_msgs.msg import Clock
 
-from supersafe_ros import rosmsg
+from supersafe_ros.ros_io import rosmsg
 from supersafe_ros.rosenv import ensure_local_ros_env
 
 

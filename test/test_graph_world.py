@@ -9,7 +9,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import Pose, PoseArray, PoseStamped
 from visualization_msgs.msg import MarkerArray
 
-from supersafe_ros import rosmsg
+from supersafe_ros.ros_io import rosmsg
 from supersafe_ros.nodes.markers import ObstacleMarkers, obstacles_to_markers
 from supersafe_ros.nodes.supervisor_node import SupervisorNode
 from supersafe_ros.nodes.world_node import WorldNode

@@ -11,12 +11,12 @@ from geometry_msgs.msg import PoseStamped
 from std_msgs.msg import Float32MultiArray
 from std_srvs.srv import Empty
 
-from supersafe_ros import rosmsg
+from supersafe_ros.ros_io import rosmsg
 from supersafe_ros.learning.data import PHASE2_OFFSETS, intervention_states, phase2_encounters
 from supersafe_ros.learning.supervisor import NoisySupervisor
 from supersafe_ros.nodes.learner_node import FIT_TOPIC, VALUE_FUNCTION_TOPIC, LearnerNode
 from supersafe_ros.reach.library import LibrarySpec, load_or_build_library
-from supersafe_ros.vfmsg import msg_to_value_function
+from supersafe_ros.ros_io.vfmsg import msg_to_value_function
 
 from filter_learner_support import Spinner, matched, ros_context  # noqa: F401  (fixture)
 

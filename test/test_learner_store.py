@@ -1,11 +1,11 @@
-"""The durable intervention store (supersafe_ros.intervention_store)."""
+"""The durable intervention store (supersafe_ros.learning.intervention_store)."""
 import json
 import math
 
 import numpy as np
 import pytest
 
-from supersafe_ros.intervention_store import Intervention, InterventionStore, StoreLockedError
+from supersafe_ros.learning.intervention_store import Intervention, InterventionStore, StoreLockedError
 
 
 def iv(i, frame='obstacle_1'):

@@ -6,7 +6,7 @@ import sys
 import numpy as np
 import pytest
 
-from supersafe_ros.filter_law import filter_law, most_constraining
+from supersafe_ros.filter.law import filter_law, most_constraining
 from supersafe_ros.reach.dynamics import DubinsCar
 from supersafe_ros.reach.grid import Grid
 from supersafe_ros.reach.library import LibrarySpec, load_or_build_library, load_or_solve

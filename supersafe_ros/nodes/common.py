@@ -101,7 +101,7 @@ class StepAcknowledger:
     def __init__(self, node, robots):
         from rclpy.clock import Clock as RosClock, ClockType
         from rosgraph_msgs.msg import Clock
-        from .. import rosmsg
+        from ..ros_io import rosmsg
         self._clock_type = Clock
         self.latest = {r: -1 for r in robots}
         self.sent = -1

@@ -29,7 +29,7 @@ from geometry_msgs.msg import PoseArray, PoseStamped, PoseWithCovarianceStamped,
 from rosgraph_msgs.msg import Clock
 from visualization_msgs.msg import MarkerArray
 
-from .. import rosmsg
+from ..ros_io import rosmsg
 from ..sim.dubins_sim import LossySensor, RobotSim, TIMEOUT_BEHAVIORS
 from .common import declare, run_node
 from .markers import ObstacleMarkers

@@ -6,7 +6,7 @@ Topics and services:
                                                              origin, axes as map); frame_id
                                                              obstacle_<id>; stamp = intervention time
   pub  /safe_set/value_function  std_msgs/Float32MultiArray  latched: the fitted V, exact float32,
-                                                             with grid and fit as JSON (supersafe_ros.vfmsg)
+                                                             with grid and fit as JSON (supersafe_ros.ros_io.vfmsg)
   pub  /safe_set/fit             diagnostic_msgs/DiagnosticStatus  latched: omega_max, mu, sigma,
                                                              alpha, interventions, log_likelihood,
                                                              estimator (+ index, store, notes)
@@ -34,12 +34,12 @@ from geometry_msgs.msg import PoseStamped
 from std_msgs.msg import Float32MultiArray
 from std_srvs.srv import Empty
 
-from .. import rosmsg
-from ..intervention_store import Intervention, InterventionStore
+from ..ros_io import rosmsg
+from ..learning.intervention_store import Intervention, InterventionStore
 # imported here, not in the first refit: scipy takes ~1 s to import on a busy machine
 from ..learning.estimators import fit_paper
 from ..reach.library import PAPER_OMEGAS, LibrarySpec, load_or_build_library
-from ..vfmsg import value_function_to_msg
+from ..ros_io.vfmsg import value_function_to_msg
 from .common import declare, run_node
 
 VALUE_FUNCTION_TOPIC = '/safe_set/value_function'

@@ -12,7 +12,7 @@ import numpy as np
 
 from visualization_msgs.msg import Marker, MarkerArray
 
-from .. import rosmsg
+from ..ros_io import rosmsg
 
 NAMESPACE = 'obstacles'
 

@@ -13,7 +13,7 @@ from rclpy.node import Node
 
 from geometry_msgs.msg import PoseStamped, Twist
 
-from .. import rosmsg
+from ..ros_io import rosmsg
 from ..sim.planner import goal_seeking_turn_rate
 from .common import declare, run_node
 

@@ -4,14 +4,14 @@ Topics (relative; run it in the robot's namespace such as /robot_0):
   sub  pose                     geometry_msgs/PoseStamped   frame map
   sub  detections               geometry_msgs/PoseArray     frame map, obstacle centres
   sub  cmd_vel_nav              geometry_msgs/Twist         the planner's command (angular.z)
-  sub  /safe_set/value_function std_msgs/Float32MultiArray  latched, from the learner (supersafe_ros.vfmsg)
+  sub  /safe_set/value_function std_msgs/Float32MultiArray  latched, from the learner (supersafe_ros.ros_io.vfmsg)
   pub  cmd_vel                  geometry_msgs/Twist         the filtered command
   pub  safety_filter/state      diagnostic_msgs/DiagnosticStatus  OK pass / WARN override /
                                                             ERROR fail_safe; values: action, reason,
                                                             obstacle_index/x/y, value, alpha,
                                                             omega_max, source, cmd_*
 
-The decision is ``supersafe_ros.filter_core`` (law, hysteresis, fail safe; see there).
+The decision is ``supersafe_ros.filter.core`` (law, hysteresis, fail safe; see there).
 When it is made: on every planner command (and, with ``publish_on_pose``, on every
 pose), plus a watchdog on the steady clock that publishes when nothing went out for
 1/rate s — so the robot never starves, even with the planner dead or /clock halted
@@ -36,9 +36,9 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseArray, PoseStamped, Twist
 from std_msgs.msg import Float32MultiArray
 
-from .. import rosmsg
-from ..filter_core import FilterConfig, RobotFilter, SafeSet
-from ..vfmsg import ValueFunctionMessageError, msg_to_value_function
+from ..ros_io import rosmsg
+from ..filter.core import FilterConfig, RobotFilter, SafeSet
+from ..ros_io.vfmsg import ValueFunctionMessageError, msg_to_value_function
 from .common import declare, run_node
 
 VALUE_FUNCTION_TOPIC = '/safe_set/value_function'

@@ -36,7 +36,7 @@ from rclpy.parameter import Parameter
 from diagnostic_msgs.msg import DiagnosticStatus
 from rosgraph_msgs.msg import Clock
 
-from .. import rosmsg
+from ..ros_io import rosmsg
 from .common import declare, run_node
 
 

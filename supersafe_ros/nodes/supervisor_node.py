@@ -26,7 +26,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from visualization_msgs.msg import MarkerArray
 
-from .. import rosmsg
+from ..ros_io import rosmsg
 from ..reach.grid import Grid
 from ..sim.watcher import Watcher
 from .common import StepAcknowledger, declare, run_node

@@ -33,7 +33,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseArray, PoseStamped
 from visualization_msgs.msg import MarkerArray
 
-from .. import rosmsg
+from ..ros_io import rosmsg
 from ..sim.world import World, WorldConfig
 from .common import StepAcknowledger, declare, run_node
 from .markers import obstacles_to_markers

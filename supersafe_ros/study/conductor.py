@@ -46,12 +46,12 @@ def yaw_of(q) -> float:
 class Phase2Conductor:
     def __init__(self, env: dict, offsets, x0: float = -8.0, x_end: float = 2.5,
                  step_length: float = 0.6):
-        from ..background_node import BackgroundNode
+        from ..ros_io.background_node import BackgroundNode
         from rclpy.qos import QoSProfile, DurabilityPolicy, HistoryPolicy, ReliabilityPolicy
         from geometry_msgs.msg import PoseArray, PoseStamped, PoseWithCovarianceStamped, Twist
         from std_msgs.msg import Float32MultiArray
         from visualization_msgs.msg import MarkerArray
-        from .. import rosmsg
+        from ..ros_io import rosmsg
         self.msgs = {'PoseArray': PoseArray, 'PoseWithCovarianceStamped': PoseWithCovarianceStamped,
                      'Twist': Twist}
         self.offsets = [float(v) for v in offsets]
@@ -216,7 +216,7 @@ class Phase2Conductor:
     def wait_for_fit(self, n_interventions: int, timeout: float = 15.0):
         """The learner's newest value-function message once it is fitted on
         ``n_interventions`` (or the newest one at the timeout; None if none came)."""
-        from ..vfmsg import msg_metadata
+        from ..ros_io.vfmsg import msg_metadata
         deadline = time.monotonic() + timeout
         with self.fit_event:
             while True:
@@ -236,7 +236,7 @@ class Phase2Conductor:
         pub = getattr(self, 'resend_pub', None)
         if pub is None:
             from geometry_msgs.msg import PoseStamped
-            from .. import rosmsg
+            from ..ros_io import rosmsg
             pub = self.resend_pub = self.node.create_publisher(PoseStamped, '/interventions',
                                                                rosmsg.QOS_EVENTS)
             deadline = time.monotonic() + 3.0

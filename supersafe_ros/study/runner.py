@@ -177,7 +177,7 @@ def run_phase2(subject: Subject, opts: StudyOptions, domain_id: int, log_dir: Pa
     states = np.array([s['state'] for s in scenes if s['intervened']], dtype=float).reshape(-1, 3)
     fit = None
     if vf_msg is not None:
-        from ..vfmsg import msg_metadata
+        from ..ros_io.vfmsg import msg_metadata
         meta = msg_metadata(vf_msg)
         fit = {k: meta.get(k) for k in ('omega_max', 'mu', 'sigma', 'alpha', 'log_likelihood',
                                         'estimator', 'interventions')}
@@ -188,7 +188,7 @@ def run_phase2(subject: Subject, opts: StudyOptions, domain_id: int, log_dir: Pa
 
 
 def _fit_count(vf_msg) -> int:
-    from ..vfmsg import msg_metadata
+    from ..ros_io.vfmsg import msg_metadata
     return int(msg_metadata(vf_msg).get('interventions') or 0)
 
 
@@ -223,7 +223,7 @@ def first_passage_fit(scenes: list):
     """fit_first_passage over the library (conservative prior) -> (message, fit dict)."""
     from ..learning.estimators import fit_first_passage
     from ..reach.library import load_or_build_library
-    from ..vfmsg import value_function_to_msg
+    from ..ros_io.vfmsg import value_function_to_msg
     lib = load_or_build_library()
     true_vf = lib.entry(TRUE_OMEGA)
     fit = fit_first_passage(lib.entries, phase2_encounters_from_scenes(scenes), true_vf=true_vf)
@@ -240,11 +240,11 @@ class LatchedValueFunction:
     a Learned game then runs on the learned set, not on the standard one."""
 
     def __init__(self, env: dict, msg, n_filters: int = 2):
-        from ..background_node import BackgroundNode
+        from ..ros_io.background_node import BackgroundNode
         from rclpy.qos import QoSProfile, DurabilityPolicy, HistoryPolicy, ReliabilityPolicy
         from rcl_interfaces.msg import Log
         from std_msgs.msg import Empty, Float32MultiArray
-        from .. import rosmsg
+        from ..ros_io import rosmsg
         self.Empty = Empty
         self.n_filters = n_filters
         self.in_force = set()
@@ -321,7 +321,7 @@ def reference_sets():
 
 def run_study(subjects: list, opts: StudyOptions, out=sys.stdout) -> dict:
     """Run every subject; returns the raw per-subject records (see ``summarize``)."""
-    from ..vfmsg import msg_to_value_function
+    from ..ros_io.vfmsg import msg_to_value_function
     progress = Progress(len(subjects), out)
     domain = opts.domain_id if opts.domain_id is not None else int(team_env()['ROS_DOMAIN_ID'])
     logs = Path(opts.out_dir) / 'logs'

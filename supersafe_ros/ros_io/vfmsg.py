@@ -30,8 +30,8 @@ import math
 import numpy as np
 from std_msgs.msg import Float32MultiArray, MultiArrayDimension
 
-from .reach.grid import Grid
-from .reach.value_function import ValueFunction
+from ..reach.grid import Grid
+from ..reach.value_function import ValueFunction
 
 FORMAT = 'supersafe_ros/value_function/1'
 AXES = ('x', 'y', 'theta')

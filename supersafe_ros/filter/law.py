@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .reach.value_function import ValueFunction
+from ..reach.value_function import ValueFunction
 
 
 @dataclass

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import threading
 
-from .rosenv import ensure_local_ros_env
+from ..rosenv import ensure_local_ros_env
 
 
 class BackgroundNode:

@@ -8,7 +8,7 @@ Inputs (each with the time it arrived, seconds on the caller's clock):
 * the safe set in force: a value function V with its level alpha (``SafeSet``).
 
 Output per step (``FilterOutput``): the turn rate to send and a record of what was
-decided and why. The law (``supersafe_ros.filter_law``) is applied to the robot's
+decided and why. The law (``supersafe_ros.filter.law``) is applied to the robot's
 state relative to every detected obstacle; the smallest V governs:
 
     pass      V_min > alpha                 forward the planner's command
@@ -51,9 +51,9 @@ import math
 
 import numpy as np
 
-from .filter_law import evaluate_pairs  # noqa: F401  (the law's rule; re-exported)
-from .reach.dynamics import DubinsCar
-from .reach.value_function import ValueFunction
+from .law import evaluate_pairs  # noqa: F401  (the law's rule; re-exported)
+from ..reach.dynamics import DubinsCar
+from ..reach.value_function import ValueFunction
 
 PASS = 'pass'
 OVERRIDE = 'override'
