@@ -73,6 +73,7 @@ import math
 import numpy as np
 from scipy import optimize, special
 
+from ..reach.containment import contains
 from ..reach.value_function import ValueFunction
 
 SIGMA_FLOOR = 1e-3      # value units (metres of clearance): below this a fit is degenerate
@@ -161,23 +162,9 @@ def admissible_mask(library_entries, true_vf: ValueFunction, tol: float | None =
     solver version overshot by up to 0.044 below omega_max 1: hence a tolerance).
     """
     entries = _check_entries(library_entries)
-    if tol is None:
-        tol = 0.5 * min(true_vf.grid.spacing[:2])
-    unsafe = true_vf.values <= 0.0
-    out = np.zeros(len(entries), dtype=bool)
-    if not unsafe.any():
-        out[:] = True   # nothing to contain
-        return out
-    nodes = None
-    for i, e in enumerate(entries):
-        if e.grid == true_vf.grid:
-            vals = e.values[unsafe]
-            out[i] = bool(np.all(vals <= tol))
-        else:
-            if nodes is None:
-                nodes = np.stack([m[unsafe] for m in true_vf.grid.mesh()], axis=1)
-            out[i] = bool(np.all(e.grid.contains(nodes)) and np.all(e.value(nodes) <= tol))
-    return out
+    cache = {}   # the true unsafe nodes, built once for every entry on another grid
+    return np.array([contains(e, 0.0, true_vf, 0.0, tol=tol, _nodes_cache=cache).ok for e in entries],
+                    dtype=bool)
 
 
 def _choose(entries, loglik, true_vf, admissible_tol):
