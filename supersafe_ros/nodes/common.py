@@ -134,3 +134,37 @@ class StepAcknowledger:
             self.pub.publish(msg)
             return before, done
         return None
+
+
+class LiveParameters:
+    """Parameters that take effect when changed at run time (``ros2 param set``).
+
+    ``add(name, apply, check=None)``: ``check(value)`` returns a reason string to refuse
+    the value (None to accept); ``apply(value)`` puts it into force. rclpy itself
+    enforces the descriptor's type, range and ``read_only`` before this runs. A set of
+    several parameters is all-or-nothing: every check runs before any apply. Declare every
+    parameter that is not registered here ``read_only=True``, so that a set never answers
+    "successful" without effect.
+    """
+
+    def __init__(self, node):
+        self._node = node
+        self._entries = {}
+        node.add_on_set_parameters_callback(self._on_set)
+
+    def add(self, name, apply, check=None) -> None:
+        self._entries[name] = (apply, check)
+
+    def _on_set(self, params):
+        from rcl_interfaces.msg import SetParametersResult
+        ours = [p for p in params if p.name in self._entries]
+        for p in ours:
+            check = self._entries[p.name][1]
+            reason = check(p.value) if check is not None else None
+            if reason:
+                self._node.get_logger().warn(f'parameter {p.name} := {p.value!r} refused: {reason}')
+                return SetParametersResult(successful=False, reason=f'{p.name}: {reason}')
+        for p in ours:
+            self._entries[p.name][0](p.value)
+            self._node.get_logger().info(f'parameter {p.name} := {p.value!r} in force')
+        return SetParametersResult(successful=True)
