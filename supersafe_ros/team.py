@@ -333,10 +333,12 @@ def format_stats(stats: dict, clock: dict) -> str:
 
 def run_team(argvs: list[list[str]], duration: float = 0.0, timeout: float = 0.0,
              domain_id: int | None = None, log_dir: Path | None = None,
-             print_period: float = 5.0, out=sys.stdout) -> dict:
+             print_period: float = 5.0, out=sys.stdout, record: Path | None = None) -> dict:
     """Run a team until ``duration`` sim seconds pass (0: until interrupted) or ``timeout``
     wall seconds; returns {'stats', 'clock', 'interventions', 'events' (trips and crashes),
-    'exit_codes', 'dead', 'reason', 'cpu_seconds', 'cpu_seconds_at_start'}."""
+    'exit_codes', 'dead', 'reason', 'cpu_seconds', 'cpu_seconds_at_start'}, plus 'bag'
+    (a recording.bag.BagInfo) when ``record`` names a new bag folder: every topic is
+    recorded there (supersafe_ros.ros_io.bag_recorder)."""
     env = team_env(domain_id)
     log_dir = Path(log_dir or default_log_dir())
     stop = threading.Event()
@@ -350,9 +352,14 @@ def run_team(argvs: list[list[str]], duration: float = 0.0, timeout: float = 0.0
         if threading.current_thread() is threading.main_thread() else {}
     team = Team(argvs, env, log_dir)
     monitor = None
+    recorder = None
     print(f'team: {len(argvs)} processes, ROS_DOMAIN_ID={env["ROS_DOMAIN_ID"]}, logs in {log_dir}',
           file=out, flush=True)
     try:
+        if record is not None:   # first, so that it joins every topic as it appears
+            from .ros_io.bag_recorder import start_recorder
+            recorder = start_recorder(record, env['ROS_DOMAIN_ID'])
+            print(f'recording every topic to {record}', file=out, flush=True)
         team.start()
         monitor = TeamMonitor(env)
         wall0 = time.monotonic()
@@ -389,12 +396,16 @@ def run_team(argvs: list[list[str]], duration: float = 0.0, timeout: float = 0.0
         events = list(monitor.events) if monitor else []
         if monitor:
             monitor.close()
+        bag = recorder.stop() if recorder else None
         for s, h in old.items():
             signal.signal(s, h)
     print(f'team stopped ({reason[0]}): {format_stats(stats, clock)}', file=out, flush=True)
+    if bag is not None:
+        print(f'recorded {bag.message_count} messages on {len(bag.topics)} topics: {bag.path}',
+              file=out, flush=True)
     return {'stats': stats, 'clock': clock, 'interventions': interventions, 'events': events,
             'exit_codes': codes, 'dead': dead, 'reason': reason[0], 'cpu_seconds': cpu,
-            'cpu_seconds_at_start': cpu_at_start or {}}
+            'cpu_seconds_at_start': cpu_at_start or {}, 'bag': bag}
 
 
 def parse_overrides(items) -> dict:
@@ -437,6 +448,9 @@ def add_parser(subparsers):
     parser.add_argument('--no-supervisor', action='store_true', help='leave the supervisor out')
     parser.add_argument('--set', action='append', default=[], metavar='NODE.PARAM=VALUE',
                         help='parameter override, e.g. --set supervisor.mu=1.0 (repeatable)')
+    parser.add_argument('--record', type=Path, default=None, metavar='BAG',
+                        help='record every topic to a new rosbag2 MCAP bag folder BAG '
+                             '(ros2 bag play BAG, or open BAG/BAG_0.mcap in Foxglove)')
     parser.add_argument('--print-argv', action='store_true', help='print the processes and exit')
     parser.set_defaults(func=run)
     return parser
@@ -454,11 +468,16 @@ def run(args) -> int:
         with_filter=not args.no_filter, with_learner=not args.no_learner,
         with_supervisor=not args.no_supervisor,
         learner_store=args.learner_store or log_dir / 'interventions.jsonl')
+    record = getattr(args, 'record', None)
+    if record is not None and record.exists() and (not record.is_dir() or any(record.iterdir())):
+        print(f'--record {record}: exists and is not an empty folder; a bag is never overwritten')
+        return 2
     if args.print_argv:
         for argv in argvs:
             print(' '.join(argv))
         return 0
-    result = run_team(argvs, args.duration, args.timeout, args.domain_id, log_dir)
+    result = run_team(argvs, args.duration, args.timeout, args.domain_id, log_dir,
+                      record=record)
     unclean = {n: c for n, c in result['exit_codes'].items() if c != 0}
     if unclean:
         print(f'processes that did not exit cleanly (exit codes): {unclean}; logs in {log_dir}')
