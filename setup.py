@@ -15,6 +15,7 @@ NODES = [
     'learner_node',
     'supervisor_node',
     'sim_clock_node',
+    'rviz_intervention_node',
 ]
 
 setup(
