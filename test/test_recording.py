@@ -89,7 +89,8 @@ def test_bag_round_trip_with_rosbag2_fields(tmp_path):
     assert on_disk['starting_time']['nanoseconds_since_epoch'] == 1_000_000_000
     assert on_disk['duration']['nanoseconds'] == 1_000_000_002
 
-    got = [(d.header.frame_id, d.pose.position.x, t) for topic, _, _, d, t in messages if topic == '/interventions']
+    got = [(d.header.frame_id, d.pose.position.x, t)
+           for topic, _, _, d, t in messages if topic == '/interventions']
     assert got == [('obstacle_7', 0.0, 2_000_000_000), ('obstacle_7', 0.5, 2_000_000_001),
                    ('obstacle_7', 1.0, 2_000_000_002)]
     decoded_markers = next(d for topic, _, _, d, _ in messages if topic == '/obstacle_markers')
@@ -151,7 +152,8 @@ def test_recorder_records_latched_and_event_topics_and_finds_interventions(ros_c
     assert info.topics['/interventions'] == len(sent)
 
     _, summary, _, messages = read_bag(info.mcap_path)
-    got = [(d.header.frame_id, round(d.pose.position.x, 9), round(rosmsg.quaternion_to_yaw(d.pose.orientation), 9))
+    got = [(d.header.frame_id, round(d.pose.position.x, 9),
+            round(rosmsg.quaternion_to_yaw(d.pose.orientation), 9))
            for topic, _, _, d, _ in messages if topic == '/interventions']
     assert got == [(frame, s[0], round(s[2], 9)) for s, frame in sent]
     markers = [d for topic, _, _, d, _ in messages if topic == '/obstacle_markers']

@@ -138,7 +138,8 @@ class LevelSetMarkerPublisher:
         self.snapshot = snapshot
         self.refine = refine
         self.pub = node.create_publisher(MarkerArray, self.TOPIC, rosmsg.QOS_STREAM)
-        self.timer = node.create_timer(1.0 / rate, self.publish, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self.timer = node.create_timer(1.0 / rate, self.publish,
+                                       clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.published = 0
 
     def publish(self):

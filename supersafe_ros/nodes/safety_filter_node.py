@@ -133,8 +133,8 @@ class SafetyFilterNode(Node):
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.timer = self.create_timer(self.period, self.on_watchdog, clock=self.steady)
         # RViz: the level set in force around each detected obstacle (computed only while watched)
-        level_set_rate = p('level_set_rate', 2.0, 'rate of safety_filter/level_set markers [Hz, steady clock]',
-                           0.1, 50.0)
+        level_set_rate = p('level_set_rate', 2.0,
+                           'rate of safety_filter/level_set markers [Hz, steady clock]', 0.1, 50.0)
         if p('level_set_markers', True, 'publish the level set in force at the robot\'s heading around '
              'each detected obstacle on safety_filter/level_set (LINE_STRIPs, for RViz)'):
             self.level_set = LevelSetMarkerPublisher(
