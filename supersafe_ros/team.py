@@ -331,6 +331,26 @@ def format_stats(stats: dict, clock: dict) -> str:
     return '  '.join(parts)
 
 
+def gate_clock_on_recorder(argvs: list[list[str]]) -> tuple[list[list[str]], list[str]]:
+    """With a recorder: the sim clock also waits for its ready publisher, which it creates once
+    it has subscribed to /clock and every topic the clock waits for (so that the bag holds
+    the run from its first step). Returns (argvs, those topics)."""
+    from .ros_io.bag_recorder import READY_TOPIC
+    out, topics = [], ['/clock']
+    for argv in argvs:
+        argv = list(argv)
+        if process_name(argv) == 'sim_clock':
+            for i, a in enumerate(argv):
+                key, sep, value = a.partition(':=')
+                if argv[i - 1] == '-p' and key in ('wait_for_publishers', 'wait_for_subscriptions'):
+                    topics += [t.split('=')[0] for t in value.strip('[]').split(',') if t]
+                    if key == 'wait_for_publishers':
+                        entries = [t for t in value.strip('[]').split(',') if t] + [f'{READY_TOPIC}=1']
+                        argv[i] = f'{key}:=[{",".join(entries)}]'
+        out.append(argv)
+    return out, sorted(set(topics))
+
+
 def run_team(argvs: list[list[str]], duration: float = 0.0, timeout: float = 0.0,
              domain_id: int | None = None, log_dir: Path | None = None,
              print_period: float = 5.0, out=sys.stdout, record: Path | None = None) -> dict:
@@ -358,7 +378,9 @@ def run_team(argvs: list[list[str]], duration: float = 0.0, timeout: float = 0.0
     try:
         if record is not None:   # first, so that it joins every topic as it appears
             from .ros_io.bag_recorder import start_recorder
-            recorder = start_recorder(record, env['ROS_DOMAIN_ID'])
+            argvs, ready_after = gate_clock_on_recorder(argvs)
+            team.argvs = argvs
+            recorder = start_recorder(record, env['ROS_DOMAIN_ID'], ready_after=ready_after)
             print(f'recording every topic to {record}', file=out, flush=True)
         team.start()
         monitor = TeamMonitor(env)

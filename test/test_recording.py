@@ -164,3 +164,29 @@ def test_recorder_records_latched_and_event_topics_and_finds_interventions(ros_c
     meta = yaml.safe_load((info.path / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
     counts = {t['topic_metadata']['name']: t['message_count'] for t in meta['topics_with_message_count']}
     assert counts['/interventions'] == len(sent)
+
+
+# -- supersafe team --record -------------------------------------------------------------------------
+def test_team_run_records_every_topic_and_the_interventions_the_world_logged(tmp_path):
+    """A short real team (processes, simulated supervisor) with run_team(record=...): the
+    bag has every step's pose and exactly the interventions the world accepted."""
+    import os
+    from supersafe_ros.team import run_team, team_processes
+    fast = {'supervisor': {'grid_nxy': 33, 'grid_ntheta': 16, 'mu': 1.0},
+            'safety_filter': {'standard_shape': [33, 33, 16]}}
+    duration, step = 12.0, 0.1
+    argvs = team_processes(n_robots=1, rate_factor=0.0, seed=3, duration=duration, step=step,
+                           with_learner=False, overrides=fast)
+    result = run_team(argvs, duration=duration, timeout=120.0, log_dir=tmp_path / 'logs',
+                      print_period=1e9, out=open(os.devnull, 'w'), record=tmp_path / 'team_bag')
+    assert result['reason'] == 'duration reached', result['reason']
+    info = result['bag']
+    assert info.path == tmp_path / 'team_bag' and (info.path / 'metadata.yaml').is_file()
+    assert {'/clock', '/robot_0/pose', '/robot_0/cmd_vel', '/obstacle_markers', '/world/stats',
+            '/interventions', '/world/intervention_log'} <= set(info.topics)
+    assert info.topics['/robot_0/pose'] >= round(duration / step)      # every step's pose
+    _, _, _, messages = read_bag(info.mcap_path)
+    recorded = [int(d.header.frame_id.removeprefix('obstacle_'))
+                for topic, _, _, d, _ in messages if topic == '/interventions']
+    logged = [int(v['obstacle']) for v in result['interventions']]
+    assert recorded and recorded == logged, (recorded, logged)

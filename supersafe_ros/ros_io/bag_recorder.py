@@ -17,8 +17,13 @@ installed, are skipped with a warning (``handle.skipped``).
     info = rec.stop()                             # BagInfo: path, mcap_path, counts
 
 The recorder sees only topics that have a publisher: it joins a topic within one poll
-period of its first publisher appearing (the wait_until_recording helper waits for
-given topics, with a deadline).
+period of its first publisher appearing, and a volatile message sent before that is not
+in the bag. To start a run only once the recorder listens, give ``ready_after`` (topics):
+when it has subscribed to each of them and matched a publisher there, it creates a
+publisher on READY_TOPIC (std_msgs/Empty, latched, one message), which a sim clock can
+wait for (sim_clock_node ``wait_for_publishers: ['/bag_recorder/ready=1', ...]``; this is
+what ``supersafe team --record`` does). ``handle.wait_until_recording(topics, timeout)``
+waits for given topics from the calling thread.
 """
 from __future__ import annotations
 
@@ -33,6 +38,7 @@ from ..recording.msgdefs import DefinitionNotFound
 
 LOG = logging.getLogger(__name__)
 SUBSCRIPTION_DEPTH = 1000   # deep: a Python callback may lag a burst of poses; nothing is dropped
+READY_TOPIC = '/bag_recorder/ready'
 
 
 def message_class(type_name: str):
@@ -71,13 +77,15 @@ def adapted_qos(publisher_qos: list):
 class TopicRecorder:
     """Wiring on a given node: graph polling, raw subscriptions, and the bag writer."""
 
-    def __init__(self, node, bag: BagWriter, poll_period: float = 0.5, exclude=()):
+    def __init__(self, node, bag: BagWriter, poll_period: float = 0.5, exclude=(), ready_after=()):
         from rclpy.clock import Clock, ClockType
         self.node = node
         self.bag = bag
-        self.exclude = set(exclude)
+        self.exclude = set(exclude) | {READY_TOPIC}
         self.subscriptions = {}
         self.skipped: dict[str, str] = {}
+        self.ready_after = list(ready_after)
+        self.ready_pub = None
         self._system = Clock(clock_type=ClockType.SYSTEM_TIME)
         self.poll()
         self.timer = node.create_timer(poll_period, self.poll,
@@ -104,6 +112,13 @@ class TopicRecorder:
             self.subscriptions[topic] = self.node.create_subscription(
                 cls, topic, lambda data, info, topic=topic: self.on_message(topic, data, info),
                 adapted_qos([i.qos_profile for i in infos]), raw=True)
+        if self.ready_after and self.ready_pub is None and all(
+                t in self.subscriptions and self.subscriptions[t].get_publisher_count() > 0
+                for t in self.ready_after):
+            from std_msgs.msg import Empty
+            from .rosmsg import QOS_LATCHED
+            self.ready_pub = self.node.create_publisher(Empty, READY_TOPIC, QOS_LATCHED)
+            self.ready_pub.publish(Empty())
 
     def _skip(self, topic, why):
         self.skipped[topic] = why
@@ -164,16 +179,17 @@ class RecorderHandle:
 
 
 def start_recorder(path, domain_id: int | None = None, poll_period: float = 0.5,
-                   exclude=(), node_name: str = 'bag_recorder') -> RecorderHandle:
+                   exclude=(), node_name: str = 'bag_recorder', ready_after=()) -> RecorderHandle:
     """Record every topic of the graph on ``domain_id`` (default $ROS_DOMAIN_ID) into a new
-    bag folder ``path`` (must not exist or be empty). Returns a RecorderHandle."""
+    bag folder ``path`` (must not exist or be empty). Returns a RecorderHandle.
+    ``ready_after``: topics after which READY_TOPIC gets a publisher (see the module doc)."""
     from .background_node import BackgroundNode
     bag = BagWriter(path)
     ros = None
     try:
         ros = BackgroundNode(node_name, int(os.environ.get('ROS_DOMAIN_ID', '0')
                                             if domain_id is None else domain_id))
-        recorder = TopicRecorder(ros.node, bag, poll_period, exclude)
+        recorder = TopicRecorder(ros.node, bag, poll_period, exclude, ready_after)
         ros.start()
     except Exception:
         if ros is not None:
