@@ -190,3 +190,39 @@ def test_team_run_records_every_topic_and_the_interventions_the_world_logged(tmp
                 for topic, _, _, d, _ in messages if topic == '/interventions']
     logged = [int(v['obstacle']) for v in result['interventions']]
     assert recorded and recorded == logged, (recorded, logged)
+
+
+def test_record_command_records_until_ctrl_c(ros_context, tmp_path):
+    """`supersafe record BAG` as a process: records what a node publishes, stops cleanly on SIGINT."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import rclpy
+    from rclpy.duration import Duration
+    from std_msgs.msg import String
+    node = rclpy.create_node('record_cli_test', context=ros_context)
+    pub = node.create_publisher(String, '/chatter', rosmsg.QOS_EVENTS)
+    spin = Spinner(ros_context, node)
+    proc = subprocess.Popen([sys.executable, '-m', 'supersafe_ros.cli', 'record', str(tmp_path / 'cli_bag')],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            env=dict(os.environ, PYTHONUNBUFFERED='1'), start_new_session=True)
+    try:
+        spin.until(lambda: matched(pub), 30.0, 'the recorder to subscribe to /chatter')
+        for i in range(20):
+            pub.publish(String(data=f'hello {i}'))
+        assert pub.wait_for_all_acked(Duration(seconds=30))   # in the recorder's queue
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+        spin.shutdown()
+        node.destroy_node()
+    assert proc.returncode == 0, out
+    assert 'recorded' in out and str(tmp_path / 'cli_bag') in out
+    _, _, _, messages = read_bag(tmp_path / 'cli_bag' / 'cli_bag_0.mcap')
+    assert [d.data for topic, _, _, d, _ in messages if topic == '/chatter'] == [f'hello {i}' for i in range(20)]
+    with pytest.raises(subprocess.CalledProcessError):     # never overwrites
+        subprocess.run([sys.executable, '-m', 'supersafe_ros.cli', 'record', str(tmp_path / 'cli_bag')],
+                       check=True, capture_output=True, timeout=60)

@@ -7,7 +7,8 @@ the bag unchanged) and a QoS adapted to the publishers' offers, as ``ros2 bag re
 does (reliable only if every publisher is reliable, transient local only if every
 publisher is, so latched topics such as /obstacle_markers arrive in full), and writes
 each message with its receive time (system clock) and source time.
-``handle.stop()`` ends the subscriptions and closes the bag (metadata.yaml written);
+``handle.stop()`` takes what is still queued, ends the subscriptions and closes the bag
+(metadata.yaml written);
 it returns the BagInfo. Topics with several types, or whose .msg definition is not
 installed, are skipped with a warning (``handle.skipped``).
 
@@ -164,9 +165,16 @@ class RecorderHandle:
             time.sleep(0.05)
         return False
 
-    def stop(self):
+    def stop(self, quiet: float = 0.3, max_wait: float = 5.0):
+        """Take what is still queued (until no message came for ``quiet`` s, at most
+        ``max_wait`` s), then stop the node and close the bag; returns the BagInfo."""
         with self._lock:
             if self._info is None:
+                deadline = time.monotonic() + max_wait
+                count = -1
+                while count != self.recorder.bag.message_count and time.monotonic() < deadline:
+                    count = self.recorder.bag.message_count
+                    time.sleep(quiet)
                 self._ros.close()       # no callback runs after this
                 self._info = self.recorder.bag.close()
             return self._info
