@@ -24,7 +24,8 @@ run_one() {  # name, source path, test files...
   {
     echo '[mutmut]'
     echo "source_paths = $src"
-    echo "pytest_add_cli_args_test_selection = $*"
+    echo "pytest_add_cli_args_test_selection ="
+    for t in "$@"; do echo "    $t"; done
     echo 'also_copy = supersafe_ros'
     echo '    test'
   } >> "$dir/setup.cfg"
