@@ -22,11 +22,11 @@ def place(w, *centres):
 # ---- crashes ---------------------------------------------------------------------------
 def test_crash_needs_the_centre_deeper_than_the_tolerance():
     w = bare_world(crash_tolerance=0.05)
-    (oid,) = place(w, (0.0, 0.0))
+    (oid,) = place(w, (3.0, -2.0))
     r = w.config.radius
-    w.update_pose('a', [-r + 0.04, 0.0, 0.0])          # 4 cm inside: a graze
+    w.update_pose('a', [3.0 - r + 0.04, -2.0, 0.0])          # 4 cm inside: a graze
     assert w.stats()['crashes'] == 0
-    assert w.update_pose('a', [-r + 0.06, 0.0, 0.0])['crashed'] == [oid]   # 6 cm: a crash
+    assert w.update_pose('a', [3.0 - r + 0.06, -2.0, 0.0])['crashed'] == [oid]   # 6 cm: a crash
     assert w.stats()['crashes'] == 1
 
 
@@ -60,23 +60,26 @@ def test_crashes_are_per_robot():
 
 # ---- trips and goals -------------------------------------------------------------------
 def test_first_goal_is_on_the_far_side_from_the_start():
-    w = bare_world(robots=('left', 'right', 'centre'))
-    w.update_pose('left', [-17.0, 0.0, 0.0])
-    w.update_pose('right', [17.0, 0.0, math.pi])
-    w.update_pose('centre', [0.0, 0.0, 0.0])               # x <= 0 counts as the left side
+    w = bare_world(robots=('left', 'right', 'centre', 'right_of_centre'))
+    w.update_pose('left', [-17.0, 5.0, 0.0])
+    w.update_pose('right', [10.0, -5.0, math.pi])
+    w.update_pose('centre', [0.0, 3.0, 0.0])               # x <= 0 counts as the left side
+    w.update_pose('right_of_centre', [0.5, -3.0, 0.0])
     gx = w.config.goal_x
     assert w.robots['left'].goal[0] == gx and w.robots['left'].side == 1
     assert w.robots['right'].goal[0] == -gx and w.robots['right'].side == -1
     assert w.robots['centre'].goal[0] == gx
+    assert w.robots['right_of_centre'].goal[0] == -gx
+    assert w.stats()['trips'] == 0
 
 
 def test_goal_y_is_random_within_the_field_less_two_metres():
     w = bare_world()
     w.update_pose('a', [-17.0, 0.0, 0.0])
-    ys = [w.new_goal('a')[1] for _ in range(400)]
+    ys = [w.new_goal('a')[1] for _ in range(2000)]         # seeded: the same draws every run
     limit = w.config.half_height - 2.0
     assert max(ys) <= limit and min(ys) >= -limit
-    assert max(ys) > 0.8 * limit and min(ys) < -0.8 * limit   # spread over the whole range
+    assert max(ys) > limit - 0.1 and min(ys) < -limit + 0.1   # spread over the whole range
     assert len(set(ys)) == len(ys)
 
 
@@ -213,7 +216,7 @@ def test_set_obstacles_replaces_everything_with_fresh_ids():
 
 
 def test_robot_at_finds_the_closest_within_the_tolerance():
-    w = bare_world(robots=('a', 'b', 'c'))
+    w = bare_world(robots=('c', 'a', 'b'))                 # c has no pose and comes first
     w.update_pose('a', [0.0, 0.0, 0.0])
     w.update_pose('b', [0.6, 0.0, 0.0])
     assert w.robot_at([0.4, 0.0]) == 'b'
@@ -221,6 +224,38 @@ def test_robot_at_finds_the_closest_within_the_tolerance():
     assert w.robot_at([-1.0, 0.0], tolerance=1.0) == 'a'          # inclusive
     assert w.robot_at([-1.01, 0.0], tolerance=1.0) is None
     assert w.robot_at([5.0, 5.0], tolerance=10.0) == 'b'
+    assert w.robot_at([1.8, 0.0]) is None                          # default tolerance 1 m
+    assert w.robot_at([1.8, 0.0], tolerance=1.3) == "b"
+
+
+def test_obstacle_ids_start_at_zero_and_are_consecutive():
+    w = World(WorldConfig(n_obstacles=4), ['a'])
+    assert sorted(w.obstacles) == [0, 1, 2, 3]
+    assert w.set_obstacles([[0.0, 0.0], [5.0, 0.0]]) == [4, 5]
+    assert w.intervene(4, time=0.0)[1] == 6
+
+
+def test_the_default_seed_is_zero():
+    a, b = World(WorldConfig(), ['a']), World(WorldConfig(), ['a'], seed=0)
+    assert all(np.array_equal(a.obstacles[i], b.obstacles[i]) for i in a.obstacles)
+
+
+def test_an_impossible_clearance_is_halved_once_per_round_until_a_place_is_found():
+    """Clearance 24 m from a robot at the centre fits nowhere between the goal lines;
+    halved once (12 m) it fits, so each respawn relaxes exactly once."""
+    w = World(WorldConfig(n_obstacles=2, respawn_clearance=24.0), ['a'], seed=0)
+    w.update_pose('a', [0.0, 0.0, 0.0])
+    for k in (1, 2):
+        _, new_id = w.intervene(min(w.obstacles), time=float(k))
+        assert np.hypot(*w.obstacles[new_id]) >= 12.0
+        assert w.relaxed_spawns == k
+
+
+def test_a_clearance_that_needs_many_halvings_still_terminates():
+    w = World(WorldConfig(n_obstacles=2, respawn_clearance=500.0), ['a'], seed=0)
+    w.update_pose('a', [0.0, 0.0, 0.0])
+    _, new_id = w.intervene(0, time=0.0)
+    assert new_id in w.obstacles and w.relaxed_spawns >= 5
 
 
 # ---- configuration ----------------------------------------------------------------------
@@ -228,7 +263,7 @@ def test_robot_at_finds_the_closest_within_the_tolerance():
     dict(half_width=0.0), dict(half_height=-1.0), dict(goal_x=math.nan), dict(radius=0.0),
     dict(near_distance=math.inf), dict(detection_tolerance=0.0),
     dict(goal_x=20.0, half_width=20.0), dict(goal_x=5.0, goal_margin=3.2, radius=1.8),
-    dict(n_obstacles=-1)])
+    dict(goal_x=4.0, goal_margin=2.0, radius=2.0), dict(n_obstacles=-1)])
 def test_config_refuses_impossible_fields(bad):
     with pytest.raises(ValueError):
         WorldConfig(**bad)
