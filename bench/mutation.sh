@@ -40,7 +40,7 @@ run_one() {  # name, source path, test files...
   grep -E ': (survived|no tests)' <<<"$res" | while read -r m _; do
     m="${m%:}"
     echo "--- $m"
-    (cd "$dir" && "$venv/bin/mutmut" show "$m" 2>/dev/null | grep -E '^[-+][^-+]' || true)
+    (cd "$dir" && "$venv/bin/mutmut" show "$m" </dev/null 2>/dev/null | grep -E '^[-+][^-+]' || true)
   done
 }
 case "$target" in

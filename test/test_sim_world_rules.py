@@ -27,6 +27,12 @@ def test_crash_needs_the_centre_deeper_than_the_tolerance():
     w.update_pose('a', [3.0 - r + 0.04, -2.0, 0.0])          # 4 cm inside: a graze
     assert w.stats()['crashes'] == 0
     assert w.update_pose('a', [3.0 - r + 0.06, -2.0, 0.0])['crashed'] == [oid]   # 6 cm: a crash
+
+
+def test_a_centre_exactly_at_the_tolerance_is_a_graze():
+    w = bare_world(crash_tolerance=0.05)          # radius 1.8: 1.75 m is exact in binary
+    place(w, (0.0, 0.0))
+    assert w.update_pose('a', [-1.75, 0.0, 0.0])['crashed'] == []
     assert w.stats()['crashes'] == 1
 
 
@@ -109,6 +115,8 @@ def test_detection_names_an_obstacle_within_its_tolerance_only():
     w = bare_world(detection_tolerance=0.5)
     (oid,) = place(w, (2.0, 3.0))
     w.update_detections('a', [[2.0, 3.49]], 0.0)
+    assert w.had_detected('a', oid)
+    w.update_detections('a', [[2.0, 3.5]], 0.0)           # exactly at the tolerance: named
     assert w.had_detected('a', oid)
     w.update_detections('a', [[2.0, 3.51]], 0.0)
     assert not w.had_detected('a', oid)
