@@ -438,6 +438,13 @@ def add_parser(subparsers):
     parser.add_argument('--set', action='append', default=[], metavar='NODE.PARAM=VALUE',
                         help='parameter override, e.g. --set supervisor.mu=1.0 (repeatable)')
     parser.add_argument('--print-argv', action='store_true', help='print the processes and exit')
+    parser.add_argument('--hosts', type=int, default=1, metavar='K',
+                        help='run across K >= 2 hosts: private network namespaces this command '
+                             'makes and removes (needs root); host 0 runs world, learner, '
+                             'supervisor and clock, the robots are dealt over hosts 1..K-1')
+    parser.add_argument('--discovery-server', action='store_true',
+                        help='with --hosts: Fast DDS discovery server on host 0 instead of '
+                             'multicast discovery')
     parser.set_defaults(func=run)
     return parser
 
@@ -454,6 +461,9 @@ def run(args) -> int:
         with_filter=not args.no_filter, with_learner=not args.no_learner,
         with_supervisor=not args.no_supervisor,
         learner_store=args.learner_store or log_dir / 'interventions.jsonl')
+    if args.hosts > 1 or args.discovery_server:
+        from .hosts.placement import run_on_hosts
+        return run_on_hosts(argvs, args, log_dir)
     if args.print_argv:
         for argv in argvs:
             print(' '.join(argv))
