@@ -24,7 +24,7 @@ import signal
 import subprocess
 import sys
 
-from .netns import HostNetwork, NetworkError, NetworkPermissionError
+from .netns import HostNetwork, NetworkError, NetworkPermissionError, require_net_admin
 
 DISCOVERY_PORT = 11811
 _ROBOT_NS = re.compile(r'^__ns:=/robot_(\d+)$')
@@ -208,6 +208,11 @@ def run_on_hosts(argvs: list[list[str]], args, log_dir) -> int:
     if args.print_argv:
         print(describe(placed, net, server_argv))
         return 0
+    try:
+        require_net_admin()
+    except NetworkError as exc:
+        print(f'supersafe team --hosts: {exc}', file=sys.stderr)
+        return 2
     log_dir = Path(log_dir)
     log_dir.mkdir(parents=True, exist_ok=True)
     try:
