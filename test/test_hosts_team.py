@@ -125,7 +125,7 @@ def test_discovery_server_graph_and_link_fault(one_host, tmp_path):
     with HostsTeam(argvs(tmp_path / 'store.jsonl'), 3, tmp_path / 'log',
                    discovery_server=True) as t:
         host1 = t.watch(1, ['/robot_0/safety_filter/state=diag', '/robot_0/pose=pose'])
-        host0 = t.watch(0, ['/robot_0/pose=pose'])
+        host0 = t.watch(0, ['/robot_0/safety_filter/state=diag', '/robot_0/pose=pose'])
         t.wait(lambda: t.graph_complete_at(expected_graph) is not None, START,
                'the complete graph through the discovery server')
         print(f'discovery server: graph complete {t.graph_complete_at(expected_graph):.1f} s '
@@ -146,12 +146,19 @@ def test_discovery_server_graph_and_link_fault(one_host, tmp_path):
         stats = counts(t.stats())
         crashes = [e for e in t.events() if e['event'] == 'crash']
 
-        # host 0 heard nothing from robot_0 while the link was down (0.1 s for DDS in flight)
-        during0 = poses(host0, cut + 0.1, back)
+        def states(probe, lo, hi):
+            return [r for r in probe.of('/robot_0/safety_filter/state') if lo <= r['t'] < hi]
+
+        # the cable was out: in the second half of the cut host 1 heard its filter's states
+        # (a wall-clock watchdog publishes them), host 0 heard none of them (1 s margin for
+        # samples in flight and watchers slowed by a loaded machine)
+        assert states(host1, cut + 1.0, back), 'the filter on host 1 published no state while cut off'
+        assert states(host0, cut + 1.0, back) == []
+        assert states(host0, back, float('inf')), 'host 0 never heard the filter again'
+        during0 = poses(host0, cut + 1.0, back)
         assert during0 == []
         # host 1 went on without host 0: its filter kept deciding on its own inputs...
-        states = [r for r in host1.of('/robot_0/safety_filter/state') if cut + 0.1 <= r['t'] < back]
-        assert states, 'the filter on host 1 published no state while cut off'
+        seen1 = states(host1, cut + 0.1, back)
         # ...but its sim time comes from host 0's clock: robot_0 did not move meanwhile
         before = poses(host1, 0.0, cut)[-1]
         during1 = poses(host1, cut + 0.1, back)
@@ -166,8 +173,9 @@ def test_discovery_server_graph_and_link_fault(one_host, tmp_path):
         first = after[0]
         jump = ((first['x'] - before['x']) ** 2 + (first['y'] - before['y']) ** 2) ** 0.5
         actions = sorted({s['values']['action'] + ': ' + s['values']['reason'].split(':')[0]
-                          for s in states})
+                          for s in seen1})
         print(f'link fault: host 0 heard {len(during0)} robot_0 poses while cut; host 1 heard '
-              f'{len(during1)} (stamps frozen at {before["stamp"]:.1f} s) and {len(states)} filter '
-              f'states {actions}; first pose back on host 0 at sim {first["stamp"]:.1f} s, '
+              f'{len(during1)} (stamps frozen at {before["stamp"]:.1f} s) and {len(seen1)} filter '
+              f'states {actions}, host 0 {len(states(host0, cut + 0.1, back))} states; first '
+              f'pose back on host 0 at sim {first["stamp"]:.1f} s, '
               f'{jump:.2f} m from the last before the cut; game {stats}')
