@@ -2,10 +2,12 @@
 
 * Same task, same results: one 40 s game (seed 3) on one host and on three hosts; the
   counts of the three-host game must lie within a tolerance of the one-host game. The
-  tolerance (trips +-2, interventions +-3, false positives +-3, crashes +-1) is the spread
-  of repeated one-host games with one seed (bench/bench_hosts.py --same-task measures it
-  over several seeds: the lockstep clock fixes the robots' motion, but which step a
-  supervisor's removal lands on depends on process timing).
+  tolerance (trips +-2, interventions +-5, false positives +-5, crashes +-1) is the spread
+  of repeated one-host games with one seed, plus one: seed 3 gave 5-6 trips, 8-12
+  interventions and 2-7 false positives over six one-host games
+  (bench/bench_hosts.py --same-task measures it: the lockstep clock fixes the robots'
+  motion, but the step a supervisor's removal lands on depends on process timing). A
+  robot host that never joined fails the graph check before the counts are compared.
 * The learner on host 0 stores every intervention the world logged for the robots on hosts
   1 and 2; after a kill -9 and a restart it reloads all of them.
 * Discovery server: the same game with the Fast DDS discovery server on host 0; the graph
@@ -38,7 +40,7 @@ FAST = {
 SEED = 3
 GAME = 40.0          # sim seconds
 STEP = 0.1
-TOLERANCE = {'trips': 2, 'interventions': 3, 'false_positives': 3, 'crashes': 1}
+TOLERANCE = {'trips': 2, 'interventions': 5, 'false_positives': 5, 'crashes': 1}
 START = 180.0        # wall-second deadlines: generous, a loaded 2-core machine
 RUN = 300.0
 
@@ -174,6 +176,9 @@ def test_discovery_server_graph_and_link_fault(one_host, tmp_path):
         jump = ((first['x'] - before['x']) ** 2 + (first['y'] - before['y']) ** 2) ** 0.5
         actions = sorted({s['values']['action'] + ': ' + s['values']['reason'].split(':')[0]
                           for s in seen1})
+        resumed = sorted({s['values']['action'] + ': ' + s['values']['reason'].split('(')[0]
+                          for s in states(host1, back, back + 3.0)})
+        print(f'link fault: host 1 filter in the 3 s after the link returned: {resumed}')
         print(f'link fault: host 0 heard {len(during0)} robot_0 poses while cut; host 1 heard '
               f'{len(during1)} (stamps frozen at {before["stamp"]:.1f} s) and {len(seen1)} filter '
               f'states {actions}, host 0 {len(states(host0, cut + 0.1, back))} states; first '
