@@ -18,6 +18,7 @@
 """
 import json
 import os
+import re
 from pathlib import Path
 import shutil
 import time
@@ -83,12 +84,20 @@ def log_keys(interventions) -> set:
     return {(f'obstacle_{i["obstacle"]}', round(float(i['time']), 3)) for i in interventions}
 
 
+LOADED = (re.compile(r'\]: store .*: (\d+) interventions$'),      # learner on main
+          re.compile(r'\]: resuming (\d+) interventions'),          # the reworked learner
+          re.compile(r'\]: store .*: (empty)'))
+
+
 def loaded_counts(log: Path) -> list[int]:
-    """Interventions the learner reported loading, once per start ('store ...: N interventions')."""
+    """Interventions the learner reported loading from its store, once per start."""
     out = []
     for line in log.read_text(errors='replace').splitlines():
-        if ']: store ' in line and line.endswith(' interventions'):
-            out.append(int(line.rsplit(': ', 1)[1].split()[0]))
+        for pattern in LOADED:
+            m = pattern.search(line)
+            if m:
+                out.append(0 if m.group(1) == 'empty' else int(m.group(1)))
+                break
     return out
 
 
