@@ -153,3 +153,18 @@ def test_without_net_admin_it_says_so_and_exits_nonzero(tmp_path):
     assert proc.returncode != 0
     assert 'CAP_NET_ADMIN' in proc.stderr and 'root' in proc.stderr
     assert 'Traceback' not in proc.stderr
+
+
+@needs_root
+def test_subnet_discovery_is_kept_only_inside_the_named_namespace():
+    from supersafe_ros.rosenv import ensure_local_ros_env
+    with HostNetwork(2) as net:
+        def ranged(name):
+            return ensure_local_ros_env({'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SUBNET',
+                                         'SUPERSAFE_NETNS': name})['ROS_AUTOMATIC_DISCOVERY_RANGE']
+        assert ranged(net.hosts[1]) == 'LOCALHOST'          # named, but this thread is not in it
+        with net.entered(1):
+            assert ranged(net.hosts[1]) == 'SUBNET'
+            assert ranged(net.hosts[0]) == 'LOCALHOST'      # another host's name
+            assert ranged('') == 'LOCALHOST'
+        assert ranged(net.hosts[1]) == 'LOCALHOST'
