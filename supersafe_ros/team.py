@@ -474,6 +474,13 @@ def add_parser(subparsers):
                         help='record every topic to a new rosbag2 MCAP bag folder BAG '
                              '(ros2 bag play BAG, or open BAG/BAG_0.mcap in Foxglove)')
     parser.add_argument('--print-argv', action='store_true', help='print the processes and exit')
+    parser.add_argument('--hosts', type=int, default=1, metavar='K',
+                        help='run across K >= 2 hosts: private network namespaces this command '
+                             'makes and removes (needs root); host 0 runs world, learner, '
+                             'supervisor and clock, the robots are dealt over hosts 1..K-1')
+    parser.add_argument('--discovery-server', action='store_true',
+                        help='with --hosts: Fast DDS discovery server on host 0 instead of '
+                             'multicast discovery')
     parser.set_defaults(func=run)
     return parser
 
@@ -494,6 +501,12 @@ def run(args) -> int:
     if record is not None and record.exists() and (not record.is_dir() or any(record.iterdir())):
         print(f'--record {record}: exists and is not an empty folder; a bag is never overwritten')
         return 2
+    if (args.hosts > 1 or args.discovery_server) and record is not None:
+        print('--record is not available with --hosts yet: record on host 0 with `supersafe record`')
+        return 2
+    if args.hosts > 1 or args.discovery_server:
+        from .hosts.placement import run_on_hosts
+        return run_on_hosts(argvs, args, log_dir)
     if args.print_argv:
         for argv in argvs:
             print(' '.join(argv))
