@@ -205,7 +205,7 @@ class ConsoleServer:
         if not self._token_ok(request):
             return web.Response(status=403, text='403: this console needs its token (?token=...)\n')
         response = await handler(request)
-        if self.token and request.query.get('token') and isinstance(response, web.Response):
+        if self.token and request.query.get('token') and isinstance(response, web.StreamResponse):
             response.set_cookie(TOKEN_COOKIE, self.token, httponly=True, samesite='Strict')
         return response
 
