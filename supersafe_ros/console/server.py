@@ -83,6 +83,9 @@ class ConsoleServer:
         self.extra_handlers = dict(extra_handlers or {})
         self.static = Path(static or static_dir())
         self.page_config = dict(page_config or {})
+        self.index_page = 'index.html'      # the participant session serves session.html
+        self.files_dir = None               # /files/<name> serves from here when set (figures)
+        self.hello_extra = None             # fn() -> dict merged into each page's hello
         self.clients: set = set()
         self.sent_updates = 0
         self._loop = None
@@ -178,6 +181,7 @@ class ConsoleServer:
         app = web.Application(middlewares=[self._auth])
         app.router.add_get('/', self._index)
         app.router.add_get('/ws', self._ws)
+        app.router.add_get('/files/{name}', self._file)
         app.router.add_static('/static/', self.static, follow_symlinks=False)
         self._runner = web.AppRunner(app, access_log=None, handle_signals=False)
         await self._runner.setup()
@@ -210,8 +214,17 @@ class ConsoleServer:
         return response
 
     async def _index(self, request):
-        return web.FileResponse(self.static / 'index.html',
+        return web.FileResponse(self.static / self.index_page,
                                 headers={'Cache-Control': 'no-store'})
+
+    async def _file(self, request):
+        name = request.match_info['name']
+        if self.files_dir is None or '/' in name or name.startswith('.'):
+            raise web.HTTPNotFound()
+        path = Path(self.files_dir) / name
+        if not path.is_file():
+            raise web.HTTPNotFound()
+        return web.FileResponse(path, headers={'Cache-Control': 'no-store'})
 
     def _origin_ok(self, request) -> bool:
         origin = request.headers.get('Origin')
@@ -222,8 +235,11 @@ class ConsoleServer:
     # ----- WebSocket ------------------------------------------------------------------------
     def hello(self) -> dict:
         snap = self.state.snapshot()
-        return {'type': 'hello', 'field': self.state.field.as_dict(),
-                'robots': self.state.robots, 'config': self.page_config, 'state': snap}
+        out = {'type': 'hello', 'field': self.state.field.as_dict(),
+               'robots': self.state.robots, 'config': self.page_config, 'state': snap}
+        if self.hello_extra is not None:
+            out.update(self.hello_extra())
+        return out
 
     async def _ws(self, request):
         if not self._origin_ok(request):

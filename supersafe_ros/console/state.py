@@ -94,6 +94,14 @@ class ConsoleState:
             self.changed(kind)
 
     # ----- writers (ROS thread) -------------------------------------------------------
+    def set_robots(self, robots) -> None:
+        """A new graph (the participant session's phases): these robots, no poses yet."""
+        with self._lock:
+            self.robots = [r.strip('/') for r in robots]
+            self._poses = {}
+            self.pose_version += 1
+        self._notify('pose')
+
     def set_pose(self, robot: str, x: float, y: float, theta: float, stamp_ns: int) -> None:
         if robot not in self.robots:
             raise ValueError(f'unknown robot {robot!r}')
