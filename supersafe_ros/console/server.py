@@ -264,7 +264,7 @@ class ConsoleServer:
 
     def _handle(self, text) -> dict | None:
         try:
-            msg = parse_client_message(text)
+            msg = parse_client_message(text, extra_types=tuple(self.extra_handlers))
         except ClientMessageError as exc:
             return {'type': 'error', 'message': str(exc)}
         if msg['type'] == 'ping':

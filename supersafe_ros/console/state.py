@@ -45,9 +45,10 @@ class ClientMessageError(ValueError):
     """A WebSocket message from a page that the console cannot act on."""
 
 
-def parse_client_message(text) -> dict:
+def parse_client_message(text, extra_types=()) -> dict:
     """Validate one message from the page; returns {'type': ..., ...} or raises
-    ClientMessageError with the reason (sent back to the page)."""
+    ClientMessageError with the reason (sent back to the page). A message whose type is
+    in ``extra_types`` is returned as it came (its handler checks the rest)."""
     if not isinstance(text, str):
         raise ClientMessageError('messages must be JSON text')
     if len(text) > 4096:
@@ -59,6 +60,8 @@ def parse_client_message(text) -> dict:
     if not isinstance(msg, dict) or not isinstance(msg.get('type'), str):
         raise ClientMessageError('a message is a JSON object with a string "type"')
     kind = msg['type']
+    if kind in extra_types:
+        return msg
     if kind == 'intervene':
         oid = msg.get('obstacle')
         if isinstance(oid, bool) or not isinstance(oid, int) or oid < 0:
@@ -69,7 +72,8 @@ def parse_client_message(text) -> dict:
         return {'type': 'intervene', 'obstacle': oid, 'ref': ref}
     if kind == 'ping':
         return {'type': 'ping', 'ref': msg.get('ref')}
-    raise ClientMessageError(f'unknown message type {kind!r} (known: intervene, ping)')
+    known = ', '.join(('intervene', 'ping') + tuple(extra_types))
+    raise ClientMessageError(f'unknown message type {kind!r} (known: {known})')
 
 
 class ConsoleState:
