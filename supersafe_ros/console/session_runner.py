@@ -241,7 +241,7 @@ class Session:
     def phase1(self):
         from ..team import team_layout, node_argv
         (self.store.dir / 'logs').mkdir(exist_ok=True)
-        layout = team_layout(1, 1.0, seed=participant_number(self.store.pid) % 100000,
+        layout = team_layout(1, self.args.rate_factor, seed=participant_number(self.store.pid) % 100000,
                              duration=self.args.phase1_seconds, step=0.05, with_filter=False,
                              with_learner=False, overrides={'world': {'robots': ['robot_0']}})
         argvs = without([node_argv(n.kind, n.namespace, n.params, n.remaps) for n in layout],
@@ -262,7 +262,7 @@ class Session:
         (self.store.dir / 'logs').mkdir(exist_ok=True)
         offsets = self.store.remaining_offsets()
         done0 = len(self.store.data['scenes'])
-        opts = StudyOptions(step=0.05, rate_factor=1.0)
+        opts = StudyOptions(step=0.05, rate_factor=self.args.rate_factor)
         stand_in = Subject(index=0, omega_max=1.0, mu=0.0, sigma=0.1,
                            seed=participant_number(self.store.pid) % 100000)
         log_dir = self.store.dir / 'logs' / f'phase2-{done0:02d}'
@@ -350,7 +350,8 @@ class Session:
         from ..ros_io.vfmsg import value_function_to_msg
         from ..study.population import Subject
         from ..study.runner import LatchedValueFunction, StudyOptions, game_argvs, game_counts
-        opts = StudyOptions(step=0.05, rate_factor=1.0, game_seconds=self.args.game_seconds)
+        opts = StudyOptions(step=0.05, rate_factor=self.args.rate_factor,
+                            game_seconds=self.args.game_seconds)
         fit = (self.store.data['fit'] or {}).get(self.args.estimator.replace('-', '_'))
         vf = self.learned_vf()
         use = cond if (cond != 'learned' or vf is not None) else 'standard'
@@ -402,6 +403,8 @@ def add_parser(subparsers):
     p.add_argument('--game-seconds', type=float, default=120.0, help='each Phase III game')
     p.add_argument('--estimator', choices=('paper', 'first-passage'), default='paper',
                    help='the fit the Learned game uses (both are fitted and shown)')
+    p.add_argument('--rate-factor', type=float, default=1.0,
+                   help='sim seconds per wall second (1 for a person; more for scripted tests)')
     p.add_argument('--stop-after', choices=('phase2', 'fit'), default=None,
                    help='end there (the session stays resumable)')
     p.add_argument('--domain-id', type=int, default=None, help='ROS_DOMAIN_ID (default: inherited)')
