@@ -1,5 +1,6 @@
 """`supersafe session`: the participant protocol's bookkeeping, and Phase II with a
 scripted person in a real headless Chromium, through to the fit."""
+import io
 import json
 import os
 from pathlib import Path
@@ -80,6 +81,12 @@ def test_human_and_simulated_subjects_go_through_the_study_analysis(tmp_path):
     summary = summarize(records, standard, conservative)
     assert summary['conditions']['standard']['false_positives'] == [6, 6]
     assert summary['table1']['standard']['total'] == 3      # 2 human + 1 simulated intervention
+    # the command does the same from the files
+    from supersafe_ros.console.session_runner import analyse
+    out = io.StringIO()
+    assert analyse([tmp_path], tmp_path / 'summary.json', out=out) == 0
+    assert out.getvalue().startswith('2 subjects (1 human, 1 simulated)')
+    assert json.loads((tmp_path / 'summary.json').read_text())['answers']['h1'][0]['values'] == {'trust': 5}
 
 
 def test_complete_participant_is_refused_by_the_command(tmp_path):

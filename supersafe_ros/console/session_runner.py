@@ -58,7 +58,7 @@ class PhaseNode:
         self.context = rclpy.Context()
         rclpy.init(context=self.context, args=[], domain_id=int(env['ROS_DOMAIN_ID']))
         self.node = rclpy.create_node('supervisor', context=self.context)
-        state.set_robots(robots)
+        state.reset(robots)
         self.Twist = Twist
         self.keys = keys
         self.w_max = w_max
@@ -394,7 +394,11 @@ class Session:
 def add_parser(subparsers):
     p = subparsers.add_parser('session', help="the paper's protocol for one human participant, "
                               'in the browser console', description=__doc__.splitlines()[0])
-    p.add_argument('--participant', required=True, help='participant ID (letters, digits, _ . -)')
+    p.add_argument('--participant', help='participant ID (letters, digits, _ . -)')
+    p.add_argument('--analyse', nargs='+', type=Path, metavar='DIR',
+                   help="instead of a session: the study's analysis (Table 1, ANOVA, Tukey) over "
+                        'every subject.json under these folders, human and simulated alike')
+    p.add_argument('--json', type=Path, default=None, help='with --analyse: write the summary here')
     p.add_argument('--out', type=Path, default=Path('sessions'), help='results folder (default sessions/)')
     p.add_argument('--port', type=int, default=8765, help='console port on 127.0.0.1 (default 8765)')
     p.add_argument('--offsets', type=int, default=42,
@@ -412,7 +416,40 @@ def add_parser(subparsers):
     return p
 
 
+def analyse(dirs, json_path=None, out=sys.stdout) -> int:
+    import json
+    from ..study.analysis import format_table1
+    from ..study.runner import jsonable, reference_sets, summarize
+    from .session import load_subject
+    found = sorted({p.parent for d in dirs for p in Path(d).rglob('subject.json')})
+    if not found:
+        print(f'no subject.json under {[str(d) for d in dirs]}', file=sys.stderr)
+        return 2
+    records = [load_subject(d) for d in found]
+    kinds = [r['subject'].get('kind', 'simulated') for r in records]
+    standard, conservative = reference_sets()
+    summary = summarize(records, standard, conservative)
+    print(f'{len(records)} subjects ({kinds.count("human")} human, '
+          f'{len(kinds) - kinds.count("human")} simulated)', file=out)
+    print(format_table1(summary['table1']), file=out)
+    a = summary['anova']
+    print(f"repeated-measures ANOVA (false positives): F({a['df_num']:g}, {a['df_den']:g}) = "
+          f"{a['F']:.3g}, p = {a['p']:.3g}" + (f"  ({a['note']})" if 'note' in a else ''), file=out)
+    for pair, t in summary['tukey'].items():
+        print(f"Tukey {pair}: mean difference {t['mean_difference']:+.2f}, p = {t['p']:.3g}", file=out)
+    if json_path:
+        summary['answers'] = {str(r['subject'].get('participant', r['subject'].get('index'))): r['answers']
+                              for r in records if r.get('answers')}
+        Path(json_path).write_text(json.dumps(jsonable(summary), indent=1))
+    return 0
+
+
 def run(args) -> int:
+    if args.analyse:
+        return analyse(args.analyse, args.json)
+    if not args.participant:
+        print('session: --participant ID is required (or --analyse DIR ...)', file=sys.stderr)
+        return 2
     try:
         session = Session(args)
     except (ParticipantExists, ValueError) as exc:

@@ -98,13 +98,18 @@ class ConsoleState:
             self.changed(kind)
 
     # ----- writers (ROS thread) -------------------------------------------------------
-    def set_robots(self, robots) -> None:
-        """A new graph (the participant session's phases): these robots, no poses yet."""
+    def reset(self, robots) -> None:
+        """A new graph (the participant session's phases): these robots, and no poses,
+        obstacles or counts until the new graph sends them."""
         with self._lock:
             self.robots = [r.strip('/') for r in robots]
             self._poses = {}
+            self._obstacles = {}
+            self._stats = {s: 0 for s in STATS}
             self.pose_version += 1
-        self._notify('pose')
+            self.obstacle_version += 1
+            self.stats_version += 1
+        self._notify('obstacles')
 
     def set_pose(self, robot: str, x: float, y: float, theta: float, stamp_ns: int) -> None:
         if robot not in self.robots:

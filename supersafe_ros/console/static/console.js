@@ -64,6 +64,15 @@
   }
 
   function drawRobots(robots) {
+    // robots of an earlier graph (the session's phases) that this one does not have
+    for (const [name, g] of Object.entries(robotEls)) {
+      const here = name in robots;
+      if ((g.getAttribute('visibility') !== 'hidden') !== here) {
+        g.setAttribute('visibility', here ? 'visible' : 'hidden');
+        trailEls[name].setAttribute('visibility', here ? 'visible' : 'hidden');
+        if (!here) { trails[name].length = 0; trailEls[name].setAttribute('points', ''); }
+      }
+    }
     let i = Object.keys(robotEls).length;
     for (const [name, p] of Object.entries(robots)) {
       if (!robotEls[name]) robotElement(name, i++);

@@ -57,6 +57,7 @@
   }
 
   function show(v) {
+    if (v.phase !== view.phase) el('message').textContent = '';
     view = v;
     document.body.dataset.phase = v.phase;
     document.body.dataset.waiting = v.waiting ? 'true' : 'false';
