@@ -87,6 +87,7 @@ class PhaseNode:
         self.acks.processed(robot, msg.header.stamp)
 
     def close(self):
+        self.bridge.state.reset([])     # the phase is over: its scene leaves the page
         self._rclpy.try_shutdown(context=self.context)
         self.thread.join(timeout=2.0)
         try:
