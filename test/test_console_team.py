@@ -154,3 +154,13 @@ def test_clicking_an_obstacle_removes_it_and_the_world_classifies_the_interventi
     wait_until(lambda: 'already gone' in driver.find_element('id', 'message').text, 30,
                'the page to say the obstacle is already gone')
     assert len(list(monitor.interventions)) == 2 and not running.dead()
+
+
+def test_team_layout_with_the_console():
+    argvs = team.team_processes(3, console_port=9123, with_supervisor=False)
+    names = [team.process_name(a) for a in argvs]
+    assert 'supervisor' not in names and names[-1] == 'sim_clock'
+    console = argvs[names.index('supervisor_console')]
+    assert 'port:=9123' in console and 'robots:=[robot_0,robot_1,robot_2]' in console
+    assert any(a.endswith('config/console.yaml') for a in console)
+    assert 'supervisor_console' not in [team.process_name(a) for a in team.team_processes(2)]
