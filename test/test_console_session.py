@@ -3,10 +3,8 @@ scripted person in a real headless Chromium, through to the fit."""
 import io
 import json
 import os
-from pathlib import Path
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest

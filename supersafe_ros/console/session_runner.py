@@ -24,13 +24,11 @@ or game that was running. A complete participant is never overwritten.
 """
 from __future__ import annotations
 
-import math
 from pathlib import Path
 import sys
 import threading
 import time
 
-import numpy as np
 
 from .session import (LIKERT_ITEMS, LIKERT_POINTS, ParticipantExists, SessionStore,
                       check_answers, game_pairs, intervention_states, participant_number,
