@@ -29,11 +29,13 @@ CONFIG_FILES = {
     'sim_clock': 'clock.yaml', 'world': 'world.yaml', 'dubins_robot': 'robot.yaml',
     'planner': 'planner.yaml', 'safety_filter': 'safety_filter.yaml',
     'learner': 'learner.yaml', 'supervisor': 'supervisor.yaml',
+    'supervisor_console': 'console.yaml',
 }
 NODE_MODULES = {
     'sim_clock': 'sim_clock_node', 'world': 'world_node', 'dubins_robot': 'dubins_robot_node',
     'planner': 'planner_node', 'safety_filter': 'safety_filter_node',
     'learner': 'learner_node', 'supervisor': 'supervisor_node',
+    'supervisor_console': 'supervisor_console_node',
 }
 
 
@@ -107,7 +109,8 @@ def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
                 duration: float = 0.0, overrides: dict | None = None, step: float | None = None,
                 with_filter: bool = True, with_learner: bool = True,
                 with_supervisor: bool = True,
-                learner_store: str | Path | None = None) -> list[NodeSpec]:
+                learner_store: str | Path | None = None,
+                console_port: int | None = None) -> list[NodeSpec]:
     """Every node of a team, in start order (the sim clock last).
 
     ``overrides``: {node kind: {param: value}} applied to every node of that kind
@@ -118,6 +121,7 @@ def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
     ``step``: sim seconds per clock step = 1 / robot rate (None: the override
     sim_clock.step, else 0.05). 0.1 halves the CPU per sim second; the robots then
     move 0.3 m between control decisions instead of 0.15 m.
+    ``console_port``: also run the supervisor console (web page) on this port.
     """
     if n_robots < 1:
         raise ValueError('a team needs at least one robot')
@@ -159,6 +163,8 @@ def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
             coarse)
     if with_supervisor:
         add('supervisor', None, {**sim, 'robots': robots, 'seed': seed * 1000 + 999}, coarse)
+    if console_port is not None:
+        add('supervisor_console', None, {**sim, 'robots': robots, 'port': int(console_port)}, coarse)
     # the clock starts sim time only once the whole graph is up (the supervisor and the
     # filters may spend seconds loading value functions)
     publishers = ['/obstacle_markers=1'] + [f'/{r}/cmd_vel=1' for r in robots]
@@ -449,8 +455,9 @@ def add_parser(subparsers):
         'team', help='run the ROS 2 node graph of a robot team as separate processes',
         description=__doc__.splitlines()[0])
     parser.add_argument('--robots', type=int, default=2, help='number of robots (default 2)')
-    parser.add_argument('--rate-factor', type=float, default=10.0,
-                        help='sim seconds per wall second (0: as fast as possible; default 10)')
+    parser.add_argument('--rate-factor', type=float, default=None,
+                        help='sim seconds per wall second (0: as fast as possible; default 10, '
+                             'or 1 with --console: a person watches in real time)')
     parser.add_argument('--step', type=float, default=0.05,
                         help='sim seconds per clock step = 1 / robot rate (default 0.05; 0.1 runs '
                              'about twice as fast on a busy machine)')
@@ -468,6 +475,10 @@ def add_parser(subparsers):
                         help='wire cmd_vel_nav straight into cmd_vel (testing only)')
     parser.add_argument('--no-learner', action='store_true', help='leave the learner out')
     parser.add_argument('--no-supervisor', action='store_true', help='leave the supervisor out')
+    parser.add_argument('--console', action='store_true',
+                        help='also serve the supervisor console (a web page) and print its URL')
+    parser.add_argument('--console-port', type=int, default=8765,
+                        help='TCP port of the console on 127.0.0.1 (default 8765)')
     parser.add_argument('--set', action='append', default=[], metavar='NODE.PARAM=VALUE',
                         help='parameter override, e.g. --set supervisor.mu=1.0 (repeatable)')
     parser.add_argument('--record', type=Path, default=None, metavar='BAG',
@@ -491,12 +502,14 @@ def default_log_dir() -> Path:
 
 def run(args) -> int:
     log_dir = args.log_dir or default_log_dir()
+    rate_factor = args.rate_factor if args.rate_factor is not None else (1.0 if args.console else 10.0)
     argvs = team_processes(
-        args.robots, args.rate_factor, args.seed, args.duration,
+        args.robots, rate_factor, args.seed, args.duration,
         overrides=parse_overrides(args.set), step=args.step,
         with_filter=not args.no_filter, with_learner=not args.no_learner,
         with_supervisor=not args.no_supervisor,
-        learner_store=args.learner_store or log_dir / 'interventions.jsonl')
+        learner_store=args.learner_store or log_dir / 'interventions.jsonl',
+        console_port=args.console_port if args.console else None)
     record = getattr(args, 'record', None)
     if record is not None and record.exists() and (not record.is_dir() or any(record.iterdir())):
         print(f'--record {record}: exists and is not an empty folder; a bag is never overwritten')
@@ -511,6 +524,8 @@ def run(args) -> int:
         for argv in argvs:
             print(' '.join(argv))
         return 0
+    if args.console:
+        print(f'console: http://127.0.0.1:{args.console_port}/', flush=True)
     result = run_team(argvs, args.duration, args.timeout, args.domain_id, log_dir,
                       record=record)
     unclean = {n: c for n, c in result['exit_codes'].items() if c != 0}
