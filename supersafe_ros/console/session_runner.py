@@ -173,12 +173,26 @@ class Session:
         return node.bridge.intervene(obstacle_id)
 
     # -- phases ----------------------------------------------------------------------------
+    def start_recording(self):
+        """Every topic of this run of the session, into a new bag beside its results
+        (recording-1, then recording-2 after a resume, ...; a bag is never overwritten)."""
+        from ..ros_io.bag_recorder import start_recorder
+        k = 1
+        while (self.store.dir / f'recording-{k}').exists():
+            k += 1
+        bag = self.store.dir / f'recording-{k}'
+        self.recorder = start_recorder(bag, domain_id=int(self.env['ROS_DOMAIN_ID']))
+        self.say(f'recording every topic to {bag} (ros2 bag play {bag}, or Foxglove)')
+
     def run(self) -> int:
         port = self.server.start()
         self.say(f'console: http://127.0.0.1:{port}/')
         self.say(f'participant {self.store.pid}: {"resuming" if self.store.resumed else "new"}, '
                  f'results in {self.store.dir}')
         data = self.store.data
+        self.recorder = None
+        if self.args.record:
+            self.start_recording()
         try:
             if data['phase1'] is None and self.args.phase1_seconds > 0:
                 self.wait_for_start('phase1', seconds=self.args.phase1_seconds)
@@ -219,6 +233,8 @@ class Session:
         finally:
             if self.phase_node is not None:
                 self.phase_node.close()
+            if self.recorder is not None:
+                self.recorder.stop()
             self.server.stop()
 
     def _graph(self, argvs, robots, name, duration, drive_robot=None):
@@ -411,6 +427,9 @@ def add_parser(subparsers):
     p.add_argument('--stop-after', choices=('phase2', 'fit'), default=None,
                    help='end there (the session stays resumable)')
     p.add_argument('--domain-id', type=int, default=None, help='ROS_DOMAIN_ID (default: inherited)')
+    p.add_argument('--no-record', dest='record', action='store_false',
+                   help='do not record the session\'s topics (default: a rosbag2 MCAP bag per run, '
+                        'DIR/ID/recording-K)')
     p.set_defaults(func=run)
     return p
 
