@@ -88,7 +88,7 @@ def run(args, out=sys.stdout) -> int:
     from ..rosenv import ensure_local_ros_env
     ensure_local_ros_env()
     from .analysis import PAPER_STATS, format_h2, format_table1, significance_stars
-    from .population import draw_subjects
+    from .population import draw_subjects, pilot_fits
     from .runner import jsonable, make_plots, reference_sets, run_study, summarize
     if args.subjects < 1 or args.game_seconds <= 0 or args.step <= 0:
         print('need --subjects >= 1, --game-seconds > 0, --step > 0', file=sys.stderr)
@@ -104,7 +104,9 @@ def run(args, out=sys.stdout) -> int:
     load_or_build_library()          # the learner's library, built once into the cache
     standard_vf, conservative_vf = reference_sets()
     print(f'ready in {time.monotonic() - t0:.1f} s', file=out, flush=True)
-    subjects = draw_subjects(opts.subjects, opts.seed)
+    pilots, population_source = pilot_fits()
+    print(f'population: the five pilots fitted from {population_source}', file=out, flush=True)
+    subjects = draw_subjects(opts.subjects, opts.seed, pilots)
     try:
         raw = run_study(subjects, opts, out=out)
     except KeyboardInterrupt:
@@ -117,6 +119,8 @@ def run(args, out=sys.stdout) -> int:
                          'game_wall_s': [g['wall'] for r in raw['records']
                                          for g in list(r['games'].values()) + [v for k, v in r['sweep'].items() if k]],
                          'load_average': list(os.getloadavg())}
+    summary['population'] = {'source': population_source,
+                             'pilots': [dict(vars(p)) for p in pilots]}
     summary['options'] = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(opts).items()}
     out_dir = Path(opts.out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
