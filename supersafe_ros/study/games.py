@@ -31,7 +31,7 @@ import threading
 import time
 from pathlib import Path
 
-from ..team import Team, TeamMonitor, node_argv, robot_names, start_poses, team_env, team_layout
+from ..team import Team, TeamMonitor, node_argv, robot_names, start_poses, team_layout
 
 N_ROBOTS = 2
 
@@ -77,7 +77,7 @@ class GameGraph:
         self.robots = robot_names(N_ROBOTS)
         self.sim_time = 0.0
         self.games = 0
-        self.msgs = {'DiagnosticStatus': DiagnosticStatus, 'Pose': PoseWithCovarianceStamped}
+        self.Pose = PoseWithCovarianceStamped
         argvs, self.clock_params = graph_argvs(world_seed, supervisor, step, rate_factor)
         self.clock_params['start_timeout'] = float(start_timeout)
         self.cond = threading.Condition()
@@ -157,7 +157,7 @@ class GameGraph:
         sup = dict(self.supervisor, seed=int(supervisor_seed))
         self.sup_reset.publish(self.rosmsg.make_diagnostic('reset', sup))
         for r, pose in zip(self.robots, start_poses(N_ROBOTS)):
-            msg = self.msgs['Pose']()
+            msg = self.Pose()
             msg.header.frame_id = self.rosmsg.MAP_FRAME
             msg.pose.pose = self.rosmsg.state_to_pose(pose).pose
             self.pose_pubs[r].publish(msg)
@@ -186,7 +186,8 @@ class GameGraph:
                 'interventions': list(self.monitor.interventions[n_log:]),
                 'wall': time.monotonic() - t0, 'wall_running': time.monotonic() - wall_run,
                 # CPU of the graph's processes while the game ran (the clock runs in here)
-                'cpu_s': sum(cpu.get(k, 0.0) - cpu0.get(k, 0.0) for k in cpu)}
+                'cpu_s': sum(cpu.get(k, 0.0) - cpu0.get(k, 0.0) for k in cpu),
+                'cpu_by_process': {k: round(cpu[k] - cpu0.get(k, 0.0), 2) for k in cpu}}
 
     def _start_clock(self, start: float, duration: float):
         from rclpy.logging import LoggingSeverity

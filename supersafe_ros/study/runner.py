@@ -323,9 +323,6 @@ def run_study(subjects: list, opts: StudyOptions, out=sys.stdout) -> dict:
             f'; {c}: ' + (f'w {f["omega_max"]:g} mu {f["mu"]:.3g} sigma {f["sigma"]:.3g}' if f
                           else 'no fit (too few interventions): Standard set')
             for c, f in rec['fits'].items()) + ''.join(f'; {n}' for n in p2.notes))
-        # kept for the report's figures and the old single-learned readers
-        rec['fit'] = rec['fits'].get('learned')
-        rec['learned_vf'] = rec['learned_vfs'].get('learned')
         world_seed = opts.seed * 1000 + i
         learned = {c: (rec['learned_vfs'][c], rec['fits'][c]) for c in fits}
         games = [(c, 0.0) for c in conditions]
@@ -341,7 +338,8 @@ def run_study(subjects: list, opts: StudyOptions, out=sys.stdout) -> dict:
                                     opts.game_seconds,
                                     opts.game_timeout + (120.0 if graph.games == 0 else 0.0))
                 g = game_counts(result)
-                g.update(wall=result['wall'], wall_running=result['wall_running'], cpu_s=result['cpu_s'], set=ran,
+                g.update(wall=result['wall'], wall_running=result['wall_running'], cpu_s=result['cpu_s'],
+                         cpu_by_process=result['cpu_by_process'], set=ran,
                          alpha=alpha, complete=g['sim_time'] >= opts.game_seconds - 1e-6)
                 if k == 0.0:
                     rec['games'][cond] = g
