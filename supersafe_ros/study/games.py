@@ -34,6 +34,7 @@ from pathlib import Path
 from ..team import Team, TeamMonitor, node_argv, robot_names, start_poses, team_layout
 
 N_ROBOTS = 2
+RESEND_S = 15.0       # wall seconds before a reset request is sent again
 
 
 def game_message(vf, alpha: float | None, label: str, **meta):
@@ -127,11 +128,26 @@ class GameGraph:
             with self.cond:
                 self.cond.wait(0.05)
 
-    def _wait_logs(self, kind: str, before: dict, n: int, deadline: float):
+    def _logged(self, kind: str, before: dict, n: int):
+        """A check: ``n`` nodes of ``kind`` have logged their confirmation since ``before``."""
         def done():
             now = self._counts(kind)
-            return sum(1 for name, c in now.items() if c > before.get(name, 0)) >= n
-        self._wait(kind, done, deadline)
+            return sum(1 for name, c in now.items() if c > before[kind].get(name, 0)) >= n
+        return done
+
+    def _confirm(self, what: str, send, done, deadline: float, every: float = RESEND_S) -> int:
+        """send(), then wait for done(), sending again every ``every`` wall seconds;
+        returns how many times it was sent again."""
+        send()
+        resends = 0
+        next_send = time.monotonic() + every
+        while not done():
+            if time.monotonic() > next_send:
+                send()
+                resends += 1
+                next_send = time.monotonic() + every
+            self._wait(what, lambda: done() or time.monotonic() > next_send, deadline)
+        return resends
 
     def _wait_matched(self, deadline: float):
         """Every reset reader is in the graph (the filters and robots may load for seconds)."""
@@ -152,21 +168,29 @@ class GameGraph:
         resets = int(float(stats_before.get('resets', 0) or 0))
         n_log = len(self.monitor.interventions)
         before = {k: self._counts(k) for k, _ in self.KEYS}
-        self.vf_pub.publish(vf_msg)
-        self.world_reset.publish(self.rosmsg.make_diagnostic('reset', {'seed': int(world_seed)}))
         sup = dict(self.supervisor, seed=int(supervisor_seed))
-        self.sup_reset.publish(self.rosmsg.make_diagnostic('reset', sup))
-        for r, pose in zip(self.robots, start_poses(N_ROBOTS)):
-            msg = self.Pose()
-            msg.header.frame_id = self.rosmsg.MAP_FRAME
-            msg.pose.pose = self.rosmsg.state_to_pose(pose).pose
-            self.pose_pubs[r].publish(msg)
-        self._wait_logs('safety_filter', before['safety_filter'], N_ROBOTS, deadline)
-        self._wait_logs('supervisor', before['supervisor'], 1, deadline)
-        self._wait_logs('dubins_robot', before['dubins_robot'], N_ROBOTS, deadline)
-        self._wait('the world reset',
-                   lambda: int(float(self.monitor.snapshot()[0].get('resets', 0) or 0)) > resets,
-                   deadline)
+
+        def teleport():
+            for r, pose in zip(self.robots, start_poses(N_ROBOTS)):
+                msg = self.Pose()
+                msg.header.frame_id = self.rosmsg.MAP_FRAME
+                msg.pose.pose = self.rosmsg.state_to_pose(pose).pose
+                self.pose_pubs[r].publish(msg)
+        # every request is idempotent while the clock is stopped, so a confirmation that
+        # does not come (a /rosout message lost on a loaded machine) is asked for again
+        resends = 0
+        resends += self._confirm('the set in force', lambda: self.vf_pub.publish(vf_msg),
+                                 self._logged('safety_filter', before, N_ROBOTS), deadline)
+        resends += self._confirm(
+            'the world reset',
+            lambda: self.world_reset.publish(self.rosmsg.make_diagnostic('reset', {'seed': int(world_seed)})),
+            lambda: int(float(self.monitor.snapshot()[0].get('resets', 0) or 0)) > resets, deadline)
+        resends += self._confirm(
+            'the supervisor reset',
+            lambda: self.sup_reset.publish(self.rosmsg.make_diagnostic('reset', sup)),
+            self._logged('supervisor', before, 1), deadline)
+        resends += self._confirm('the robots at their start', teleport,
+                                 self._logged('dubins_robot', before, N_ROBOTS), deadline)
         cpu0 = self.team.cpu_seconds()
         start = self.sim_time
         end = start + float(game_seconds)
@@ -186,6 +210,7 @@ class GameGraph:
                 'interventions': list(self.monitor.interventions[n_log:]),
                 'wall': time.monotonic() - t0, 'wall_running': time.monotonic() - wall_run,
                 # CPU of the graph's processes while the game ran (the clock runs in here)
+                'resends': resends,
                 'cpu_s': sum(cpu.get(k, 0.0) - cpu0.get(k, 0.0) for k in cpu),
                 'cpu_by_process': {k: round(cpu[k] - cpu0.get(k, 0.0), 2) for k in cpu}}
 

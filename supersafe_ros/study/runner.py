@@ -339,7 +339,8 @@ def run_study(subjects: list, opts: StudyOptions, out=sys.stdout) -> dict:
                                     opts.game_timeout + (120.0 if graph.games == 0 else 0.0))
                 g = game_counts(result)
                 g.update(wall=result['wall'], wall_running=result['wall_running'], cpu_s=result['cpu_s'],
-                         cpu_by_process=result['cpu_by_process'], set=ran,
+                         cpu_by_process=result['cpu_by_process'],
+                         resends=result['resends'], set=ran,
                          alpha=alpha, complete=g['sim_time'] >= opts.game_seconds - 1e-6)
                 if k == 0.0:
                     rec['games'][cond] = g
