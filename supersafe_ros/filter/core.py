@@ -331,7 +331,9 @@ def step_many(filters, safe_set: SafeSet, t) -> list:
         else:
             why = ('clear: no obstacle near' if not math.isfinite(v_min) else
                    f'clear: V={v_min:.3g} > alpha={alpha:.3g}')
-            out.append(FilterOutput(float(f.command.value), cfg.speed, PASS, why, **common))
+            # the robot's bound, whatever the planner asked (angular.z = 1e30 goes out as w_max)
+            omega = float(np.clip(f.command.value, -cfg.omega_max, cfg.omega_max))
+            out.append(FilterOutput(omega, cfg.speed, PASS, why, **common))
     return out
 
 
