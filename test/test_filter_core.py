@@ -86,10 +86,16 @@ def test_hysteresis_keeps_overriding_until_clear(standard):
 
 def test_stale_pose_fails_safe_with_avoid_control_then_stop_turn(standard):
     f = robot(pose=at(-3.0, -0.6, 0.0), cmd=0.9, pose_timeout=0.5, hold_timeout=1.0, detections_timeout=5.0)
+    first = f.step(standard, 0.0)
+    assert first.action == OVERRIDE and first.omega == -1.0
     f.update_detections(np.array([OBSTACLE]), 0.9)
     out = f.step(standard, 0.7)        # pose 0.7 s old: stale, but within the hold window
     assert out.action == FAIL_SAFE and out.level == 2 and 'pose stale' in out.reason
-    assert out.omega == pytest.approx(-1.0)        # avoid control of the last valid state
+    # the avoid control of the last valid state, moved on by the 0.7 s of right turn sent since
+    moved = DubinsCar(3.0, 1.0).flow(np.array([-3.0, -0.6, 0.0]), -1.0, 0.7)
+    value, turn = evaluate_pairs(standard.vf, moved[None])
+    assert out.pose_age == pytest.approx(0.7) and out.value == pytest.approx(value[0])
+    assert out.omega == turn[0]
     out = f.step(standard, 1.5)        # beyond the hold window: stop-turn
     assert out.action == FAIL_SAFE and out.linear == 0.0 and out.omega == pytest.approx(1.0)
     assert 'stop-turn' in out.reason
@@ -263,3 +269,57 @@ def test_step_many_matches_single_steps(standard):
         actions.add(one.action)
         assert (one.action, one.omega, one.obstacle_index) == (out.action, out.omega, out.obstacle_index)
     assert actions == {PASS, OVERRIDE}
+
+
+# -- every decision on the pose it is for -------------------------------------------------------
+def test_pose_is_propagated_over_its_age_under_the_commands_sent(standard):
+    """The robot moved on since its pose's stamp under what the filter sent: judged there."""
+    car = DubinsCar(3.0, 1.0)
+    f = robot(pose=at(-6.5, 2.0, -0.3), cmd=0.4, lookahead=0.0)
+    assert f.step(standard, 0.0).action == PASS          # sends 0.4 at t = 0
+    f.update_command(-0.6, 0.1)
+    assert f.step(standard, 0.1).omega == -0.6            # sends -0.6 at t = 0.1
+    out = f.step(standard, 0.25)                          # still the pose of t = 0
+    expected = car.flow(car.flow(np.array([-6.5, 2.0, -0.3]), 0.4, 0.1), -0.6, 0.15)
+    assert out.pose_age == pytest.approx(0.25)
+    assert out.value == pytest.approx(float(evaluate_pairs(standard.vf, expected[None])[0][0]), abs=1e-9)
+    # a stamped pose: propagated from its stamp, not from its arrival
+    g = robot(pose=at(-6.5, 2.0, -0.3), cmd=0.4, lookahead=0.0)
+    g.step(standard, 0.0)
+    g.update_pose(at(-6.5, 2.0, -0.3), 0.3, stamp=0.1)
+    assert g.step(standard, 0.3).pose_age == pytest.approx(0.2)
+    # a stamp ahead of the filter's clock is not believed: age from arrival
+    g.update_pose(at(-6.5, 2.0, -0.3), 0.4, stamp=0.9)
+    assert g.step(standard, 0.4).pose_age == 0.0
+    with pytest.raises(ValueError):
+        g.update_pose(at(-6.5, 2.0, -0.3), 0.5, stamp=math.nan)
+
+
+def test_decision_on_the_previous_steps_pose_acts_on_the_robots_state_now(standard):
+    """Head-on, one 0.2 s step before the level: the previous step's pose still looks fine,
+    the state now does not. Compensated: override; judged as if current: pass (too late)."""
+    xs = np.linspace(-7.5, -3.0, 500)
+    values = standard.vf.value(np.stack([xs, np.full_like(xs, 0.3), np.zeros_like(xs)], 1))
+    x_old = float(xs[np.argmax(values <= 0.25)])          # V(old) ~ 0.25
+    x_now = x_old + 3.0 * 0.2
+    assert standard.vf.value(np.array([x_now, 0.3, 0.0])) < 0.0
+    for compensate, action in ((True, OVERRIDE), (False, PASS)):
+        f = robot(pose=at(x_old, 0.3, 0.0), cmd=0.0, lookahead=0.0, compensate_delay=compensate,
+                  control_period=1e-3)
+        assert f.step(standard, 0.0).action == PASS       # sent 0 (straight) at the old pose
+        f.update_command(0.0, 0.2)
+        assert f.step(standard, 0.2).action == action
+
+
+def test_lookahead_never_falls_below_the_control_period(standard):
+    f = robot(pose=at(-6.5, 2.0, 0.0), lookahead=0.1, control_period=0.2)
+    assert f.lookahead() == 0.2 and f.step(standard, 0.0).lookahead == 0.2
+    assert robot(lookahead=0.3, control_period=0.2).lookahead() == 0.3
+    # measured: poses stamped every 0.2 s, commands every 0.05 s -> the robot holds for 0.2 s
+    g = robot(pose=at(-6.5, 2.0, 0.0), lookahead=0.0)
+    for k in range(1, 6):
+        g.update_pose(at(-6.5, 2.0, 0.0), 0.2 * k + 0.01, stamp=0.2 * k)
+        for j in range(4):
+            g.update_command(0.1, 0.2 * k + 0.05 * j)
+    assert g.lookahead() == pytest.approx(0.2)
+    assert robot(lookahead=0.1, control_period=0.2, compensate_delay=False).lookahead() == 0.1

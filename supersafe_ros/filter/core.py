@@ -15,12 +15,23 @@ state relative to every detected obstacle; the smallest V governs:
     override  V_min <= alpha                u* = w_max sign(dV/dtheta) of that obstacle
     fail_safe pose or detections stale/invalid (see below)
 
-Lookahead (discrete control). Commands hold for a control period, so V sampled
-once per period can jump from just above alpha to below it (by up to speed x
-period): the filter also overrides when the planner's command, held for
-``lookahead`` seconds from the current state, would end at V <= alpha. With
-lookahead = the control period the sampled V never falls below alpha on the
-planner's account.
+Delay compensation (every decision on the pose it is for). A pose describes the
+robot at its stamp, not at the decision: in a lockstep graph the filter may decide
+at step k on the pose of step k-1, and a real robot's pose is some milliseconds
+old. The filter knows what the robot did since: it sent the commands. So it first
+propagates the pose over its age (decision time - stamp) along exact Dubins arcs
+under the commands it sent in that interval (``propagate_pose``), and judges the
+robot's state *now*.
+
+Lookahead (the hold time). The command sent now holds until the robot applies the
+next one, one control period later, so V sampled once per period can jump from
+just above alpha to below it (by up to speed x period): the filter also overrides
+when the planner's command, held for the lookahead from the state now, would end
+at V <= alpha. The lookahead is max(``lookahead``, control period), the period
+being ``control_period`` or, if 0, measured (median interval between pose stamps
+and between planner commands, the larger). V at the end of the hold is enough:
+by the dynamic programming principle a state the arc passes with V < 0 forces
+V < 0 at its end as well.
 
 Hysteresis ("until the robot is clear"): once overriding, the filter keeps
 overriding until V_min > alpha + clear_margin. Without it the robot would leave
@@ -46,14 +57,17 @@ is the one-robot case of it.
 """
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, field
 import math
 
 import numpy as np
 
 from .law import evaluate_pairs  # noqa: F401  (the law's rule; re-exported)
-from ..reach.dynamics import DubinsCar
+from ..reach.grid import wrap_angle
 from ..reach.value_function import ValueFunction
+
+PERIOD_SAMPLES = 16    # intervals in the median that measures the control period
 
 PASS = 'pass'
 OVERRIDE = 'override'
@@ -76,10 +90,15 @@ class FilterConfig:
     cmd_timeout: float = 0.5         # planner silent longer than this: zero twist
     clear_margin: float = 0.2        # hysteresis: release override when V > alpha + margin
     lookahead: float = 0.1           # override if the planner's command would reach alpha this soon
+    control_period: float = 0.0      # the robot's command hold time; 0 = measure it from arrivals
+    # propagate each pose over its age under the commands sent, and keep the lookahead >= the
+    # control period (False: judge the pose as if current and use ``lookahead`` as given, the
+    # behaviour before issue 9; for ablation benchmarks only)
+    compensate_delay: bool = True
 
     def __post_init__(self):
         for name in ('speed', 'omega_max', 'pose_timeout', 'detections_timeout', 'hold_timeout',
-                     'cmd_timeout', 'clear_margin', 'lookahead'):
+                     'cmd_timeout', 'clear_margin', 'lookahead', 'control_period'):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0.0):
                 raise ValueError(f'{name} must be finite and >= 0, got {v}')
@@ -120,6 +139,8 @@ class FilterOutput:
     alpha: float = math.nan
     source: str = ''
     omega_max_set: float = math.nan  # omega_max of the safe set's model
+    pose_age: float = 0.0        # seconds the pose was propagated over before judging
+    lookahead: float = 0.0       # hold time the planner's command was judged over [s]
 
     @property
     def level(self) -> int:
@@ -139,6 +160,8 @@ class FilterOutput:
             'alpha': f'{self.alpha:.6g}',
             'omega_max': f'{self.omega_max_set:.6g}',
             'source': self.source,
+            'pose_age': f'{self.pose_age:.6g}',
+            'lookahead': f'{self.lookahead:.6g}',
         }
 
 
@@ -148,11 +171,18 @@ class _Input:
 
     value: object = None
     t: float = -math.inf          # arrival time of the newest valid sample
+    stamp: float = -math.inf      # the time it describes (its header stamp; arrival if unstamped)
     rejected: str = ''            # reason the newest sample was rejected ('' if it was valid)
     rejected_t: float = -math.inf
 
-    def accept(self, value, t):
+    def accept(self, value, t, stamp=None):
         self.value, self.t, self.rejected = value, float(t), ''
+        self.stamp = float(t) if stamp is None else float(stamp)
+
+    def age(self, t) -> float:
+        """Age at ``t``: since its stamp, or since arrival if that is earlier (a stamp ahead
+        of the receiver's clock is not believed)."""
+        return t - min(self.t, self.stamp)
 
     def reject(self, reason, t):
         self.rejected, self.rejected_t = str(reason), float(t)
@@ -170,16 +200,32 @@ class RobotFilter:
         self.detections = _Input()
         self.command = _Input()
         self.overriding = False
+        self.sent = deque()    # (decision time, turn rate) of the commands sent, oldest first
+        self._pose_intervals = deque(maxlen=PERIOD_SAMPLES)
+        self._command_intervals = deque(maxlen=PERIOD_SAMPLES)
 
     # -- inputs ------------------------------------------------------------------------
-    def update_pose(self, state, t) -> None:
-        """A pose (x, y, theta) in map; raises ValueError (and records it) if not finite."""
+    def update_pose(self, state, t, stamp=None) -> None:
+        """A pose (x, y, theta) in map, arrived at ``t``; raises ValueError (and records it)
+        if not finite.
+
+        ``stamp``: the time the pose describes (its header stamp) on the same clock as
+        ``t``, or None to take the arrival time. The filter propagates the pose from its
+        stamp to the decision time under the commands it sent.
+        """
         s = np.asarray(state, dtype=float).reshape(-1)
         if s.shape != (3,) or not np.all(np.isfinite(s)):
             reason = f'pose is not a finite (x, y, theta): {s.tolist()}'
             self.pose.reject(reason, t)
             raise ValueError(reason)
-        self.pose.accept(s, t)
+        if stamp is not None and not math.isfinite(float(stamp)):
+            reason = f'pose stamp is not finite ({stamp})'
+            self.pose.reject(reason, t)
+            raise ValueError(reason)
+        previous = self.pose.stamp if self.pose.value is not None else None
+        self.pose.accept(s, t, stamp)
+        if previous is not None and self.pose.stamp > previous:
+            self._pose_intervals.append(self.pose.stamp - previous)
 
     def reject_pose(self, reason, t) -> None:
         """Record a pose message the caller could not convert (wrong frame, bad quaternion)."""
@@ -206,7 +252,25 @@ class RobotFilter:
             reason = f'planner command is not finite ({w})'
             self.command.reject(reason, t)
             raise ValueError(reason)
+        previous = self.command.t if self.command.value is not None else None
         self.command.accept(w, t)
+        if previous is not None and t > previous:
+            self._command_intervals.append(t - previous)
+
+    def control_period(self) -> float:
+        """The hold time of a command: configured, else measured (0 until measurable).
+
+        Measured as the larger of the median intervals between pose stamps (the
+        robot's step) and between planner commands (when new commands come).
+        """
+        if self.config.control_period > 0.0:
+            return self.config.control_period
+        medians = [float(np.median(d)) for d in (self._pose_intervals, self._command_intervals) if d]
+        return max(medians) if medians else 0.0
+
+    def lookahead(self) -> float:
+        cfg = self.config
+        return max(cfg.lookahead, self.control_period()) if cfg.compensate_delay else cfg.lookahead
 
     # -- decision ------------------------------------------------------------------------
     def problem(self, t) -> str:
@@ -218,7 +282,7 @@ class RobotFilter:
                 return f'{label} rejected: {inp.rejected}'
             if inp.value is None:
                 return f'no {label} received yet'
-            age = t - inp.t
+            age = inp.age(t)
             if age > timeout:
                 return f'{label} stale ({age:.3g} s old > {timeout:g} s)'
         return ''
@@ -226,13 +290,87 @@ class RobotFilter:
     def step(self, safe_set: SafeSet, t) -> FilterOutput:
         return step_many([self], safe_set, t)[0]
 
+    # -- what the robot did since its pose ---------------------------------------------
+    def record_sent(self, omega, t) -> None:
+        """Remember a command sent at ``t`` (step_many does this for every decision)."""
+        self.sent.append((float(t), float(omega)))
+        keep = max(self.config.hold_timeout, self.config.pose_timeout) + 1.0
+        while len(self.sent) > 1 and self.sent[1][0] <= t - keep:
+            self.sent.popleft()
 
-def _pairs(filters, use):
+    def segments_since(self, t0, t1):
+        """[(turn rate, duration)] the robot held from ``t0`` to ``t1``, by the commands sent.
+
+        A command counts from the time it was sent until the next one. Before the
+        first command remembered: the planner's current command (clipped), else 0.
+        """
+        if t1 <= t0:
+            return []
+        w = self.config.omega_max
+        before = (float(np.clip(self.command.value, -w, w)) if self.command.value is not None else 0.0)
+        inside = []      # commands sent in (t0, t1), newest first
+        current = before
+        for ts, omega in reversed(self.sent):
+            if ts >= t1:
+                continue
+            if ts <= t0:
+                current = omega
+                break
+            inside.append((ts, omega))
+        segments, start = [], t0
+        for ts, omega in reversed(inside):
+            segments.append((current, ts - start))
+            start, current = ts, omega
+        segments.append((current, t1 - start))
+        return segments
+
+
+def arc_flow(states, speed, omega, dt) -> np.ndarray:
+    """Exact Dubins arcs for arrays of states (N, 3), speeds, turn rates and durations (N,)."""
+    s = np.asarray(states, dtype=float)
+    x, y, th = s[:, 0], s[:, 1], s[:, 2]
+    th1 = th + omega * dt
+    turning = np.abs(omega * dt) > 1e-9
+    safe = np.where(turning, omega, 1.0)
+    ax = np.where(turning, (np.sin(th1) - np.sin(th)) / safe, np.cos(th) * dt)
+    ay = np.where(turning, (np.cos(th) - np.cos(th1)) / safe, np.sin(th) * dt)
+    return np.stack([x + speed * ax, y + speed * ay, wrap_angle(th1)], axis=1)
+
+
+def propagate_poses(filters, use, t):
+    """Each robot's state at ``t`` (rows in the order of ``use``) and the pose ages.
+
+    The pose is moved from its stamp to ``t`` along the arcs of the commands sent
+    (at most ``hold_timeout`` of them: older poses only feed the stop-turn).
+    """
+    states = np.array([filters[i].pose.value for i in use], dtype=float).reshape(-1, 3)
+    ages = np.zeros(len(use))
+    plans = []
+    for row, i in enumerate(use):
+        f = filters[i]
+        if not f.config.compensate_delay:
+            plans.append([])
+            continue
+        t0 = min(f.pose.t, f.pose.stamp)
+        ages[row] = max(0.0, min(t - t0, f.config.hold_timeout))
+        plans.append(f.segments_since(t - ages[row], t))
+    depth = max((len(p) for p in plans), default=0)
+    if depth == 0:
+        return states, ages
+    speed = np.array([filters[i].config.speed for i in use])
+    for k in range(depth):
+        omega = np.array([p[k][0] if k < len(p) else 0.0 for p in plans])
+        dt = np.array([p[k][1] if k < len(p) else 0.0 for p in plans])
+        states = arc_flow(states, speed, omega, dt)
+    return states, ages
+
+
+def _pairs(filters, use, states):
     """Relative states of every (robot, obstacle) pair for the robots in ``use``."""
     rel, robot, obstacle = [], [], []
-    for i in use:
+    for row, i in enumerate(use):
         f = filters[i]
-        x = f.pose.value
+        x = states[row]
         c = f.detections.value
         if len(c) == 0:
             continue
@@ -264,11 +402,14 @@ def step_many(filters, safe_set: SafeSet, t) -> list:
         elif (f.pose.value is not None and f.detections.value is not None
               and t - f.pose.t <= f.config.hold_timeout and t - f.detections.t <= f.config.hold_timeout):
             usable.append(i)
-    rel, robot, obstacle = _pairs(filters, usable)
+    states, ages = propagate_poses(filters, usable, t)
+    age_of = dict(zip(usable, ages))
+    rel, robot, obstacle = _pairs(filters, usable, states)
     omega_law = np.array([filters[i].config.omega_max for i in robot]) if len(robot) else np.zeros(0)
     value, turn = evaluate_pairs(safe_set.vf, rel)
     control = turn * omega_law
-    value_next = _lookahead_values(filters, safe_set.vf, rel, robot, t)
+    horizons = {i: filters[i].lookahead() for i in usable}
+    value_next = _lookahead_values(filters, safe_set.vf, rel, robot, t, horizons)
 
     # the smallest V per robot (its pair index), by a stable sort: largest first, smallest last
     best = np.full(n, -1)
@@ -289,7 +430,8 @@ def step_many(filters, safe_set: SafeSet, t) -> list:
         else:
             obst_index, obst_xy = -1, (math.nan, math.nan)
         common = dict(obstacle_index=obst_index, obstacle_xy=obst_xy, value=v_min, alpha=alpha,
-                      source=safe_set.source, omega_max_set=set_omega)
+                      source=safe_set.source, omega_max_set=set_omega,
+                      pose_age=float(age_of.get(i, 0.0)), lookahead=float(horizons.get(i, 0.0)))
         if problems[i]:
             f.overriding = False   # re-enter by the law once inputs are back
             if math.isfinite(v_min):
@@ -318,7 +460,7 @@ def step_many(filters, safe_set: SafeSet, t) -> list:
                 why = f'V={v_min:.3g} <= alpha={alpha:.3g} at obstacle {obst_index}'
             elif ahead:
                 why = (f'the planner\'s command would reach V={next_min:.3g} <= alpha={alpha:.3g} '
-                       f'within {cfg.lookahead:g} s (obstacle {int(obstacle[p])})')
+                       f'within {horizons[i]:.3g} s (obstacle {int(obstacle[p])})')
             else:
                 why = f'V={v_min:.3g} <= alpha+margin={alpha + cfg.clear_margin:.3g}: not clear yet'
             out.append(FilterOutput(float(control[p]), cfg.speed, OVERRIDE, why, **common))
@@ -334,11 +476,13 @@ def step_many(filters, safe_set: SafeSet, t) -> list:
             # the robot's bound, whatever the planner asked (angular.z = 1e30 goes out as w_max)
             omega = float(np.clip(f.command.value, -cfg.omega_max, cfg.omega_max))
             out.append(FilterOutput(omega, cfg.speed, PASS, why, **common))
+    for f, o in zip(filters, out):
+        f.record_sent(o.omega, t)
     return out
 
 
-def _lookahead_values(filters, vf: ValueFunction, rel, robot, t) -> np.ndarray:
-    """V of every pair after its robot holds the planner's command for ``lookahead`` s.
+def _lookahead_values(filters, vf: ValueFunction, rel, robot, t, horizons) -> np.ndarray:
+    """V of every pair after its robot holds the planner's command for its lookahead.
 
     A silent planner counts as a zero command (what the filter would forward).
     Translation invariance: the relative state moves like the robot itself.
@@ -354,13 +498,9 @@ def _lookahead_values(filters, vf: ValueFunction, rel, robot, t) -> np.ndarray:
         fresh = f.command.value is not None and t - f.command.t <= cfg.cmd_timeout
         u = float(np.clip(f.command.value, -cfg.omega_max, cfg.omega_max)) if fresh else 0.0
         sel = robot == i
-        omega[sel], horizon[sel], speed[sel] = u, cfg.lookahead, cfg.speed
+        omega[sel], horizon[sel], speed[sel] = u, horizons[i], cfg.speed
     if not np.any(horizon > 0):
         return np.full(len(rel), np.inf)
-    # one flow per distinct speed (normally one for the whole team)
-    ahead = np.empty_like(rel)
-    for v in np.unique(speed):
-        sel = speed == v
-        ahead[sel] = DubinsCar(max(float(v), 1e-9), 1.0).flow(rel[sel], omega[sel], horizon[sel])
+    ahead = arc_flow(rel, speed, omega, horizon)
     value = vf.value(ahead, outside=np.inf)      # values only: no turn is taken from here
     return np.where(horizon > 0, value, np.inf)
