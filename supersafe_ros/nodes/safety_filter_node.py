@@ -88,7 +88,9 @@ class SafetyFilterNode(Node):
             clear_margin=p('clear_margin', 0.2, 'hysteresis: keep overriding until V > alpha + margin',
                            0.0, 10.0),
             lookahead=p('lookahead', 0.1, 'also override when the planner\'s command, held this long, '
-                        'would reach V <= alpha; set it to the robot\'s control period [s]', 0.0, 10.0),
+                        'would reach V <= alpha; never less than the control period [s]', 0.0, 10.0),
+            control_period=p('control_period', 0.0, 'the robot\'s command hold time [s]; 0 = measure it '
+                             'from pose stamps and planner commands', 0.0, 10.0),
         )
         rate = p('rate', 50.0, 'watchdog rate [Hz, steady clock]: publish if nothing went out for 1/rate',
                  0.1, 1000.0)
@@ -147,8 +149,12 @@ class SafetyFilterNode(Node):
     # -- inputs -----------------------------------------------------------------------------
     def on_pose(self, msg: PoseStamped):
         t = self.now_s()
+        # the pose describes the robot at its stamp (node clock): the filter propagates it
+        # from there under the commands it sent; unstamped (0) poses count from arrival
+        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         try:
-            self.filter.update_pose(rosmsg.pose_to_state(msg, self.frame), t)
+            self.filter.update_pose(rosmsg.pose_to_state(msg, self.frame), t,
+                                    stamp=stamp_ns * 1e-9 if stamp_ns > 0 else None)
         except ValueError as exc:   # MessageError is a ValueError
             self.filter.reject_pose(str(exc), t)
             self.complain('pose', f'pose rejected: {exc}; failing safe')
