@@ -63,7 +63,7 @@ import math
 
 import numpy as np
 
-from .law import evaluate_pairs  # noqa: F401  (the law's rule; re-exported)
+from .law import evaluate_pairs, tie_tolerance  # noqa: F401  (the law's rule; re-exported)
 from ..reach.grid import wrap_angle
 from ..reach.value_function import ValueFunction
 
@@ -424,10 +424,9 @@ def step_many(filters, safe_set: SafeSet, t, clusters=None) -> list:
     state_of = {i: states[row] for row, i in enumerate(usable)}
     age_of = dict(zip(usable, ages))
     rel, robot, obstacle = _pairs(filters, usable, states)
-    omega_law = np.array([filters[i].config.omega_max for i in robot]) if len(robot) else np.zeros(0)
     value, turn = evaluate_pairs(safe_set.vf, rel)
     horizons = {i: filters[i].lookahead() for i in usable}
-    value_next = _lookahead_values(filters, safe_set.vf, rel, robot, t, horizons)
+    turn, value_next = _sampled_control(filters, safe_set.vf, rel, robot, t, horizons, turn)
     # pairs are grouped by robot, in order: robot i's pairs are [first[i], last[i])
     first = {int(i): int(k) for i, k in zip(*np.unique(robot, return_index=True))} if len(robot) else {}
 
@@ -604,9 +603,9 @@ def _add_cluster_constraints(c: _Constraints, f, state, horizon, t, store) -> No
         if solved is None:
             store.request(key, centres)
         if solved is not None:
-            v, _ = solved.evaluate(cl.to_frame(np.vstack([state[None], points]), origin, angle))
+            v, _ = solved.evaluate(cl.to_frame(np.vstack([state[None], points, ahead[None]]), origin, angle))
             turn = 1.0 if v[1] >= v[2] - solved.tie else -1.0
-            c.add(v[0], cfg.cluster_alpha, turn, max(v[3], v[4]), nearest, 'cluster', len(g))
+            c.add(v[0], cfg.cluster_alpha, turn, min(v[5], max(v[3], v[4])), nearest, 'cluster', len(g))
         else:
             v, turn = cl.orbit_value(np.stack([state, ahead]), key_det[g], st.radius + st.margin,
                                      st.turning_radius)
@@ -627,26 +626,44 @@ def default_cluster_store(cfg: FilterConfig):
     return store
 
 
-def _lookahead_values(filters, vf: ValueFunction, rel, robot, t, horizons) -> np.ndarray:
-    """V of every pair after its robot holds the planner's command for its lookahead.
+def _sampled_control(filters, vf: ValueFunction, rel, robot, t, horizons, turn):
+    """The avoid turn and the lookahead value of every pair, for commands held over H.
+
+    H is the robot's lookahead (>= its control period). A command holds for H, so:
+
+    * the avoid turn is the bang (+-w_max) whose hold ends at the larger V (ties
+      left, within the law's tie tolerance); as H -> 0 this is sign(dV/dtheta), the
+      continuous law, which it keeps where both ends are off the grid;
+    * the planner's command is judged by what the filter can still do after it:
+      V where the command's hold ends, and after the better bang held for one more
+      period from there (the smaller of the two). A pass therefore never leaves the
+      robot below the level, nor where no held turn keeps V above it (the filter
+      acts one hold early rather than one hold late).
 
     A silent planner counts as a zero command (what the filter would forward).
     Translation invariance: the relative state moves like the robot itself.
+    Returns (unit turn, V after the planner's hold and the best bang's).
     """
     if len(rel) == 0:
-        return np.zeros(0)
+        return turn, np.zeros(0)
     omega = np.zeros(len(robot))
     horizon = np.zeros(len(robot))
     speed = np.zeros(len(robot))
+    bang = np.zeros(len(robot))
     for i in np.unique(robot):
         f = filters[i]
-        cfg = f.config
-        fresh = f.command.value is not None and t - f.command.t <= cfg.cmd_timeout
-        u = float(np.clip(f.command.value, -cfg.omega_max, cfg.omega_max)) if fresh else 0.0
         sel = robot == i
-        omega[sel], horizon[sel], speed[sel] = u, horizons[i], cfg.speed
+        omega[sel], horizon[sel], speed[sel] = _planned_turn(f, t), horizons[i], f.config.speed
+        bang[sel] = f.config.omega_max
     if not np.any(horizon > 0):
-        return np.full(len(rel), np.inf)
+        return turn, np.full(len(rel), np.inf)
     ahead = arc_flow(rel, speed, omega, horizon)
-    value = vf.value(ahead, outside=np.inf)      # values only: no turn is taken from here
-    return np.where(horizon > 0, value, np.inf)
+    starts = np.concatenate([rel, rel, ahead, ahead])
+    ends = arc_flow(starts, np.tile(speed, 4), np.concatenate([bang, -bang, bang, -bang]),
+                    np.tile(horizon, 4))
+    v = vf.value(np.concatenate([ends, ahead]), outside=np.inf).reshape(5, len(rel))
+    left, right = v[0], v[1]
+    held = np.where(left >= right - tie_tolerance(vf), 1.0, -1.0)
+    use = (horizon > 0) & (np.isfinite(left) | np.isfinite(right))
+    value_next = np.where(horizon > 0, np.minimum(v[4], np.maximum(v[2], v[3])), np.inf)
+    return np.where(use, held, turn), value_next

@@ -78,6 +78,7 @@ class SafetyFilterNode(Node):
         self.use_learned = p('use_learned', True, 'replace the standard set by the learner\'s sets')
         cfg = FilterConfig(
             speed=speed, omega_max=omega_max,
+            radius=radius, cluster_alpha=self.standard_alpha,   # clusters: true radius, standard level
             pose_timeout=p('pose_timeout', 0.5, 'a pose older than this is stale [s]', 0.001, 60.0),
             detections_timeout=p('detections_timeout', 1.0, 'detections older than this are stale [s]',
                                  0.001, 60.0),
