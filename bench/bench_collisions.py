@@ -70,6 +70,12 @@ def layouts(args, safe):
                                                                   min_gap=0.3)
                                                     for _ in range(max(n // 20, 1))] * 20,
     }
+    pairs = []
+    for _ in range(n):    # two discs farther apart than the link distance: not clustered
+        d, a = rng.uniform(9.6, 16.0), rng.uniform(-np.pi, np.pi)
+        pairs.append(np.array([[-0.5, 0.0], [0.5, 0.0]]) * d @ np.array([[np.cos(a), np.sin(a)],
+                                                                      [-np.sin(a), np.cos(a)]]))
+    sets['pairs beyond the link (9.6-16 m)'] = pairs
     print(f'== layouts: approaches per row as listed, {STALE:.1%} stale decisions ==')
     for step in args.steps:
         for name, lays in sets.items():

@@ -62,7 +62,7 @@ class ClusterSettings:
     radius: float = 1.8            # obstacle radius
     speed: float = 3.0             # true dynamics (the standard set's)
     omega_max: float = 1.0
-    link: float = 0.0              # centres closer than this interact; 0 = 2 radius + 2 turning diameters
+    link: float = 0.0              # centres closer than this interact; 0 = 2 radius + turning diameter
     key_resolution: float = 0.05   # the canonical geometry is rounded to this
     margin: float = 0.1            # disc inflation: >= key rounding error (0.035) + solver error
     cell: float = 0.35             # grid spacing in x and y
@@ -75,7 +75,7 @@ class ClusterSettings:
     def link_distance(self) -> float:
         if self.link > 0:
             return self.link
-        return 2.0 * self.radius + 4.0 * self.speed / max(self.omega_max, 1e-9)
+        return 2.0 * self.radius + 2.0 * self.speed / max(self.omega_max, 1e-9)
 
     @property
     def turning_radius(self) -> float:
@@ -258,23 +258,32 @@ class ClusterStore:
         return not self.pending()
 
     def _work(self):
+        # the solves run in a worker process when one can be started: the solver's
+        # Python steps then never hold this process's GIL against the control path
+        pool = None
+        try:
+            import concurrent.futures
+            import multiprocessing
+            pool = concurrent.futures.ProcessPoolExecutor(
+                max_workers=1, mp_context=multiprocessing.get_context('spawn'))
+        except (OSError, ValueError, ImportError):
+            pool = None
         while True:
             key, centres = self._queue.get()
-            self._solve(key, centres)
+            self._solve(key, centres, pool)
 
-    def _solve(self, key, centres):
+    def _solve(self, key, centres, pool=None):
         st = self.settings
         try:
             c = np.asarray(centres, dtype=float).reshape(-1, 2)
-            lo = c.min(axis=0) - st.reach
-            hi = c.max(axis=0) + st.reach
-            shape = (int(math.ceil((hi[0] - lo[0]) / st.cell)) + 1,
-                     int(math.ceil((hi[1] - lo[1]) / st.cell)) + 1, int(st.headings))
-            keepout = Union(tuple(Disc(float(x), float(y), st.radius + st.margin) for x, y in c))
-            t0 = time.perf_counter()
-            vf = solve_avoid(Grid(tuple(lo), tuple(hi), shape), DubinsCar(st.speed, st.omega_max),
-                             keepout, horizon=st.horizon)
-            value = ClusterValue(vf, c, time.perf_counter() - t0, lower=st.lower_bound)
+            if pool is not None:
+                try:
+                    vf, solve_time = pool.submit(solve_cluster, st, c).result()
+                except Exception:       # a broken worker: solve here instead
+                    vf, solve_time = solve_cluster(st, c)
+            else:
+                vf, solve_time = solve_cluster(st, c)
+            value = ClusterValue(vf, c, solve_time, lower=st.lower_bound)
         except Exception as exc:   # a failed solve leaves the fallback in force, and says why
             with self._lock:
                 self.errors[key] = f'{type(exc).__name__}: {exc}'
@@ -287,3 +296,18 @@ class ClusterStore:
             t_req = self.requested.pop(key, None)
             if t_req is not None:
                 self.latencies[key] = time.monotonic() - t_req
+
+
+def solve_cluster(settings: ClusterSettings, centres):
+    """(ValueFunction, seconds) of the union of inflated discs at canonical ``centres``."""
+    st = settings
+    c = np.asarray(centres, dtype=float).reshape(-1, 2)
+    lo = c.min(axis=0) - st.reach
+    hi = c.max(axis=0) + st.reach
+    shape = (int(math.ceil((hi[0] - lo[0]) / st.cell)) + 1,
+             int(math.ceil((hi[1] - lo[1]) / st.cell)) + 1, int(st.headings))
+    keepout = Union(tuple(Disc(float(x), float(y), st.radius + st.margin) for x, y in c))
+    t0 = time.perf_counter()
+    vf = solve_avoid(Grid(tuple(lo), tuple(hi), shape), DubinsCar(st.speed, st.omega_max),
+                     keepout, horizon=st.horizon)
+    return vf, time.perf_counter() - t0

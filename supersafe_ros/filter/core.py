@@ -95,7 +95,7 @@ class FilterConfig:
     # control period (False: judge the pose as if current and use ``lookahead`` as given, the
     # behaviour before issue 9; for ablation benchmarks only)
     compensate_delay: bool = True
-    # obstacles closer than cluster_link (0 = 2 radius + 2 turning diameters) are judged by
+    # obstacles closer than cluster_link (0 = 2 radius + a turning diameter) are judged by
     # their union's value (filter.cluster), at level cluster_alpha, with the true dynamics
     clusters: bool = True
     radius: float = 1.8              # obstacle radius (cluster values)
@@ -607,9 +607,13 @@ def _add_cluster_constraints(c: _Constraints, f, state, horizon, t, store) -> No
             turn = 1.0 if v[1] >= v[2] - solved.tie else -1.0
             c.add(v[0], cfg.cluster_alpha, turn, min(v[5], max(v[3], v[4])), nearest, 'cluster', len(g))
         else:
+            # the loiter-circle fallback keeps its invariant only from a state with a clear
+            # circle; from any other state the per-obstacle rule (always in the list) is the
+            # best known until the union's value is in force
             v, turn = cl.orbit_value(np.stack([state, ahead]), key_det[g], st.radius + st.margin,
                                      st.turning_radius)
-            c.add(v[0], 0.0, turn[0], v[1], nearest, 'cluster-fallback', len(g))
+            if v[0] > 0.0:
+                c.add(v[0], 0.0, turn[0], v[1], nearest, 'cluster-fallback', len(g))
 
 
 _STORES = {}
