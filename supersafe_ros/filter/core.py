@@ -291,7 +291,7 @@ class RobotFilter:
                 return f'{label} rejected: {inp.rejected}'
             if inp.value is None:
                 return f'no {label} received yet'
-            age = inp.age(t)
+            age = t - inp.t     # since arrival: a pose that keeps coming is not lost
             if age > timeout:
                 return f'{label} stale ({age:.3g} s old > {timeout:g} s)'
         return ''
