@@ -495,7 +495,7 @@ class _Constraints:
 
     def __init__(self):
         self.value, self.level, self.turn, self.value_next = [], [], [], []
-        self.obstacle, self.sound, self.source, self.members = [], [], [], []
+        self.obstacle, self.sound, self.source, self.members, self.group = [], [], [], [], []
 
     @classmethod
     def of_pairs(cls, f, i, first, value, turn, value_next, obstacle, alpha, source):
@@ -509,9 +509,10 @@ class _Constraints:
             c.obstacle = obstacle[a:b].tolist()
             m = b - a
             c.level, c.sound, c.source, c.members = [alpha] * m, [False] * m, [source] * m, [1] * m
+            c.group = list(range(m))    # each obstacle its own group until clustered
         return c
 
-    def add(self, value, level, turn, value_next, obstacle, source, members):
+    def add(self, value, level, turn, value_next, obstacle, source, members, group):
         self.value.append(float(value))
         self.level.append(float(level))
         self.turn.append(float(turn))
@@ -520,6 +521,7 @@ class _Constraints:
         self.sound.append(True)
         self.source.append(source)
         self.members.append(int(members))
+        self.group.append(group)
 
     def margins(self, idx):
         return [self.value[k] - self.level[k] for k in idx]
@@ -535,23 +537,24 @@ class _Constraints:
     def governing(self, overriding, clear_margin):
         """(constraint, why) that makes the filter override, or (smallest, '') to pass.
 
-        Sound constraints (clusters) first: if any of them enters, looks ahead to its
-        level or holds its hysteresis, it governs alone, so the union's avoid turn is
-        never traded for a single obstacle's. Otherwise all constraints as one.
+        Within a cluster its sound constraint (union value or fallback) comes first: if
+        it enters, looks ahead to its level or holds its hysteresis, the cluster's
+        members' own constraints are set aside, so the union's avoid turn is never
+        traded for a single member's. Between clusters and lone obstacles (farther
+        apart than the link distance) the smallest value governs, as per obstacle.
         """
-        everything = list(range(len(self.value)))
-        sound = [k for k in everything if self.sound[k]]
-        for group in ((sound, everything) if sound else (everything,)):
-            k = self.smallest(group)
-            if k < 0:
-                continue
-            if self.value[k] <= self.level[k]:
-                return k, 'enter'
-            ahead = [q for q in group if self.value_next[q] <= self.level[q]]
-            if ahead:
-                return min(ahead, key=lambda q: self.value_next[q] - self.level[q]), 'ahead'
-            if overriding and self.value[k] <= self.level[k] + clear_margin:
-                return k, 'stay'
+        n = len(self.value)
+        enter = [self.value[k] <= self.level[k] for k in range(n)]
+        ahead = [self.value_next[k] <= self.level[k] for k in range(n)]
+        stay = [overriding and self.value[k] <= self.level[k] + clear_margin for k in range(n)]
+        acts = [enter[k] or ahead[k] or stay[k] for k in range(n)]
+        governed = {self.group[k] for k in range(n) if self.sound[k] and acts[k]}
+        use = [k for k in range(n) if self.sound[k] or self.group[k] not in governed]
+        for flags, why, score in ((enter, 'enter', self.value), (ahead, 'ahead', self.value_next),
+                                  (stay, 'stay', self.value)):
+            hit = [k for k in use if flags[k]]
+            if hit:
+                return min(hit, key=lambda q: score[q] - self.level[q]), why
         return self.smallest(), ''
 
     def label(self, k) -> str:
@@ -597,7 +600,11 @@ def _add_cluster_constraints(c: _Constraints, f, state, horizon, t, store) -> No
     ahead = arc_flow(state[None], speed[:1], np.array([u]), hold[:1])[0]
     points = arc_flow(np.stack([state, state, ahead, ahead]), np.full(4, cfg.speed),
                       np.array([w, -w, w, -w]), np.full(4, horizon))
-    for g, (key, origin, angle, centres) in zip(groups, frames):
+    for gi, (g, (key, origin, angle, centres)) in enumerate(zip(groups, frames)):
+        group = ('cluster', gi)
+        for j in g:                 # the members' own constraints belong to the cluster
+            if j < len(c.group):
+                c.group[j] = group
         nearest = int(g[np.argmin(np.hypot(*(key_det[g] - state[:2]).T))])
         solved = store.get(key)
         if solved is None:
@@ -605,7 +612,8 @@ def _add_cluster_constraints(c: _Constraints, f, state, horizon, t, store) -> No
         if solved is not None:
             v, _ = solved.evaluate(cl.to_frame(np.vstack([state[None], points, ahead[None]]), origin, angle))
             turn = 1.0 if v[1] >= v[2] - solved.tie else -1.0
-            c.add(v[0], cfg.cluster_alpha, turn, min(v[5], max(v[3], v[4])), nearest, 'cluster', len(g))
+            c.add(v[0], cfg.cluster_alpha, turn, min(v[5], max(v[3], v[4])), nearest, 'cluster', len(g),
+                  group)
         else:
             # the loiter-circle fallback keeps its invariant only from a state with a clear
             # circle; from any other state the per-obstacle rule (always in the list) is the
@@ -613,7 +621,7 @@ def _add_cluster_constraints(c: _Constraints, f, state, horizon, t, store) -> No
             v, turn = cl.orbit_value(np.stack([state, ahead]), key_det[g], st.radius + st.margin,
                                      st.turning_radius)
             if v[0] > 0.0:
-                c.add(v[0], 0.0, turn[0], v[1], nearest, 'cluster-fallback', len(g))
+                c.add(v[0], 0.0, turn[0], v[1], nearest, 'cluster-fallback', len(g), group)
 
 
 _STORES = {}

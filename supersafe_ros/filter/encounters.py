@@ -130,10 +130,14 @@ def layout_encounters(layouts, rng, margin=10.0, offset=None) -> list:
     return out
 
 
-def run_encounters(encounters, guard, step=0.05, stale_probability=0.0, config=None, rng=None,
+def run_encounters(encounters, guard, step=0.05, stale_probability=0.0, late_probability=0.0,
+                   config=None, rng=None,
                    radius=1.8, depth=0.01, deep=0.05, time_limit=30.0, substeps=4,
                    omega_max=1.0, speed=3.0, gain=2.0) -> EncounterResult:
     """Run every encounter to its goal line (or the time limit) under ``guard``.
+
+    ``late_probability``: the filter's reply misses its step (the lockstep moved on
+    on an earlier reply), so the robot holds its previous command one step longer.
 
     ``guard(filters, t)`` returns one FilterOutput per filter: e.g.
     ``lambda fs, t: step_many(fs, safe_set, t)`` or a ``cluster.LayoutGuard``.
@@ -147,6 +151,7 @@ def run_encounters(encounters, guard, step=0.05, stale_probability=0.0, config=N
     direction = np.array([e.direction for e in encounters], dtype=float).reshape(n, 2)
     filters = [RobotFilter(config, f'robot_{i}') for i in range(n)]
     previous = state.copy()
+    applied = np.zeros(n)                           # the command the robot holds
     width = max(len(e.discs) for e in encounters)
     discs = np.full((n, width, 2), 1e9)             # padded: far-away fillers never collide
     for i, e in enumerate(encounters):
@@ -182,7 +187,10 @@ def run_encounters(encounters, guard, step=0.05, stale_probability=0.0, config=N
             f.update_detections(encounters[i].discs, t)
             f.update_command(float(planned[j]), t)
         outs = guard([filters[i] for i in idx], t)
-        omega = np.clip(np.array([o.omega for o in outs]), -omega_max, omega_max)
+        decided = np.clip(np.array([o.omega for o in outs]), -omega_max, omega_max)
+        late = rng.random(len(idx)) < late_probability if k > 0 else np.zeros(len(idx), bool)
+        omega = np.where(late, applied[idx], decided)
+        applied[idx] = decided
         res.decisions += len(idx)
         res.stale_decisions += int(stale.sum())
         res.overrides += sum(o.action != 'pass' for o in outs)
