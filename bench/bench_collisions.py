@@ -103,7 +103,8 @@ def latency(args, safe):
     cases = [('row of 2 (4.5 m)', row_layout(4.5, 2)), ('row of 3 (4.5 m)', row_layout(4.5)),
              ('cup', cup_layout(rng))] + [(f'random {k}', random_layout(rng, k, half=5.0)) for k in (3, 4, 5)]
     for name, discs in cases:
-        store = ClusterStore(ClusterSettings(), background=True)
+        store = ClusterStore(ClusterSettings(), background=True).start()
+        store.ready.wait(120.0)          # as in a node: the solver process is up before obstacles
         f = RobotFilter(FilterConfig())
         t0 = time.monotonic()
         decisions, fallback = 0, 0

@@ -223,6 +223,7 @@ class ClusterStore:
         self._lock = threading.Lock()
         self._queue: queue.Queue = queue.Queue()
         self._thread = None
+        self.ready = threading.Event()     # the solver (thread and worker process) is up
 
     def get(self, key):
         with self._lock:
@@ -241,10 +242,16 @@ class ClusterStore:
         if not self.background:
             self._solve(key, centres)
             return
-        if self._thread is None or not self._thread.is_alive():
+        self.start()
+        self._queue.put((key, centres))
+
+    def start(self) -> 'ClusterStore':
+        """Start the solver thread and its worker process now (a node does this at start,
+        so that the first cluster does not wait for a process to spawn)."""
+        if self.background and (self._thread is None or not self._thread.is_alive()):
             self._thread = threading.Thread(target=self._work, name='cluster-solver', daemon=True)
             self._thread.start()
-        self._queue.put((key, centres))
+        return self
 
     def pending(self) -> int:
         with self._lock:
@@ -266,8 +273,10 @@ class ClusterStore:
             import multiprocessing
             pool = concurrent.futures.ProcessPoolExecutor(
                 max_workers=1, mp_context=multiprocessing.get_context('spawn'))
-        except (OSError, ValueError, ImportError):
+            pool.submit(math.sqrt, 1.0).result()    # spawn the worker now, not at the first cluster
+        except (OSError, ValueError, ImportError, RuntimeError):
             pool = None
+        self.ready.set()
         while True:
             key, centres = self._queue.get()
             self._solve(key, centres, pool)

@@ -37,7 +37,7 @@ from geometry_msgs.msg import PoseArray, PoseStamped, Twist
 from std_msgs.msg import Float32MultiArray
 
 from ..ros_io import rosmsg
-from ..filter.core import FilterConfig, RobotFilter, SafeSet
+from ..filter.core import FilterConfig, RobotFilter, SafeSet, default_cluster_store
 from ..ros_io.vfmsg import ValueFunctionMessageError, msg_to_value_function
 from .common import declare, run_node
 
@@ -108,6 +108,7 @@ class SafetyFilterNode(Node):
                     0.0, 1000.0)
 
         self.filter = RobotFilter(cfg, self.get_namespace())
+        default_cluster_store(cfg).start()   # cluster values: solver process ready before obstacles
         t0 = time.perf_counter()
         vf = standard_value_function(lo, hi, shape, speed, omega_max, radius, horizon, cache_dir)
         self.standard = SafeSet(vf, self.standard_alpha, 'standard')
