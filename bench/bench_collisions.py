@@ -82,7 +82,7 @@ def layouts(args, safe):
             encounters = layout_encounters(lays, np.random.default_rng(4))
             for label, cfg, store in (('min per obstacle', FilterConfig(clusters=False), None),
                                       ('cluster values', FilterConfig(),
-                                       ClusterStore(ClusterSettings(), background=False))):
+                                       ClusterStore(ClusterSettings(disk_cache=False), background=False))):
                 t0 = time.perf_counter()
                 r = run_encounters(encounters, lambda fs, t: step_many(fs, safe, t, store), step=step,
                                    stale_probability=STALE, config=cfg, rng=np.random.default_rng(5))
@@ -103,7 +103,7 @@ def latency(args, safe):
     cases = [('row of 2 (4.5 m)', row_layout(4.5, 2)), ('row of 3 (4.5 m)', row_layout(4.5)),
              ('cup', cup_layout(rng))] + [(f'random {k}', random_layout(rng, k, half=5.0)) for k in (3, 4, 5)]
     for name, discs in cases:
-        store = ClusterStore(ClusterSettings(), background=True).start()
+        store = ClusterStore(ClusterSettings(disk_cache=False), background=True).start()
         store.ready.wait(120.0)          # as in a node: the solver process is up before obstacles
         f = RobotFilter(FilterConfig())
         t0 = time.monotonic()

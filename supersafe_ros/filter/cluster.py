@@ -70,6 +70,7 @@ class ClusterSettings:
     reach: float = 7.0             # grid extends this far beyond the outermost centres
     horizon: float = 3.0           # as the standard set
     lower_bound: bool = True       # read V between nodes as its Lipschitz lower bound (else trilinear)
+    disk_cache: bool = True        # keep solved clusters on disk (shared by processes and runs)
 
     @property
     def link_distance(self) -> float:
@@ -285,13 +286,28 @@ class ClusterStore:
         st = self.settings
         try:
             c = np.asarray(centres, dtype=float).reshape(-1, 2)
-            if pool is not None:
+            path = cache_path(st, key) if st.disk_cache else None
+            vf, solve_time = None, 0.0
+            if path is not None and path.exists():
+                try:
+                    vf = ValueFunction.load_npz(path)
+                except (OSError, ValueError, KeyError):    # damaged: solve again
+                    vf = None
+            if vf is not None:
+                pass
+            elif pool is not None:
                 try:
                     vf, solve_time = pool.submit(solve_cluster, st, c).result()
                 except Exception:       # a broken worker: solve here instead
                     vf, solve_time = solve_cluster(st, c)
             else:
                 vf, solve_time = solve_cluster(st, c)
+            if path is not None and solve_time > 0.0:
+                try:
+                    path.parent.mkdir(parents=True, exist_ok=True)
+                    vf.save_npz(path)
+                except OSError:
+                    pass                 # a read-only cache only costs the next solve
             value = ClusterValue(vf, c, solve_time, lower=st.lower_bound)
         except Exception as exc:   # a failed solve leaves the fallback in force, and says why
             with self._lock:
@@ -320,3 +336,18 @@ def solve_cluster(settings: ClusterSettings, centres):
     vf = solve_avoid(Grid(tuple(lo), tuple(hi), shape), DubinsCar(st.speed, st.omega_max),
                      keepout, horizon=st.horizon)
     return vf, time.perf_counter() - t0
+
+
+CACHE_VERSION = 1   # bump when the solve or its settings' meaning changes
+
+
+def cache_path(settings: ClusterSettings, key):
+    """Where a cluster's value is kept: the package's value-function cache, by a hash of
+    the canonical geometry and every setting that shapes the solve."""
+    import hashlib
+    import json
+    from dataclasses import asdict
+    from ..reach.library import SOLVER_VERSION, default_cache_dir
+    blob = json.dumps({'key': [list(k) for k in key], 'settings': asdict(settings),
+                       'solver': SOLVER_VERSION, 'version': CACHE_VERSION}, sort_keys=True)
+    return default_cache_dir() / 'clusters' / f'cluster-{hashlib.sha256(blob.encode()).hexdigest()[:24]}.npz'
