@@ -42,6 +42,7 @@ from __future__ import annotations
 from collections import OrderedDict
 from dataclasses import dataclass
 import math
+import os
 import queue
 import threading
 import time
@@ -273,7 +274,8 @@ class ClusterStore:
             import concurrent.futures
             import multiprocessing
             pool = concurrent.futures.ProcessPoolExecutor(
-                max_workers=1, mp_context=multiprocessing.get_context('spawn'))
+                max_workers=1, mp_context=multiprocessing.get_context('spawn'),
+                initializer=_exit_with_parent, initargs=(os.getpid(),))
             pool.submit(math.sqrt, 1.0).result()    # spawn the worker now, not at the first cluster
         except (OSError, ValueError, ImportError, RuntimeError):
             pool = None
@@ -351,3 +353,13 @@ def cache_path(settings: ClusterSettings, key):
     blob = json.dumps({'key': [list(k) for k in key], 'settings': asdict(settings),
                        'solver': SOLVER_VERSION, 'version': CACHE_VERSION}, sort_keys=True)
     return default_cache_dir() / 'clusters' / f'cluster-{hashlib.sha256(blob.encode()).hexdigest()[:24]}.npz'
+
+
+def _exit_with_parent(parent_pid: int) -> None:
+    """In the solver's worker process: exit as soon as the filter process is gone (a
+    killed node must not leave its worker behind, blocked on an empty queue)."""
+    def watch():
+        while os.getppid() == parent_pid:
+            time.sleep(0.5)
+        os._exit(0)
+    threading.Thread(target=watch, daemon=True).start()
