@@ -120,9 +120,10 @@ def latency(args, safe):
             fallback += out.source == 'cluster-fallback'
             time.sleep(0.02)
         in_force = time.monotonic() - t0
-        solve = next(iter(store.values.values())).solve_time
-        print(f'{name:18s} grid {next(iter(store.values.values())).vf.grid.shape}: solve {solve * 1e3:6.0f} ms, '
-              f'in force after {in_force * 1e3:6.0f} ms ({decisions} decisions meanwhile)', flush=True)
+        value = next(iter(store.values.values()))
+        print(f'{name:18s} grid {value.vf.grid.shape}: solve {value.solve_time * 1e3:6.0f} ms, '
+              f'in force after {in_force * 1e3:6.0f} ms ({decisions} decisions meanwhile, '
+              f'{fallback} on the fallback)', flush=True)
     print(f'({load()})')
 
 
