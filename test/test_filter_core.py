@@ -6,7 +6,6 @@ import pytest
 
 from supersafe_ros.filter.core import (FAIL_SAFE, OVERRIDE, PASS, FilterConfig, RobotFilter, SafeSet,
                                        evaluate_pairs, step_many)
-from supersafe_ros.filter.law import filter_law
 from supersafe_ros.reach.dynamics import DubinsCar
 from supersafe_ros.reach.grid import Grid
 from supersafe_ros.reach.sets import Disc
@@ -87,10 +86,16 @@ def test_hysteresis_keeps_overriding_until_clear(standard):
 
 def test_stale_pose_fails_safe_with_avoid_control_then_stop_turn(standard):
     f = robot(pose=at(-3.0, -0.6, 0.0), cmd=0.9, pose_timeout=0.5, hold_timeout=1.0, detections_timeout=5.0)
+    first = f.step(standard, 0.0)
+    assert first.action == OVERRIDE and first.omega == -1.0
     f.update_detections(np.array([OBSTACLE]), 0.9)
     out = f.step(standard, 0.7)        # pose 0.7 s old: stale, but within the hold window
     assert out.action == FAIL_SAFE and out.level == 2 and 'pose stale' in out.reason
-    assert out.omega == pytest.approx(-1.0)        # avoid control of the last valid state
+    # the avoid control of the last valid state, moved on by the 0.7 s of right turn sent since
+    moved = DubinsCar(3.0, 1.0).flow(np.array([-3.0, -0.6, 0.0]), -1.0, 0.7)
+    value, turn = evaluate_pairs(standard.vf, moved[None])
+    assert out.pose_age == pytest.approx(0.7) and out.value == pytest.approx(value[0])
+    assert out.omega == turn[0]
     out = f.step(standard, 1.5)        # beyond the hold window: stop-turn
     assert out.action == FAIL_SAFE and out.linear == 0.0 and out.omega == pytest.approx(1.0)
     assert 'stop-turn' in out.reason
@@ -107,15 +112,88 @@ def test_stale_pose_does_not_forward_the_planner(standard):
     assert out.action == FAIL_SAFE and out.linear == 0.0 and out.omega == 1.0 and 'stop-turn' in out.reason
 
 
-def test_pair_evaluation_agrees_with_filter_law(standard):
+def test_values_and_turns_agree_with_an_independent_computation(standard):
+    """Checked against what V means, not against the code's own rule.
+
+    Heading straight away from the disc, the distance only grows: V = |p| - R.
+    The avoid turn is the one of +-w_max that ends a short exact arc at the larger V
+    (where the two differ clearly; the law takes the sign of dV/dtheta).
+    """
     rng = np.random.default_rng(0)
-    rel = np.stack([rng.uniform(-9, 9, 300), rng.uniform(-9, 9, 300), rng.uniform(-4, 4, 300)], axis=1)
+    r, a = rng.uniform(2.0, 6.5, 500), rng.uniform(-np.pi, np.pi, 500)
+    away = np.stack([r * np.cos(a), r * np.sin(a), a], axis=1)
+    value, _ = evaluate_pairs(standard.vf, away)
+    assert np.max(np.abs(value - (r - 1.8))) < 0.03
+    rel = np.stack([rng.uniform(-6, 6, 3000), rng.uniform(-6, 6, 3000), rng.uniform(-np.pi, np.pi, 3000)], 1)
+    rel = rel[np.hypot(rel[:, 0], rel[:, 1]) > 2.0]
     value, turn = evaluate_pairs(standard.vf, rel)
-    for r, v, u in zip(rel, value, turn):   # one at a time: filter_law's reference rule
-        d = filter_law(standard.vf, 0.0, r[None], 1.0)
-        assert v == d.value[0]
-        if d.override[0]:
-            assert u == d.control[0]
+    car = DubinsCar(3.0, 1.0)
+    left, right = (standard.vf.value(car.flow(rel, w, 0.1)) for w in (1.0, -1.0))
+    clear = (np.abs(left - right) > 0.05) & (value < 1.0)
+    assert clear.sum() > 200
+    np.testing.assert_array_equal(turn[clear], np.where(left > right, 1.0, -1.0)[clear])
+    # off the grid: never constraining
+    value, turn = evaluate_pairs(standard.vf, np.array([[20.0, 0.0, 0.0]]))
+    assert value[0] == np.inf and turn[0] == 0.0
+
+
+def test_head_on_tie_turns_left(standard):
+    """At (-3, 0, 0) dV/dtheta is float round-off (-1.4e-8 on 41 x 41 x 24): a tie, so left."""
+    grad = standard.vf.grid.interpolate(standard.vf.node_gradient()[..., 2], np.array([-3.0, 0.0, 0.0]))
+    assert abs(float(grad)) < 1e-6
+    for cmd in (-0.7, 0.7):
+        out = robot(pose=at(-3.0, 0.0, 0.0), cmd=cmd).step(standard, 0.0)
+        assert out.action == OVERRIDE and out.omega == 1.0
+
+
+def test_avoid_turn_uses_the_robots_omega_max_not_the_sets(standard):
+    half = SafeSet(solve_avoid(Grid((-8, -8), (8, 8), (41, 41, 24)), DubinsCar(3.0, 0.5), Disc(0, 0, 1.8),
+                               horizon=3.0), 0.0, 'learned')
+    assert half.omega_max == 0.5
+    for side in (1.0, -1.0):
+        out = robot(pose=at(-3.0, 0.6 * side, 0.0), cmd=0.0, omega_max=1.0).step(half, 0.0)
+        assert out.action == OVERRIDE and out.omega == side * 1.0 and out.omega_max_set == 0.5
+        out = robot(pose=at(-3.0, 0.6 * side, 0.0), cmd=0.0, omega_max=0.7).step(standard, 0.0)
+        assert out.action == OVERRIDE and out.omega == pytest.approx(side * 0.7)
+
+
+def test_smaller_of_two_real_values_governs(standard):
+    # both obstacles on the grid with finite values; they would turn the robot opposite ways
+    # (per-obstacle law: clusters off; 5 m apart they would otherwise be judged as one)
+    near, other = OBSTACLE, (OBSTACLE[0], OBSTACLE[1] - 5.0)
+    pose = at(-3.0, -0.6, 0.0)
+    rel = np.array([[pose[0] - c[0], pose[1] - c[1], 0.0] for c in (near, other)])
+    value, turn = evaluate_pairs(standard.vf, rel)
+    assert np.all(np.isfinite(value)) and value[0] < 0.0 < value[1] and turn[0] == -turn[1]
+    for dets, index in (([near, other], 0), ([other, near], 1)):
+        out = robot(pose=pose, detections=dets, cmd=0.0, clusters=False).step(standard, 0.0)
+        assert out.action == OVERRIDE and out.obstacle_index == index
+        assert out.value == pytest.approx(value[0]) and out.omega == turn[0]
+
+
+@pytest.mark.parametrize('cmd, sent', [(1e30, 1.0), (-1e30, -1.0), (2.5, 1.0), (-0.4, -0.4)])
+def test_passed_commands_stay_within_omega_max(standard, cmd, sent):
+    f = robot(pose=at(-7.5, 6.0, 0.0), cmd=cmd)
+    out = f.step(standard, 0.01)
+    assert out.action == PASS and out.omega == sent
+    g = robot(pose=at(-7.5, 6.0, 0.0), cmd=cmd, omega_max=0.5)
+    assert step_many([g], standard, 0.01)[0].omega == float(np.clip(sent, -0.5, 0.5))
+
+
+def test_lookahead_judges_the_planners_own_command(standard):
+    """Left of the axis heading +x: a right turn (toward the disc) would cross alpha
+    within the lookahead, a left turn (away) would not. Non-zero commands both ways."""
+    pose, h = at(-4.0, 1.0, 0.0), 0.2
+    car = DubinsCar(3.0, 1.0)
+    rel = np.array([-4.0, 1.0, 0.0])
+    v_now = float(standard.vf.value(rel))
+    toward, away = (float(standard.vf.value(car.flow(rel, w, h))) for w in (-0.9, 0.9))
+    assert toward < min(v_now, away) - 0.1
+    level = SafeSet(standard.vf, (toward + min(v_now, away)) / 2)
+    out = robot(pose=pose, cmd=-0.9, lookahead=h).step(level, 0.0)
+    assert out.action == OVERRIDE and 'would reach' in out.reason and out.omega == 1.0
+    out = robot(pose=pose, cmd=0.9, lookahead=h).step(level, 0.0)
+    assert out.action == PASS and out.omega == 0.9
 
 
 def test_invalid_pose_is_rejected_and_fails_safe_until_a_valid_one(standard):
@@ -183,8 +261,8 @@ def test_step_many_matches_single_steps(standard):
     for i in range(40):
         pose = at(rng.uniform(-6, 6), rng.uniform(-6, 6), rng.uniform(-np.pi, np.pi))
         dets = [OBSTACLE] if i % 3 else [OBSTACLE, (OBSTACLE[0] + 4.0, OBSTACLE[1])]
-        filters.append(robot(pose=pose, detections=dets, cmd=0.1 * (i % 5)))
-        singles.append(robot(pose=pose, detections=dets, cmd=0.1 * (i % 5)))
+        filters.append(robot(pose=pose, detections=dets, cmd=0.1 * (i % 5), clusters=False))
+        singles.append(robot(pose=pose, detections=dets, cmd=0.1 * (i % 5), clusters=False))
     many = step_many(filters, standard, 0.0)
     actions = set()
     for f, out in zip(singles, many):
@@ -192,3 +270,57 @@ def test_step_many_matches_single_steps(standard):
         actions.add(one.action)
         assert (one.action, one.omega, one.obstacle_index) == (out.action, out.omega, out.obstacle_index)
     assert actions == {PASS, OVERRIDE}
+
+
+# -- every decision on the pose it is for -------------------------------------------------------
+def test_pose_is_propagated_over_its_age_under_the_commands_sent(standard):
+    """The robot moved on since its pose's stamp under what the filter sent: judged there."""
+    car = DubinsCar(3.0, 1.0)
+    f = robot(pose=at(-6.5, 2.0, -0.3), cmd=0.4, lookahead=0.0)
+    assert f.step(standard, 0.0).action == PASS          # sends 0.4 at t = 0
+    f.update_command(-0.6, 0.1)
+    assert f.step(standard, 0.1).omega == -0.6            # sends -0.6 at t = 0.1
+    out = f.step(standard, 0.25)                          # still the pose of t = 0
+    expected = car.flow(car.flow(np.array([-6.5, 2.0, -0.3]), 0.4, 0.1), -0.6, 0.15)
+    assert out.pose_age == pytest.approx(0.25)
+    assert out.value == pytest.approx(float(evaluate_pairs(standard.vf, expected[None])[0][0]), abs=1e-9)
+    # a stamped pose: propagated from its stamp, not from its arrival
+    g = robot(pose=at(-6.5, 2.0, -0.3), cmd=0.4, lookahead=0.0)
+    g.step(standard, 0.0)
+    g.update_pose(at(-6.5, 2.0, -0.3), 0.3, stamp=0.1)
+    assert g.step(standard, 0.3).pose_age == pytest.approx(0.2)
+    # a stamp ahead of the filter's clock is not believed: age from arrival
+    g.update_pose(at(-6.5, 2.0, -0.3), 0.4, stamp=0.9)
+    assert g.step(standard, 0.4).pose_age == 0.0
+    with pytest.raises(ValueError):
+        g.update_pose(at(-6.5, 2.0, -0.3), 0.5, stamp=math.nan)
+
+
+def test_decision_on_the_previous_steps_pose_acts_on_the_robots_state_now(standard):
+    """Head-on, one 0.2 s step before the level: the previous step's pose still looks fine,
+    the state now does not. Compensated: override; judged as if current: pass (too late)."""
+    xs = np.linspace(-7.5, -3.0, 500)
+    values = standard.vf.value(np.stack([xs, np.full_like(xs, 0.3), np.zeros_like(xs)], 1))
+    x_old = float(xs[np.argmax(values <= 0.25)])          # V(old) ~ 0.25
+    x_now = x_old + 3.0 * 0.2
+    assert standard.vf.value(np.array([x_now, 0.3, 0.0])) < 0.0
+    for compensate, action in ((True, OVERRIDE), (False, PASS)):
+        f = robot(pose=at(x_old, 0.3, 0.0), cmd=0.0, lookahead=0.0, compensate_delay=compensate,
+                  control_period=1e-3)
+        assert f.step(standard, 0.0).action == PASS       # sent 0 (straight) at the old pose
+        f.update_command(0.0, 0.2)
+        assert f.step(standard, 0.2).action == action
+
+
+def test_lookahead_never_falls_below_the_control_period(standard):
+    f = robot(pose=at(-6.5, 2.0, 0.0), lookahead=0.1, control_period=0.2)
+    assert f.lookahead() == 0.2 and f.step(standard, 0.0).lookahead == 0.2
+    assert robot(lookahead=0.3, control_period=0.2).lookahead() == 0.3
+    # measured: poses stamped every 0.2 s, commands every 0.05 s -> the robot holds for 0.2 s
+    g = robot(pose=at(-6.5, 2.0, 0.0), lookahead=0.0)
+    for k in range(1, 6):
+        g.update_pose(at(-6.5, 2.0, 0.0), 0.2 * k + 0.01, stamp=0.2 * k)
+        for j in range(4):
+            g.update_command(0.1, 0.2 * k + 0.05 * j)
+    assert g.lookahead() == pytest.approx(0.2)
+    assert robot(lookahead=0.1, control_period=0.2, compensate_delay=False).lookahead() == 0.1

@@ -30,10 +30,14 @@ def evaluate_pairs(vf: ValueFunction, rel_states):
     """V and the unit avoid control sign(dV/dtheta) at every relative state (N, 3).
 
     Pairs outside the grid: V = +inf (never constraining), turn 0. On a ridge of V
-    (dV/dtheta == 0, e.g. heading straight at the obstacle) the turn is left (+1)
-    rather than straight into it. Only the theta component of the gradient is
-    interpolated. Callers that hold a robot in an override band (filter_core) need
-    the turn where V > alpha too, so it is evaluated at every pair.
+    (dV/dtheta = 0, e.g. heading straight at the obstacle) the turn is left (+1)
+    rather than straight into it. "Zero" is judged relative to the gradient's
+    scale (``tie_tolerance``): on a grid symmetric about the obstacle's axis the
+    interpolated dV/dtheta at a head-on state is float32 round-off (-1.4e-8 at
+    (-3, 0, 0) on 41 x 41 x 24), whose sign means nothing. Only the theta
+    component of the gradient is interpolated. Callers that hold a robot in an
+    override band (filter.core) need the turn where V > alpha too, so it is
+    evaluated at every pair.
     """
     s = np.asarray(rel_states, dtype=float).reshape(-1, 3)
     value = np.full(len(s), np.inf)
@@ -43,8 +47,26 @@ def evaluate_pairs(vf: ValueFunction, rel_states):
         si = s[inside]
         value[inside] = vf.value(si)
         grad_th = vf.grid.interpolate(vf.node_gradient()[..., 2], si)
-        turn[inside] = np.where(grad_th >= 0.0, 1.0, -1.0)
+        turn[inside] = np.where(grad_th >= -tie_tolerance(vf), 1.0, -1.0)
     return value, turn
+
+
+TIE_RELATIVE = 1e-5   # |dV/dtheta| below this fraction of its largest node value is a tie
+
+
+def tie_tolerance(vf: ValueFunction) -> float:
+    """|dV/dtheta| at or below which the avoid turn is a tie (and turns left).
+
+    TIE_RELATIVE x the largest |dV/dtheta| over the grid's nodes: far above float32
+    round-off of the values (~1e-7 relative), far below any gradient that means
+    a direction (a tie's turn is harmless either way, by definition of a tie).
+    Cached on the value function.
+    """
+    tol = getattr(vf, '_tie_tolerance', None)
+    if tol is None:
+        tol = TIE_RELATIVE * float(np.max(np.abs(vf.node_gradient()[..., 2])))
+        vf._tie_tolerance = tol
+    return tol
 
 
 def filter_law(vf: ValueFunction, alpha: float, rel_states, omega_max: float) -> FilterDecision:

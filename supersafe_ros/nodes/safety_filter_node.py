@@ -40,7 +40,7 @@ from geometry_msgs.msg import PoseArray, PoseStamped, Twist
 from std_msgs.msg import Float32MultiArray
 
 from ..ros_io import rosmsg
-from ..filter.core import FilterConfig, RobotFilter, SafeSet
+from ..filter.core import FilterConfig, RobotFilter, SafeSet, default_cluster_store
 from ..ros_io.vfmsg import ValueFunctionMessageError, msg_to_value_function
 from .common import declare, run_node
 from .markers import LevelSetMarkerPublisher
@@ -82,6 +82,7 @@ class SafetyFilterNode(Node):
         self.use_learned = p('use_learned', True, 'replace the standard set by the learner\'s sets')
         cfg = FilterConfig(
             speed=speed, omega_max=omega_max,
+            radius=radius, cluster_alpha=self.standard_alpha,   # clusters: true radius, standard level
             pose_timeout=p('pose_timeout', 0.5, 'a pose older than this is stale [s]', 0.001, 60.0),
             detections_timeout=p('detections_timeout', 1.0, 'detections older than this are stale [s]',
                                  0.001, 60.0),
@@ -92,7 +93,9 @@ class SafetyFilterNode(Node):
             clear_margin=p('clear_margin', 0.2, 'hysteresis: keep overriding until V > alpha + margin',
                            0.0, 10.0),
             lookahead=p('lookahead', 0.1, 'also override when the planner\'s command, held this long, '
-                        'would reach V <= alpha; set it to the robot\'s control period [s]', 0.0, 10.0),
+                        'would reach V <= alpha; never less than the control period [s]', 0.0, 10.0),
+            control_period=p('control_period', 0.0, 'the robot\'s command hold time [s]; 0 = measure it '
+                             'from pose stamps and planner commands', 0.0, 10.0),
         )
         rate = p('rate', 50.0, 'watchdog rate [Hz, steady clock]: publish if nothing went out for 1/rate',
                  0.1, 1000.0)
@@ -109,6 +112,7 @@ class SafetyFilterNode(Node):
                     0.0, 1000.0)
 
         self.filter = RobotFilter(cfg, self.get_namespace())
+        default_cluster_store(cfg).start()   # cluster values: solver process ready before obstacles
         t0 = time.perf_counter()
         vf = standard_value_function(lo, hi, shape, speed, omega_max, radius, horizon, cache_dir)
         self.standard = SafeSet(vf, self.standard_alpha, 'standard')
@@ -159,8 +163,12 @@ class SafetyFilterNode(Node):
     # -- inputs -----------------------------------------------------------------------------
     def on_pose(self, msg: PoseStamped):
         t = self.now_s()
+        # the pose describes the robot at its stamp (node clock): the filter propagates it
+        # from there under the commands it sent; unstamped (0) poses count from arrival
+        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         try:
-            self.filter.update_pose(rosmsg.pose_to_state(msg, self.frame), t)
+            self.filter.update_pose(rosmsg.pose_to_state(msg, self.frame), t,
+                                    stamp=stamp_ns * 1e-9 if stamp_ns > 0 else None)
         except ValueError as exc:   # MessageError is a ValueError
             self.filter.reject_pose(str(exc), t)
             self.complain('pose', f'pose rejected: {exc}; failing safe')

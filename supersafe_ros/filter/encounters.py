@@ -1,0 +1,222 @@
+"""Closed-loop encounters of filtered robots with detected discs, ROS-free.
+
+The collision tests and ``bench/bench_collisions.py`` count, with this loop,
+collisions with *detected* obstacles (every obstacle of a robot's layout is
+detected, from the start). Each robot has its own layout, start and goal and
+does not meet the others, so many encounters run side by side through one
+vectorised filter call per tick.
+
+One tick of ``step`` seconds, as in the lockstep team graph:
+
+1. the robot is at x_k (time t_k = k step) and publishes its pose stamped t_k;
+2. the planner steers for the goal from x_k (``goal_seeking_turn_rate``);
+3. the filter decides at t_k; with probability ``stale_probability`` its pose
+   callback has not run yet and it holds the pose of step k-1 (stamped t_{k-1}),
+   the race measured in the team graph (7.3 % of decisions near obstacles);
+4. the robot moves along the exact arc of the filter's command (clipped to
+   +-w_max) to x_{k+1}; the distance to every disc is checked at
+   ``substeps`` points along the arc.
+
+A collision is an entry deeper than ``depth`` into a disc (counted once per
+entry). An encounter ends when the robot crosses its goal line; one that has
+not crossed it after ``time_limit`` seconds was trapped.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..reach.dynamics import DubinsCar
+from ..reach.grid import wrap_angle
+from .core import FilterConfig, RobotFilter, step_many
+
+
+@dataclass(frozen=True)
+class Encounter:
+    """One approach: discs (K, 2), a start state, a goal point and the goal line's normal.
+
+    The encounter is done when (p - goal) . direction >= 0.
+    """
+
+    discs: np.ndarray
+    start: tuple
+    goal: tuple
+    direction: tuple = (1.0, 0.0)
+
+
+@dataclass
+class EncounterResult:
+    encounters: int = 0
+    collisions: int = 0            # entries deeper than ``depth``
+    deep_collisions: int = 0       # entries deeper than ``deep``
+    max_depth: float = 0.0
+    trapped: int = 0               # not across the goal line within the time limit
+    decisions: int = 0
+    stale_decisions: int = 0
+    overrides: int = 0
+    sim_time: float = 0.0          # robot-seconds simulated
+    depths: list = field(default_factory=list)
+
+    def add(self, other: 'EncounterResult') -> None:
+        for name in ('encounters', 'collisions', 'deep_collisions', 'trapped', 'decisions',
+                     'stale_decisions', 'overrides', 'sim_time'):
+            setattr(self, name, getattr(self, name) + getattr(other, name))
+        self.max_depth = max(self.max_depth, other.max_depth)
+        self.depths.extend(other.depths)
+
+    def summary(self) -> str:
+        return (f'{self.encounters} encounters, {self.collisions} collisions > 1 cm '
+                f'({self.deep_collisions} > 5 cm, deepest {100 * self.max_depth:.1f} cm), '
+                f'{self.trapped} trapped, {self.overrides / max(self.decisions, 1):.1%} overrides, '
+                f'{self.stale_decisions / max(self.decisions, 1):.1%} decisions on the previous pose')
+
+
+def single_disc_encounters(n, rng, distance=9.0, offset=3.0, heading_noise=0.3) -> list:
+    """Approaches to one disc at the origin: start at x = -distance with a lateral offset,
+    goal on the far side with another offset, heading roughly at the goal."""
+    out = []
+    for _ in range(n):
+        y0, y1 = rng.uniform(-offset, offset, 2)
+        heading = np.arctan2(y1 - y0, 2 * distance) + rng.uniform(-heading_noise, heading_noise)
+        out.append(Encounter(np.zeros((1, 2)), (-distance, y0, heading), (distance, y1)))
+    return out
+
+
+def row_layout(spacing=4.5, count=3) -> np.ndarray:
+    """Discs in a row along x, centres ``spacing`` apart, centred on the origin."""
+    return np.stack([(np.arange(count) - (count - 1) / 2) * spacing, np.zeros(count)], axis=1)
+
+
+def cup_layout(rng, gaps=(3.0, 3.6), radius=1.8) -> np.ndarray:
+    """Three discs in a cup opening toward -x: a bottom disc and two wings, every gap
+    (rim to rim) drawn from ``gaps``."""
+    g_wings, g_side = rng.uniform(*gaps, 2)
+    dy = (g_wings + 2 * radius) / 2
+    dx = np.sqrt((g_side + 2 * radius) ** 2 - dy ** 2)
+    return np.array([[dx / 2, 0.0], [-dx / 2, dy], [-dx / 2, -dy]])
+
+
+def random_layout(rng, count, half=7.0, min_gap=0.5, radius=1.8, tries=2000) -> np.ndarray:
+    """``count`` discs uniform in a square of half-width ``half``, rims at least ``min_gap`` apart."""
+    out = []
+    for _ in range(tries):
+        p = rng.uniform(-half, half, 2)
+        if all(np.hypot(*(p - q)) >= 2 * radius + min_gap for q in out):
+            out.append(p)
+            if len(out) == count:
+                break
+    return np.array(out)
+
+
+def layout_encounters(layouts, rng, margin=10.0, offset=None) -> list:
+    """One approach per layout from a random direction, across it to the far side.
+
+    The start is ``margin`` beyond the layout's farthest disc, with a lateral offset
+    within the layout's extent (default), so most straight paths meet a disc.
+    """
+    out = []
+    for discs in layouts:
+        discs = np.asarray(discs, dtype=float).reshape(-1, 2)
+        extent = float(np.max(np.hypot(discs[:, 0], discs[:, 1]))) + 1.8
+        phi = rng.uniform(-np.pi, np.pi)
+        d, nrm = np.array([np.cos(phi), np.sin(phi)]), np.array([-np.sin(phi), np.cos(phi)])
+        spread = extent if offset is None else offset
+        b0, b1 = rng.uniform(-spread, spread, 2)
+        start = -(extent + margin) * d + b0 * nrm
+        goal = (extent + margin) * d + b1 * nrm
+        heading = np.arctan2(*(goal - start)[::-1]) + rng.uniform(-0.2, 0.2)
+        out.append(Encounter(discs, (start[0], start[1], heading), tuple(goal), tuple(d)))
+    return out
+
+
+def run_encounters(encounters, guard, step=0.05, stale_probability=0.0, late_probability=0.0,
+                   config=None, rng=None,
+                   radius=1.8, depth=0.01, deep=0.05, time_limit=30.0, substeps=4,
+                   omega_max=1.0, speed=3.0, gain=2.0) -> EncounterResult:
+    """Run every encounter to its goal line (or the time limit) under ``guard``.
+
+    ``late_probability``: the filter's reply misses its step (the lockstep moved on
+    on an earlier reply), so the robot holds its previous command one step longer.
+
+    ``guard(filters, t)`` returns one FilterOutput per filter: e.g.
+    ``lambda fs, t: step_many(fs, safe_set, t)`` or a ``cluster.LayoutGuard``.
+    """
+    rng = rng if rng is not None else np.random.default_rng(0)
+    config = config or FilterConfig(speed=speed, omega_max=omega_max)
+    car = DubinsCar(speed, omega_max)
+    n = len(encounters)
+    state = np.array([e.start for e in encounters], dtype=float).reshape(n, 3)
+    goal = np.array([e.goal for e in encounters], dtype=float).reshape(n, 2)
+    direction = np.array([e.direction for e in encounters], dtype=float).reshape(n, 2)
+    filters = [RobotFilter(config, f'robot_{i}') for i in range(n)]
+    previous = state.copy()
+    applied = np.zeros(n)                           # the command the robot holds
+    width = max(len(e.discs) for e in encounters)
+    discs = np.full((n, width, 2), 1e9)             # padded: far-away fillers never collide
+    for i, e in enumerate(encounters):
+        discs[i, :len(e.discs)] = e.discs
+    inside = np.zeros((n, width), dtype=bool)
+    deepest = np.zeros((n, width))
+    active = np.ones(n, dtype=bool)
+    res = EncounterResult(encounters=n)
+
+    def close(mask):
+        d = deepest[mask]
+        res.depths.extend(d.tolist())
+        res.deep_collisions += int(np.sum(d > deep))
+        res.max_depth = max(res.max_depth, float(d.max(initial=0.0)))
+        deepest[mask] = 0.0
+
+    ticks = int(np.ceil(time_limit / step))
+    for k in range(ticks):
+        t = k * step
+        idx = np.flatnonzero(active)
+        if len(idx) == 0:
+            break
+        stale = rng.random(len(idx)) < stale_probability if k > 0 else np.zeros(len(idx), bool)
+        error = wrap_angle(np.arctan2(goal[idx, 1] - state[idx, 1], goal[idx, 0] - state[idx, 0])
+                           - state[idx, 2])
+        planned = np.clip(gain * error, -omega_max, omega_max)
+        for j, i in enumerate(idx):
+            f = filters[i]
+            if stale[j]:
+                f.update_pose(previous[i], t, stamp=t - step)
+            else:
+                f.update_pose(state[i], t, stamp=t)
+            f.update_detections(encounters[i].discs, t)
+            f.update_command(float(planned[j]), t)
+        outs = guard([filters[i] for i in idx], t)
+        decided = np.clip(np.array([o.omega for o in outs]), -omega_max, omega_max)
+        late = rng.random(len(idx)) < late_probability if k > 0 else np.zeros(len(idx), bool)
+        omega = np.where(late, applied[idx], decided)
+        applied[idx] = decided
+        res.decisions += len(idx)
+        res.stale_decisions += int(stale.sum())
+        res.overrides += sum(o.action != 'pass' for o in outs)
+        previous[idx] = state[idx]
+        for s in range(1, substeps + 1):
+            pts = car.flow(state[idx], omega, step * s / substeps)
+            d = radius - np.linalg.norm(pts[:, None, :2] - discs[idx], axis=2)   # depth into each disc
+            entered = (d > depth) & ~inside[idx]
+            res.collisions += int(entered.sum())
+            inside[idx] |= d > depth
+            deepest[idx] = np.maximum(deepest[idx], d)
+            left = np.zeros_like(inside)
+            left[idx] = inside[idx] & (d < 0.0)      # an entry ends when the robot is out again
+            if left.any():
+                close(left)
+                inside[left] = False
+        state[idx] = car.flow(state[idx], omega, step)
+        res.sim_time += step * len(idx)
+        across = np.einsum('ij,ij->i', state[idx, :2] - goal[idx], direction[idx]) >= 0.0
+        active[idx[across]] = False
+    if inside.any():
+        close(inside)
+    res.trapped = int(active.sum())
+    return res
+
+
+def standard_guard(safe_set):
+    """The per-obstacle filter of ``core`` as a guard."""
+    return lambda filters, t: step_many(filters, safe_set, t)
