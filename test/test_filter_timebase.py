@@ -25,12 +25,14 @@ def test_sim_time_rules_while_the_clock_advances_at_any_rate():
 def test_without_clock_ages_follow_the_wall_from_the_stall_start():
     tb = FilterTime(sim=True, stall_timeout=1.0)
     assert tb.now(0.0, 100.0) == 0.0           # use_sim_time and no /clock: ROS time stays 0
-    assert tb.now(0.0, 100.9) == 0.0           # not yet a stall
-    assert tb.now(0.0, 101.5) == pytest.approx(1.5) and tb.stalled
+    assert tb.now(0.0, 100.4) == pytest.approx(0.4) and tb.stalled   # no clock: the wall at once
     assert tb.now(0.0, 103.0) == pytest.approx(3.0)
-    # the clock comes back: sim time rules again, from where tau was
+    # the clock comes: sim time rules, from where tau was
     assert tb.now(7.0, 103.1) == pytest.approx(3.0) and not tb.stalled
     assert tb.now(7.2, 103.2) == pytest.approx(3.2)
+    # and stops: after stall_timeout the wall again, counted from the stop
+    assert tb.now(7.2, 104.0) == pytest.approx(3.2)
+    assert tb.now(7.2, 104.5) == pytest.approx(4.5) and tb.stalled
 
 
 def test_a_stopped_clock_makes_an_input_stale_after_its_timeout_in_wall_seconds():

@@ -17,9 +17,11 @@ for longer than ``stall_timeout`` steady seconds (counted from when it last move
 so a stall counts in full). So:
 
 * sim running at any rate: tau = sim time, ages are sim ages;
-* no /clock at all, or /clock stopped: tau follows the wall from the stall's start,
-  and an input that stopped is stale ``max(timeout, stall_timeout)`` wall seconds
-  after its last arrival;
+* no /clock at all (ROS time 0): tau follows the steady clock, an input that stopped
+  is stale ``timeout`` wall seconds after its last arrival;
+* /clock stopped: tau follows the wall from the stall's start once the stall is
+  seen, so an input that stopped is stale ``max(timeout, stall_timeout)`` wall
+  seconds after its last arrival;
 * wall mode (``sim=False``): tau = the steady clock.
 
 A sim slower than one step per ``stall_timeout`` wall seconds looks stopped
@@ -68,7 +70,8 @@ class FilterTime:
             self._ros = ros_s             # time went back (reset): continue from the new value
         else:
             stalled_for = steady_s - self._moved_steady
-            if stalled_for > self.stall_timeout:
+            # ROS time 0 = no /clock received at all: no clock to wait for
+            if stalled_for > self.stall_timeout or ros_s == 0.0:
                 self.stalled = True
                 self._tau = max(self._tau, self._moved_tau + stalled_for)
         self._steady = steady_s

@@ -26,16 +26,18 @@ import math
 import threading
 import time
 
+import numpy as np
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.clock import Clock, ClockType
-from rclpy.serialization import deserialize_message
 from std_msgs.msg import Float32MultiArray
 
 from ..filter.admissibility import check_learned_set
 from ..filter.core import FilterConfig, RobotFilter, SafeSet
 from ..filter.timebase import FilterTime
 from ..ros_io import rosmsg
-from ..ros_io.vfmsg import ValueFunctionMessageError, msg_to_value_function
+from ..filter.law import evaluate_pairs
+from ..ros_io.vfcdr import serialized_to_value_function
+from ..ros_io.vfmsg import ValueFunctionMessageError
 from .common import LiveParameters, declare
 
 VALUE_FUNCTION_TOPIC = '/safe_set/value_function'
@@ -243,6 +245,8 @@ class FilterWiring:
             self._reject(f'value function message of {size} bytes exceeds max_value_function_bytes '
                          f'({self.max_vf_bytes}); not decoded')
             return
+        self.log.info(f'value function message received ({size} bytes): decoding and checking it off the '
+                      f'control path')
         self._submit(('message', data))
 
     def _submit(self, job):
@@ -274,12 +278,11 @@ class FilterWiring:
     def _take_message(self, data: bytes):
         t0 = time.perf_counter()
         try:
-            msg = deserialize_message(data, Float32MultiArray)
-            vf = msg_to_value_function(msg)
+            vf = serialized_to_value_function(data)
         except (ValueFunctionMessageError, ValueError, TypeError) as exc:
             self._reject(f'value function rejected: {exc}')
             return
-        del msg, data
+        del data
         if str(vf.meta.get('source', 'learned')) == 'standard':
             # a reset to the standard set: ours, computed locally (a received copy is not trusted)
             self._learned = None
@@ -312,6 +315,9 @@ class FilterWiring:
             self._reject(f'learned set (alpha {alpha:.4g}) rejected: {verdict.reason}',
                          revert=revert_on_failure)
             return
+        # the law's lazily cached arrays (node gradients: 3 x the values) are built here, not
+        # on the first decision that uses the set
+        evaluate_pairs(vf, np.zeros((1, 3)))
         self.safe_set = candidate
         timing = f'decoded in {decode_s:.3f} s, ' if decode_s is not None else ''
         self._accept(
