@@ -100,6 +100,7 @@ class FleetSafetyFilterNode(Node):
         self._throttles = [StateThrottle() for _ in range(self.n)]
         self._failing = [None] * self.n
         self.ticks = 0
+        self.failing_safe = 0
         self.decisions = np.zeros(self.n, dtype=np.int64)
         self._last_batched = -1e18
 
@@ -227,6 +228,7 @@ class FleetSafetyFilterNode(Node):
         outs = step_many(w.filters, w.safe_set, t)
         self.ticks += 1
         self.decisions += 1
+        self.failing_safe = sum(o.action == FAIL_SAFE for o in outs)
         now = time.monotonic()
         period, update = w.state_period, w.set_update
         due = [i for i, (th, o) in enumerate(zip(self._throttles, outs))
