@@ -134,7 +134,7 @@ class FilterWiring:
             f'{"sim time (wall clock when /clock stands still)" if sim else "wall time"}')
 
         self._last_log = {}
-        self.set_update = ('none', 'no value function received')   # (accepted|rejected|none, reason)
+        self.set_update = ('none', 'no value function received')   # (accepted|rejected|ignored|none, why)
         self.set_updates = {'accepted': 0, 'rejected': 0}
         self._learned = None               # the newest well-formed learned value function
         self._work = threading.Condition()
@@ -299,8 +299,9 @@ class FilterWiring:
         if vf is None:
             return
         if not self.use_learned:
-            self._accept('learned set received but use_learned is false: the standard set stays in force',
-                         counted=False)
+            self.set_update = ('ignored', 'learned set received but use_learned is false: the standard '
+                                          'set stays in force')
+            self.log.info(self.set_update[1])
             return
         alpha = learned_alpha(vf.meta, self.alpha_offset)
         try:
@@ -326,9 +327,8 @@ class FilterWiring:
             f'{vf.meta.get("interventions", "?")} interventions; {timing}checked in {check_s:.3f} s: '
             f'{verdict.reason}')
 
-    def _accept(self, reason, counted=True):
-        if counted:
-            self.set_updates['accepted'] += 1
+    def _accept(self, reason):
+        self.set_updates['accepted'] += 1
         self.set_update = ('accepted', reason)
         self.log.info(reason)
 
@@ -363,15 +363,21 @@ class FilterWiring:
 
 
 class StateThrottle:
-    """When to publish a robot's state: on every change of action, else every state_period."""
+    """When to publish a robot's state: on every change of action or set update, and every
+    ``period`` on a fixed phase (``phase`` in [0, 1) of a period), so that a fleet's periodic
+    states are spread over the period instead of all falling on one tick."""
 
     __slots__ = ('t', 'action', 'update')
 
-    def __init__(self):
-        self.t, self.action, self.update = -math.inf, None, None
+    def __init__(self, phase=0.0, now=None, period=1.0):
+        self.t = -math.inf if now is None else now - period * (1.0 - phase)
+        self.action, self.update = None, None
 
     def due(self, now, action, update, period) -> bool:
-        if action != self.action or update is not self.update or now - self.t >= period:
-            self.t, self.action, self.update = now, action, update
+        changed = action != self.action or update is not self.update
+        self.action, self.update = action, update
+        if now - self.t >= period:
+            # keep the phase; restart it after a long pause (or at start)
+            self.t = self.t + period if now - self.t < 2.0 * period else now
             return True
-        return False
+        return changed

@@ -97,7 +97,8 @@ class FleetSafetyFilterNode(Node):
             raise ValueError(f'robots lists a namespace twice: {self.namespaces}')
         self.wiring = w = FilterWiring(self, self.namespaces, on_rate=self._set_rate)
         self.n = len(self.namespaces)
-        self._throttles = [StateThrottle() for _ in range(self.n)]
+        start = time.monotonic()
+        self._throttles = [StateThrottle(i / self.n, start, w.state_period) for i in range(self.n)]
         self._failing = [None] * self.n
         self.ticks = 0
         self.failing_safe = 0

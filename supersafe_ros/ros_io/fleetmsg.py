@@ -15,6 +15,8 @@ reported per row (``bad``: a reason per robot, '' if the row is usable).
 """
 from __future__ import annotations
 
+import array
+
 import numpy as np
 
 from geometry_msgs.msg import PoseArray
@@ -55,7 +57,7 @@ def commands_to_msg(commands) -> Float64MultiArray:
     msg = Float64MultiArray()
     msg.layout.dim = [MultiArrayDimension(label='robot', size=n, stride=2 * n),
                       MultiArrayDimension(label=COMMAND_COLUMNS, size=2, stride=2)]
-    msg.data = c.reshape(-1).tolist()
+    msg.data = array.array('d', c.tobytes())   # no per-element conversion in rclpy
     return msg
 
 
