@@ -180,6 +180,11 @@ def test_a_50_mb_set_never_silences_cmd_vel(driver, tmp_path):
     try:
         spin.until(lambda: matched(*d.endpoints()), 120.0, 'the filter process to match')
         steady_pass(d, spin)
+        # the machine's own gaps first (the same feed, no value function): the bound scales with them
+        d.out.clear()
+        t0 = time.monotonic()
+        d.feed_until(spin, lambda: time.monotonic() - t0 > 5.0, 10.0, 'a baseline', period=0.02)
+        baseline = max(b - a for a, b in zip(d.out, d.out[1:]))
         d.out.clear()
         d.states.clear()
         publisher = start(tmp_path, 'big_set', ['-c', PUBLISH_BIG_SET])
@@ -188,12 +193,16 @@ def test_a_50_mb_set_never_silences_cmd_vel(driver, tmp_path):
         accepted = next(s for _, s in d.states if s['source'] == 'learned')
         gaps = [b - a for a, b in zip(d.out, d.out[1:])]
         print(f'50 MB set: {len(d.out)} cmd_vel while it was sent, decoded and checked; longest gap '
-              f'{max(gaps) * 1e3:.0f} ms; {accepted["set_update_reason"][-120:]}')
+              f'{max(gaps) * 1e3:.0f} ms (without it: {baseline * 1e3:.0f} ms); '
+              f'{accepted["set_update_reason"][-120:]}')
         assert accepted['set_update'] == 'accepted'
         assert 'learned set in force' in accepted['set_update_reason']
-        # the watchdog publishes every 20 ms; before, decoding alone silenced it for 2 s, and the
-        # first decision on the set built its gradients (seconds) on the control path
-        assert max(gaps) < 1.0
+        # the watchdog publishes every 20 ms. Before, decoding silenced it for 2 s on a quiet
+        # machine, and the first decision on the set built its gradients on the control path
+        # (35 s under load 30). What remains is rclpy taking the 50 MB message (a copy made
+        # holding the GIL: ~0.1 s quiet, up to ~2 s at load 45), so the bound follows the
+        # machine's own gaps
+        assert max(gaps) < max(0.75, 4.0 * baseline)
     finally:
         if publisher is not None:
             stop(publisher)
