@@ -429,13 +429,31 @@ def serve_fleet(m, batched, one_core):
 
 
 def _window_rates(reports, t0, t1):
-    window = [r for r in reports if int(t0 * 1e9) <= int(r['t']) <= int(t1 * 1e9)]
-    first, last = window[0], window[-1]
+    """Decisions per robot per second between the reports around [t0, t1] (the child's view)."""
+    before = [r for r in reports if int(r['t']) <= int(t0 * 1e9)]
+    after = [r for r in reports if int(r['t']) >= int(t1 * 1e9)]
+    first = before[-1] if before else (reports[0] if reports else None)
+    last = after[0] if after else (reports[-1] if reports else None)
+    if first is None or last is first:
+        return np.zeros(1), -1
     span = (int(last['t']) - int(first['t'])) * 1e-9
     decided = (np.array(last['decisions'].split(','), dtype=float)
                - np.array(first['decisions'].split(','), dtype=float)) / span
-    fail = max(int(r['fail_safe']) for r in window)
-    return decided, fail
+    inside = [r for r in reports if int(first['t']) <= int(r['t']) <= int(last['t'])]
+    _window_rates.ticks = int(last['ticks']) - int(first['ticks'])
+    return decided, max(int(r['fail_safe']) for r in inside)
+
+
+def _capacity(tag, m, cpu, ticks):
+    """CPU per tick in the filter process, and what that means for a core at 50 Hz (CPU time
+    is what a loaded machine inflates least)."""
+    if ticks <= 0:
+        print(f'[{tag}]          no ticks measured')
+        return
+    per_tick = cpu / ticks
+    print(f'[{tag}]          filter CPU per tick of {m} robots (inputs taken, one step_many, outputs '
+          f'published) {per_tick * 1e3:.1f} ms ({per_tick / m * 1e6:.0f} us per robot) -> one core would '
+          f'serve ~{m * 0.02 / per_tick:.0f} robots at 50 Hz')
 
 
 def bench_fleet(args):
@@ -478,12 +496,13 @@ def bench_fleet(args):
                 d.spin_for(max(0.0, next_tick - time.monotonic()))
             t1 = time.monotonic()
             cpu, feeder = cpu_seconds(child.pid) - cpu0, time.process_time() - me0
-            d.spin_for(0.5)
+            d.spin_until(lambda: reports and int(reports[-1]['t']) >= int(t1 * 1e9), 30.0, 'a report after the window')
             decided, fail = _window_rates(reports, t0, t1)
             print(f'[fleet] M={m:4d}: fed at {ticks / (t1 - t0):5.1f} Hz per robot; decisions per robot median '
                   f'{np.median(decided):5.1f}/s, min {decided.min():5.1f}/s; robots failing safe at most {fail}; '
                   f'fleet process CPU {100 * cpu / (t1 - t0):5.1f} % of its one core; feeder CPU '
                   f'{100 * feeder / (t1 - t0):5.1f} %')
+            _capacity('fleet', m, cpu, _window_rates.ticks)
         finally:
             d.close()
             stop([child])
@@ -538,11 +557,12 @@ def bench_batched(args):
                         latency.append((replies[0] - sent) * 1e-9)
             t1 = time.monotonic()
             cpu = cpu_seconds(child.pid) - cpu0
-            d.spin_for(0.5)
+            d.spin_until(lambda: reports and int(reports[-1]['t']) >= int(t1 * 1e9), 30.0, 'a report after the window')
             decided, fail = _window_rates(reports, t0, t1)
             print(f'[batched] N={n:5d}: fed at {ticks / (t1 - t0):5.1f} Hz; decisions per robot median '
                   f'{np.median(decided):5.1f}/s, min {decided.min():5.1f}/s; robots failing safe at most {fail}; '
                   f'process CPU {100 * cpu / (t1 - t0):5.1f} % of its one core')
+            _capacity('batched', n, cpu, _window_rates.ticks)
             if latency:
                 print(f'[batched]          fleet/poses -> fleet/cmd_vel (replies within the tick, '
                       f'{len(latency)} of {ticks}): {ms(latency)}')
