@@ -151,9 +151,10 @@ def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
         add('planner', name, sim, coarse if with_filter else {**coarse, 'cmd_vel_nav': 'cmd_vel'})
         if with_filter:
             # each command holds for one step; a decision on the step before's pose (its
-            # pose and cmd_vel_nav callbacks race) is propagated from the pose's stamp
+            # pose and cmd_vel_nav callbacks race) is propagated from the pose's stamp, and
+            # a reply that misses its step holds for one more: look ahead two steps
             # (see filter.core: delay compensation, lookahead)
-            add('safety_filter', name, {**sim, 'control_period': step})
+            add('safety_filter', name, {**sim, 'control_period': step, 'lookahead': 2.0 * step})
     if with_learner:
         add('learner', None, {**sim, **({'store_path': str(learner_store)} if learner_store else {})},
             coarse)

@@ -159,13 +159,14 @@ def test_avoid_turn_uses_the_robots_omega_max_not_the_sets(standard):
 
 def test_smaller_of_two_real_values_governs(standard):
     # both obstacles on the grid with finite values; they would turn the robot opposite ways
+    # (per-obstacle law: clusters off; 5 m apart they would otherwise be judged as one)
     near, other = OBSTACLE, (OBSTACLE[0], OBSTACLE[1] - 5.0)
     pose = at(-3.0, -0.6, 0.0)
     rel = np.array([[pose[0] - c[0], pose[1] - c[1], 0.0] for c in (near, other)])
     value, turn = evaluate_pairs(standard.vf, rel)
     assert np.all(np.isfinite(value)) and value[0] < 0.0 < value[1] and turn[0] == -turn[1]
     for dets, index in (([near, other], 0), ([other, near], 1)):
-        out = robot(pose=pose, detections=dets, cmd=0.0).step(standard, 0.0)
+        out = robot(pose=pose, detections=dets, cmd=0.0, clusters=False).step(standard, 0.0)
         assert out.action == OVERRIDE and out.obstacle_index == index
         assert out.value == pytest.approx(value[0]) and out.omega == turn[0]
 
@@ -260,8 +261,8 @@ def test_step_many_matches_single_steps(standard):
     for i in range(40):
         pose = at(rng.uniform(-6, 6), rng.uniform(-6, 6), rng.uniform(-np.pi, np.pi))
         dets = [OBSTACLE] if i % 3 else [OBSTACLE, (OBSTACLE[0] + 4.0, OBSTACLE[1])]
-        filters.append(robot(pose=pose, detections=dets, cmd=0.1 * (i % 5)))
-        singles.append(robot(pose=pose, detections=dets, cmd=0.1 * (i % 5)))
+        filters.append(robot(pose=pose, detections=dets, cmd=0.1 * (i % 5), clusters=False))
+        singles.append(robot(pose=pose, detections=dets, cmd=0.1 * (i % 5), clusters=False))
     many = step_many(filters, standard, 0.0)
     actions = set()
     for f, out in zip(singles, many):

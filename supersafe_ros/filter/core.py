@@ -63,7 +63,7 @@ import math
 
 import numpy as np
 
-from .law import evaluate_pairs  # noqa: F401  (the law's rule; re-exported)
+from .law import evaluate_pairs, tie_tolerance  # noqa: F401  (the law's rule; re-exported)
 from ..reach.grid import wrap_angle
 from ..reach.value_function import ValueFunction
 
@@ -95,13 +95,22 @@ class FilterConfig:
     # control period (False: judge the pose as if current and use ``lookahead`` as given, the
     # behaviour before issue 9; for ablation benchmarks only)
     compensate_delay: bool = True
+    # obstacles closer than cluster_link (0 = 2 radius + a turning diameter) are judged by
+    # their union's value (filter.cluster), at level cluster_alpha, with the true dynamics
+    clusters: bool = True
+    radius: float = 1.8              # obstacle radius (cluster values)
+    cluster_link: float = 0.0
+    cluster_alpha: float = 0.0       # the union's level (the standard set's alpha)
 
     def __post_init__(self):
         for name in ('speed', 'omega_max', 'pose_timeout', 'detections_timeout', 'hold_timeout',
-                     'cmd_timeout', 'clear_margin', 'lookahead', 'control_period'):
+                     'cmd_timeout', 'clear_margin', 'lookahead', 'control_period', 'radius',
+                     'cluster_link'):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0.0):
                 raise ValueError(f'{name} must be finite and >= 0, got {v}')
+        if not math.isfinite(self.cluster_alpha):
+            raise ValueError(f'cluster_alpha must be finite, got {self.cluster_alpha}')
 
 
 @dataclass(frozen=True)
@@ -282,13 +291,13 @@ class RobotFilter:
                 return f'{label} rejected: {inp.rejected}'
             if inp.value is None:
                 return f'no {label} received yet'
-            age = inp.age(t)
+            age = t - inp.t     # since arrival: a pose that keeps coming is not lost
             if age > timeout:
                 return f'{label} stale ({age:.3g} s old > {timeout:g} s)'
         return ''
 
-    def step(self, safe_set: SafeSet, t) -> FilterOutput:
-        return step_many([self], safe_set, t)[0]
+    def step(self, safe_set: SafeSet, t, clusters=None) -> FilterOutput:
+        return step_many([self], safe_set, t, clusters)[0]
 
     # -- what the robot did since its pose ---------------------------------------------
     def record_sent(self, omega, t) -> None:
@@ -386,12 +395,21 @@ def _pairs(filters, use, states):
     return np.concatenate(rel), np.concatenate(robot), np.concatenate(obstacle)
 
 
-def step_many(filters, safe_set: SafeSet, t) -> list:
+def _planned_turn(f, t) -> float:
+    """The command the filter would forward (a silent planner counts as 0), clipped."""
+    cfg = f.config
+    fresh = f.command.value is not None and t - f.command.t <= cfg.cmd_timeout
+    return float(np.clip(f.command.value, -cfg.omega_max, cfg.omega_max)) if fresh else 0.0
+
+
+def step_many(filters, safe_set: SafeSet, t, clusters=None) -> list:
     """One decision per robot filter, with one vectorised evaluation of the law.
 
     Robots that can be judged use their current pose and detections; robots that
     fail safe use their last valid pose and detections if younger than
-    ``hold_timeout``, else the stop-turn policy.
+    ``hold_timeout``, else the stop-turn policy. ``clusters``: the ClusterStore
+    for obstacles judged together (None: the process's shared store for the
+    robots' configuration; see ``filter.cluster``).
     """
     n = len(filters)
     problems = [f.problem(t) for f in filters]
@@ -403,18 +421,14 @@ def step_many(filters, safe_set: SafeSet, t) -> list:
               and t - f.pose.t <= f.config.hold_timeout and t - f.detections.t <= f.config.hold_timeout):
             usable.append(i)
     states, ages = propagate_poses(filters, usable, t)
+    state_of = {i: states[row] for row, i in enumerate(usable)}
     age_of = dict(zip(usable, ages))
     rel, robot, obstacle = _pairs(filters, usable, states)
-    omega_law = np.array([filters[i].config.omega_max for i in robot]) if len(robot) else np.zeros(0)
     value, turn = evaluate_pairs(safe_set.vf, rel)
-    control = turn * omega_law
     horizons = {i: filters[i].lookahead() for i in usable}
-    value_next = _lookahead_values(filters, safe_set.vf, rel, robot, t, horizons)
-
-    # the smallest V per robot (its pair index), by a stable sort: largest first, smallest last
-    best = np.full(n, -1)
-    order = np.argsort(value, kind='stable')[::-1]
-    best[robot[order]] = order
+    turn, value_next = _sampled_control(filters, safe_set.vf, rel, robot, t, horizons, turn)
+    # pairs are grouped by robot, in order: robot i's pairs are [first[i], last[i])
+    first = {int(i): int(k) for i, k in zip(*np.unique(robot, return_index=True))} if len(robot) else {}
 
     alpha = float(safe_set.alpha)
     set_omega = safe_set.omega_max
@@ -422,48 +436,37 @@ def step_many(filters, safe_set: SafeSet, t) -> list:
     out = []
     for i, f in enumerate(filters):
         cfg = f.config
-        p = int(best[i])
-        v_min = float(value[p]) if p >= 0 else math.inf
-        if p >= 0:
-            obst_index = int(obstacle[p])
-            obst_xy = tuple(float(v) for v in f.detections.value[obst_index])
-        else:
-            obst_index, obst_xy = -1, (math.nan, math.nan)
-        common = dict(obstacle_index=obst_index, obstacle_xy=obst_xy, value=v_min, alpha=alpha,
-                      source=safe_set.source, omega_max_set=set_omega,
+        c = _Constraints.of_pairs(f, i, first, value, turn, value_next, obstacle, alpha, safe_set.source)
+        if i in state_of and cfg.clusters and len(f.detections.value) > 1:
+            _add_cluster_constraints(c, f, state_of[i], horizons[i], t, clusters)
+        common = dict(alpha=alpha, source=safe_set.source, omega_max_set=set_omega,
                       pose_age=float(age_of.get(i, 0.0)), lookahead=float(horizons.get(i, 0.0)))
         if problems[i]:
             f.overriding = False   # re-enter by the law once inputs are back
-            if math.isfinite(v_min):
-                out.append(FilterOutput(float(control[p]), cfg.speed, FAIL_SAFE,
-                                        f'{problems[i]}; avoiding obstacle {obst_index} from the last '
-                                        f'valid state (V={v_min:.3g})', **common))
+            k = c.smallest()
+            common.update(c.describe(k, f))
+            if k >= 0:
+                out.append(FilterOutput(cfg.omega_max * c.turn[k], cfg.speed, FAIL_SAFE,
+                                        f'{problems[i]}; avoiding {c.label(k)} from the last '
+                                        f'valid state (V={c.value[k]:.3g})', **common))
             else:
                 why = 'no recent valid state' if i not in usable else 'no obstacle near the last valid state'
                 out.append(FilterOutput(cfg.omega_max, 0.0, FAIL_SAFE,
                                         f'{problems[i]}; {why}: stop-turn', **common))
             continue
-        enter = v_min <= alpha
-        mine = robot == i
-        next_min = float(np.min(value_next[mine])) if np.any(mine) else math.inf
-        ahead = not enter and next_min <= alpha
-        if ahead:
-            # the pair that would cross governs the avoid turn
-            p = int(np.flatnonzero(mine)[np.argmin(value_next[mine])])
-            obst_index = int(obstacle[p])
-            common['obstacle_index'] = obst_index
-            common['obstacle_xy'] = tuple(float(v) for v in f.detections.value[obst_index])
-        stay = f.overriding and v_min <= alpha + cfg.clear_margin
-        if enter or ahead or stay:
+        k, kind = c.governing(f.overriding, cfg.clear_margin)
+        common.update(c.describe(k, f))
+        if kind:
             f.overriding = True
-            if enter:
-                why = f'V={v_min:.3g} <= alpha={alpha:.3g} at obstacle {obst_index}'
-            elif ahead:
-                why = (f'the planner\'s command would reach V={next_min:.3g} <= alpha={alpha:.3g} '
-                       f'within {horizons[i]:.3g} s (obstacle {int(obstacle[p])})')
+            lv = c.level[k]
+            if kind == 'enter':
+                why = f'V={c.value[k]:.3g} <= alpha={lv:.3g} at {c.label(k)}'
+            elif kind == 'ahead':
+                why = (f'the planner\'s command would reach V={c.value_next[k]:.3g} <= alpha={lv:.3g} '
+                       f'within {horizons[i]:.3g} s ({c.label(k)})')
             else:
-                why = f'V={v_min:.3g} <= alpha+margin={alpha + cfg.clear_margin:.3g}: not clear yet'
-            out.append(FilterOutput(float(control[p]), cfg.speed, OVERRIDE, why, **common))
+                why = f'V={c.value[k]:.3g} <= alpha+margin={lv + cfg.clear_margin:.3g}: not clear yet'
+            out.append(FilterOutput(cfg.omega_max * c.turn[k], cfg.speed, OVERRIDE, why, **common))
             continue
         f.overriding = False
         if f.command.value is None or t - f.command.t > cfg.cmd_timeout:
@@ -471,8 +474,8 @@ def step_many(filters, safe_set: SafeSet, t) -> list:
             # the filter still guards it against every detected obstacle)
             out.append(FilterOutput(0.0, 0.0, PASS, 'clear; planner silent: zero command', **common))
         else:
-            why = ('clear: no obstacle near' if not math.isfinite(v_min) else
-                   f'clear: V={v_min:.3g} > alpha={alpha:.3g}')
+            why = ('clear: no obstacle near' if k < 0 else
+                   f'clear: V={c.value[k]:.3g} > alpha={c.level[k]:.3g}')
             # the robot's bound, whatever the planner asked (angular.z = 1e30 goes out as w_max)
             omega = float(np.clip(f.command.value, -cfg.omega_max, cfg.omega_max))
             out.append(FilterOutput(omega, cfg.speed, PASS, why, **common))
@@ -481,26 +484,190 @@ def step_many(filters, safe_set: SafeSet, t) -> list:
     return out
 
 
-def _lookahead_values(filters, vf: ValueFunction, rel, robot, t, horizons) -> np.ndarray:
-    """V of every pair after its robot holds the planner's command for its lookahead.
+class _Constraints:
+    """What one robot must respect: per obstacle (the safe set in force) and per cluster.
+
+    Each constraint has a value V, its level, the unit avoid turn, V after the
+    planner's command is held for the lookahead, the obstacle it names and whether
+    it is *sound for its layout* (a cluster's union value or the loiter fallback;
+    these govern first whenever they act, see ``governing``).
+    """
+
+    def __init__(self):
+        self.value, self.level, self.turn, self.value_next = [], [], [], []
+        self.obstacle, self.sound, self.source, self.members = [], [], [], []
+
+    @classmethod
+    def of_pairs(cls, f, i, first, value, turn, value_next, obstacle, alpha, source):
+        c = cls()
+        if i in first:
+            a = first[i]
+            b = a + len(f.detections.value)
+            c.value = value[a:b].tolist()
+            c.turn = turn[a:b].tolist()
+            c.value_next = value_next[a:b].tolist()
+            c.obstacle = obstacle[a:b].tolist()
+            m = b - a
+            c.level, c.sound, c.source, c.members = [alpha] * m, [False] * m, [source] * m, [1] * m
+        return c
+
+    def add(self, value, level, turn, value_next, obstacle, source, members):
+        self.value.append(float(value))
+        self.level.append(float(level))
+        self.turn.append(float(turn))
+        self.value_next.append(float(value_next))
+        self.obstacle.append(int(obstacle))
+        self.sound.append(True)
+        self.source.append(source)
+        self.members.append(int(members))
+
+    def margins(self, idx):
+        return [self.value[k] - self.level[k] for k in idx]
+
+    def smallest(self, idx=None) -> int:
+        """The constraint with the smallest V - level (-1 if none is finite)."""
+        idx = list(range(len(self.value))) if idx is None else idx
+        finite = [k for k in idx if math.isfinite(self.value[k])]
+        if not finite:
+            return -1
+        return min(finite, key=lambda k: self.value[k] - self.level[k])
+
+    def governing(self, overriding, clear_margin):
+        """(constraint, why) that makes the filter override, or (smallest, '') to pass.
+
+        Sound constraints (clusters) first: if any of them enters, looks ahead to its
+        level or holds its hysteresis, it governs alone, so the union's avoid turn is
+        never traded for a single obstacle's. Otherwise all constraints as one.
+        """
+        everything = list(range(len(self.value)))
+        sound = [k for k in everything if self.sound[k]]
+        for group in ((sound, everything) if sound else (everything,)):
+            k = self.smallest(group)
+            if k < 0:
+                continue
+            if self.value[k] <= self.level[k]:
+                return k, 'enter'
+            ahead = [q for q in group if self.value_next[q] <= self.level[q]]
+            if ahead:
+                return min(ahead, key=lambda q: self.value_next[q] - self.level[q]), 'ahead'
+            if overriding and self.value[k] <= self.level[k] + clear_margin:
+                return k, 'stay'
+        return self.smallest(), ''
+
+    def label(self, k) -> str:
+        if self.members[k] > 1:
+            return f'a cluster of {self.members[k]} obstacles ({self.source[k]}, nearest {self.obstacle[k]})'
+        return f'obstacle {self.obstacle[k]}'
+
+    def describe(self, k, f) -> dict:
+        if k < 0:
+            return dict(obstacle_index=-1, obstacle_xy=(math.nan, math.nan), value=math.inf)
+        j = self.obstacle[k]
+        d = dict(obstacle_index=j, obstacle_xy=tuple(float(v) for v in f.detections.value[j]),
+                 value=self.value[k], alpha=self.level[k])
+        if self.sound[k]:
+            d['source'] = self.source[k]
+        return d
+
+
+def _add_cluster_constraints(c: _Constraints, f, state, horizon, t, store) -> None:
+    """Cluster constraints of robot ``f`` at its (propagated) ``state``."""
+    from . import cluster as cl
+    cfg = f.config
+    store = store if store is not None else default_cluster_store(cfg)
+    st = store.settings
+    key_det = f.detections.value
+    cache = f.__dict__.get('_cluster_cache')
+    if cache is None or cache[0] is not key_det:
+        groups = [g for g in cl.components(key_det, st.link_distance) if len(g) > 1]
+        frames = [cl.canonical(key_det[g], st.key_resolution) for g in groups]
+        cache = (key_det, groups, frames)
+        f._cluster_cache = cache
+    _, groups, frames = cache
+    if not groups:
+        return
+    # sampled control: each command holds for ``horizon``. The union's turn is the bang
+    # (+-w_max) with the larger V at the end of its hold, and the planner's command is
+    # judged by what the filter can still do after it: the better bang held for one more
+    # period (a pass never leaves the robot where no held turn keeps V above the level)
+    u = _planned_turn(f, t)
+    w = cfg.omega_max
+    speed = np.full(3, cfg.speed)
+    hold = np.full(3, horizon)
+    ahead = arc_flow(state[None], speed[:1], np.array([u]), hold[:1])[0]
+    points = arc_flow(np.stack([state, state, ahead, ahead]), np.full(4, cfg.speed),
+                      np.array([w, -w, w, -w]), np.full(4, horizon))
+    for g, (key, origin, angle, centres) in zip(groups, frames):
+        nearest = int(g[np.argmin(np.hypot(*(key_det[g] - state[:2]).T))])
+        solved = store.get(key)
+        if solved is None:
+            store.request(key, centres)
+        if solved is not None:
+            v, _ = solved.evaluate(cl.to_frame(np.vstack([state[None], points, ahead[None]]), origin, angle))
+            turn = 1.0 if v[1] >= v[2] - solved.tie else -1.0
+            c.add(v[0], cfg.cluster_alpha, turn, min(v[5], max(v[3], v[4])), nearest, 'cluster', len(g))
+        else:
+            # the loiter-circle fallback keeps its invariant only from a state with a clear
+            # circle; from any other state the per-obstacle rule (always in the list) is the
+            # best known until the union's value is in force
+            v, turn = cl.orbit_value(np.stack([state, ahead]), key_det[g], st.radius + st.margin,
+                                     st.turning_radius)
+            if v[0] > 0.0:
+                c.add(v[0], 0.0, turn[0], v[1], nearest, 'cluster-fallback', len(g))
+
+
+_STORES = {}
+
+
+def default_cluster_store(cfg: FilterConfig):
+    """The process's shared ClusterStore for a robot configuration (background solves)."""
+    from .cluster import ClusterSettings, ClusterStore
+    settings = ClusterSettings(radius=cfg.radius, speed=cfg.speed, omega_max=cfg.omega_max,
+                               link=cfg.cluster_link)
+    store = _STORES.get(settings)
+    if store is None:
+        store = _STORES[settings] = ClusterStore(settings)
+    return store
+
+
+def _sampled_control(filters, vf: ValueFunction, rel, robot, t, horizons, turn):
+    """The avoid turn and the lookahead value of every pair, for commands held over H.
+
+    H is the robot's lookahead (>= its control period). A command holds for H, so:
+
+    * the avoid turn is the bang (+-w_max) whose hold ends at the larger V (ties
+      left, within the law's tie tolerance); as H -> 0 this is sign(dV/dtheta), the
+      continuous law, which it keeps where both ends are off the grid;
+    * the planner's command is judged by what the filter can still do after it:
+      V where the command's hold ends, and after the better bang held for one more
+      period from there (the smaller of the two). A pass therefore never leaves the
+      robot below the level, nor where no held turn keeps V above it (the filter
+      acts one hold early rather than one hold late).
 
     A silent planner counts as a zero command (what the filter would forward).
     Translation invariance: the relative state moves like the robot itself.
+    Returns (unit turn, V after the planner's hold and the best bang's).
     """
     if len(rel) == 0:
-        return np.zeros(0)
+        return turn, np.zeros(0)
     omega = np.zeros(len(robot))
     horizon = np.zeros(len(robot))
     speed = np.zeros(len(robot))
+    bang = np.zeros(len(robot))
     for i in np.unique(robot):
         f = filters[i]
-        cfg = f.config
-        fresh = f.command.value is not None and t - f.command.t <= cfg.cmd_timeout
-        u = float(np.clip(f.command.value, -cfg.omega_max, cfg.omega_max)) if fresh else 0.0
         sel = robot == i
-        omega[sel], horizon[sel], speed[sel] = u, horizons[i], cfg.speed
+        omega[sel], horizon[sel], speed[sel] = _planned_turn(f, t), horizons[i], f.config.speed
+        bang[sel] = f.config.omega_max
     if not np.any(horizon > 0):
-        return np.full(len(rel), np.inf)
+        return turn, np.full(len(rel), np.inf)
     ahead = arc_flow(rel, speed, omega, horizon)
-    value = vf.value(ahead, outside=np.inf)      # values only: no turn is taken from here
-    return np.where(horizon > 0, value, np.inf)
+    starts = np.concatenate([rel, rel, ahead, ahead])
+    ends = arc_flow(starts, np.tile(speed, 4), np.concatenate([bang, -bang, bang, -bang]),
+                    np.tile(horizon, 4))
+    v = vf.value(np.concatenate([ends, ahead]), outside=np.inf).reshape(5, len(rel))
+    left, right = v[0], v[1]
+    held = np.where(left >= right - tie_tolerance(vf), 1.0, -1.0)
+    use = (horizon > 0) & (np.isfinite(left) | np.isfinite(right))
+    value_next = np.where(horizon > 0, np.minimum(v[4], np.maximum(v[2], v[3])), np.inf)
+    return np.where(use, held, turn), value_next

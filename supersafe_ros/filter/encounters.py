@@ -83,6 +83,53 @@ def single_disc_encounters(n, rng, distance=9.0, offset=3.0, heading_noise=0.3) 
     return out
 
 
+def row_layout(spacing=4.5, count=3) -> np.ndarray:
+    """Discs in a row along x, centres ``spacing`` apart, centred on the origin."""
+    return np.stack([(np.arange(count) - (count - 1) / 2) * spacing, np.zeros(count)], axis=1)
+
+
+def cup_layout(rng, gaps=(3.0, 3.6), radius=1.8) -> np.ndarray:
+    """Three discs in a cup opening toward -x: a bottom disc and two wings, every gap
+    (rim to rim) drawn from ``gaps``."""
+    g_wings, g_side = rng.uniform(*gaps, 2)
+    dy = (g_wings + 2 * radius) / 2
+    dx = np.sqrt((g_side + 2 * radius) ** 2 - dy ** 2)
+    return np.array([[dx / 2, 0.0], [-dx / 2, dy], [-dx / 2, -dy]])
+
+
+def random_layout(rng, count, half=7.0, min_gap=0.5, radius=1.8, tries=2000) -> np.ndarray:
+    """``count`` discs uniform in a square of half-width ``half``, rims at least ``min_gap`` apart."""
+    out = []
+    for _ in range(tries):
+        p = rng.uniform(-half, half, 2)
+        if all(np.hypot(*(p - q)) >= 2 * radius + min_gap for q in out):
+            out.append(p)
+            if len(out) == count:
+                break
+    return np.array(out)
+
+
+def layout_encounters(layouts, rng, margin=10.0, offset=None) -> list:
+    """One approach per layout from a random direction, across it to the far side.
+
+    The start is ``margin`` beyond the layout's farthest disc, with a lateral offset
+    within the layout's extent (default), so most straight paths meet a disc.
+    """
+    out = []
+    for discs in layouts:
+        discs = np.asarray(discs, dtype=float).reshape(-1, 2)
+        extent = float(np.max(np.hypot(discs[:, 0], discs[:, 1]))) + 1.8
+        phi = rng.uniform(-np.pi, np.pi)
+        d, nrm = np.array([np.cos(phi), np.sin(phi)]), np.array([-np.sin(phi), np.cos(phi)])
+        spread = extent if offset is None else offset
+        b0, b1 = rng.uniform(-spread, spread, 2)
+        start = -(extent + margin) * d + b0 * nrm
+        goal = (extent + margin) * d + b1 * nrm
+        heading = np.arctan2(*(goal - start)[::-1]) + rng.uniform(-0.2, 0.2)
+        out.append(Encounter(discs, (start[0], start[1], heading), tuple(goal), tuple(d)))
+    return out
+
+
 def run_encounters(encounters, guard, step=0.05, stale_probability=0.0, config=None, rng=None,
                    radius=1.8, depth=0.01, deep=0.05, time_limit=30.0, substeps=4,
                    omega_max=1.0, speed=3.0, gain=2.0) -> EncounterResult:

@@ -98,7 +98,9 @@ class FilterWiring:
         self.use_learned = p('use_learned', True, 'take the learner\'s sets (each checked against the '
                              'standard set first)')
         values = {name: p(name, default, desc, lo, hi) for name, default, desc, lo, hi in _CONFIG_PARAMS}
-        self.config = FilterConfig(speed=speed, omega_max=omega_max, **values)
+        # clusters of close obstacles are judged with the true radius at the standard level
+        self.config = FilterConfig(speed=speed, omega_max=omega_max, radius=radius,
+                                   cluster_alpha=self.standard_alpha, **values)
         self.rate = p('rate', 50.0, 'decision rate [Hz, steady clock]: watchdog (one robot) or tick '
                       '(fleet)', 0.1, 1000.0)
         self.state_period = 1.0 / p('state_rate', 10.0, 'most state messages per second and robot '
@@ -174,6 +176,9 @@ class FilterWiring:
 
         def set_standard_alpha(value):
             self.standard_alpha = float(value)
+            self.config = replace(self.config, cluster_alpha=self.standard_alpha)
+            for f in self.filters:
+                f.config = self.config
             self.standard = SafeSet(self.standard.vf, self.standard_alpha, 'standard')
             if self.safe_set.source == 'standard':
                 self.safe_set = self.standard

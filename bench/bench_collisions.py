@@ -1,0 +1,174 @@
+"""Collisions with detected obstacles: ROS-free replays and the real team graph.
+
+Sections (run all by default, or name some):
+
+* ``replay``  - single-disc encounters, the issue's timing replay: 7.3 % of
+  decisions on the previous step's pose, steps 0.05 and 0.2 s; "before" = pose
+  judged as if current with the old fixed 0.1 s lookahead (compensate_delay
+  False), "after" = the filter as shipped.
+* ``layouts`` - rows (4.5 m), cups (3-3.6 m gaps) and random dense layouts: the
+  smallest per-obstacle value (clusters off) against the cluster values.
+* ``latency`` - a new cluster's value: solve time and request -> in force (the
+  control loop keeps deciding meanwhile, on the fallback), in a background thread.
+* ``graph``   - the real graph (``supersafe team --no-supervisor --no-learner``,
+  every obstacle detected: dubins_robot.miss_probability 0) for --robot-hours at
+  each --steps, counting crashes deeper than 1 cm (world.crash_tolerance 0.01).
+
+    .venv/bin/python bench/bench_collisions.py replay layouts latency --encounters 2000
+    .venv/bin/python bench/bench_collisions.py graph --robot-hours 1 --robots 4 --steps 0.2 0.05
+
+Prints the figures and the machine's load (timings depend on it).
+"""
+import argparse
+import os
+import sys
+import time
+
+import numpy as np
+
+from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore
+from supersafe_ros.filter.core import FilterConfig, RobotFilter, SafeSet, step_many
+from supersafe_ros.filter.encounters import (cup_layout, layout_encounters, random_layout, row_layout,
+                                             run_encounters, single_disc_encounters, standard_guard)
+from supersafe_ros.reach.grid import Grid
+from supersafe_ros.reach.library import load_or_solve
+
+STALE = 0.073
+
+
+def load():
+    return f'load {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores'
+
+
+def standard_set():
+    vf = load_or_solve(Grid((-8, -8), (8, 8), (65, 65, 42)), 3.0, 1.0, 1.8, 3.0)
+    return SafeSet(vf, 0.0, 'standard')
+
+
+def replay(args, safe):
+    print(f'== replay: {args.encounters} single-disc encounters per row, {STALE:.1%} decisions on '
+          f'the previous pose, standard set 65x65x42 ==')
+    for step in args.steps:
+        for label, cfg in (('before (as if current, lookahead 0.1)',
+                            FilterConfig(lookahead=0.1, compensate_delay=False)),
+                           ('after  (propagated, lookahead >= period)', FilterConfig(lookahead=0.1))):
+            t0 = time.perf_counter()
+            r = run_encounters(single_disc_encounters(args.encounters, np.random.default_rng(1)),
+                               standard_guard(safe), step=step, stale_probability=STALE, config=cfg,
+                               rng=np.random.default_rng(2))
+            print(f'step {step:4.2f}  {label}: {r.summary()}  [{time.perf_counter() - t0:.0f} s]',
+                  flush=True)
+
+
+def layouts(args, safe):
+    n = args.encounters
+    rng = np.random.default_rng(3)
+    sets = {
+        'row 4.5 m': [row_layout(4.5)] * n,
+        'cup 3-3.6 m gaps': [cup_layout(rng) for _ in range(max(n // 20, 1))] * 20,
+        'random dense (3-6 discs, gaps >= 0.3 m)': [random_layout(rng, int(rng.integers(3, 7)), half=6.0,
+                                                                  min_gap=0.3)
+                                                    for _ in range(max(n // 20, 1))] * 20,
+    }
+    pairs = []
+    for _ in range(n):    # two discs farther apart than the link distance: not clustered
+        d, a = rng.uniform(9.6, 16.0), rng.uniform(-np.pi, np.pi)
+        pairs.append(np.array([[-0.5, 0.0], [0.5, 0.0]]) * d @ np.array([[np.cos(a), np.sin(a)],
+                                                                      [-np.sin(a), np.cos(a)]]))
+    sets['pairs beyond the link (9.6-16 m)'] = pairs
+    print(f'== layouts: approaches per row as listed, {STALE:.1%} stale decisions ==')
+    for step in args.steps:
+        for name, lays in sets.items():
+            encounters = layout_encounters(lays, np.random.default_rng(4))
+            for label, cfg, store in (('min per obstacle', FilterConfig(clusters=False), None),
+                                      ('cluster values', FilterConfig(),
+                                       ClusterStore(ClusterSettings(), background=False))):
+                t0 = time.perf_counter()
+                r = run_encounters(encounters, lambda fs, t: step_many(fs, safe, t, store), step=step,
+                                   stale_probability=STALE, config=cfg, rng=np.random.default_rng(5))
+                extra = ''
+                if store is not None and store.values:
+                    times = [v.solve_time for v in store.values.values()]
+                    extra = (f'; {len(times)} cluster solves, median {np.median(times):.2f} s, '
+                             f'max {max(times):.2f} s')
+                print(f'step {step:4.2f}  {name:40s} {label:17s}: {r.summary()}{extra}  '
+                      f'[{time.perf_counter() - t0:.0f} s]', flush=True)
+
+
+def latency(args, safe):
+    """A robot meets a new cluster; its filter keeps deciding at 50 Hz (wall time)
+    while the background solve runs: time from first detection to the union in force."""
+    print(f'== latency: new cluster -> its value in force (background thread), {load()} ==')
+    rng = np.random.default_rng(6)
+    cases = [('row of 2 (4.5 m)', row_layout(4.5, 2)), ('row of 3 (4.5 m)', row_layout(4.5)),
+             ('cup', cup_layout(rng))] + [(f'random {k}', random_layout(rng, k, half=5.0)) for k in (3, 4, 5)]
+    for name, discs in cases:
+        store = ClusterStore(ClusterSettings(), background=True)
+        f = RobotFilter(FilterConfig())
+        t0 = time.monotonic()
+        decisions, fallback = 0, 0
+        while True:
+            t = time.monotonic() - t0
+            f.update_pose((-12.0, 0.3, 0.0), t)
+            f.update_detections(discs, t)
+            f.update_command(0.0, t)
+            out = f.step(safe, t, clusters=store)
+            decisions += 1
+            if out.source == 'cluster' or store.values:
+                break
+            fallback += out.source == 'cluster-fallback'
+            time.sleep(0.02)
+        in_force = time.monotonic() - t0
+        solve = next(iter(store.values.values())).solve_time
+        print(f'{name:18s} grid {next(iter(store.values.values())).vf.grid.shape}: solve {solve * 1e3:6.0f} ms, '
+              f'in force after {in_force * 1e3:6.0f} ms ({decisions} decisions meanwhile)', flush=True)
+    print(f'({load()})')
+
+
+def graph(args):
+    from supersafe_ros.team import run_team, team_processes
+    duration = args.robot_hours * 3600.0 / args.robots / len(args.steps)
+    print(f'== graph: {args.robots} robots x {duration:.0f} sim s per step {args.steps}, perfect detection, '
+          f'crashes deeper than 1 cm ==', flush=True)
+    total = {'hours': 0.0, 'crashes': 0}
+    for step in args.steps:
+        overrides = {'dubins_robot': {'miss_probability': 0.0}, 'world': {'crash_tolerance': 0.01}}
+        argvs = team_processes(args.robots, 0.0, seed=args.seed, duration=duration, step=step,
+                               with_learner=False, with_supervisor=False, overrides=overrides)
+        t0 = time.monotonic()
+        res = run_team(argvs, duration, args.timeout, print_period=60.0, out=sys.stderr)
+        sim = float(res['clock'].get('sim_time', 0.0))
+        crashes = [e for e in res['events'] if e.get('event') == 'crash']
+        stats = res['stats']
+        n_crash = int(stats.get('crashes', 0))
+        trips = int(stats.get('trips', 0))
+        hours = sim * args.robots / 3600.0
+        total['hours'] += hours
+        total['crashes'] += n_crash
+        print(f'step {step}: {hours:.2f} robot-hours ({sim:.0f} sim s, {time.monotonic() - t0:.0f} wall s, '
+              f'{res["reason"]}): {n_crash} crashes > 1 cm, {trips} trips, events {crashes[:5]}  '
+              f'[{load()}]', flush=True)
+    print(f'graph total: {total["hours"]:.2f} robot-hours, {total["crashes"]} crashes > 1 cm')
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument('sections', nargs='*', default=['replay', 'layouts', 'latency'],
+                    help='replay layouts latency graph (default: the ROS-free three)')
+    ap.add_argument('--encounters', type=int, default=1000, help='approaches per replay/layout row')
+    ap.add_argument('--steps', type=float, nargs='+', default=[0.05, 0.2])
+    ap.add_argument('--robot-hours', type=float, default=0.5, help='graph: robot-hours over all steps')
+    ap.add_argument('--robots', type=int, default=4)
+    ap.add_argument('--seed', type=int, default=1)
+    ap.add_argument('--timeout', type=float, default=0.0, help='graph: wall seconds per step (0: none)')
+    args = ap.parse_args()
+    print(f'bench_collisions: {load()}', flush=True)
+    safe = standard_set() if set(args.sections) & {'replay', 'layouts', 'latency'} else None
+    for section in args.sections:
+        {'replay': lambda: replay(args, safe), 'layouts': lambda: layouts(args, safe),
+         'latency': lambda: latency(args, safe), 'graph': lambda: graph(args)}[section]()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

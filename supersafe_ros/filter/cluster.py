@@ -1,0 +1,313 @@
+"""Values of clusters of detected obstacles: the union's avoid value, not the min.
+
+The smallest of the per-obstacle values is not the value of their union: two discs
+closer than a turning diameter can each be avoidable while their union is not (the
+turn away from one leads into the other). Obstacles close enough to interact are
+therefore judged together:
+
+* ``components``: obstacles whose centres lie within ``link`` of each other
+  (transitively) form a cluster;
+* ``canonical``: a cluster's geometry up to translation and rotation, rounded to
+  ``key_resolution`` - the cache key (the same cup seen by another robot, or
+  anywhere else on the map, is solved once);
+* ``ClusterStore``: solves each new key with the core's union solver
+  (``reach.solver.solve_avoid`` on ``sets.Union``) in a background thread, so
+  control never waits, and keeps the values (LRU);
+* ``ClusterValue.evaluate``: V and the avoid turn of robot states relative to a
+  cluster, in its canonical frame.
+
+Soundness margins. The solve uses discs inflated by ``margin`` >= the key's
+rounding error (the rounded disc contains the true one) plus an allowance for the
+solver's error. The value between grid nodes is read as a Lipschitz lower bound
+(``lower_bound``): V is 1-Lipschitz in position (l is, and the flow commutes with
+translation) and L_theta-Lipschitz in heading (L_theta = the largest |dV/dtheta| of
+the nodes), so V(x) >= V(node) - |dp| - L_theta |dtheta| for each of the 8
+corners of the cell, and the largest of those is kept. Trilinear interpolation
+would instead overestimate V in the valley of head-on states by up to
+L_theta dtheta / 2 - exactly where the filter must not act late.
+
+Fallback while a cluster is being solved: ``orbit_value``, the clearance of the
+best loiter circle. A Dubins robot that turns at +-w_max forever stays on a circle
+of radius r = v / w_max; if that circle clears every disc of the cluster by
+c > 0, holding that turn keeps the robot out of all of them forever, and the
+circle stays the same as long as the turn is held. The filter keeps "some loiter
+circle is clear" invariant: it passes the planner's command only if a circle is
+still clear at the end of the hold, and otherwise turns onto the clearer circle.
+That is sound for any layout and needs no grid (it is conservative: it wants a
+whole clear circle of diameter 2r, so it is only a stop-gap until the union's
+value is in force).
+"""
+from __future__ import annotations
+
+from collections import OrderedDict
+from dataclasses import dataclass
+import math
+import queue
+import threading
+import time
+
+import numpy as np
+
+from ..reach.dynamics import DubinsCar
+from ..reach.grid import Grid
+from ..reach.sets import Disc, Union
+from ..reach.solver import solve_avoid
+from ..reach.value_function import ValueFunction
+
+
+@dataclass(frozen=True)
+class ClusterSettings:
+    """How clusters are formed and solved (lengths in m, times in s)."""
+
+    radius: float = 1.8            # obstacle radius
+    speed: float = 3.0             # true dynamics (the standard set's)
+    omega_max: float = 1.0
+    link: float = 0.0              # centres closer than this interact; 0 = 2 radius + turning diameter
+    key_resolution: float = 0.05   # the canonical geometry is rounded to this
+    margin: float = 0.1            # disc inflation: >= key rounding error (0.035) + solver error
+    cell: float = 0.35             # grid spacing in x and y
+    headings: int = 32             # grid nodes in theta
+    reach: float = 7.0             # grid extends this far beyond the outermost centres
+    horizon: float = 3.0           # as the standard set
+    lower_bound: bool = True       # read V between nodes as its Lipschitz lower bound (else trilinear)
+
+    @property
+    def link_distance(self) -> float:
+        if self.link > 0:
+            return self.link
+        return 2.0 * self.radius + 2.0 * self.speed / max(self.omega_max, 1e-9)
+
+    @property
+    def turning_radius(self) -> float:
+        return self.speed / max(self.omega_max, 1e-9)
+
+
+def components(centres, link: float) -> list:
+    """Index arrays of the clusters (connected within ``link``), singletons included."""
+    c = np.asarray(centres, dtype=float).reshape(-1, 2)
+    n = len(c)
+    parent = list(range(n))
+
+    def find(i):
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    if n > 1:
+        d = np.hypot(c[:, None, 0] - c[None, :, 0], c[:, None, 1] - c[None, :, 1])
+        for i, j in zip(*np.nonzero(np.triu(d <= link, 1))):
+            parent[find(i)] = find(j)
+    groups = {}
+    for i in range(n):
+        groups.setdefault(find(i), []).append(i)
+    return [np.array(g) for g in groups.values()]
+
+
+def canonical(centres, resolution: float):
+    """(key, origin, angle, rounded canonical centres) of a cluster's geometry.
+
+    Canonical frame: origin at the centroid, x along the farthest pair of centres
+    (of the two orientations, the one with the smaller key). A map point p is
+    R(-angle) (p - origin) there.
+    """
+    c = np.asarray(centres, dtype=float).reshape(-1, 2)
+    origin = c.mean(axis=0)
+    rel = c - origin
+    d = np.hypot(rel[:, None, 0] - rel[None, :, 0], rel[:, None, 1] - rel[None, :, 1])
+    i, j = np.unravel_index(np.argmax(d), d.shape)
+    base = math.atan2(rel[j, 1] - rel[i, 1], rel[j, 0] - rel[i, 0])
+    best = None
+    for angle in (base, base + math.pi):
+        cs, sn = math.cos(angle), math.sin(angle)
+        rot = np.stack([cs * rel[:, 0] + sn * rel[:, 1], -sn * rel[:, 0] + cs * rel[:, 1]], axis=1)
+        q = np.round(rot / resolution).astype(int)
+        key = tuple(sorted(map(tuple, q.tolist())))
+        if best is None or key < best[0]:
+            best = (key, angle)
+    key, angle = best
+    return key, origin, angle, np.array(key, dtype=float) * resolution
+
+
+def to_frame(states, origin, angle) -> np.ndarray:
+    """Map states (N, 3) into a cluster's canonical frame."""
+    s = np.asarray(states, dtype=float).reshape(-1, 3)
+    cs, sn = math.cos(angle), math.sin(angle)
+    dx, dy = s[:, 0] - origin[0], s[:, 1] - origin[1]
+    return np.stack([cs * dx + sn * dy, -sn * dx + cs * dy, s[:, 2] - angle], axis=1)
+
+
+@dataclass
+class ClusterValue:
+    """The union's value of one canonical cluster."""
+
+    vf: ValueFunction
+    centres: np.ndarray        # canonical centres (rounded)
+    solve_time: float          # seconds of solving
+    lower: bool = True         # Lipschitz lower bound between nodes (else trilinear)
+    lipschitz_theta: float = 0.0
+
+    def __post_init__(self):
+        self.lipschitz_theta = float(np.max(np.abs(self.vf.node_gradient()[..., 2])))
+        from .law import tie_tolerance
+        self.tie = tie_tolerance(self.vf)
+
+    def evaluate(self, frame_states):
+        """(V lower bound, unit turn) at states in the canonical frame; +inf/0 off the grid."""
+        s = np.asarray(frame_states, dtype=float).reshape(-1, 3)
+        value = np.full(len(s), np.inf)
+        turn = np.zeros(len(s))
+        inside = self.vf.grid.contains(s)
+        if np.any(inside):
+            si = s[inside]
+            value[inside] = (lower_bound(self.vf, si, self.lipschitz_theta) if self.lower
+                             else self.vf.value(si))
+            grad = self.vf.grid.interpolate(self.vf.node_gradient()[..., 2], si)
+            turn[inside] = np.where(grad >= -self.tie, 1.0, -1.0)
+        return value, turn
+
+
+def lower_bound(vf: ValueFunction, states, lipschitz_theta: float) -> np.ndarray:
+    """max over the cell's 8 nodes of V(node) - |dp| - L_theta |dtheta| (see the module doc)."""
+    g = vf.grid
+    ix, iy, it, wx, wy, wt = g._cell(states)
+    s = np.asarray(states, dtype=float)
+    dx, dy, dth = g.spacing
+    # offsets to the corners, from the clamped cell coordinates (states outside were excluded)
+    ox, oy, ot = wx * dx, wy * dy, wt * dth
+    it1 = (it + 1) % g.shape[2]
+    best = np.full(len(s), -np.inf)
+    for cx, ddx in ((ix, ox), (ix + 1, dx - ox)):
+        for cy, ddy in ((iy, oy), (iy + 1, dy - oy)):
+            dp = np.hypot(ddx, ddy)
+            for ct, ddt in ((it, ot), (it1, dth - ot)):
+                best = np.maximum(best, vf.values[cx, cy, ct] - dp - lipschitz_theta * ddt)
+    return best
+
+
+def orbit_value(states, centres, radius: float, turning_radius: float):
+    """(clearance of the clearer loiter circle, its turn +1 left / -1 right) per state.
+
+    Clearance of a circle of radius r centred at m from a disc (c, R):
+    | |m - c| - r | - R (the circle passes outside or around the disc).
+    """
+    s = np.asarray(states, dtype=float).reshape(-1, 3)
+    c = np.asarray(centres, dtype=float).reshape(-1, 2)
+    out = []
+    for side in (1.0, -1.0):
+        mx = s[:, 0] - side * turning_radius * np.sin(s[:, 2])
+        my = s[:, 1] + side * turning_radius * np.cos(s[:, 2])
+        dist = np.hypot(mx[:, None] - c[None, :, 0], my[:, None] - c[None, :, 1])
+        out.append(np.min(np.abs(dist - turning_radius) - radius, axis=1))
+    left, right = out
+    return np.maximum(left, right), np.where(left >= right, 1.0, -1.0)
+
+
+class ClusterStore:
+    """Union values by canonical geometry, solved in a background thread (or inline).
+
+    ``get(key)`` never blocks: None until the value is in force. ``request`` queues
+    a solve once per key. ``latencies`` records request -> in force (s) per key.
+    """
+
+    def __init__(self, settings: ClusterSettings | None = None, background: bool = True,
+                 capacity: int = 256, fallback_only: bool = False):
+        self.settings = settings or ClusterSettings()
+        self.fallback_only = fallback_only     # never solve: the fallback alone (tests, benchmarks)
+        self.background = background
+        self.capacity = capacity
+        self.values: OrderedDict = OrderedDict()
+        self.requested: dict = {}          # key -> monotonic time of the first request
+        self.latencies: dict = {}          # key -> seconds from request to in force
+        self.errors: dict = {}
+        self._lock = threading.Lock()
+        self._queue: queue.Queue = queue.Queue()
+        self._thread = None
+
+    def get(self, key):
+        with self._lock:
+            v = self.values.get(key)
+            if v is not None:
+                self.values.move_to_end(key)
+            return v
+
+    def request(self, key, centres) -> None:
+        if self.fallback_only:
+            return
+        with self._lock:
+            if key in self.values or key in self.requested or key in self.errors:
+                return
+            self.requested[key] = time.monotonic()
+        if not self.background:
+            self._solve(key, centres)
+            return
+        if self._thread is None or not self._thread.is_alive():
+            self._thread = threading.Thread(target=self._work, name='cluster-solver', daemon=True)
+            self._thread.start()
+        self._queue.put((key, centres))
+
+    def pending(self) -> int:
+        with self._lock:
+            return len(self.requested)
+
+    def wait_idle(self, timeout: float = 60.0) -> bool:
+        """Block until every requested solve is done (tests and benchmarks only)."""
+        end = time.monotonic() + timeout
+        while self.pending() and time.monotonic() < end:
+            time.sleep(0.005)
+        return not self.pending()
+
+    def _work(self):
+        # the solves run in a worker process when one can be started: the solver's
+        # Python steps then never hold this process's GIL against the control path
+        pool = None
+        try:
+            import concurrent.futures
+            import multiprocessing
+            pool = concurrent.futures.ProcessPoolExecutor(
+                max_workers=1, mp_context=multiprocessing.get_context('spawn'))
+        except (OSError, ValueError, ImportError):
+            pool = None
+        while True:
+            key, centres = self._queue.get()
+            self._solve(key, centres, pool)
+
+    def _solve(self, key, centres, pool=None):
+        st = self.settings
+        try:
+            c = np.asarray(centres, dtype=float).reshape(-1, 2)
+            if pool is not None:
+                try:
+                    vf, solve_time = pool.submit(solve_cluster, st, c).result()
+                except Exception:       # a broken worker: solve here instead
+                    vf, solve_time = solve_cluster(st, c)
+            else:
+                vf, solve_time = solve_cluster(st, c)
+            value = ClusterValue(vf, c, solve_time, lower=st.lower_bound)
+        except Exception as exc:   # a failed solve leaves the fallback in force, and says why
+            with self._lock:
+                self.errors[key] = f'{type(exc).__name__}: {exc}'
+                self.requested.pop(key, None)
+            return
+        with self._lock:
+            self.values[key] = value
+            while len(self.values) > self.capacity:
+                self.values.popitem(last=False)
+            t_req = self.requested.pop(key, None)
+            if t_req is not None:
+                self.latencies[key] = time.monotonic() - t_req
+
+
+def solve_cluster(settings: ClusterSettings, centres):
+    """(ValueFunction, seconds) of the union of inflated discs at canonical ``centres``."""
+    st = settings
+    c = np.asarray(centres, dtype=float).reshape(-1, 2)
+    lo = c.min(axis=0) - st.reach
+    hi = c.max(axis=0) + st.reach
+    shape = (int(math.ceil((hi[0] - lo[0]) / st.cell)) + 1,
+             int(math.ceil((hi[1] - lo[1]) / st.cell)) + 1, int(st.headings))
+    keepout = Union(tuple(Disc(float(x), float(y), st.radius + st.margin) for x, y in c))
+    t0 = time.perf_counter()
+    vf = solve_avoid(Grid(tuple(lo), tuple(hi), shape), DubinsCar(st.speed, st.omega_max),
+                     keepout, horizon=st.horizon)
+    return vf, time.perf_counter() - t0

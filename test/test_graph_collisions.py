@@ -1,0 +1,24 @@
+"""The real team graph with perfect detection: no crash deeper than 1 cm (issue 9).
+
+CI-sized version of ``bench/bench_collisions.py graph``: 2 robots x 60 sim s at
+the study's coarse 0.2 s step, no supervisor and no learner, sensors that never
+miss (every obstacle the robots meet is detected), and the world counting every
+entry deeper than 1 cm (crash_tolerance 0.01) as a crash.
+"""
+import os
+
+from supersafe_ros.team import run_team, team_processes
+
+
+def test_team_at_a_coarse_step_never_enters_a_detected_obstacle(tmp_path):
+    duration = 60.0
+    argvs = team_processes(n_robots=2, rate_factor=0.0, seed=7, duration=duration, step=0.2,
+                           with_supervisor=False, with_learner=False,
+                           overrides={'dubins_robot': {'miss_probability': 0.0},
+                                      'world': {'crash_tolerance': 0.01}})
+    result = run_team(argvs, duration=duration, timeout=300.0, log_dir=tmp_path / 'logs',
+                      print_period=1e9, out=open(os.devnull, 'w'))
+    stats = result['stats']
+    assert result['reason'] == 'duration reached', result['reason']
+    assert int(stats['trips']) >= 4                  # they really drove across the obstacles
+    assert int(stats['crashes']) == 0, [e for e in result['events'] if e.get('event') == 'crash']
