@@ -108,7 +108,7 @@ class FilterWiring:
         self.max_vf_bytes = p('max_value_function_bytes', 64 * 1024 * 1024,
                               'a value-function message larger than this is rejected unread [bytes]',
                               1024, 2 ** 31 - 1)
-        stall = p('clock_stall_timeout', 1.0, 'with use_sim_time: ROS time standing still longer than '
+        stall = p('clock_stall_timeout', 2.0, 'with use_sim_time: ROS time standing still longer than '
                   'this [steady s] counts as stopped, and ages follow the wall clock', 0.01, 600.0)
         self.frame = p('frame_id', rosmsg.MAP_FRAME, 'frame of pose and detections', **fixed)
         cache_dir = p('cache_dir', '', 'value-function cache ("" = $SUPERSAFE_CACHE or '
