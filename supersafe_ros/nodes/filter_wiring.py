@@ -220,14 +220,17 @@ class FilterWiring:
 
     # -- time ------------------------------------------------------------------------------------------
     def now(self) -> float:
-        """tau: the filter's time (see filter.timebase)."""
-        return self.time.now(self.node.get_clock().now().nanoseconds * 1e-9,
-                             self.steady.now().nanoseconds * 1e-9)
+        """tau: the filter's time (see filter.timebase). Wall mode reads no ROS clock (the
+        steady clock is time.monotonic, CLOCK_MONOTONIC like rclpy's STEADY_TIME, cheaper)."""
+        ros = self.node.get_clock().now().nanoseconds * 1e-9 if self.time.sim else 0.0
+        return self.time.now(ros, time.monotonic())
 
     def stamp(self, header_stamp, tau) -> float | None:
-        """A message's header stamp on the filter's time base (None: unstamped or unusable)."""
+        """A message's header stamp on the filter's time base (None: unstamped or unusable).
+        In wall mode the ROS clock is the system clock (time.time)."""
         stamp_s = header_stamp.sec + header_stamp.nanosec * 1e-9
-        return self.time.stamp_to_tau(stamp_s, self.node.get_clock().now().nanoseconds * 1e-9, tau)
+        ros = self.node.get_clock().now().nanoseconds * 1e-9 if self.time.sim else time.time()
+        return self.time.stamp_to_tau(stamp_s, ros, tau)
 
     # -- logging ---------------------------------------------------------------------------------------
     def complain(self, kind: str, text: str, level='warn'):
