@@ -12,6 +12,7 @@ NODES = [
     'world_node',
     'planner_node',
     'safety_filter_node',
+    'fleet_safety_filter_node',
     'learner_node',
     'supervisor_node',
     'sim_clock_node',

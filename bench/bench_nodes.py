@@ -13,6 +13,10 @@ Sections:
            filter_core.RobotFilter instances (one step each) and the batched step_many.
   nodes    M SafetyFilterNode instances in ONE process (one executor), each fed pose and
            planner command at 50 Hz: output rate per robot and the process's CPU.
+  fleet    fleet_safety_filter_node with M robots on per-robot topics (<ns>/pose, ...), in ONE
+           process pinned to one core: decisions per robot per second, the process's CPU.
+  batched  fleet_safety_filter_node with N robots on the batched topics (fleet/poses ->
+           fleet/cmd_vel), pinned to one core: replies per second, pose -> reply latency.
   learner  intervention published -> new fit (/safe_set/fit) and value function received,
            with the paper's library (65 x 65 x 42, 13 entries).
 
@@ -391,6 +395,182 @@ def bench_nodes(args):
             stop([child])
 
 
+# -- fleet node ----------------------------------------------------------------------------------
+def serve_fleet(m, batched, one_core):
+    """Child: one fleet_safety_filter_node for /bench_0 .. /bench_<m-1>, optionally on one core."""
+    import rclpy
+    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+    from rclpy.parameter import Parameter
+    from diagnostic_msgs.msg import DiagnosticStatus
+    from supersafe_ros.nodes.fleet_safety_filter_node import FleetSafetyFilterNode
+    from supersafe_ros.ros_io import rosmsg
+    if one_core:
+        os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[-1]})
+    ensure_local_ros_env()
+    rclpy.init()
+    node = FleetSafetyFilterNode(parameter_overrides=[
+        Parameter('robots', value=[f'bench_{i}' for i in range(m)]),
+        Parameter('per_robot_topics', value=not batched), Parameter('batched_topics', value=batched),
+        Parameter('state_rate', value=1.0), Parameter('rate', value=50.0),
+        Parameter('pose_timeout', value=1.0), Parameter('detections_timeout', value=2.0)])
+    report = node.create_publisher(DiagnosticStatus, '/bench/decisions', rosmsg.QOS_EVENTS)
+    node.create_timer(0.25, lambda: report.publish(rosmsg.make_diagnostic('decisions', {
+        't': time.monotonic_ns(), 'ticks': node.ticks, 'fail_safe': node.failing_safe,
+        'decisions': ','.join(str(int(v)) for v in node.decisions)})), clock=node.wiring.steady)
+    ex = SingleThreadedExecutor()
+    ex.add_node(node)
+    try:
+        ex.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.close()
+        rclpy.try_shutdown()
+
+
+def _window_rates(reports, t0, t1):
+    """Decisions per robot per second between the reports around [t0, t1] (the child's view)."""
+    before = [r for r in reports if int(r['t']) <= int(t0 * 1e9)]
+    after = [r for r in reports if int(r['t']) >= int(t1 * 1e9)]
+    first = before[-1] if before else (reports[0] if reports else None)
+    last = after[0] if after else (reports[-1] if reports else None)
+    if first is None or last is first:
+        return np.zeros(1), -1
+    span = (int(last['t']) - int(first['t'])) * 1e-9
+    decided = (np.array(last['decisions'].split(','), dtype=float)
+               - np.array(first['decisions'].split(','), dtype=float)) / span
+    inside = [r for r in reports if int(first['t']) <= int(r['t']) <= int(last['t'])]
+    _window_rates.ticks = int(last['ticks']) - int(first['ticks'])
+    return decided, max(int(r['fail_safe']) for r in inside)
+
+
+def _capacity(tag, m, cpu, ticks):
+    """CPU per tick in the filter process, and what that means for a core at 50 Hz (CPU time
+    is what a loaded machine inflates least)."""
+    if ticks <= 0:
+        print(f'[{tag}]          no ticks measured')
+        return
+    per_tick = cpu / ticks
+    print(f'[{tag}]          filter CPU per tick of {m} robots (inputs taken, one step_many, outputs '
+          f'published) {per_tick * 1e3:.1f} ms ({per_tick / m * 1e6:.0f} us per robot) -> one core would '
+          f'serve ~{m * 0.02 / per_tick:.0f} robots at 50 Hz')
+
+
+def bench_fleet(args):
+    from diagnostic_msgs.msg import DiagnosticStatus
+    from geometry_msgs.msg import PoseArray, PoseStamped, Twist
+    from supersafe_ros.ros_io import rosmsg
+    print('[fleet] fleet_safety_filter_node, per-robot topics, one process pinned to one core; the bench '
+          f'feeds each robot pose + command at 50 Hz and detections at 10 Hz for {args.window:.0f} s')
+    for m in args.fleet_sizes:
+        child = start([os.path.abspath(__file__), '--serve-fleet', str(m)]
+                      + (['--all-cores'] if args.all_cores else []), f'fleet_{m}')
+        d = Driver('bench_fleet')
+        try:
+            reports = []
+            d.node.create_subscription(DiagnosticStatus, '/bench/decisions',
+                                       lambda msg: reports.append(rosmsg.diagnostic_values(msg)), rosmsg.QOS_EVENTS)
+            pubs = [(d.node.create_publisher(PoseStamped, f'/bench_{i}/pose', rosmsg.QOS_STREAM),
+                     d.node.create_publisher(PoseArray, f'/bench_{i}/detections', rosmsg.QOS_STREAM),
+                     d.node.create_publisher(Twist, f'/bench_{i}/cmd_vel_nav', rosmsg.QOS_STREAM)) for i in range(m)]
+            d.spin_until(lambda: all(p.get_subscription_count() for trio in pubs for p in trio) and reports,
+                         180.0, f'the fleet node of {m} robots to match')
+            rng = np.random.default_rng(1)
+            poses = [rosmsg.state_to_pose((OBSTACLE[0] + rng.uniform(-6, 6), OBSTACLE[1] + rng.uniform(-6, 6),
+                                           rng.uniform(-3, 3))) for _ in range(m)]
+            dets = rosmsg.xy_to_posearray([OBSTACLE, (OBSTACLE[0] + 6, OBSTACLE[1])])
+            cmd = rosmsg.turn_rate_to_twist(0.1, 3.0)
+            ticks, t0 = 0, time.monotonic()
+            cpu0, me0 = cpu_seconds(child.pid), time.process_time()
+            next_tick = t0
+            while time.monotonic() - t0 < args.window:
+                stamp = d.node.get_clock().now().to_msg()
+                for i, (pose_pub, det_pub, cmd_pub) in enumerate(pubs):
+                    poses[i].header.stamp = stamp
+                    pose_pub.publish(poses[i])
+                    if ticks % 5 == 0:
+                        det_pub.publish(dets)
+                    cmd_pub.publish(cmd)
+                ticks += 1
+                next_tick += 0.02
+                d.spin_for(max(0.0, next_tick - time.monotonic()))
+            t1 = time.monotonic()
+            cpu, feeder = cpu_seconds(child.pid) - cpu0, time.process_time() - me0
+            d.spin_until(lambda: reports and int(reports[-1]['t']) >= int(t1 * 1e9), 30.0, 'a report after the window')
+            decided, fail = _window_rates(reports, t0, t1)
+            print(f'[fleet] M={m:4d}: fed at {ticks / (t1 - t0):5.1f} Hz per robot; decisions per robot median '
+                  f'{np.median(decided):5.1f}/s, min {decided.min():5.1f}/s; robots failing safe at most {fail}; '
+                  f'fleet process CPU {100 * cpu / (t1 - t0):5.1f} % of its one core; feeder CPU '
+                  f'{100 * feeder / (t1 - t0):5.1f} %')
+            _capacity('fleet', m, cpu, _window_rates.ticks)
+        finally:
+            d.close()
+            stop([child])
+
+
+def bench_batched(args):
+    from diagnostic_msgs.msg import DiagnosticStatus
+    from geometry_msgs.msg import PoseArray
+    from std_msgs.msg import Float64MultiArray
+    from supersafe_ros.ros_io import fleetmsg, rosmsg
+    print('[batched] fleet_safety_filter_node, batched topics only, pinned to one core; the bench sends '
+          f'fleet/poses + fleet/cmd_vel_nav at 50 Hz (fleet/detections at 10 Hz) for {args.window:.0f} s')
+    for n in args.batched_sizes:
+        child = start([os.path.abspath(__file__), '--serve-fleet', str(n), '--serve-batched']
+                      + (['--all-cores'] if args.all_cores else []), f'batched_{n}')
+        d = Driver('bench_batched')
+        try:
+            reports, replies = [], []
+            d.node.create_subscription(DiagnosticStatus, '/bench/decisions',
+                                       lambda msg: reports.append(rosmsg.diagnostic_values(msg)), rosmsg.QOS_EVENTS)
+            d.node.create_subscription(Float64MultiArray, '/fleet/cmd_vel',
+                                       lambda msg: replies.append(time.monotonic_ns()), rosmsg.QOS_STREAM)
+            pose_pub = d.node.create_publisher(PoseArray, '/fleet/poses', rosmsg.QOS_STREAM)
+            det_pub = d.node.create_publisher(PoseArray, '/fleet/detections', rosmsg.QOS_STREAM)
+            cmd_pub = d.node.create_publisher(Float64MultiArray, '/fleet/cmd_vel_nav', rosmsg.QOS_STREAM)
+            d.spin_until(lambda: all(p.get_subscription_count() for p in (pose_pub, det_pub, cmd_pub)) and reports,
+                         180.0, f'the fleet node of {n} robots to match')
+            rng = np.random.default_rng(2)
+            field = np.stack([rng.uniform(-40, 40, 30), rng.uniform(-40, 40, 30)], axis=1)
+            states = np.stack([rng.uniform(-40, 40, n), rng.uniform(-40, 40, n), rng.uniform(-3, 3, n)], axis=1)
+            poses = rosmsg.xy_to_posearray(states[:, :2])
+            for p, th in zip(poses.poses, states[:, 2]):
+                p.orientation = rosmsg.yaw_to_quaternion(float(th))
+            dets = rosmsg.xy_to_posearray(field)
+            cmds = fleetmsg.commands_to_msg(np.tile([3.0, 0.1], (n, 1)))
+            latency, ticks, t0 = [], 0, time.monotonic()
+            cpu0 = cpu_seconds(child.pid)
+            next_tick = t0
+            while time.monotonic() - t0 < args.window:
+                if ticks % 5 == 0:
+                    det_pub.publish(dets)
+                cmd_pub.publish(cmds)
+                poses.header.stamp = d.node.get_clock().now().to_msg()
+                replies.clear()
+                sent = time.monotonic_ns()
+                pose_pub.publish(poses)
+                ticks += 1
+                next_tick += 0.02
+                while time.monotonic() < next_tick:
+                    d.executor.spin_once(timeout_sec=0.001)
+                    if replies and replies[0] >= sent and len(latency) < ticks:
+                        latency.append((replies[0] - sent) * 1e-9)
+            t1 = time.monotonic()
+            cpu = cpu_seconds(child.pid) - cpu0
+            d.spin_until(lambda: reports and int(reports[-1]['t']) >= int(t1 * 1e9), 30.0, 'a report after the window')
+            decided, fail = _window_rates(reports, t0, t1)
+            print(f'[batched] N={n:5d}: fed at {ticks / (t1 - t0):5.1f} Hz; decisions per robot median '
+                  f'{np.median(decided):5.1f}/s, min {decided.min():5.1f}/s; robots failing safe at most {fail}; '
+                  f'process CPU {100 * cpu / (t1 - t0):5.1f} % of its one core')
+            _capacity('batched', n, cpu, _window_rates.ticks)
+            if latency:
+                print(f'[batched]          fleet/poses -> fleet/cmd_vel (replies within the tick, '
+                      f'{len(latency)} of {ticks}): {ms(latency)}')
+        finally:
+            d.close()
+            stop([child])
+
+
 # -- learner ----------------------------------------------------------------------------------------
 def bench_learner(args):
     from diagnostic_msgs.msg import DiagnosticStatus
@@ -451,7 +631,7 @@ def bench_learner(args):
 
 
 SECTIONS = {'vfmsg': bench_vfmsg, 'latency': bench_latency, 'core': bench_core, 'nodes': bench_nodes,
-            'learner': bench_learner}
+            'fleet': bench_fleet, 'batched': bench_batched, 'learner': bench_learner}
 
 
 def main(argv=None):
@@ -464,12 +644,19 @@ def main(argv=None):
     parser.add_argument('--window', type=float, default=5.0, help='seconds per node-count run')
     parser.add_argument('--interventions', type=int, default=40)
     parser.add_argument('--serve-vf-echo', action='store_true', help=argparse.SUPPRESS)
+    parser.add_argument('--fleet-sizes', type=int, nargs='+', default=[50, 100, 150])
+    parser.add_argument('--batched-sizes', type=int, nargs='+', default=[500, 1000, 2000])
+    parser.add_argument('--all-cores', action='store_true', help='do not pin the fleet node to one core')
     parser.add_argument('--serve-filters', type=int, default=0, help=argparse.SUPPRESS)
+    parser.add_argument('--serve-fleet', type=int, default=0, help=argparse.SUPPRESS)
+    parser.add_argument('--serve-batched', action='store_true', help=argparse.SUPPRESS)
     args, _ = parser.parse_known_args(argv)
     if args.serve_vf_echo:
         return serve_vf_echo()
     if args.serve_filters:
         return serve_filters(args.serve_filters)
+    if args.serve_fleet:
+        return serve_fleet(args.serve_fleet, args.serve_batched, not args.all_cores)
     ensure_local_ros_env()
     os.environ.setdefault('ROS_DOMAIN_ID', str(150 + os.getpid() % 80))
     import rclpy

@@ -100,7 +100,7 @@ def bench_recorder(n: int, rate: float):
 
 def bench_contour(repeat: int = 20):
     from supersafe_ros.filter.contours import level_set_contour
-    from supersafe_ros.nodes.safety_filter_node import standard_value_function
+    from supersafe_ros.nodes.filter_wiring import standard_value_function
     vf = standard_value_function([-8.0, -8.0], [8.0, 8.0], [65, 65, 42], 3.0, 1.0, 1.8, 3.0)
     times = []
     for i in range(repeat):

@@ -157,8 +157,11 @@ def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
             # each command holds for one step; a decision on the step before's pose (its
             # pose and cmd_vel_nav callbacks race) is propagated from the pose's stamp, and
             # a reply that misses its step holds for one more: look ahead two steps
-            # (see filter.core: delay compensation, lookahead)
-            add('safety_filter', name, {**sim, 'control_period': step, 'lookahead': 2.0 * step})
+            # (see filter.core: delay compensation, lookahead). A lockstepped robot does not
+            # move while /clock waits (a busy machine, a slow rate factor), so the filter
+            # counts a stopped /clock as lost only after 10 s (docs/filter_node.md)
+            add('safety_filter', name, {**sim, 'control_period': step, 'lookahead': 2.0 * step,
+                                        'clock_stall_timeout': 10.0})
     if with_learner:
         add('learner', None, {**sim, **({'store_path': str(learner_store)} if learner_store else {})},
             coarse)

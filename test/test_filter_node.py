@@ -12,6 +12,8 @@ from std_msgs.msg import Float32MultiArray
 from supersafe_ros.ros_io import rosmsg
 from supersafe_ros.nodes.safety_filter_node import VALUE_FUNCTION_TOPIC, SafetyFilterNode
 from supersafe_ros.ros_io.vfmsg import value_function_to_msg
+from supersafe_ros.reach.grid import Grid
+from supersafe_ros.reach.value_function import ValueFunction
 
 from filter_learner_support import Spinner, matched, ros_context  # noqa: F401  (fixture)
 
@@ -76,6 +78,7 @@ def setup(ros_context):
     node = SafetyFilterNode(namespace=NS, context=ros_context, parameter_overrides=params)
     driver = Driver(ros_context)
     spin = Spinner(ros_context, node, driver.node)
+    spin.client_node = driver.node
     spin.until(lambda: matched(*driver.endpoints()), 10.0, 'filter topics to match')
     yield node, driver, spin
     spin.shutdown()
@@ -167,28 +170,154 @@ def test_invalid_inputs_fail_safe_and_the_node_keeps_running(setup, bad):
     assert out.angular.z == pytest.approx(0.3)
 
 
+def wait_set_update(driver, spin, before, kind, timeout=20.0):
+    """Wait for a state saying the value-function handler finished one more set (``kind``:
+    'accepted' or 'rejected'); returns that state's values."""
+    key = 'sets_accepted' if kind == 'accepted' else 'sets_rejected'
+    spin.until(lambda: driver.states and int(driver.last_state().get(key, -1)) > before[key], timeout,
+               f'the value function to be {kind}')
+    st = driver.last_state()
+    assert st['set_update'] == kind
+    return st
+
+
+def counts(driver, spin):
+    driver.states.clear()
+    spin.until(lambda: driver.states, 5.0, 'a state message')
+    st = driver.last_state()
+    return {'sets_accepted': int(st['sets_accepted']), 'sets_rejected': int(st['sets_rejected'])}
+
+
 def test_learned_set_replaces_the_standard_and_malformed_sets_are_ignored(setup):
     node, driver, spin = setup
     far = state(-7.5, 7.0, 0.0)
     v_far = float(exchange(driver, spin, far, 0.3, want=passing(0.3))[1]['value'])
-    # a "learned" set: the standard V with mu above V at this state -> override here
+    # a "learned" set: the standard V with mu above V at this state -> override here (and
+    # more conservative than the standard set everywhere: admissible)
     learned = value_function_to_msg(node.standard.vf, source='learned', mu=v_far + 0.5, sigma=0.2,
                                     alpha=v_far + 0.5, estimator='paper', interventions=9)
+    before = counts(driver, spin)
     driver.vf.publish(learned)
-    spin.until(lambda: node.safe_set.source == 'learned', 5.0, 'the learned set to arrive')
+    wait_set_update(driver, spin, before, 'accepted')
     out, st, msg = exchange(driver, spin, far, 0.3, want=lambda s: s['action'] == 'override')
     assert st['source'] == 'learned' and float(st['alpha']) == pytest.approx(v_far + 0.5)
-    # malformed: NaN inside, wrong sizes -> rejected, the learned set stays
+    # malformed: NaN inside, wrong sizes -> rejected with the reason, the learned set stays
     bad = value_function_to_msg(node.standard.vf, source='learned', mu=-5.0, sigma=0.0)
     bad.data[7] = float('nan')
+    before = counts(driver, spin)
     driver.vf.publish(bad)
+    st = wait_set_update(driver, spin, before, 'rejected')
+    assert 'NaN' in st['set_update_reason'] and 'keeping the learned set' in st['set_update_reason']
     short = value_function_to_msg(node.standard.vf, source='learned', mu=-5.0, sigma=0.0)
     short.data = short.data[:100]
+    before = counts(driver, spin)
     driver.vf.publish(short)
-    spin.spin_for(0.3)
+    st = wait_set_update(driver, spin, before, 'rejected')
+    assert 'values for a grid' in st['set_update_reason']
     assert node.safe_set.source == 'learned' and node.safe_set.alpha == pytest.approx(v_far + 0.5)
     # the standard set back (as the learner publishes after a reset)
+    before = counts(driver, spin)
     driver.vf.publish(value_function_to_msg(node.standard.vf, source='standard', alpha=0.0))
-    spin.until(lambda: node.safe_set.source == 'standard', 5.0, 'the standard set')
+    wait_set_update(driver, spin, before, 'accepted')
     out, st, msg = exchange(driver, spin, far, 0.3, want=passing(0.3))
     assert st['source'] == 'standard'
+
+
+def shifted(vf, shift):
+    return ValueFunction(vf.grid, (vf.values + shift).astype(np.float32), dict(vf.meta))
+
+
+@pytest.mark.parametrize('case', ['less_conservative', 'wrong_grid', 'mu_minus_100', 'more_conservative'])
+def test_a_learned_set_is_used_only_if_it_contains_the_standard_unsafe_set(setup, case):
+    node, driver, spin = setup
+    std = node.standard.vf
+    if case == 'less_conservative':        # V shifted up by 0.5: a smaller unsafe region
+        msg = value_function_to_msg(shifted(std, 0.5), source='learned', mu=0.0, sigma=0.0)
+    elif case == 'more_conservative':      # V shifted down: a larger unsafe region
+        msg = value_function_to_msg(shifted(std, -0.5), source='learned', mu=0.0, sigma=0.0)
+    elif case == 'wrong_grid':             # very conservative, but on a grid that misses most states
+        grid = Grid((-2.0, -2.0), (2.0, 2.0), tuple(SHAPE))
+        small = ValueFunction(grid, np.full(tuple(SHAPE), -1.0, np.float32), dict(std.meta))
+        msg = value_function_to_msg(small, source='learned', mu=0.0, sigma=0.0)
+    else:                                  # well formed, but at level -100
+        msg = value_function_to_msg(std, source='learned', mu=-100.0, sigma=0.0)
+    before = counts(driver, spin)
+    driver.vf.publish(msg)
+    if case == 'more_conservative':
+        st = wait_set_update(driver, spin, before, 'accepted')
+        assert 'admissible' in st['set_update_reason'] and node.safe_set.source == 'learned'
+        # the standard set back for the next tests
+        before = counts(driver, spin)
+        driver.vf.publish(value_function_to_msg(std, source='standard', alpha=0.0))
+        wait_set_update(driver, spin, before, 'accepted')
+        return
+    st = wait_set_update(driver, spin, before, 'rejected')
+    assert 'less conservative than the standard set' in st['set_update_reason']
+    assert node.safe_set.source == 'standard'
+    # the standard set still governs: heading at the disc from inside its unsafe set -> override
+    out, st, msg = exchange(driver, spin, state(-2.6, 0.0, 0.0), 0.0,
+                            want=lambda s: s['action'] == 'override')
+    assert st['source'] == 'standard' and out.angular.z == pytest.approx(1.0)
+    exchange(driver, spin, state(-7.5, 7.0, 0.0), 0.0, want=passing(0.0))
+
+
+def test_an_oversize_set_is_rejected_unread(setup):
+    node, driver, spin = setup
+    assert set_parameters(node, spin, max_value_function_bytes=4096).successful
+    try:
+        before = counts(driver, spin)
+        driver.vf.publish(value_function_to_msg(shifted(node.standard.vf, -0.5), source='learned', mu=0.0,
+                                                sigma=0.0))
+        st = wait_set_update(driver, spin, before, 'rejected')
+        assert 'exceeds max_value_function_bytes (4096)' in st['set_update_reason']
+        assert node.safe_set.source == 'standard'
+    finally:
+        assert set_parameters(node, spin, max_value_function_bytes=64 * 1024 * 1024).successful
+
+
+def set_parameters(node, spin, **values):
+    """Set parameters through the node's parameter service, as `ros2 param set` does."""
+    from rclpy.parameter_client import AsyncParameterClient
+    client = AsyncParameterClient(spin.client_node, node.get_fully_qualified_name())
+    spin.until(lambda: client.services_are_ready(), 10.0, 'the parameter services')
+    future = client.set_parameters([Parameter(k, value=v) for k, v in values.items()])
+    spin.until(future.done, 10.0, 'the parameter set')
+    results = future.result().results
+    assert len(results) == len(values)
+    return results[0] if len(results) == 1 else results
+
+
+def test_levels_and_margins_set_at_run_time_take_effect(setup):
+    node, driver, spin = setup
+    here = state(-6.0, 0.0, 0.0)            # heading at the disc, a few metres out: 0 < V < 2
+    out, st, msg = exchange(driver, spin, here, 0.0, want=passing(0.0))
+    v = float(st['value'])
+    assert 0.0 < v < 5.0
+    try:
+        result = set_parameters(node, spin, standard_alpha=v + 0.5)
+        assert result.successful
+        out, st, msg = exchange(driver, spin, here, 0.0, want=lambda s: s['action'] == 'override')
+        assert float(st['alpha']) == pytest.approx(v + 0.5)
+    finally:
+        assert set_parameters(node, spin, standard_alpha=0.0).successful
+    exchange(driver, spin, here, 0.0, want=passing(0.0))
+    # a timeout set at run time: a pose older than 0.05 s is stale at once
+    assert set_parameters(node, spin, pose_timeout=0.05).successful
+    try:
+        exchange(driver, spin, here, 0.0, want=lambda s: 'pose stale' in s['reason'])
+    finally:
+        assert set_parameters(node, spin, pose_timeout=0.3).successful
+
+
+@pytest.mark.parametrize('name, value, why', [
+    ('speed', 5.0, 'read-only'), ('standard_shape', [11, 11, 8], 'read-only'),
+    ('frame_id', 'odom', 'read-only'), ('pose_timeout', -1.0, 'out of range'),
+    ('standard_alpha', 50.0, 'out of range')])
+def test_read_only_and_out_of_range_parameter_sets_are_refused(setup, name, value, why):
+    node, driver, spin = setup
+    before = node.get_parameter(name).value
+    result = set_parameters(node, spin, **{name: value})
+    assert not result.successful and result.reason
+    assert node.get_parameter(name).value == before
+    if name == 'speed':
+        assert node.filter.config.speed == 3.0

@@ -28,7 +28,7 @@ SHAPE = [41, 41, 24]
 
 @pytest.fixture(scope='module')
 def standard_vf():
-    from supersafe_ros.nodes.safety_filter_node import standard_value_function
+    from supersafe_ros.nodes.filter_wiring import standard_value_function
     return standard_value_function([-8.0, -8.0], [8.0, 8.0], SHAPE, 3.0, 1.0, RADIUS, 3.0)
 
 

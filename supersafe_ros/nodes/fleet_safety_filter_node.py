@@ -1,0 +1,294 @@
+"""fleet_safety_filter_node: the safety filter of a whole fleet in one process.
+
+Parameter ``robots`` lists the namespaces (e.g. ['robot_0', 'robot_1']). Two
+interfaces, each switchable (read-only parameters), used together or alone:
+
+Per-robot topics (``per_robot_topics``), exactly those of safety_filter_node, so it is a
+drop-in for N of them:
+  sub  <ns>/pose, <ns>/detections, <ns>/cmd_vel_nav     as safety_filter_node
+  pub  <ns>/cmd_vel, <ns>/safety_filter/state           as safety_filter_node
+
+Batched topics (``batched_topics``; see docs/fleet.md and ``ros_io.fleetmsg``), for a
+fleet manager or simulator that holds every robot's state; robot i = robots[i]:
+  sub  fleet/poses             geometry_msgs/PoseArray       N poses, frame map; each one is a tick
+  sub  fleet/detections        geometry_msgs/PoseArray       obstacle centres seen by the fleet,
+                                                             applied to every robot
+  sub  fleet/cmd_vel_nav       std_msgs/Float64MultiArray    N x [linear.x, angular.z]
+  pub  fleet/cmd_vel           std_msgs/Float64MultiArray    N x [linear.x, angular.z]
+  pub  fleet/safety_filter/state  diagnostic_msgs/DiagnosticArray  one status per robot whose action
+                                                             changed or whose state is due (state_rate)
+(fleet/... are relative to the node's namespace.)
+
+Every decision of every robot is made in ONE vectorised ``filter.core.step_many``
+call per tick. Ticks: a steady-clock timer at ``rate``, plus every ``fleet/poses``
+message (the batched reply). Per-robot topics are not taken through the executor one
+message at a time: their subscriptions belong to a helper node that is never spun,
+and each tick drains them (newest sample of each), so the cost per robot is a few
+takes and one publish, not a callback per message. A per-robot decision therefore
+waits for the next tick (at most 1/rate s).
+
+Bad batched input (wrong frame or size, NaN rows) is rejected with a logged reason:
+a whole bad pose message fails every robot safe (their newest pose is rejected), a
+bad row only its robot; a bad command row keeps that robot's previous command.
+Parameters, the safe sets, the admissibility check of learned sets and the time
+base are those of safety_filter_node (``filter_wiring``).
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from rclpy.node import Node
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from geometry_msgs.msg import PoseArray, PoseStamped, Twist
+from std_msgs.msg import Float64MultiArray
+
+from ..filter.core import FAIL_SAFE, step_many
+from ..ros_io import fleetmsg, rosmsg
+from .common import declare, run_node
+from .filter_wiring import FilterWiring, StateThrottle
+
+
+def robot_namespace(name: str) -> str:
+    """'/robot_0' for 'robot_0' or '/robot_0/'; refuses empty names."""
+    ns = '/' + str(name).strip().strip('/')
+    if ns == '/':
+        raise ValueError(f'robot namespace {name!r} is empty')
+    return ns
+
+
+class _RobotTopics:
+    """A robot's per-robot endpoints (on the never-spun io node)."""
+
+    __slots__ = ('pose', 'detections', 'command', 'cmd_pub', 'state_pub')
+
+    def __init__(self, io, ns):
+        noop = lambda msg: None  # noqa: E731  (taken by the tick, never by an executor)
+        self.pose = io.create_subscription(PoseStamped, f'{ns}/pose', noop, rosmsg.QOS_STREAM)
+        self.detections = io.create_subscription(PoseArray, f'{ns}/detections', noop, rosmsg.QOS_STREAM)
+        self.command = io.create_subscription(Twist, f'{ns}/cmd_vel_nav', noop, rosmsg.QOS_STREAM)
+        self.cmd_pub = io.create_publisher(Twist, f'{ns}/cmd_vel', rosmsg.QOS_STREAM)
+        self.state_pub = io.create_publisher(DiagnosticStatus, f'{ns}/safety_filter/state', rosmsg.QOS_STREAM)
+
+
+def take_newest(sub):
+    """The newest message waiting on ``sub`` (None if none), the older ones dropped."""
+    newest = None
+    handle, msg_type = sub.handle, sub.msg_type
+    while True:
+        got = handle.take_message(msg_type, False)
+        if got is None:
+            return newest
+        newest = got[0]
+
+
+class FleetSafetyFilterNode(Node):
+    def __init__(self, node_name='fleet_safety_filter', **kwargs):
+        super().__init__(node_name, **kwargs)
+        robots = declare(self, 'robots', ['robot_0'], 'namespaces of the robots (order = rows of the '
+                         'batched topics)', read_only=True)
+        self.per_robot = declare(self, 'per_robot_topics', True, 'serve <ns>/pose, <ns>/detections, '
+                                 '<ns>/cmd_vel_nav -> <ns>/cmd_vel, <ns>/safety_filter/state', read_only=True)
+        self.batched = declare(self, 'batched_topics', True, 'serve fleet/poses, fleet/detections, '
+                               'fleet/cmd_vel_nav -> fleet/cmd_vel, fleet/safety_filter/state', read_only=True)
+        self.namespaces = [robot_namespace(r) for r in robots]
+        if len(set(self.namespaces)) != len(self.namespaces):
+            raise ValueError(f'robots lists a namespace twice: {self.namespaces}')
+        self.wiring = w = FilterWiring(self, self.namespaces, on_rate=self._set_rate)
+        self.n = len(self.namespaces)
+        start = time.monotonic()
+        self._throttles = [StateThrottle(i / self.n, start, w.state_period) for i in range(self.n)]
+        self._failing = [None] * self.n
+        self.ticks = 0
+        self.failing_safe = 0
+        self.decisions = np.zeros(self.n, dtype=np.int64)
+        self._last_batched = -1e18
+
+        self.io = None
+        self.topics = []
+        if self.per_robot:
+            # its entities are drained by the tick: never add this node to an executor
+            self.io = Node(f'{node_name}_io', namespace=self.get_namespace(), context=self.context,
+                           start_parameter_services=False)
+            self.topics = [_RobotTopics(self.io, ns) for ns in self.namespaces]
+        if self.batched:
+            # detections and commands first: in one wake-up the executor takes them before the poses
+            self.create_subscription(PoseArray, 'fleet/detections', self.on_fleet_detections,
+                                     rosmsg.QOS_STREAM)
+            self.create_subscription(Float64MultiArray, 'fleet/cmd_vel_nav', self.on_fleet_commands,
+                                     rosmsg.QOS_STREAM)
+            self.create_subscription(PoseArray, 'fleet/poses', self.on_fleet_poses, rosmsg.QOS_STREAM)
+            self.fleet_cmd_pub = self.create_publisher(Float64MultiArray, 'fleet/cmd_vel', rosmsg.QOS_STREAM)
+            self.fleet_state_pub = self.create_publisher(DiagnosticArray, 'fleet/safety_filter/state',
+                                                         rosmsg.QOS_STREAM)
+        self.timer = None
+        self._set_rate(w.rate)
+        self.get_logger().info(
+            f'filtering {self.n} robots ({", ".join(self.namespaces[:5])}{", ..." if self.n > 5 else ""}) '
+            f'in one step per tick at {w.rate:g} Hz; per-robot topics {"on" if self.per_robot else "off"}, '
+            f'batched topics {"on" if self.batched else "off"}; failing safe until each robot\'s first '
+            f'pose and detections')
+
+    def _set_rate(self, rate):
+        self.period = 1.0 / rate
+        if self.timer is not None:
+            self.destroy_timer(self.timer)
+        self.timer = self.create_timer(self.period, self.on_tick, clock=self.wiring.steady)
+
+    # -- per-robot topics: drained once per tick --------------------------------------------------
+    def _drain(self, t):
+        w = self.wiring
+        frame = w.frame
+        for f, topics in zip(w.filters, self.topics):
+            msg = take_newest(topics.pose)
+            if msg is not None:
+                try:
+                    f.update_pose(rosmsg.pose_to_state(msg, frame), t, stamp=w.stamp(msg.header.stamp, t))
+                except ValueError as exc:
+                    f.reject_pose(str(exc), t)
+                    w.complain(f'pose {f.name}', f'{f.name}: pose rejected: {exc}; failing safe', level='error')
+            msg = take_newest(topics.detections)
+            if msg is not None:
+                try:
+                    f.update_detections(rosmsg.posearray_to_xy(msg, frame), t)
+                except ValueError as exc:
+                    f.reject_detections(str(exc), t)
+                    w.complain(f'det {f.name}', f'{f.name}: detections rejected: {exc}; failing safe',
+                               level='error')
+            msg = take_newest(topics.command)
+            if msg is not None:
+                try:
+                    f.update_command(rosmsg.twist_turn_rate(msg), t)
+                except ValueError as exc:
+                    w.complain(f'cmd {f.name}', f'{f.name}: cmd_vel_nav rejected: {exc}; keeping the '
+                               f'previous command')
+
+    # -- batched topics ---------------------------------------------------------------------------------
+    def on_fleet_detections(self, msg: PoseArray):
+        w = self.wiring
+        t = w.now()
+        try:
+            xy = rosmsg.posearray_to_xy(msg, w.frame)
+        except ValueError as exc:
+            for f in w.filters:
+                f.reject_detections(str(exc), t)
+            w.complain('fleet detections', f'fleet/detections rejected: {exc}; failing safe', level='error')
+            return
+        for f in w.filters:
+            f.update_detections(xy, t)
+
+    def on_fleet_commands(self, msg: Float64MultiArray):
+        w = self.wiring
+        t = w.now()
+        try:
+            commands, bad = fleetmsg.msg_to_commands(msg, self.n)
+        except ValueError as exc:
+            w.complain('fleet cmd', f'fleet/cmd_vel_nav rejected: {exc}; keeping the previous commands',
+                       level='error')
+            return
+        for f, omega, why in zip(w.filters, commands[:, 1].tolist(), bad):
+            if why:
+                w.complain(f'cmd {f.name}', f'{f.name}: fleet/cmd_vel_nav row rejected: {why}; keeping the '
+                           f'previous command', level='error')
+                continue
+            f.update_command(omega, t)
+
+    def on_fleet_poses(self, msg: PoseArray):
+        w = self.wiring
+        t = w.now()
+        try:
+            states, bad = fleetmsg.posearray_to_states(msg, self.n, w.frame)
+        except ValueError as exc:
+            for f in w.filters:
+                f.reject_pose(str(exc), t)
+            w.complain('fleet poses', f'fleet/poses rejected: {exc}; failing safe (every robot)', level='error')
+        else:
+            stamp = w.stamp(msg.header.stamp, t)
+            for f, s, why in zip(w.filters, states, bad):
+                if why:
+                    f.reject_pose(why, t)
+                    w.complain(f'pose {f.name}', f'{f.name}: fleet/poses row rejected: {why}; failing safe',
+                               level='error')
+                else:
+                    f.update_pose(s, t, stamp=stamp)
+        self.decide(t)
+        self._last_batched = time.monotonic()
+
+    # -- ticks ----------------------------------------------------------------------------------------
+    def on_tick(self):
+        if not self.per_robot and time.monotonic() - self._last_batched < self.period * 0.999:
+            return   # the batched poses are ticking
+        self.decide()
+
+    def decide(self, t=None):
+        w = self.wiring
+        t = w.now() if t is None else t
+        if self.per_robot:
+            self._drain(t)
+        outs = step_many(w.filters, w.safe_set, t)
+        self.ticks += 1
+        self.decisions += 1
+        self.failing_safe = sum(o.action == FAIL_SAFE for o in outs)
+        now = time.monotonic()
+        period, update = w.state_period, w.set_update
+        due = [i for i, (th, o) in enumerate(zip(self._throttles, outs))
+               if th.due(now, o.action, update, period)]
+        if self.per_robot:
+            for topics, o in zip(self.topics, outs):
+                twist = Twist()
+                twist.linear.x = o.linear
+                twist.angular.z = o.omega
+                topics.cmd_pub.publish(twist)
+            for i in due:
+                self.topics[i].state_pub.publish(w.state_message(self.namespaces[i], outs[i]))
+        if self.batched:
+            self.fleet_cmd_pub.publish(fleetmsg.commands_to_msg([(o.linear, o.omega) for o in outs]))
+            if due:
+                arr = DiagnosticArray()
+                arr.header.stamp = self.get_clock().now().to_msg()
+                arr.status = [w.state_message(self.namespaces[i], outs[i]) for i in due]
+                self.fleet_state_pub.publish(arr)
+        self._tell_story(outs)
+        return outs
+
+    def _tell_story(self, outs):
+        """At most one line per kind of change of the robots' fail-safe states per tick (quiet while
+        starting): robots whose inputs became valid, robots failing safe, robots back."""
+        started, lost, back = [], [], []
+        for i, o in enumerate(outs):
+            failing = o.action == FAIL_SAFE
+            before = self._failing[i]
+            if before is None:
+                if not failing:
+                    self._failing[i] = False
+                    started.append(i)
+            elif failing and not before:
+                self._failing[i] = True
+                lost.append(i)
+            elif not failing and before:
+                self._failing[i] = False
+                back.append(i)
+
+        def names(rows):
+            shown = ', '.join(self.namespaces[i] for i in rows[:5])
+            return f'{len(rows)} robot(s) ({shown}{", ..." if len(rows) > 5 else ""})'
+        if started:
+            self.get_logger().info(f'inputs valid, filtering: {names(started)}')
+        if lost:
+            self.get_logger().error(f'failing safe: {names(lost)}; first: {outs[lost[0]].reason}')
+        if back:
+            self.get_logger().info(f'inputs valid again, filtering: {names(back)}')
+
+    def close(self):
+        self.wiring.close()
+        if self.io is not None:
+            self.io.destroy_node()
+
+
+def main(args=None):
+    return run_node(FleetSafetyFilterNode, args)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

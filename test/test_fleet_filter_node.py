@@ -1,0 +1,191 @@
+"""fleet_safety_filter_node at topic level: per-robot topics (drop-in) and the batched interface."""
+import math
+
+import numpy as np
+import pytest
+from rclpy.parameter import Parameter
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from geometry_msgs.msg import Pose, PoseArray, PoseStamped, Twist
+from std_msgs.msg import Float64MultiArray
+
+from supersafe_ros.nodes import fleet_safety_filter_node as fleet_module
+from supersafe_ros.nodes.fleet_safety_filter_node import FleetSafetyFilterNode
+from supersafe_ros.ros_io import fleetmsg, rosmsg
+
+from filter_learner_support import Spinner, matched, ros_context  # noqa: F401  (fixture)
+from test_graph_support import Rosout
+
+ROBOTS = ['robot_0', 'robot_1', 'robot_2']
+OBSTACLE = (4.0, -2.0)
+FAR = (OBSTACLE[0] - 7.5, OBSTACLE[1] + 7.0, 0.0)          # clear: pass the planner's command
+INTO = (OBSTACLE[0] - 3.0, OBSTACLE[1] + 0.6, 0.0)         # heading at the disc, left of it: turn left
+
+
+class Driver:
+    def __init__(self, ctx):
+        from rclpy.node import Node
+        self.node = n = Node('fleet_test_driver', context=ctx)
+        self.pose = {r: n.create_publisher(PoseStamped, f'/{r}/pose', rosmsg.QOS_STREAM) for r in ROBOTS}
+        self.det = {r: n.create_publisher(PoseArray, f'/{r}/detections', rosmsg.QOS_STREAM) for r in ROBOTS}
+        self.cmd = {r: n.create_publisher(Twist, f'/{r}/cmd_vel_nav', rosmsg.QOS_STREAM) for r in ROBOTS}
+        self.out = {r: [] for r in ROBOTS}
+        self.states = {r: [] for r in ROBOTS}
+        self.subs = []
+        for r in ROBOTS:
+            self.subs.append(n.create_subscription(Twist, f'/{r}/cmd_vel', self.out[r].append, rosmsg.QOS_STREAM))
+            self.subs.append(n.create_subscription(DiagnosticStatus, f'/{r}/safety_filter/state',
+                                                   self._recorder(self.states[r]), rosmsg.QOS_STREAM))
+        self.fleet_poses = n.create_publisher(PoseArray, '/fleet/poses', rosmsg.QOS_STREAM)
+        self.fleet_det = n.create_publisher(PoseArray, '/fleet/detections', rosmsg.QOS_STREAM)
+        self.fleet_cmd = n.create_publisher(Float64MultiArray, '/fleet/cmd_vel_nav', rosmsg.QOS_STREAM)
+        self.fleet_out, self.fleet_states = [], []
+        self.subs.append(n.create_subscription(Float64MultiArray, '/fleet/cmd_vel', self.fleet_out.append,
+                                               rosmsg.QOS_STREAM))
+        self.subs.append(n.create_subscription(DiagnosticArray, '/fleet/safety_filter/state',
+                                               self.fleet_states.append, rosmsg.QOS_STREAM))
+        self.rosout = Rosout(n)
+
+    @staticmethod
+    def _recorder(into):
+        def record(msg):   # one parameter: rclpy passes the message only
+            into.append(rosmsg.diagnostic_values(msg))
+        return record
+
+    def endpoints(self):
+        return (*self.pose.values(), *self.det.values(), *self.cmd.values(), *self.subs, self.fleet_poses,
+                self.fleet_det, self.fleet_cmd)
+
+    def newest(self, robot):
+        return self.states[robot][-1] if self.states[robot] else {}
+
+    def fleet_newest(self):
+        """{robot: state values} of the newest batched state of each robot."""
+        newest = {}
+        for arr in self.fleet_states:
+            for st in arr.status:
+                newest[st.name] = rosmsg.diagnostic_values(st)
+        return newest
+
+
+@pytest.fixture(scope='module')
+def setup(ros_context):
+    params = [Parameter('robots', value=ROBOTS), Parameter('standard_shape', value=[41, 41, 24]),
+              Parameter('pose_timeout', value=2.0), Parameter('detections_timeout', value=2.0),
+              Parameter('cmd_timeout', value=2.0), Parameter('hold_timeout', value=2.5),
+              Parameter('state_rate', value=100.0), Parameter('rate', value=20.0)]
+    node = FleetSafetyFilterNode(context=ros_context, parameter_overrides=params)
+    driver = Driver(ros_context)
+    spin = Spinner(ros_context, node, driver.node)
+    spin.until(lambda: matched(*driver.endpoints()), 15.0, 'fleet topics to match')
+    yield node, driver, spin
+    spin.shutdown()
+    node.close()
+    node.destroy_node()
+    driver.node.destroy_node()
+
+
+def test_per_robot_topics_are_a_drop_in_with_one_step_per_tick(setup, monkeypatch):
+    node, d, spin = setup
+    calls = []
+    real = fleet_module.step_many
+    monkeypatch.setattr(fleet_module, 'step_many', lambda filters, *a, **k: calls.append(len(filters))
+                        or real(filters, *a, **k))
+    # robot_0 clear, robot_1 heading at the disc, robot_2 silent
+    for r, s, w in (('robot_0', FAR, 0.3), ('robot_1', INTO, -0.4)):
+        d.det[r].publish(rosmsg.xy_to_posearray([OBSTACLE]))
+        d.pose[r].publish(rosmsg.state_to_pose(s))
+        d.cmd[r].publish(rosmsg.turn_rate_to_twist(w, 3.0))
+    spin.until(lambda: d.newest('robot_0').get('action') == 'pass'
+               and d.newest('robot_1').get('action') == 'override', 10.0, 'pass and override')
+    st0, st1 = d.newest('robot_0'), d.newest('robot_1')
+    assert float(st0['cmd_angular_z']) == pytest.approx(0.3) and d.out['robot_0'][-1].angular.z == pytest.approx(0.3)
+    assert float(st1['cmd_angular_z']) == pytest.approx(1.0) and st1['obstacle_index'] == '0'
+    spin.until(lambda: d.out['robot_1'] and d.out['robot_1'][-1].angular.z == pytest.approx(1.0), 5.0,
+               'robot_1 turning away')
+    spin.until(lambda: d.states['robot_2'], 5.0, 'a state of robot_2')
+    st2 = d.newest('robot_2')
+    assert st2['action'] == 'fail_safe' and 'no pose received yet' in st2['reason']
+    assert d.out['robot_2'][-1].linear.x == 0.0     # stop-turn
+    # every tick decided the three robots in one call
+    assert calls and set(calls) == {3}
+
+
+def fleet_poses(states, frame='map'):
+    msg = PoseArray()
+    msg.header.frame_id = frame
+    for x, y, th in states:
+        p = Pose()
+        p.position.x, p.position.y = float(x), float(y)
+        if math.isfinite(th):
+            p.orientation = rosmsg.yaw_to_quaternion(th)
+        else:
+            p.orientation.z = float('nan')
+        msg.poses.append(p)
+    return msg
+
+
+def batched_tick(d, spin, states, turns, want, what, frame='map'):
+    d.fleet_out.clear()
+    d.fleet_det.publish(rosmsg.xy_to_posearray([OBSTACLE]))
+    d.fleet_cmd.publish(fleetmsg.commands_to_msg([(3.0, w) for w in turns]))
+    spin.spin_for(0.05)    # commands in before the poses tick
+    d.fleet_poses.publish(fleet_poses(states, frame))
+    spin.until(lambda: d.fleet_out and want(d.fleet_newest()), 10.0, what)
+    rows = np.asarray(d.fleet_out[-1].data).reshape(-1, 2)
+    assert rows.shape == (3, 2) and [x.label for x in d.fleet_out[-1].layout.dim] == ['robot',
+                                                                                       'linear_x,angular_z']
+    return rows, d.fleet_newest()
+
+
+def actions(*wanted):
+    return lambda st: all(st.get(f'/{r}', {}).get('action') == a for r, a in zip(ROBOTS, wanted))
+
+
+def test_batched_poses_commands_and_states(setup):
+    node, d, spin = setup
+    rows, st = batched_tick(d, spin, [FAR, INTO, FAR], [0.3, -0.4, -0.2], actions('pass', 'override', 'pass'),
+                            'a batched reply')
+    assert rows[0] == pytest.approx([3.0, 0.3]) and rows[2] == pytest.approx([3.0, -0.2])
+    assert rows[1] == pytest.approx([3.0, 1.0])
+    assert st['/robot_1']['obstacle_index'] == '0'
+
+
+def test_batched_bad_input_is_rejected_with_a_reason_and_fails_the_robots_safe(setup):
+    node, d, spin = setup
+    batched_tick(d, spin, [FAR, FAR, FAR], [0.3, 0.3, 0.3], actions('pass', 'pass', 'pass'), 'all passing')
+    # a NaN row: only that robot fails safe
+    rows, st = batched_tick(d, spin, [FAR, (math.nan, 0.0, 0.0), FAR], [0.3, 0.3, 0.3],
+                            actions('pass', 'fail_safe', 'pass'), 'robot_1 failing safe')
+    assert 'not finite' in st['/robot_1']['reason'] and rows[1][1] != pytest.approx(0.3)
+    spin.until(lambda: d.rosout.has('fleet_safety_filter', 'fleet/poses row rejected', 'not finite'), 5.0,
+               'the rejection logged')
+    # wrong size (2 poses for 3 robots): the whole message is rejected, every robot fails safe
+    rows, st = batched_tick(d, spin, [FAR, FAR], [0.3, 0.3, 0.3], actions('fail_safe', 'fail_safe', 'fail_safe'),
+                            'everyone failing safe')
+    assert all('2 poses for 3 robots' in st[f'/{r}']['reason'] for r in ROBOTS)
+    spin.until(lambda: d.rosout.has('fleet_safety_filter', 'fleet/poses rejected', '2 poses for 3 robots'), 5.0,
+               'the rejection logged')
+    # wrong frame, likewise
+    batched_tick(d, spin, [FAR, FAR, FAR], [0.3, 0.3, 0.3], actions('fail_safe', 'fail_safe', 'fail_safe'),
+                 'wrong frame rejected', frame='odom')
+    # good input again: all pass; then a command message of the wrong size keeps the previous commands
+    batched_tick(d, spin, [FAR, FAR, FAR], [0.3, 0.3, 0.3], actions('pass', 'pass', 'pass'), 'all passing again')
+    bad = Float64MultiArray()
+    bad.data = [3.0, 0.9, 3.0, 0.9]
+    d.fleet_cmd.publish(bad)
+    spin.until(lambda: d.rosout.has('fleet_safety_filter', 'fleet/cmd_vel_nav rejected', '4 values for 3 robots'),
+               5.0, 'the command rejection logged')
+    d.fleet_out.clear()
+    d.fleet_poses.publish(fleet_poses([FAR, FAR, FAR]))
+    spin.until(lambda: d.fleet_out, 5.0, 'a reply')
+    assert np.asarray(d.fleet_out[-1].data).reshape(-1, 2)[:, 1] == pytest.approx([0.3, 0.3, 0.3])
+
+
+def test_robots_parameter_is_read_only_and_must_name_distinct_robots(setup, ros_context):
+    node, d, spin = setup
+    result = node.set_parameters([Parameter('robots', value=['robot_9'])])[0]
+    assert not result.successful
+    with pytest.raises(ValueError, match='twice'):
+        FleetSafetyFilterNode(node_name='fleet_dup', context=ros_context,
+                              parameter_overrides=[Parameter('robots', value=['a', '/a/'])])
