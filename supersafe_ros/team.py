@@ -155,7 +155,8 @@ def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
             # command then holds for one more step (see filter_core: lookahead)
             add('safety_filter', name, {**sim, 'lookahead': 2.0 * step})
     if with_learner:
-        add('learner', None, {**sim, **({'store_path': str(learner_store)} if learner_store else {})},
+        add('learner', None, {**sim, 'robots': robots,
+                              **({'store_path': str(learner_store)} if learner_store else {})},
             coarse)
     if with_supervisor:
         add('supervisor', None, {**sim, 'robots': robots, 'seed': seed * 1000 + 999}, coarse)

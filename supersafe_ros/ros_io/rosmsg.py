@@ -33,6 +33,12 @@ QOS_EVERY_SAMPLE = QoSProfile(depth=200, history=HistoryPolicy.KEEP_LAST,
 QOS_EVENTS = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST,
                         reliability=ReliabilityPolicy.RELIABLE,
                         durability=DurabilityPolicy.VOLATILE)
+# Readers that must keep every event even when they fall behind (the learner's
+# /interventions): reliable keep-all, so the reader's queue never overwrites an unread
+# sample (compatible with QOS_EVENTS writers; history depth is not part of the match).
+QOS_EVERY_EVENT = QoSProfile(history=HistoryPolicy.KEEP_ALL,
+                             reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.VOLATILE)
 # Logs of records (interventions, trips, crashes): like events, and a late joiner
 # (a monitor started with the team) still gets the last 1000 records.
 QOS_LOG = QoSProfile(depth=1000, history=HistoryPolicy.KEEP_LAST,
