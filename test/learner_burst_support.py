@@ -70,6 +70,8 @@ def run_burst(ctx, store, n, burners=2, extra_params=(), timeout=300.0):
         spin.until(lambda: fits and fits[-1][1].get('interventions') == str(n), timeout,
                    f'/safe_set/fit counting all {n}')
         t_counted = fits[-1][0]
+        published = int(fits[-1][1]['published'])
+        spin.until(lambda: len(vfs) >= published, 60.0, f'the {published} value functions sent')
         with open('/proc/loadavg') as f:
             load_after = f.read().split()[0]
         out, _ = pub.communicate(timeout=120)
@@ -79,7 +81,7 @@ def run_burst(ctx, store, n, burners=2, extra_params=(), timeout=300.0):
     t_first, t_last = (float(v) for v in out.split()[:2])
     stored = len(node.store)
     node.close()
-    final = fits[-1][1]
+    final = [v for t, v in fits if t <= t_counted][-1]
     figures = dict(n=n, stored=stored, returncode=pub.returncode, final=final,
                    vfs=len(vfs), latency=t_counted - t_last, publish_s=t_last - t_first,
                    total_s=t_counted - t_first, load=(load_before, load_after))

@@ -24,7 +24,7 @@ def test_a_burst_of_1000_under_load_is_stored_and_counted_entirely(ros_context, 
     assert final['interventions'] == str(N) and final['fitted_interventions'] == str(N)
     assert final['rejected'] == '0'
     # coalesced: far fewer refits and value-function messages than interventions
-    assert int(final['refits']) < N / 4 and f['vfs'] <= int(final['refits'])
+    assert int(final['refits']) < N / 4 and 1 <= f['vfs'] <= int(final['refits'])
     print(f"\nburst of {N} under 2 CPU burners (load {f['load'][0]} -> {f['load'][1]}): published in "
           f"{f['publish_s']:.2f} s, counted {f['latency'] * 1e3:.0f} ms after the last publish, "
           f"{final['refits']} refits, {f['vfs']} value functions sent")

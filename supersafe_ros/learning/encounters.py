@@ -144,6 +144,7 @@ class EncounterBuilder:
         self._open: dict[tuple, _Open] = {}         # (robot, obstacle) -> encounter in progress
         self._closing: list[_Open] = []             # ended without intervention, within grace
         self._awaiting: list[_Open] = []            # intervened, waiting for the robot's next pose
+        self._pending: list[tuple] = []             # interventions ahead of some robot's poses
         self._blocked: dict[int, float] = {}        # obstacle -> intervention time
         self._finished: list[EncounterRecord] = []
         self.newest = -math.inf                     # newest pose stamp seen
@@ -220,9 +221,34 @@ class EncounterBuilder:
                 del self._blocked[oid]
             self._open[key] = _Open(robot, oid, [stamp], [(rx, ry, th)], (cx, cy))
         self._expire(stamp)
+        self._match_pending()
 
-    def intervention(self, obstacle: int, stamp: float, rel_state) -> bool:
+    def intervention(self, obstacle: int, stamp: float, rel_state, wall: float = 0.0) -> None:
         """An intervention on ``obstacle`` at ``stamp`` [s], the robot's state relative to it.
+
+        It is matched once every robot's poses have reached ``stamp`` (the poses before it
+        may still be on their way), or ``stale_wall`` seconds after ``wall`` (``tick``)."""
+        rel = np.asarray(rel_state, dtype=float).reshape(3)
+        stamp = float(stamp)
+        if not (np.all(np.isfinite(rel)) and math.isfinite(stamp)):
+            raise ValueError('intervention state and stamp must be finite')
+        self._pending.append((stamp, int(obstacle), tuple(float(v) for v in rel), float(wall)))
+        self._match_pending()
+
+    def _match_pending(self, wall: float | None = None):
+        if not self._pending:
+            return
+        reached = min((p[0] for p in self._last_pose.values()), default=-math.inf)
+        still = []
+        for stamp, obstacle, rel, arrived in sorted(self._pending):
+            if stamp <= reached + 1e-9 or (wall is not None and arrived + self.stale_wall <= wall):
+                self._match(obstacle, stamp, rel)
+            else:
+                still.append((stamp, obstacle, rel, arrived))
+        self._pending = still
+
+    def _match(self, obstacle: int, stamp: float, rel_state) -> bool:
+        """Attach an intervention to its encounter.
 
         The encounter's intervention frame is the robot's first pose stamped at or after
         the intervention (the pose the supervisor judged unsafe; the reported state may be
@@ -295,10 +321,12 @@ class EncounterBuilder:
         for r in list(self._robot_version):
             self._advance_to_stamp(r, self._last_pose[r][0] if r in self._last_pose else self.newest)
         self._prune()
+        self._match_pending(wall)
 
     def finish_all(self) -> None:
-        """Shutdown: encounters held for the grace time are final; open ones are dropped
-        (they had not ended)."""
+        """Shutdown: pending interventions are matched, encounters held for the grace time
+        are final; open ones are dropped (they had not ended)."""
+        self._match_pending(math.inf)
         for enc in self._closing:
             self._emit(enc)
         self._closing = []
@@ -313,7 +341,7 @@ class EncounterBuilder:
 
     @property
     def open_count(self) -> int:
-        return len(self._open) + len(self._closing) + len(self._awaiting)
+        return len(self._open) + len(self._closing) + len(self._awaiting) + len(self._pending)
 
     # -- internals --------------------------------------------------------------------------
     def _advance_to_stamp(self, robot, stamp):

@@ -48,6 +48,7 @@ import time
 import numpy as np
 from rclpy.clock import Clock as RosClock, ClockType
 from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
@@ -72,6 +73,13 @@ FIT_TOPIC = '/safe_set/fit'
 ESTIMATORS = ('first-passage', 'paper')
 DEFAULT_OMEGAS = [float(w) for w in PAPER_OMEGAS]
 MAX_FRAME_LENGTH = 64          # 'obstacle_' + an id: longer frame names are refused unread
+# every pose and every obstacle set, even when a refit holds the learner up (reliable;
+# compatible with the robots' stream and the world's latched writers)
+QOS_EVERY_POSE = QoSProfile(depth=5000, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE,
+                            durability=DurabilityPolicy.VOLATILE)
+QOS_EVERY_OBSTACLE_SET = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST,
+                                    reliability=ReliabilityPolicy.RELIABLE,
+                                    durability=DurabilityPolicy.TRANSIENT_LOCAL)
 DRAIN_LIMIT = 1000             # messages of a burst taken per callback (see on_interventions)
 REJECTION_LOG_BURST = 5        # rejections logged one by one per second; the rest summarised
 
@@ -169,12 +177,15 @@ class LearnerNode(Node):
         self.create_service(Empty, '~/reset', self.on_reset)
         self.builder_args = dict(builder_args, speed=speed)
         self.builder = None
+        self.markers_sub = None
+        self.pose_subs = {}
         if self.estimator == 'first-passage':
             self.obstacles = ObstacleMarkers()
-            self.create_subscription(MarkerArray, '/obstacle_markers', self.on_markers, rosmsg.QOS_LATCHED)
+            self.markers_sub = self.create_subscription(MarkerArray, '/obstacle_markers', self.on_markers_msg,
+                                                        QOS_EVERY_OBSTACLE_SET)
             for r in self.robots:
-                self.create_subscription(PoseStamped, f'/{r}/pose', lambda m, r=r: self.on_pose(r, m),
-                                         rosmsg.QOS_EVERY_SAMPLE)
+                self.pose_subs[r] = self.create_subscription(
+                    PoseStamped, f'/{r}/pose', lambda m, r=r: self.on_pose_msg(r, m), QOS_EVERY_POSE)
 
         self.fit = None
         self.published = None        # (index, alpha) of the value function in force
@@ -264,23 +275,59 @@ class LearnerNode(Node):
             stamp_ns = self.get_clock().now().nanoseconds
         return Intervention(int(stamp_ns), frame, x, y, theta, time.time())
 
-    def on_interventions(self, msg: PoseStamped):
-        """The executor hands over one message per wait; the rest of a burst waiting in the
-        reader's queue is taken here at once (rclpy's own take call, as its executor makes
-        it), which costs a fraction of a wait per message."""
-        self.on_intervention(msg)
-        sub = self.interventions_sub
+    # The executor hands a callback one message per wait, and a wait costs far more than
+    # a take. So each callback also takes what else is waiting (rclpy's own take call, as
+    # its executor makes it): obstacle sets and interventions first, then poses one robot
+    # at a time, so a burst costs one wait and the topics are read roughly in the order
+    # they were sent (stamps order the rest: see learning.encounters).
+    def _take(self, sub):
+        try:
+            with sub.handle:
+                taken = sub.handle.take_message(sub.msg_type, sub.raw)
+        except Exception as exc:     # a failed take must not lose what was handled already
+            self.get_logger().warn(f'{sub.topic_name}: take failed ({exc}); the executor continues',
+                                   throttle_duration_sec=5.0)
+            return None
+        return None if taken is None else taken[0]
+
+    def _take_events(self):
+        if self.markers_sub is not None:
+            for _ in range(DRAIN_LIMIT):
+                m = self._take(self.markers_sub)
+                if m is None:
+                    break
+                self.on_markers(m)
         for _ in range(DRAIN_LIMIT):
-            try:
-                with sub.handle:
-                    taken = sub.handle.take_message(sub.msg_type, sub.raw)
-            except Exception as exc:     # a take failing must not lose the one handled above
-                self.get_logger().warn(f'/interventions: take failed ({exc}); the executor continues',
-                                       throttle_duration_sec=5.0)
+            m = self._take(self.interventions_sub)
+            if m is None:
+                break
+            self.on_intervention(m)
+
+    def _take_all(self):
+        self._take_events()
+        for _ in range(DRAIN_LIMIT):
+            took = False
+            for robot, sub in self.pose_subs.items():
+                m = self._take(sub)
+                if m is not None:
+                    self.on_pose(robot, m)
+                    took = True
+            if not took:
                 return
-            if taken is None:
-                return
-            self.on_intervention(taken[0])
+            self._take_events()
+
+    def on_interventions(self, msg: PoseStamped):
+        self.on_intervention(msg)
+        self._take_all()
+
+    def on_markers_msg(self, msg: MarkerArray):
+        self.on_markers(msg)
+        self._take_all()
+
+    def on_pose_msg(self, robot, msg: PoseStamped):
+        self._take_events()
+        self.on_pose(robot, msg)
+        self._take_all()
 
     def on_intervention(self, msg: PoseStamped):
         try:
@@ -297,7 +344,7 @@ class LearnerNode(Node):
         self.new_interventions.append(entry)
         if self.builder is not None:
             self.builder.intervention(int(entry.frame[len(self.frame_prefix):]), entry.stamp_ns * 1e-9,
-                                      entry.state)
+                                      entry.state, time.monotonic())
         self.dirty = True
 
     def reject(self, reason: str):
