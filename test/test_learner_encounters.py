@@ -154,7 +154,7 @@ def test_intervention_ahead_of_the_poses_waits_for_them():
 
 
 def test_memory_stays_bounded_over_a_long_run():
-    b = builder(max_frames=50, max_versions=20)
+    b = builder(max_frames=20, max_versions=20)
     rng = np.random.default_rng(1)
     t = 0.0
     held = []
