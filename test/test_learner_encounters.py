@@ -99,8 +99,18 @@ def test_inputs_out_of_order_are_ordered_by_their_stamps(supervisor_vf):
     assert sorted(a) == sorted(c) and b.counts['unmatched_interventions'] == 0
 
 
+def test_a_removal_stamped_by_a_lagging_clock_cuts_no_frame_before_it():
+    b = builder(grace=0.0, removal_delay=1.0)
+    b.set_obstacles([1], [(0.0, 0.0)], 0.5)
+    drive(b, 'r', 1.0, -7.0, 1.0, 3)                       # 1.0, 1.2, 1.4
+    b.set_obstacles([], np.zeros((0, 2)), 1.1)             # stamped 1.1, truly removed after 1.4
+    drive(b, 'r', 1.6, -7.0 + 1.8, 1.0, 5)                 # 1.6 .. 2.4: frames go on until 2.1
+    (r,) = b.pop_finished()
+    assert r.reason == 'obstacle_gone' and list(r.t) == pytest.approx([1.0, 1.2, 1.4, 1.6, 1.8, 2.0])
+
+
 def test_an_encounter_ends_when_the_robot_jumps_leaves_or_the_obstacle_goes():
-    b = builder(grace=0.0)
+    b = builder(grace=0.0, removal_delay=0.0)
     b.set_obstacles([1, 2], [(0.0, 0.0), (0.0, 30.0)], 0.5)
     drive(b, 'r', 1.0, -7.0, 1.0, 5)                      # approaching obstacle 1
     b.pose('r', 2.2, (-30.0, 1.0, 0.0))                   # teleport

@@ -121,7 +121,7 @@ class EncounterBuilder:
 
     def __init__(self, lo, hi, speed: float, *, jump_distance: float = 1.0, grace: float = 2.0,
                  match_tolerance: float = 1.0, pending_timeout: float = 5.0, max_frames: int = 2000,
-                 stale_wall: float = 2.0, max_versions: int = 1000):
+                 stale_wall: float = 2.0, max_versions: int = 1000, removal_delay: float = 1.0):
         self.lo = np.asarray(lo, dtype=float).reshape(2)
         self.hi = np.asarray(hi, dtype=float).reshape(2)
         if not np.all(self.hi > self.lo):
@@ -136,6 +136,8 @@ class EncounterBuilder:
         self.speed, self.jump_distance, self.grace = float(speed), float(jump_distance), float(grace)
         self.match_tolerance, self.pending_timeout = float(match_tolerance), float(pending_timeout)
         self.max_frames, self.stale_wall, self.max_versions = int(max_frames), float(stale_wall), max_versions
+        self.removal_delay = float(removal_delay)
+        self._lingering: dict[tuple, float] = {}    # (robot, obstacle) -> pose time it ends at
         # obstacle-set versions: [stamp, first_seen_wall, {id: (x, y)}]; robots index into it
         self._versions = [[-math.inf, -math.inf, {}]]
         self._base = 0                    # version number of self._versions[0]
@@ -194,6 +196,18 @@ class EncounterBuilder:
             self._robot_version[robot] = self._base
         self._advance_to_stamp(robot, stamp)
         obstacles = self._versions[self._robot_version[robot] - self._base][2]
+        if self._lingering:
+            for key, until in list(self._lingering.items()):
+                if key[0] != robot:
+                    continue
+                enc = self._open.get(key)
+                if enc is None:
+                    del self._lingering[key]
+                elif stamp > until or key[1] in obstacles:      # gone (or moved: a new encounter)
+                    del self._lingering[key]
+                    self._end(key, 'obstacle_gone', stamp)
+                else:
+                    obstacles = {**obstacles, key[1]: enc.centre}
         c, s = math.cos(th), math.sin(th)
         for oid, (cx, cy) in obstacles.items():
             rx, ry = x - cx, y - cy
@@ -359,10 +373,14 @@ class EncounterBuilder:
         old = self._versions[self._robot_version[robot] - self._base][2]
         new = self._versions[version - self._base][2]
         self._robot_version[robot] = version
+        t_change = self._versions[version - self._base][0]
         for oid in list(old):
-            if new.get(oid) != old[oid]:
-                if (robot, oid) in self._open:
-                    self._end((robot, oid), 'obstacle_gone', stamp)
+            if new.get(oid) != old[oid] and (robot, oid) in self._open:
+                # a set's stamp may lag the true time (a node on a coarse clock): the
+                # encounter goes on for removal_delay, so no frame before the removal is cut
+                # (frames after an intervention are dropped anyway, and a jump still ends it)
+                start = stamp if t_change == -math.inf else t_change
+                self._lingering[(robot, oid)] = start + self.removal_delay
         for oid in list(self._blocked):
             if oid not in new and all(oid not in self._versions[self._robot_version[r] - self._base][2]
                                       for r in self._robot_version):

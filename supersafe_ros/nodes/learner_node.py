@@ -154,7 +154,9 @@ class LearnerNode(Node):
             pending_timeout=p('pending_timeout', 5.0, 'after an intervention, no new encounter with that '
                               'obstacle until it is removed or this time passes [s]', 0.0, 1e4),
             max_frames=p('max_encounter_frames', 2000, 'frames after which an encounter is closed '
-                         '(bounded memory)', 2, 1_000_000))
+                         '(bounded memory)', 2, 1_000_000),
+            removal_delay=p('removal_delay', 1.0, 'an encounter with a removed obstacle goes on this long '
+                            'after the removal\'s stamp (the world stamps with a coarse clock) [s]', 0.0, 100.0))
 
         t0 = time.perf_counter()
         self.entries = build_library(speed, radius, horizon, omegas, self.lo, self.hi, shape, cache_dir)
