@@ -458,13 +458,15 @@ def _newton(fun, x, lower, upper, max_iter=100, tol=1e-10):
     return x, f
 
 
-def maximise_first_passage(iv: EncounterIntervals, lapse=0.0, rows=None, method='newton'):
+def maximise_first_passage(iv: EncounterIntervals, lapse=0.0, rows=None, method='newton', start=None):
     """Maximise the first-passage log-likelihood over mu >= 0, sigma >= SIGMA_FLOOR for the
     entries ``rows`` (default: every entry that can explain the data), in the natural
     parameters eta = mu/sigma, tau = 1/sigma with analytic gradients.
 
     method 'newton': all entries at once (``_newton``, vectorised); 'lbfgsb': scipy's
     L-BFGS-B entry by entry (slower; kept as a cross-check).
+    start: (mu, sigma) arrays (n_entries,) to start from instead of the paper-style
+    estimate, e.g. the previous fit of an online learner (non-finite values fall back).
     Returns mu, sigma, loglik (n_entries,): nan, nan, -inf for entries not fitted."""
     n = iv.lo.shape[0]
     if rows is None:
@@ -477,6 +479,10 @@ def maximise_first_passage(iv: EncounterIntervals, lapse=0.0, rows=None, method=
         return mu, sigma, loglik
     sub = _subset(iv, rows)
     mu0, sd0 = _start(sub)
+    if start is not None:
+        smu, ssd = (np.asarray(a, dtype=float)[rows] for a in start)
+        ok = np.isfinite(smu) & np.isfinite(ssd) & (ssd > 0)
+        mu0, sd0 = np.where(ok, np.maximum(smu, 0.0), mu0), np.where(ok, ssd, sd0)
     x0 = np.stack([mu0 / sd0, 1.0 / sd0], axis=1)
     x0[:, 1] = np.clip(x0[:, 1], _TAU_MIN, _TAU_MAX)
     if method == 'newton':
@@ -544,13 +550,14 @@ def concat_intervals(parts) -> EncounterIntervals:
 
 
 def fit_first_passage_intervals(entries, iv: EncounterIntervals, *, true_vf=None, alpha_k=0.0,
-                                lapse=0.0, admissible_tol=None, admissible=None) -> FitResult:
-    """``fit_first_passage`` from precomputed intervals (``encounter_intervals``)."""
+                                lapse=0.0, admissible_tol=None, admissible=None, start=None) -> FitResult:
+    """``fit_first_passage`` from precomputed intervals (``encounter_intervals``);
+    ``start``: (mu, sigma) per entry to start the maximisation from (a previous fit)."""
     entries = _check_entries(entries)
     if not (0.0 <= lapse < 1.0):
         raise ValueError(f'lapse must be in [0, 1), got {lapse}')
     conditional = iv.m_full is not None
-    mu, sigma, loglik = maximise_first_passage(iv, lapse)
+    mu, sigma, loglik = maximise_first_passage(iv, lapse, start=start)
     best, admissible = _choose(entries, loglik, true_vf, admissible_tol, admissible)
     n_int = int(iv.intervened.sum())
     impossible = (iv.lo >= iv.hi).sum(axis=1)

@@ -455,8 +455,13 @@ class LearnerNode(Node):
                 fit = fit_paper_values(self.entries, self.values, alpha_k=self.alpha_k,
                                        admissible=self.admissible)
             else:
-                fit = fit_first_passage_intervals(self.entries, self.intervals,
-                                                  alpha_k=self.alpha_k, admissible=self.admissible)
+                # the previous fit's (mu, sigma) per entry: a few Newton steps from there
+                start = None
+                if self.fit is not None and self.fit.candidates:
+                    start = (np.array([c['mu'] for c in self.fit.candidates]),
+                             np.array([c['sigma'] for c in self.fit.candidates]))
+                fit = fit_first_passage_intervals(self.entries, self.intervals, alpha_k=self.alpha_k,
+                                                  admissible=self.admissible, start=start)
         except ValueError as exc:
             self.get_logger().error(f'fit failed: {exc}; keeping the previous fit')
             self.publish_status(f'fit failed: {exc}', level=2)
