@@ -5,7 +5,7 @@ Topics and services:
                                                              removed obstacle's frame (obstacle at the
                                                              origin, axes as map); frame_id
                                                              obstacle_<id>; stamp = intervention time.
-                                                             Reliable keep-all: none is dropped.
+                                                             Reliable, a queue of 100,000: none is dropped.
   sub  /<robot>/pose             geometry_msgs/PoseStamped   first-passage only: every robot in `robots`
   sub  /obstacle_markers         visualization_msgs/MarkerArray  first-passage only: obstacle ids, centres
   pub  /safe_set/value_function  std_msgs/Float32MultiArray  latched: the fitted V, exact float32,
