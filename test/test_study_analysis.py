@@ -6,7 +6,6 @@ from supersafe_ros.reach.grid import Grid
 from supersafe_ros.reach.value_function import ValueFunction
 from supersafe_ros.study.analysis import (SetCount, format_table1, interventions_inside,
                                           repeated_measures_anova, table1, tukey_pairs)
-from supersafe_ros.study.population import LESS_AGILE, CLOSE_TO_TRUTH, draw_subjects
 
 
 def test_table1_reproduces_the_papers_arithmetic():
@@ -48,10 +47,24 @@ def test_anova_and_tukey_find_a_real_effect_and_no_fake_one():
     assert repeated_measures_anova(none)['p'] > 0.01
 
 
-def test_population_is_reproducible_conservative_and_mixed():
-    a, b = draw_subjects(12, seed=5), draw_subjects(12, seed=5)
-    assert a == b and draw_subjects(12, seed=6) != a
-    assert all(s.omega_max <= 1.0 and s.mu > 0 and s.sigma > 0 for s in a)
-    kinds = {s.omega_max in CLOSE_TO_TRUTH for s in draw_subjects(3, seed=1)[:2]}
-    assert kinds == {True, False}
-    assert any(s.omega_max in LESS_AGILE for s in a)
+def test_table1_prints_the_papers_rows_beside_ours_and_any_subset_of_conditions():
+    inside = {'standard': SetCount(10, 10), 'learned_fp': SetCount(4, 10)}
+    rows = table1(inside, {'standard': [8, 12], 'learned_fp': [4, 6]})
+    assert list(rows) == ['standard', 'learned_fp']
+    assert rows['learned_fp']['observed_fp_ratio'] == pytest.approx(0.5)
+    text = format_table1(rows)
+    assert 'Learned FP' in text and '(paper Standard)' in text and '12.54' in text
+    assert 'paper Learned ' not in text                 # the paper has no row for a condition not run
+    assert '(paper' not in format_table1(rows, paper=False)
+
+
+def test_h2_counts_subjects_whose_arcs_are_shorter_as_the_paper_does():
+    from supersafe_ros.study.analysis import h2_summary, shorter_count
+    assert shorter_count([1.0, 2.0, None, float('nan'), 0.5], [2.0, 1.0, 3.0, 1.0, 0.6]) == (2, 3)
+    m = {c: {'path_per_trip': [33.0, 35.0], 'avoidance_length': arcs, 'override_fraction': [0.1, 0.3],
+             'min_clearance': [0.2, float('nan')]}
+         for c, arcs in (('learned', [1.0, 4.0]), ('conservative', [2.0, 3.0]))}
+    h = h2_summary(m)
+    assert h['shorter_arcs_than_conservative'] == {'learned': {'shorter': 1, 'of': 2}}
+    assert h['means']['learned']['path_per_trip']['mean'] == pytest.approx(34.0)
+    assert h['means']['conservative']['min_clearance'] == {'mean': 0.2, 'sd': pytest.approx(float('nan'), nan_ok=True), 'n': 1}

@@ -22,8 +22,10 @@ class XValue:
         return np.asarray(states, dtype=float).reshape(-1, 3)[:, 0] + self.offset
 
 
-def game(fp, interventions, crashes=0, trips=5):
-    return {'false_positives': fp, 'interventions': interventions, 'crashes': crashes, 'trips': trips}
+def game(fp, interventions, crashes=0, trips=5, arc=float('nan')):
+    return {'false_positives': fp, 'interventions': interventions, 'crashes': crashes, 'trips': trips,
+            'path_per_trip': 33.0, 'avoidance_length': arc, 'override_fraction': 0.1,
+            'min_clearance': 0.5}
 
 
 def record(i, states, fit, learned_vf, games, sweep=None):
@@ -54,7 +56,7 @@ def test_summarize_pools_table1_and_lists_one_value_per_subject():
     assert t['learned']['predicted_fp_ratio'] == pytest.approx(3 / 4)
     assert t['conservative']['predicted_fp_ratio'] == pytest.approx(1 / 4)
     c = s['conditions']
-    assert set(c) == set(CONDITIONS)
+    assert list(c) == ['standard', 'learned', 'conservative']        # the conditions that ran
     assert c['standard']['false_positives'] == [6, 4]
     assert c['learned']['interventions'] == [5, 4]
     assert c['conservative']['trips'] == [5, 5]
@@ -64,6 +66,30 @@ def test_summarize_pools_table1_and_lists_one_value_per_subject():
     assert c['conservative']['observed_fp_ratio'] == pytest.approx(0.5 / 5.0)
     assert set(s['anova']) >= {'F', 'p'}
     assert set(s['tukey']) == {'standard-learned', 'standard-conservative', 'learned-conservative'}
+
+
+def test_both_learned_conditions_get_their_row_and_the_h2_comparison():
+    # learned_fp: V = x + 1 at alpha = mu (s0: x > -0.5 -> 2; s1: x > 0 -> 2) => 4 of 7
+    recs = two_subjects()
+    arcs = {'standard': (0.5, 0.6), 'learned': (1.0, 3.0), 'learned_fp': (0.8, 0.7),
+            'conservative': (2.0, 2.0)}
+    for i, r in enumerate(recs):
+        r['fits'] = {'learned': r.pop('fit'), 'learned_fp': {'mu': 0.5, 'sigma': 0.1}}
+        r['learned_vfs'] = {'learned': r.pop('learned_vf'), 'learned_fp': XValue(1.0)}
+        r['games']['learned_fp'] = game(2, 3)
+        for c, a in arcs.items():
+            r['games'][c]['avoidance_length'] = a[i]
+    s = runner.summarize(recs, XValue(0.0), XValue(-2.0))
+    assert list(s['conditions']) == ['standard', 'learned', 'learned_fp', 'conservative']
+    assert s['table1']['learned_fp']['inside'] == 4 and s['table1']['learned']['inside'] == 3
+    assert s['conditions']['learned_fp']['avoidance_length'] == [0.8, 0.7]
+    assert s['conditions']['learned']['path_per_trip'] == [33.0, 33.0]
+    # per subject: learned 1.0 < 2.0 yes, 3.0 < 2.0 no -> 1 of 2; learned_fp both shorter
+    h2 = s['h2']['shorter_arcs_than_conservative']
+    assert h2['learned'] == {'shorter': 1, 'of': 2} and h2['learned_fp'] == {'shorter': 2, 'of': 2}
+    assert s['h2']['means']['learned']['avoidance_length']['mean'] == pytest.approx(2.0)
+    assert set(s['tukey']) >= {'learned-learned_fp', 'standard-learned_fp'}
+    assert s['anova']['df_num'] == 3
 
 
 def test_alpha_sweep_predicted_per_subject_and_observed_for_the_swept_ones():
@@ -126,27 +152,37 @@ def test_phase2_scenes_become_encounters_ending_at_the_intervention():
     assert len(enc[1].states) == 10
 
 
-def test_game_graph_per_condition():
-    subj = Subject(0, 0.5, 0.8, 0.2, 12345)
-    opts = runner.StudyOptions(game_seconds=30.0)
+def test_kept_alive_graph_has_no_clock_process_and_filters_take_the_set_from_the_topic():
+    from supersafe_ros.study import games
+    argvs, clock = games.graph_argvs(3, {'w_max': 0.5, 'mu': 0.8, 'sigma': 0.2}, 0.2, 0.0)
 
-    def params(argvs, name):
+    def params(name):
         argv = next(a for a in argvs if f'supersafe_ros.nodes.{name}' in a)
         return [argv[i + 1] for i, a in enumerate(argv) if a == '-p']
+    assert not any('sim_clock_node' in ' '.join(a) or 'learner_node' in ' '.join(a) for a in argvs)
+    assert sum('safety_filter_node' in ' '.join(a) for a in argvs) == 2
+    assert 'use_learned:=true' in params('safety_filter_node')
+    assert 'alpha_offset:=0.0' in params('safety_filter_node')
+    assert 'seed:=3' in params('world_node') and 'w_max:=0.5' in params('supervisor_node')
+    assert clock['step'] == 0.2 and clock['observers'] == ['/world/step_done', '/supervisor/step_done']
 
-    std = runner.game_argvs('standard', 3, subj, opts)
-    cons = runner.game_argvs('conservative', 3, subj, opts)
-    learned = runner.game_argvs('learned', 3, subj, opts, alpha_offset=2.0)
-    assert not any('learner_node' in ' '.join(a) for a in std)
-    assert 'radius:=3.6' in params(cons, 'safety_filter_node')
-    assert 'use_learned:=false' in params(std, 'safety_filter_node')
-    assert 'use_learned:=true' in params(learned, 'safety_filter_node')
-    assert 'alpha_offset:=2.0' in params(learned, 'safety_filter_node')
-    assert any(runner.READY_TOPIC in p for p in params(learned, 'sim_clock_node'))
-    for argvs in (std, cons, learned):   # same world seed, the subject's supervisor
-        assert 'seed:=3' in params(argvs, 'world_node')
-        assert 'w_max:=0.5' in params(argvs, 'supervisor_node')
-        assert 'duration:=30.0' in params(argvs, 'sim_clock_node')
+
+def test_condition_messages_carry_the_set_and_alpha_the_filter_uses():
+    from supersafe_ros.ros_io.vfmsg import msg_metadata
+    from supersafe_ros.nodes.safety_filter_node import learned_alpha as filter_alpha
+    std, cons = runner.reference_sets()
+    fit = {'omega_max': 0.5, 'mu': 0.8, 'sigma': 0.3}
+    learned = {'learned': (cons, fit), 'learned_fp': (None, None)}
+    msg, alpha, ran = runner.condition_message('learned', learned, alpha_offset=2.0)
+    meta = msg_metadata(msg)
+    assert ran == 'learned' and alpha == pytest.approx(1.4)
+    assert meta['source'] == 'learned' and filter_alpha(meta, 0.0) == pytest.approx(1.4)
+    msg, alpha, ran = runner.condition_message('conservative', learned)
+    assert ran == 'conservative' and alpha is None and msg_metadata(msg)['source'] == 'standard'
+    assert msg_metadata(msg)['grid'] == cons.grid.to_dict()
+    # no fit: the learned condition runs (and is reported as) the standard set
+    msg, alpha, ran = runner.condition_message('learned_fp', learned)
+    assert ran == 'standard' and msg_metadata(msg)['condition'] == 'standard'
 
 
 def test_cli_registers_study_and_demo():
@@ -154,10 +190,14 @@ def test_cli_registers_study_and_demo():
     parser = argparse.ArgumentParser()
     sub = parser.add_subparsers(dest='command')
     cli.add_parser(sub)
-    args = parser.parse_args(['study', '--subjects', '2', '--phase2-offsets=-1,0.5', '--estimator',
-                              'first-passage'])
+    args = parser.parse_args(['study', '--subjects', '2', '--phase2-offsets=-1,0.5', '--conditions',
+                              'conservative, learned_fp,standard'])
     opts = cli.options_from_args(args)
-    assert opts.subjects == 2 and opts.phase2_offsets == (-1.0, 0.5) and opts.estimator == 'first-passage'
+    assert opts.subjects == 2 and opts.phase2_offsets == (-1.0, 0.5)
+    assert opts.conditions == ('standard', 'learned_fp', 'conservative')     # Table 1 order
+    assert cli.options_from_args(parser.parse_args(['study'])).conditions == CONDITIONS
+    with pytest.raises(ValueError, match='unknown'):
+        cli.parse_conditions('standard,learnt')
     assert parser.parse_args(['demo']).func is cli.run_demo
     assert math.isclose(runner.learned_alpha({'mu': 1.0, 'sigma': 0.5}, 2.0), 2.0)
 

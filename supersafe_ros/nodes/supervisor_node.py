@@ -16,6 +16,10 @@ per approach (supersafe_ros.sim.watcher).
   pub  /supervisor/decisions diagnostic_msgs/DiagnosticStatus  robot, obstacle, V_S, threshold
   pub  /supervisor/step_done rosgraph_msgs/Clock        newest sim time whose poses of every robot
                              are judged (lockstep observer)
+  sub  /supervisor/reset     diagnostic_msgs/DiagnosticStatus  values seed, and optionally mu, sigma,
+                             w_max: forget every encounter and judge afresh with these (the study's
+                             kept-alive graph starts each game so; a new w_max loads its V_S from
+                             the cache). Logged as "supervisor reset: ..."
 """
 from __future__ import annotations
 
@@ -80,8 +84,34 @@ class SupervisorNode(Node):
         for r in self.robots:
             self.acks.watch(self.create_subscription(
                 PoseStamped, f'/{r}/pose', lambda m, r=r: self.on_pose(r, m), rosmsg.QOS_EVERY_SAMPLE))
+        self._vs_args = (grid, speed, radius, horizon)
+        self._vs = {w_max: vf}
+        self._pending_timeout = pending
+        self.create_subscription(DiagnosticStatus, '/supervisor/reset', self.on_reset, rosmsg.QOS_EVENTS)
         self.get_logger().info(f'supervisor: V_S with w_max={w_max}, radius={radius}, '
                                f'horizon={horizon}; mu={mu}, sigma={sigma}; watching {self.robots}')
+
+    def on_reset(self, msg: DiagnosticStatus):
+        values = rosmsg.diagnostic_values(msg)
+        try:
+            mu = float(values.get('mu', self.params['mu']))
+            sigma = float(values.get('sigma', self.params['sigma']))
+            w_max = float(values.get('w_max', self.params['w_max']))
+            seed = int(values.get('seed', -1))
+            if not (0.0 <= w_max <= 20.0 and -1 <= seed <= 2**31 - 1):
+                raise ValueError(f'w_max {w_max} or seed {seed} out of range')
+            if w_max not in self._vs:
+                grid, speed, radius, horizon = self._vs_args
+                self._vs[w_max] = supervisor_value_function(grid, speed, w_max, radius, horizon)
+            watcher = Watcher(self._vs[w_max], mu=mu, sigma=sigma,
+                              pending_timeout=self._pending_timeout, seed=None if seed < 0 else seed)
+        except ValueError as exc:
+            self.get_logger().error(f'/supervisor/reset rejected: {exc}; judging on unchanged')
+            return
+        self.watcher = watcher
+        self.watcher.obstacles_changed(self.obstacles.arrays()[0])
+        self.params.update(w_max=w_max, mu=mu, sigma=sigma)
+        self.get_logger().info(f'supervisor reset: w_max={w_max}, mu={mu}, sigma={sigma}, seed={seed}')
 
     def on_markers(self, msg: MarkerArray):
         try:

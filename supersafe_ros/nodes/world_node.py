@@ -19,6 +19,17 @@
   pub  /world/events           diagnostic_msgs/DiagnosticStatus  one per trip and per crash
   pub  /world/step_done        rosgraph_msgs/Clock        newest sim time whose poses of every robot
                                                           are counted (lockstep observer)
+  sub  /<robot>/safety_filter/state  diagnostic_msgs/DiagnosticStatus  the filter's action (pass /
+                                                          override / fail_safe), for the H2 measures
+  sub  /world/reset            diagnostic_msgs/DiagnosticStatus  values seed (int): a new game on a
+                                                          running graph: counts, measures, obstacle
+                                                          layout (ids from 0) and goals start afresh
+                                                          from that seed; /world/stats then says
+                                                          resets = n (the study's kept-alive graph)
+
+/world/stats also carries the H2 measures of sim/efficiency.py (path_per_trip,
+avoidance_length, avoidance_total, avoidance_arcs, override_fraction, min_clearance,
+path_length), counted from every pose and the filter's last reported action.
 
 Robots are listed in the ``robots`` parameter (namespaces). An intervention naming an
 unknown obstacle (already removed, or not an obstacle frame) is rejected and logged.
@@ -103,6 +114,7 @@ class WorldNode(Node):
                                  rosmsg.QOS_EVENTS)
         self.create_subscription(PoseArray, '/world/set_obstacles', self.on_set_obstacles,
                                  rosmsg.QOS_EVENTS)
+        self.add_study_hooks()
         heartbeat = p('stats_heartbeat', 1.0,
                       'wall seconds between /world/stats messages sent because counts changed '
                       'between sim-time reports (e.g. after the clock stopped)', 0.01, 3600.0)
@@ -140,6 +152,9 @@ class WorldNode(Node):
             values[f'{name}/crashes'] = r.crashes
             values[f'{name}/detected'] = len(r.detections)
         values['relaxed_spawns'] = self.world.relaxed_spawns
+        values['resets'] = self.resets
+        values.update({k: f'{v:.4f}' if isinstance(v, float) else v
+                       for k, v in self.world.efficiency().items()})
         return values
 
     def publish_stats(self, values=None):
@@ -163,7 +178,7 @@ class WorldNode(Node):
         try:
             state = rosmsg.pose_to_state(msg)
             first = self.world.robots[robot].position is None
-            events = self.world.update_pose(robot, state)
+            events = self.world.update_pose(robot, state, Time.from_msg(msg.header.stamp).nanoseconds * 1e-9)
         except ValueError as exc:
             self.get_logger().error(f'pose of {robot} rejected: {exc}', throttle_duration_sec=1.0)
             return
@@ -185,6 +200,39 @@ class WorldNode(Node):
             self.world.update_detections(robot, xy, Time.from_msg(msg.header.stamp).nanoseconds * 1e-9)
         except ValueError as exc:
             self.get_logger().error(f'detections of {robot} rejected: {exc}', throttle_duration_sec=1.0)
+
+    # -- the study's kept-alive graph and H2 measures (additive hooks) ----------------------
+    def add_study_hooks(self):
+        self.resets = 0
+        for r in self.robots:
+            self.create_subscription(DiagnosticStatus, f'/{r}/safety_filter/state',
+                                     lambda m, r=r: self.on_filter_state(r, m), rosmsg.QOS_STREAM)
+        self.create_subscription(DiagnosticStatus, '/world/reset', self.on_reset, rosmsg.QOS_EVENTS)
+
+    def on_filter_state(self, robot, msg: DiagnosticStatus):
+        action = rosmsg.diagnostic_values(msg).get('action')
+        if action is None:
+            self.get_logger().error(f'{robot}/safety_filter/state without an action: ignored',
+                                    throttle_duration_sec=5.0)
+            return
+        self.world.set_filter_action(robot, action)
+
+    def on_reset(self, msg: DiagnosticStatus):
+        values = rosmsg.diagnostic_values(msg)
+        try:
+            seed = int(values.get('seed', 0))
+            if not -1 <= seed <= 2**31 - 1:
+                raise ValueError(f'seed {seed} out of range')
+            world = World(self.world.config, self.robots, seed=None if seed < 0 else seed)
+        except ValueError as exc:
+            self.get_logger().error(f'/world/reset rejected: {exc}; the game goes on unchanged')
+            return
+        self.world = world
+        self.resets += 1
+        self.publish_obstacles()
+        self.publish_stats()
+        self.get_logger().info(f'world reset {self.resets}: seed {seed}, '
+                               f'{len(self.world.obstacles)} obstacles')
 
     def on_set_obstacles(self, msg: PoseArray):
         try:

@@ -36,6 +36,7 @@ import math
 import numpy as np
 
 from .dubins_sim import base_seed, keyed_rng
+from .efficiency import OVERRIDE, EfficiencyMeter, team_efficiency
 
 @dataclass(frozen=True)
 class WorldConfig:
@@ -110,6 +111,9 @@ class World:
         self.next_id = 0
         self.interventions: list[Intervention] = []
         self.relaxed_spawns = 0
+        # H2 measures (sim/efficiency.py): the filter's action in force per robot
+        self.meters = {name: EfficiencyMeter() for name in robots}
+        self.filter_actions = {name: None for name in robots}
         for _ in range(config.n_obstacles):
             self._spawn(clearance=0.0)
 
@@ -164,8 +168,16 @@ class World:
         r.side = 1 if x <= 0 else -1
         self.new_goal(name)
 
-    def update_pose(self, name: str, state) -> dict:
-        """Advance the counts for one robot pose; returns {'trip': bool, 'crashed': [ids]}."""
+    def set_filter_action(self, name: str, action: str) -> None:
+        """The robot's safety filter reported ``action`` (pass / override / fail_safe)."""
+        if name not in self.filter_actions:
+            raise KeyError(f'unknown robot {name}')
+        self.filter_actions[name] = str(action)
+
+    def update_pose(self, name: str, state, time: float | None = None) -> dict:
+        """Advance the counts for one robot pose; returns {'trip': bool, 'crashed': [ids]}.
+
+        With ``time`` (sim seconds) the pose also feeds the robot's efficiency meter."""
         r = self.robots[name]
         s = np.asarray(state, dtype=float).reshape(3)
         if not np.all(np.isfinite(s)):
@@ -177,6 +189,9 @@ class World:
         r.position = s
         events = {'trip': False, 'crashed': []}
         ids, xy = self.obstacle_arrays()
+        if time is not None:
+            self.meters[name].pose(s, time, r.goal, self.filter_actions[name] == OVERRIDE, xy,
+                                   self.config.radius)
         if len(ids):
             inside_now = set(ids[np.hypot(*(xy - s[:2]).T)
                                     < self.config.radius - self.config.crash_tolerance].tolist())
@@ -186,6 +201,7 @@ class World:
             r.inside = inside_now
         crossed = s[0] >= self.config.goal_x if r.side > 0 else s[0] <= -self.config.goal_x
         if crossed:
+            self.meters[name].trip_completed()
             r.trips += 1
             r.side = -r.side
             self.new_goal(name)
@@ -274,3 +290,7 @@ class World:
         score = c.trip_reward * trips - c.crash_penalty * crashes - c.intervention_penalty * n_int
         return {'trips': trips, 'crashes': crashes, 'interventions': n_int,
                 'false_positives': fps, 'score': score}
+
+    def efficiency(self) -> dict:
+        """The team's H2 measures so far (sim/efficiency.team_efficiency)."""
+        return team_efficiency(self.meters.values(), sum(r.trips for r in self.robots.values()))

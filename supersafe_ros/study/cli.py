@@ -5,9 +5,12 @@ See docs/study.md and ``supersafe_ros.study.runner``.
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 import sys
 import time
+
+from .analysis import CONDITIONS
 
 DEMO_SUBJECTS = 3
 DEMO_SEED = 7
@@ -18,9 +21,10 @@ def _add_common(parser, subjects_default):
     parser.add_argument('--seed', type=int, default=0, help='seed of subjects and world layouts')
     parser.add_argument('--out', type=Path, default=Path('study-out'), help='plots, logs and results go here')
     parser.add_argument('--json', type=Path, default=None, help='results JSON (default <out>/study.json)')
-    parser.add_argument('--estimator', choices=('paper', 'first-passage'), default='paper',
-                        help="paper: the learner node's fit (eqs. 3-4); first-passage: fitted by the "
-                             'runner from the recorded Phase II approaches')
+    parser.add_argument('--conditions', type=str, default=','.join(CONDITIONS),
+                        help='comma-separated safe sets to play in Phase III, of '
+                             f'{",".join(CONDITIONS)} (default all): learned = the paper\'s estimator '
+                             '(learner node), learned_fp = first-passage (from the recorded approaches)')
     parser.add_argument('--step', type=float, default=0.2,
                         help='sim seconds per lockstep step (default 0.2: ~20x real time on 2 cores; '
                              '0.05 is the team default, ~4x slower)')
@@ -52,17 +56,28 @@ def add_parser(subparsers):
 
 
 def run_demo(args) -> int:
-    args.subjects, args.seed, args.json, args.estimator = DEMO_SUBJECTS, DEMO_SEED, None, 'paper'
+    args.subjects, args.seed, args.json = DEMO_SUBJECTS, DEMO_SEED, None
+    args.conditions = ','.join(CONDITIONS)
     args.step, args.rate_factor, args.game_seconds = 0.2, 0.0, 120.0
     args.phase2_offsets, args.sweep_subjects, args.no_plots = None, 1, False
     return run(args)
+
+
+def parse_conditions(text: str) -> tuple:
+    """'standard,learned' -> ('standard', 'learned') in Table 1 order; ValueError if unknown."""
+    from .analysis import ordered
+    names = [c.strip() for c in str(text).split(',') if c.strip()]
+    if not names:
+        raise ValueError('no conditions given')
+    return tuple(ordered(names))
 
 
 def options_from_args(args):
     from .runner import StudyOptions
     opts = StudyOptions(subjects=args.subjects, seed=args.seed, step=args.step,
                         rate_factor=args.rate_factor, game_seconds=args.game_seconds,
-                        estimator=args.estimator, out_dir=Path(args.out), domain_id=args.domain_id,
+                        conditions=parse_conditions(args.conditions),
+                        out_dir=Path(args.out), domain_id=args.domain_id,
                         sweep_subjects=max(0, args.sweep_subjects), plots=not args.no_plots)
     if args.phase2_offsets:
         opts.phase2_offsets = tuple(float(v) for v in args.phase2_offsets.split(',') if v.strip())
@@ -72,20 +87,26 @@ def options_from_args(args):
 def run(args, out=sys.stdout) -> int:
     from ..rosenv import ensure_local_ros_env
     ensure_local_ros_env()
-    from .analysis import format_table1, significance_stars
-    from .population import draw_subjects
+    from .analysis import PAPER_STATS, format_h2, format_table1, significance_stars
+    from .population import draw_subjects, pilot_fits
     from .runner import jsonable, make_plots, reference_sets, run_study, summarize
     if args.subjects < 1 or args.game_seconds <= 0 or args.step <= 0:
         print('need --subjects >= 1, --game-seconds > 0, --step > 0', file=sys.stderr)
         return 2
-    opts = options_from_args(args)
+    try:
+        opts = options_from_args(args)
+    except ValueError as exc:
+        print(f'supersafe study: {exc}', file=sys.stderr)
+        return 2
     t0 = time.monotonic()
     print('preparing the value functions (cached after the first run) ...', file=out, flush=True)
     from ..reach.library import load_or_build_library
     load_or_build_library()          # the learner's library, built once into the cache
     standard_vf, conservative_vf = reference_sets()
     print(f'ready in {time.monotonic() - t0:.1f} s', file=out, flush=True)
-    subjects = draw_subjects(opts.subjects, opts.seed)
+    pilots, population_source = pilot_fits()
+    print(f'population: the five pilots fitted from {population_source}', file=out, flush=True)
+    subjects = draw_subjects(opts.subjects, opts.seed, pilots)
     try:
         raw = run_study(subjects, opts, out=out)
     except KeyboardInterrupt:
@@ -95,7 +116,11 @@ def run(args, out=sys.stdout) -> int:
     total = time.monotonic() - t0
     summary['timing'] = {'study_wall_s': raw['wall'], 'total_wall_s': total,
                          'phase2_wall_s': [r['phase2']['wall'] for r in raw['records']],
-                         'game_wall_s': [g['wall'] for r in raw['records'] for g in r['games'].values()]}
+                         'game_wall_s': [g['wall'] for r in raw['records']
+                                         for g in list(r['games'].values()) + [v for k, v in r['sweep'].items() if k]],
+                         'load_average': list(os.getloadavg())}
+    summary['population'] = {'source': population_source,
+                             'pilots': [dict(vars(p)) for p in pilots]}
     summary['options'] = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(opts).items()}
     out_dir = Path(opts.out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -107,10 +132,14 @@ def run(args, out=sys.stdout) -> int:
     print(format_table1(summary['table1']), file=out)
     a = summary['anova']
     print(f"\nrepeated-measures ANOVA (false positives): F({a['df_num']:g}, {a['df_den']:g}) = "
-          f"{a['F']:.3g}, p = {a['p']:.3g}" + (f"  ({a['note']})" if 'note' in a else ''), file=out)
+          f"{a['F']:.3g}, p = {a['p']:.3g}" + (f"  ({a['note']})" if 'note' in a else '')
+          + f"   [paper: {PAPER_STATS['anova']}]", file=out)
     for pair, t in summary['tukey'].items():
+        paper = PAPER_STATS['tukey'].get(pair)
         print(f"Tukey {pair}: mean difference {t['mean_difference']:+.2f}, p = {t['p']:.3g} "
-              f"{significance_stars(t['p'])}", file=out)
+              f"{significance_stars(t['p'])}" + (f'   [paper: {paper}]' if paper else ''), file=out)
+    print('\nH2, efficiency: mean (sd) over subjects', file=out)
+    print(format_h2(summary['h2']), file=out)
     for c, v in summary['conditions'].items():
         print(f"{c:13s} interventions {sum(v['interventions']):4d}  crashes {sum(v['crashes']):3d}  "
               f"trips {sum(v['trips']):4d}  (sums over subjects)", file=out)

@@ -1,11 +1,15 @@
 """The study's figures (PNG): the paper's Figs. 5 (FP per set), 6 (learned sets), 7
-(Phase II interventions over reachable sets) and the alpha sweep of Sec. II-D."""
+(Phase II interventions over reachable sets), the alpha sweep of Sec. II-D and the H2
+efficiency panel (Sec. V-B)."""
 from __future__ import annotations
 
 import numpy as np
 
 from ..reach.plots import theta_slice as _slice
-from .analysis import CONDITIONS, significance_stars
+from .analysis import H2_MEASURES, LABELS, ordered, significance_stars
+
+COLORS = {'standard': '0.55', 'learned': 'tab:blue', 'learned_fp': 'tab:green',
+          'conservative': 'tab:orange'}
 
 
 def _plt():
@@ -17,44 +21,85 @@ def _plt():
 
 def plot_false_positives(path, fp: dict, tukey: dict) -> None:
     plt = _plt()
-    fig, ax = plt.subplots(figsize=(5, 4))
-    means = [np.mean(fp[c]) for c in CONDITIONS]
-    sems = [np.std(fp[c], ddof=1) / np.sqrt(len(fp[c])) if len(fp[c]) > 1 else 0 for c in CONDITIONS]
-    ax.bar(range(3), means, yerr=sems, capsize=4, color=['0.55', 'tab:blue', 'tab:orange'])
-    for i, c in enumerate(CONDITIONS):
+    conds = ordered(fp)
+    n = len(conds)
+    fig, ax = plt.subplots(figsize=(1.5 + 1.2 * n, 4))
+    means = [np.mean(fp[c]) for c in conds]
+    sems = [np.std(fp[c], ddof=1) / np.sqrt(len(fp[c])) if len(fp[c]) > 1 else 0 for c in conds]
+    ax.bar(range(n), means, yerr=sems, capsize=4, color=[COLORS[c] for c in conds])
+    for i, c in enumerate(conds):
         ax.scatter(np.full(len(fp[c]), i) + np.linspace(-0.15, 0.15, len(fp[c])), fp[c],
                    s=10, color='k', zorder=3)
-    top = max(max(np.max(fp[c]) for c in CONDITIONS), 1) * 1.1
-    for n, (a, b) in enumerate([(0, 1), (0, 2), (1, 2)]):
-        key = f'{CONDITIONS[a]}-{CONDITIONS[b]}'
+    top = max(max(np.max(fp[c]) for c in conds), 1) * 1.1
+    pairs = [(a, b) for a in range(n) for b in range(a + 1, n)]
+    for k, (a, b) in enumerate(pairs):
+        key = f'{conds[a]}-{conds[b]}'
         if key in tukey:
-            y = top * (1 + 0.12 * n)
+            y = top * (1 + 0.1 * k)
             ax.plot([a, a, b, b], [y, y * 1.02, y * 1.02, y], color='k', lw=1)
-            ax.text((a + b) / 2, y * 1.03, significance_stars(tukey[key]['p']), ha='center')
-    ax.set_xticks(range(3), [c.capitalize() for c in CONDITIONS])
+            ax.text((a + b) / 2, y * 1.03, significance_stars(tukey[key]['p']), ha='center', fontsize=8)
+    ax.set_xticks(range(n), [LABELS[c] for c in conds])
     ax.set_ylabel('False positives per game')
     ax.set_title('False positives per safe set (Tukey HSD)')
-    ax.set_ylim(0, top * 1.5)
+    ax.set_ylim(0, top * (1.2 + 0.1 * len(pairs)))
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
 
 
+def plot_efficiency(path, conditions: dict, h2: dict) -> None:
+    """H2: one panel per measure, subjects as lines across the conditions; the title of the
+    arc panel gives the paper's comparison (learned arcs shorter than conservative)."""
+    plt = _plt()
+    conds = ordered(conditions)
+    titles = {'path_per_trip': 'path per completed trip [m]',
+              'avoidance_length': 'extra length per avoidance arc [m]',
+              'override_fraction': 'fraction of robot time overriding',
+              'min_clearance': 'minimum clearance to obstacles [m]'}
+    fig, axes = plt.subplots(1, len(H2_MEASURES), figsize=(4 * len(H2_MEASURES), 3.8))
+    for ax, m in zip(axes, H2_MEASURES):
+        v = np.array([[np.nan if x is None else x for x in conditions[c][m]] for c in conds], dtype=float)
+        for s in range(v.shape[1]):
+            ax.plot(range(len(conds)), v[:, s], '-', color='0.8', lw=0.8, zorder=1)
+        for i, c in enumerate(conds):
+            ax.scatter(np.full(v.shape[1], i), v[i], s=12, color=COLORS[c], zorder=2)
+            if np.any(np.isfinite(v[i])):
+                ax.plot([i - 0.25, i + 0.25], [np.nanmean(v[i])] * 2, color='k', lw=2, zorder=3)
+        ax.set_xticks(range(len(conds)), [LABELS[c] for c in conds], fontsize=8)
+        title = titles[m]
+        if m == 'avoidance_length' and h2.get('shorter_arcs_than_conservative'):
+            title += '\n' + ', '.join(f'{LABELS[c]} < Cons.: {r["shorter"]}/{r["of"]}'
+                                      for c, r in h2['shorter_arcs_than_conservative'].items()
+                                      if c != 'standard') + ' (paper 9/11)'
+        ax.set_title(title, fontsize=9)
+    fig.suptitle('H2: efficiency per safe set (one line per subject, bar = mean)', fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def plot_learned_sets(path, standard, conservative, learned: list, radius: float) -> None:
-    """learned: list of (value_function, alpha, label)."""
+    """learned: list of (value_function, alpha, label[, condition])."""
     plt = _plt()
     fig, ax = plt.subplots(figsize=(6, 5))
     g = standard.grid
     ax.contour(g.x, g.y, _slice(standard).T, levels=[0.0], colors='k', linewidths=2)
     ax.contour(conservative.grid.x, conservative.grid.y, _slice(conservative).T, levels=[0.0],
                colors='tab:orange', linewidths=2)
-    cmap = plt.get_cmap('winter')
-    for i, (vf, alpha, label) in enumerate(learned):
+    styles = {'learned': ('tab:blue', '--'), 'learned_fp': ('tab:green', ':')}
+    seen = set()
+    for item in learned:
+        vf, alpha = item[0], item[1]
+        cond = item[3] if len(item) > 3 else 'learned'
+        seen.add(cond)
+        color, style = styles.get(cond, styles['learned'])
         ax.contour(vf.grid.x, vf.grid.y, _slice(vf).T, levels=[alpha],
-                   colors=[cmap(i / max(1, len(learned) - 1))], linewidths=1, linestyles='--')
+                   colors=[color], linewidths=1, linestyles=style)
     ax.plot([], [], 'k', label='Standard')
     ax.plot([], [], color='tab:orange', label='Conservative')
-    ax.plot([], [], 'b--', label='Learned (one per subject)')
+    for cond in ordered(seen):
+        color, style = styles[cond]
+        ax.plot([], [], color=color, linestyle=style, label=f'{LABELS[cond]} (one per subject)')
     ax.add_patch(plt.Circle((0, 0), radius, color='0.4', alpha=0.4))
     ax.set_aspect('equal')
     ax.legend(loc='upper left', fontsize=8)

@@ -1,4 +1,4 @@
-"""The study through the real node graph: Phase II, the fit, Phase III, per subject.
+"""The study through the real node graph: Phase II, the fits, Phase III, per subject.
 
 Per subject (a simulated supervisor from ``population.draw_subjects``):
 
@@ -9,23 +9,19 @@ Per subject (a simulated supervisor from ``population.draw_subjects``):
    one disc at the origin; ``robot_0/initialpose``: (-8, y0, 0)) and drives the robot
    with u = 0 (it answers every pose with a zero Twist on cmd_vel, which is also the
    lockstep acknowledgement). A scene ends at the supervisor's intervention or when
-   the robot has passed the obstacle. The learner receives the interventions and fits
-   (paper estimator, alpha = mu); the runner takes its last value-function message.
-   With ``estimator='first-passage'`` the runner fits ``fit_first_passage`` itself from
-   the recorded approaches (every scene, intervened or not) over the same library.
-2. Phase III (``run_game``): per condition one game of the full team (world, 2 x
-   (robot, planner, filter), supervisor, clock; no learner, so the supervisor's
-   interventions cannot refit anything): Standard (the filter's own standard set),
-   Conservative (filter radius 3.6), Learned (the runner publishes the learned V,
-   latched, on /safe_set/value_function; the filter uses alpha = mu + alpha_offset
-   sigma). Same world seed for the three conditions of a subject.
-
-Every game and Phase II is a fresh set of processes (start-up ~2-3 s each); the
-lockstep clock runs as fast as the graph allows (rate_factor 0).
+   the robot has passed the obstacle.
+2. Fits (``learned_sets``): Learned = the learner node's fit from the interventions it
+   received (paper estimator, alpha = mu); Learned FP = ``fit_first_passage`` over the
+   same library from the recorded approaches (every scene, intervened or not).
+3. Phase III (``study.games.GameGraph``): one kept-alive team graph per subject (world,
+   2 x (robot, planner, filter), supervisor; no learner), one game per condition and
+   alpha-sweep game, reset between games; the condition's safe set reaches the filters
+   as a latched value-function message. Same world seed for every condition of a subject.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+import functools
 import json
 import math
 from pathlib import Path
@@ -34,7 +30,7 @@ import time
 
 import numpy as np
 
-from ..team import Team, run_team, team_env, team_layout, node_argv
+from ..team import Team, team_env, team_layout, node_argv
 from ..learning.data import PHASE2_OFFSETS, Encounter
 from .population import Subject
 
@@ -46,7 +42,6 @@ HORIZON = 3.0
 GRID_LO, GRID_HI, GRID_SHAPE = (-8.0, -8.0), (8.0, 8.0), (65, 65, 42)
 PHASE2_X0 = -8.0
 PHASE2_X_END = 2.5
-READY_TOPIC = '/study/learned_set_ready'
 
 
 @dataclass
@@ -57,7 +52,7 @@ class StudyOptions:
     rate_factor: float = 0.0
     game_seconds: float = 120.0
     phase2_offsets: tuple = tuple(float(v) for v in PHASE2_OFFSETS)
-    estimator: str = 'paper'
+    conditions: tuple = ('standard', 'learned', 'learned_fp', 'conservative')
     out_dir: Path = Path('study-out')
     domain_id: int | None = None
     sweep_subjects: int = 2          # observed alpha sweep (extra Learned games) for the first k
@@ -100,27 +95,6 @@ def phase2_argvs(subject: Subject, opts: StudyOptions, store: Path, first_offset
                           timeout_behavior='straight')
         if spec.kind == 'supervisor':
             params['seed'] = subject.seed   # team_layout derives one from the world seed
-        argvs.append(node_argv(spec.kind, spec.namespace, params, spec.remaps))
-    return argvs
-
-
-def game_argvs(condition: str, world_seed: int, subject: Subject, opts: StudyOptions,
-               alpha_offset: float = 0.0) -> list:
-    filt = {'use_learned': condition == 'learned', 'alpha_offset': float(alpha_offset)}
-    if condition == 'conservative':
-        filt['radius'] = CONSERVATIVE_RADIUS
-    sup = {'w_max': subject.omega_max, 'mu': subject.mu, 'sigma': subject.sigma}
-    overrides = {'safety_filter': filt, 'supervisor': sup}
-    layout = team_layout(2, opts.rate_factor, seed=world_seed, duration=opts.game_seconds,
-                         step=opts.step, with_learner=False, overrides=overrides)
-    argvs = []
-    for spec in layout:
-        params = dict(spec.params)
-        if spec.kind == 'supervisor':
-            params['seed'] = (subject.seed + 7919 * world_seed) % (2**31 - 1)   # the subject's noise
-        if spec.kind == 'sim_clock' and condition == 'learned':
-            # the runner opens this gate once both filters have the learned set in force
-            params['wait_for_publishers'] = list(params['wait_for_publishers']) + [f'{READY_TOPIC}=1']
         argvs.append(node_argv(spec.kind, spec.namespace, params, spec.remaps))
     return argvs
 
@@ -233,52 +207,25 @@ def first_passage_fit(scenes: list):
 
 
 # -- Phase III --------------------------------------------------------------------------
-class LatchedValueFunction:
-    """Publishes one value-function message, latched, on /safe_set/value_function, and
-    opens the gate ``READY_TOPIC`` (a publisher the sim clock waits for) once every
-    filter has logged (on /rosout) that the learned set is in force: the first step of
-    a Learned game then runs on the learned set, not on the standard one."""
-
-    def __init__(self, env: dict, msg, n_filters: int = 2):
-        from ..ros_io.background_node import BackgroundNode
-        from rclpy.qos import QoSProfile, DurabilityPolicy, HistoryPolicy, ReliabilityPolicy
-        from rcl_interfaces.msg import Log
-        from std_msgs.msg import Empty, Float32MultiArray
-        from ..ros_io import rosmsg
-        self.Empty = Empty
-        self.n_filters = n_filters
-        self.in_force = set()
-        self.gate = None
-        self.ros = BackgroundNode('study_learned_set', env['ROS_DOMAIN_ID'])
-        self.node = self.ros.node
-        rosout_qos = QoSProfile(depth=1000, history=HistoryPolicy.KEEP_LAST,
-                                reliability=ReliabilityPolicy.RELIABLE,
-                                durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        self.node.create_subscription(Log, '/rosout', self.on_log, rosout_qos)
-        self.pub = self.node.create_publisher(Float32MultiArray, '/safe_set/value_function',
-                                              rosmsg.QOS_LATCHED)
-        self.pub.publish(msg)
-        self.ros.start()
-
-    def on_log(self, log):
-        if log.name.endswith('safety_filter') and log.msg.startswith('learned set in force'):
-            self.in_force.add(log.name)
-            if len(self.in_force) >= self.n_filters and self.gate is None:
-                self.gate = self.node.create_publisher(self.Empty, READY_TOPIC, 1)
-
-    def close(self):
-        self.ros.close()
+H2_KEYS = ('path_per_trip', 'avoidance_length', 'avoidance_total', 'avoidance_arcs',
+           'override_fraction', 'min_clearance', 'path_length')
 
 
 def game_counts(result: dict) -> dict:
-    """The world's final counts of one game (from run_team's result)."""
+    """The world's final counts and H2 measures of one game (from its /world/stats)."""
     stats = result.get('stats') or {}
     log = result.get('interventions') or []
 
     def num(key):
         v = stats.get(key)
         return int(float(v)) if v is not None else 0
-    return {
+
+    def real(key):
+        try:
+            return float(stats[key])
+        except (KeyError, TypeError, ValueError):
+            return float('nan')
+    out = {
         'trips': num('trips'), 'crashes': num('crashes'),
         'interventions': num('interventions'), 'false_positives': num('false_positives'),
         'sim_time': float(stats.get('sim_time', 0.0) or 0.0),
@@ -286,30 +233,37 @@ def game_counts(result: dict) -> dict:
         'logged_false_positives': sum(1 for r in log if str(r.get('false_positive')).lower()
                                       in ('true', '1')),
     }
+    out.update({k: real(k) for k in H2_KEYS})
+    return out
 
 
-def run_game(condition: str, subject: Subject, world_seed: int, opts: StudyOptions,
-             domain_id: int, log_dir: Path, vf_msg=None, alpha_offset: float = 0.0) -> dict:
-    argvs = game_argvs(condition, world_seed, subject, opts, alpha_offset)
-    env = team_env(domain_id)
-    latched = LatchedValueFunction(env, vf_msg) if condition == 'learned' else None
-    t0 = time.monotonic()
-    try:
-        with open(log_dir.parent / f'{log_dir.name}.runner.log', 'w') as out:
-            result = run_team(argvs, opts.game_seconds, opts.game_timeout, domain_id, log_dir,
-                              print_period=1e9, out=out)
-    finally:
-        if latched:
-            latched.close()
-    if result['reason'].startswith('signal'):
-        raise KeyboardInterrupt(result['reason'])   # Ctrl-C in a game stops the study
-    counts = game_counts(result)
-    counts.update(wall=time.monotonic() - t0, reason=result['reason'],
-                  complete=counts['sim_time'] >= opts.game_seconds - 1e-6)
-    return counts
+def supervisor_params(subject: Subject) -> dict:
+    return {'w_max': subject.omega_max, 'mu': subject.mu, 'sigma': subject.sigma}
+
+
+def supervisor_seed(subject: Subject, world_seed: int) -> int:
+    """The subject's noise in Phase III (the same for every condition of the subject)."""
+    return (subject.seed + 7919 * world_seed) % (2**31 - 1)
+
+
+def condition_message(condition: str, learned: dict, alpha_offset: float = 0.0):
+    """(message, alpha or None, what ran) of one condition; ``learned``: condition ->
+    (value function, fit) of the subject's learned sets. A learned condition without a
+    fit runs the Standard set (and is counted so)."""
+    from .games import game_message
+    standard_vf, conservative_vf = reference_sets()
+    if condition == 'conservative':
+        return game_message(conservative_vf, None, condition), None, 'conservative'
+    if condition in learned and learned[condition][0] is not None:
+        vf, fit = learned[condition]
+        alpha = learned_alpha(fit, alpha_offset)
+        return game_message(vf, alpha, condition, fit_mu=fit['mu'], fit_sigma=fit['sigma'],
+                            omega_max=fit['omega_max']), alpha, condition
+    return game_message(standard_vf, None, 'standard'), None, 'standard'
 
 
 # -- whole study ------------------------------------------------------------------------
+@functools.lru_cache(maxsize=1)
 def reference_sets():
     """The standard (true, radius 1.8) and conservative (radius 3.6) value functions."""
     from ..reach.grid import Grid
@@ -319,52 +273,96 @@ def reference_sets():
             load_or_solve(g, SPEED, TRUE_OMEGA, CONSERVATIVE_RADIUS, HORIZON))
 
 
+def learned_sets(p2: Phase2Result, conditions) -> dict:
+    """condition -> (value function message or None, fit dict or None) of one subject.
+
+    learned: the learner node's fit (paper estimator, alpha = mu), taken from the graph.
+    learned_fp: the first-passage estimator, fitted here from the recorded Phase II
+    approaches (every scene, intervened or not). This is the one place to change when the
+    learner node fits first-passage online: take its value-function message instead.
+    """
+    out = {}
+    if 'learned' in conditions:
+        out['learned'] = (p2.vf_msg, p2.fit)
+    if 'learned_fp' in conditions:
+        out['learned_fp'] = first_passage_fit(p2.scenes) if len(p2.states) >= 1 else (None, None)
+    return out
+
+
+def sweep_condition(conditions):
+    """The learned condition whose alpha the observed sweep raises (the paper's first)."""
+    return next((c for c in ('learned', 'learned_fp') if c in conditions), None)
+
+
 def run_study(subjects: list, opts: StudyOptions, out=sys.stdout) -> dict:
     """Run every subject; returns the raw per-subject records (see ``summarize``)."""
     from ..ros_io.vfmsg import msg_to_value_function
+    from .analysis import ordered
+    from .games import GameGraph
+    conditions = ordered(opts.conditions)
     progress = Progress(len(subjects), out)
     domain = opts.domain_id if opts.domain_id is not None else int(team_env()['ROS_DOMAIN_ID'])
+    env = team_env(domain)
     logs = Path(opts.out_dir) / 'logs'
     records = []
     t_start = time.monotonic()
     for i, subject in enumerate(subjects):
-        rec = {'subject': subject.to_dict(), 'games': {}, 'sweep': {}}
+        rec = {'subject': subject.to_dict(), 'games': {}, 'sweep': {}, 'fits': {}, 'learned_vfs': {}}
         progress.line(i, 'phase II', None, f'w_max {subject.omega_max:g} mu {subject.mu:g} '
                       f'sigma {subject.sigma:g}, {len(opts.phase2_offsets)} offsets')
         p2 = run_phase2(subject, opts, domain, logs / f's{i:02d}-phase2', progress)
         rec['phase2'] = {'scenes': [{k: v for k, v in s.items() if k != 'frames'} for s in p2.scenes],
                          'interventions': len(p2.states), 'sim_time': p2.sim_time, 'wall': p2.wall,
                          'notes': p2.notes}
-        vf_msg, fit = p2.vf_msg, p2.fit
-        if opts.estimator == 'first-passage' and len(p2.states) >= 1:
-            vf_msg, fit = first_passage_fit(p2.scenes)
-        rec['fit'] = fit
         rec['states'] = p2.states.tolist()
-        progress.line(i, 'phase II done', p2.sim_time,
-                      f'{len(p2.states)} interventions; fit ' + (
-                          f'w {fit["omega_max"]:g} mu {fit["mu"]:.3g} sigma {fit["sigma"]:.3g}'
-                          if fit else 'none (too few interventions): Learned = Standard')
-                      + ''.join(f'; {n}' for n in p2.notes))
-        rec['learned_vf'] = msg_to_value_function(vf_msg) if vf_msg is not None else None
+        fits = learned_sets(p2, conditions)
+        for c, (msg, fit) in fits.items():
+            rec['fits'][c] = fit
+            rec['learned_vfs'][c] = msg_to_value_function(msg) if msg is not None else None
+        progress.line(i, 'phase II done', p2.sim_time, f'{len(p2.states)} interventions' + ''.join(
+            f'; {c}: ' + (f'w {f["omega_max"]:g} mu {f["mu"]:.3g} sigma {f["sigma"]:.3g}' if f
+                          else 'no fit (too few interventions): Standard set')
+            for c, f in rec['fits'].items()) + ''.join(f'; {n}' for n in p2.notes))
         world_seed = opts.seed * 1000 + i
-        for cond in ('standard', 'learned', 'conservative'):
-            game_cond = cond if (cond != 'learned' or vf_msg is not None) else 'standard'
-            g = run_game(game_cond, subject, world_seed, opts, domain, logs / f's{i:02d}-{cond}', vf_msg)
-            rec['games'][cond] = g
-            progress.line(i, f'phase III {cond}', g['sim_time'],
-                          f'FP {g["false_positives"]} int {g["interventions"]} crashes {g["crashes"]} '
-                          f'trips {g["trips"]}' + ('' if g['complete'] else f' INCOMPLETE ({g["reason"]})'))
-        if i < opts.sweep_subjects and vf_msg is not None:
-            for k in opts.sweep_k:
+        learned = {c: (rec['learned_vfs'][c], rec['fits'][c]) for c in fits}
+        games = [(c, 0.0) for c in conditions]
+        swept = sweep_condition(conditions)
+        if i < opts.sweep_subjects and swept and rec['fits'].get(swept):
+            games += [(swept, k) for k in opts.sweep_k if k != 0.0]
+        graph = GameGraph(env, world_seed, supervisor_params(subject), opts.step, opts.rate_factor,
+                          logs / f's{i:02d}-phase3')
+        try:
+            for cond, k in games:
+                msg, alpha, ran = condition_message(cond, learned, k)
+                result = graph.play(msg, world_seed, supervisor_seed(subject, world_seed),
+                                    opts.game_seconds,
+                                    opts.game_timeout + (120.0 if graph.games == 0 else 0.0))
+                g = game_counts(result)
+                g.update(wall=result['wall'], wall_running=result['wall_running'], cpu_s=result['cpu_s'],
+                         cpu_by_process=result['cpu_by_process'],
+                         resends=result['resends'], set=ran,
+                         alpha=alpha, complete=g['sim_time'] >= opts.game_seconds - 1e-6)
                 if k == 0.0:
-                    rec['sweep'][k] = rec['games']['learned']
-                    continue
-                g = run_game('learned', subject, world_seed, opts, domain,
-                             logs / f's{i:02d}-learned-k{k:g}', vf_msg, alpha_offset=k)
-                rec['sweep'][k] = g
-                progress.line(i, f'sweep mu+{k:g}sigma', g['sim_time'],
-                              f'FP {g["false_positives"]} int {g["interventions"]} crashes {g["crashes"]}')
+                    rec['games'][cond] = g
+                    name = f'phase III {cond}'
+                else:
+                    rec['sweep'][k] = g
+                    name = f'sweep mu+{k:g}sigma'
+                progress.line(i, name, g['sim_time'],
+                              f'FP {g["false_positives"]} int {g["interventions"]} crashes {g["crashes"]} '
+                              f'trips {g["trips"]} arc {g["avoidance_length"]:.2f} m '
+                              f'({g["wall"]:.1f} s)')
+            if swept in rec['games'] and rec['sweep']:
+                rec['sweep'][0.0] = rec['games'][swept]
+        except KeyboardInterrupt:
+            raise
+        finally:
+            graph.close()
         records.append(rec)
+        # the subject's files, in the layout a human participant's session also writes
+        # (console/session.py), so the analysis can mix the two
+        from ..console.session import write_subject
+        write_subject(Path(opts.out_dir) / 'subjects' / f's{i:02d}', rec)
     return {'records': records, 'wall': time.monotonic() - t_start}
 
 
@@ -393,58 +391,79 @@ def learned_alpha(fit: dict | None, k: float = 0.0) -> float:
     return float(fit['mu']) + k * float(fit['sigma'])
 
 
-def summarize(records: list, standard_vf, conservative_vf, sweep_k=(0.0, 1.0, 2.0)) -> dict:
-    """Aggregate per-subject records into the study's JSON (Table 1, ANOVA, Tukey, sweep).
+def record_learned(r: dict) -> dict:
+    """condition -> (value function, fit) of a record's learned sets (None when not fitted);
+    a record with only 'fit'/'learned_vf' is the paper estimator's Learned."""
+    if 'learned_vfs' in r:
+        return {c: (r['learned_vfs'].get(c), r['fits'].get(c)) for c in r['learned_vfs']}
+    return {'learned': (r.get('learned_vf'), r.get('fit'))}
 
-    A record: {'subject', 'fit' (mu, sigma, ... or None), 'states' (Phase II intervention
-    states), 'learned_vf' (ValueFunction or None), 'games': {condition: counts},
-    'sweep': {k: counts}}. A subject without a fit (fewer than 3 interventions) is
-    counted with the Standard set in the Learned condition (what its filter used).
+
+def summarize(records: list, standard_vf, conservative_vf, sweep_k=(0.0, 1.0, 2.0)) -> dict:
+    """Aggregate per-subject records into the study's JSON (Table 1, H2, ANOVA, Tukey, sweep).
+
+    A record: {'subject', 'states' (Phase II intervention states), 'fits' and 'learned_vfs'
+    (learned condition -> fit dict / ValueFunction, or None), 'games': {condition: counts
+    and H2 measures}, 'sweep': {k: counts}}. A subject without a fit (fewer than 3
+    interventions) is counted with the Standard set in that learned condition (what its
+    filter used). The conditions are those the records' games ran.
     """
-    from .analysis import (CONDITIONS, SetCount, interventions_inside, repeated_measures_anova,
-                           table1, tukey_pairs)
-    inside = {c: SetCount(0, 0) for c in CONDITIONS}
+    from .analysis import (H2_MEASURES, SetCount, h2_summary, interventions_inside, ordered,
+                           repeated_measures_anova, table1, tukey_pairs)
+    conditions = ordered(records[0]['games'])
+    inside = {c: SetCount(0, 0) for c in conditions}
+    swept = sweep_condition(conditions)
     per_subject_pred = {float(k): [] for k in sweep_k}
     for r in records:
         states = np.asarray(r['states'], dtype=float).reshape(-1, 3)
-        sets = {'standard': (standard_vf, 0.0), 'conservative': (conservative_vf, 0.0),
-                'learned': ((r['learned_vf'], learned_alpha(r['fit'])) if r.get('learned_vf') is not None
-                            else (standard_vf, 0.0))}
-        for c, (vf, alpha) in sets.items():
+        learned = record_learned(r)
+        sets = {'standard': (standard_vf, 0.0), 'conservative': (conservative_vf, 0.0)}
+        for c in ('learned', 'learned_fp'):
+            vf, fit = learned.get(c, (None, None))
+            sets[c] = (vf, learned_alpha(fit)) if vf is not None else (standard_vf, 0.0)
+        for c in conditions:
+            vf, alpha = sets[c]
             n = interventions_inside(vf, alpha, states)
             inside[c] = SetCount(inside[c].inside + n.inside, inside[c].total + n.total)
-        if r.get('learned_vf') is not None and len(states):
+        vf, fit = learned.get(swept, (None, None)) if swept else (None, None)
+        if vf is not None and len(states):
             for k in per_subject_pred:
-                n = interventions_inside(r['learned_vf'], learned_alpha(r['fit'], k), states)
+                n = interventions_inside(vf, learned_alpha(fit, k), states)
                 per_subject_pred[k].append(n.inside / n.total)
     counts = {c: {key: [int(r['games'][c][key]) for r in records]
                   for key in ('false_positives', 'interventions', 'crashes', 'trips')}
-              for c in CONDITIONS}
-    fp = {c: counts[c]['false_positives'] for c in CONDITIONS}
+              for c in conditions}
+    measures = {c: {m: [_finite(float(r['games'][c].get(m, float('nan')))) for r in records]
+                    for m in H2_MEASURES + ('avoidance_total', 'avoidance_arcs')}
+                for c in conditions}
+    fp = {c: counts[c]['false_positives'] for c in conditions}
     rows = table1(inside, fp)
-    conditions = {}
-    for c in CONDITIONS:
-        conditions[c] = dict(counts[c], **rows[c])
+    out_conditions = {}
+    for c in conditions:
+        out_conditions[c] = dict(counts[c], **measures[c], **rows[c])
         if c == 'standard':   # the reference, by definition (other ratios are NaN if it is 0)
-            conditions[c]['predicted_fp_ratio'] = 1.0
-            conditions[c]['observed_fp_ratio'] = 1.0
+            out_conditions[c]['predicted_fp_ratio'] = 1.0
+            out_conditions[c]['observed_fp_ratio'] = 1.0
     observed = {}
     for k in per_subject_pred:
         games = [r['sweep'][k] for r in records if k in r.get('sweep', {})]
         observed[k] = [g['false_positives'] for g in games] if games else None
     sweep = {f'mu+{k:g}sigma' if k else 'mu': {
-        'k': k, 'predicted': per_subject_pred[k], 'observed': observed[k],
+        'k': k, 'condition': swept, 'predicted': per_subject_pred[k], 'observed': observed[k],
         'observed_subjects': [r['subject']['index'] for r in records if k in r.get('sweep', {})],
         'observed_interventions': [r['sweep'][k]['interventions'] for r in records if k in r.get('sweep', {})],
         'observed_crashes': [r['sweep'][k]['crashes'] for r in records if k in r.get('sweep', {})],
     } for k in per_subject_pred}
+    h2 = h2_summary({c: measures[c] for c in conditions})
     return {
         'table1': rows,
-        'conditions': conditions,
+        'conditions': out_conditions,
         'anova': repeated_measures_anova(fp),
         'tukey': tukey_pairs(fp),
+        'h2': h2,
         'alpha_sweep': sweep,
-        'subjects': [{'subject': r['subject'], 'fit': r.get('fit'),
+        'subjects': [{'subject': r['subject'],
+                      'fits': {c: f for c, (_, f) in record_learned(r).items()},
                       'phase2': r.get('phase2', {}),
                       'games': r['games'], 'sweep': {f'{k:g}': v for k, v in r.get('sweep', {}).items()}}
                      for r in records],
@@ -459,8 +478,14 @@ def make_plots(out_dir: Path, summary: dict, records: list, standard_vf, conserv
     p = out_dir / 'false_positives.png'
     plots.plot_false_positives(p, fp, summary['tukey'])
     paths.append(p)
-    learned = [(r['learned_vf'], learned_alpha(r['fit']), f"subject {r['subject']['index']}")
-               for r in records if r.get('learned_vf') is not None]
+    p = out_dir / 'efficiency.png'
+    plots.plot_efficiency(p, summary['conditions'], summary['h2'])
+    paths.append(p)
+    learned = []
+    for r in records:
+        for c, (vf, fit) in record_learned(r).items():
+            if vf is not None:
+                learned.append((vf, learned_alpha(fit), f"subject {r['subject']['index']}", c))
     p = out_dir / 'learned_sets.png'
     plots.plot_learned_sets(p, standard_vf, conservative_vf, learned, TRUE_RADIUS)
     paths.append(p)
