@@ -163,7 +163,8 @@ def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
             add('safety_filter', name, {**sim, 'control_period': step, 'lookahead': 2.0 * step,
                                         'clock_stall_timeout': 10.0})
     if with_learner:
-        add('learner', None, {**sim, **({'store_path': str(learner_store)} if learner_store else {})},
+        add('learner', None, {**sim, 'robots': robots,
+                              **({'store_path': str(learner_store)} if learner_store else {})},
             coarse)
     if with_supervisor:
         add('supervisor', None, {**sim, 'robots': robots, 'seed': seed * 1000 + 999}, coarse)

@@ -53,10 +53,12 @@ class Listener:
     def fit(self):
         return rosmsg.diagnostic_values(self.fits[-1]) if self.fits else {}
 
-    def send(self, state, obstacle, stamp_s, frame=None):
+    def send(self, state, obstacle, stamp_s, frame=None, nanosec=None):
         msg = PoseStamped()
         msg.header.frame_id = rosmsg.obstacle_frame(obstacle) if frame is None else frame
-        msg.header.stamp.sec, msg.header.stamp.nanosec = int(stamp_s), int((stamp_s % 1) * 1e9)
+        msg.header.stamp.sec, msg.header.stamp.nanosec = math.floor(stamp_s), int((stamp_s % 1) * 1e9)
+        if nanosec is not None:
+            msg.header.stamp.nanosec = nanosec
         msg.pose.position.x, msg.pose.position.y = float(state[0]), float(state[1])
         if math.isfinite(state[2]):
             msg.pose.orientation = rosmsg.yaw_to_quaternion(state[2])
@@ -67,7 +69,8 @@ class Listener:
 
 def make_learner(ctx, store, **extra):
     params = [Parameter('store_path', value=str(store)), Parameter('library_shape', value=SHAPE),
-              Parameter('library_omegas', value=OMEGAS), Parameter('min_interventions', value=3)]
+              Parameter('library_omegas', value=OMEGAS), Parameter('min_interventions', value=3),
+              Parameter('estimator', value='paper')]
     params += [Parameter(k, value=v) for k, v in extra.items()]
     return LearnerNode(context=ctx, parameter_overrides=params)
 
@@ -116,7 +119,8 @@ def test_fit_follows_the_interventions_of_a_simulated_supervisor(running, superv
 
 
 @pytest.mark.parametrize('bad', ['nan', 'inf', 'empty_frame', 'map_frame', 'outside', 'zero_quaternion',
-                                 'duplicate'])
+                                 'duplicate', 'frame_not_an_id', 'frame_100kB', 'negative_stamp',
+                                 'nanosec_overflow'])
 def test_bad_interventions_are_rejected_and_the_node_keeps_running(running, bad):
     state, listener, spin = running
     before = int(listener.fit().get('interventions', 0))
@@ -136,16 +140,32 @@ def test_bad_interventions_are_rejected_and_the_node_keeps_running(running, bad)
         s = (-3.0, 0.5, math.nan)
     elif bad == 'duplicate':
         stamp = 100.0   # the first supervised intervention, same obstacle and time
+    elif bad == 'frame_not_an_id':
+        frame = 'obstacle_abc'
+    elif bad == 'frame_100kB':
+        frame = 'obstacle_' + '7' * 100_000
+    elif bad == 'negative_stamp':
+        stamp = -5.0
+    duplicates = int(listener.fit().get('duplicates', 0))
     listener.fits.clear()
-    listener.send(s, 0, stamp, frame)
+    if bad == 'nanosec_overflow':
+        listener.send(s, 0, stamp, frame, nanosec=1_500_000_000)
+    else:
+        listener.send(s, 0, stamp, frame)
     if bad == 'duplicate':
-        spin.spin_for(0.3)
-        assert not listener.fits   # nothing new: no refit, no status
+        spin.until(lambda: listener.fit().get('duplicates') == str(duplicates + 1), 5.0, 'the duplicate')
+        assert listener.fit()['interventions'] == str(before) and listener.fit()['rejected'] == str(rejected)
         assert len(state['node'].store) == before
         return
     spin.until(lambda: listener.fit().get('rejected') == str(rejected + 1), 5.0, 'the rejection')
     assert listener.fit()['interventions'] == str(before)
     assert 'rejected' in listener.fits[-1].message and listener.fits[-1].level == bytes([1])
+    reason = listener.fit()['last_rejection']
+    expected = {'frame_not_an_id': 'does not name an obstacle', 'frame_100kB': 'characters long',
+                'negative_stamp': 'not a valid time', 'nanosec_overflow': 'not a valid time',
+                'outside': 'outside the library grid', 'nan': 'not finite'}.get(bad)
+    if expected:
+        assert expected in reason and len(reason) < 300
 
 
 def test_restart_keeps_the_data_and_republishes_the_fit(running, ros_context):

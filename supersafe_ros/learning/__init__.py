@@ -6,6 +6,9 @@ ROS-free: numpy/scipy over the reachability core's value functions.
 * ``data``: encounters, the CSV formats, the Phase II protocol.
 * ``estimators``: the paper's estimator, the first-passage estimator, the
   conservative prior, alpha and the predicted false-positive fraction.
+* ``encounters``: encounters built online from poses, obstacle sets and
+  interventions (the learner node's first-passage input).
+* ``intervention_store``: the durable JSON-lines stores (interventions, encounters).
 * ``cli``: ``supersafe fit``; ``plots``: the learned-safe-set figure.
 """
 import importlib
@@ -20,6 +23,7 @@ _HOMES = {
     'fit_first_passage': 'estimators', 'fit_paper': 'estimators',
     'predicted_false_positive_fraction': 'estimators',
     'NoisySupervisor': 'supervisor',
+    'EncounterBuilder': 'encounters', 'EncounterRecord': 'encounters', 'phase2_events': 'encounters',
 }
 
 
@@ -30,7 +34,7 @@ def __getattr__(name):
 
 
 __all__ = [
-    'Encounter', 'FitResult', 'NoisySupervisor', 'admissible_mask', 'alpha_for_fp_rate',
+    'Encounter', 'EncounterBuilder', 'EncounterRecord', 'phase2_events', 'FitResult', 'NoisySupervisor', 'admissible_mask', 'alpha_for_fp_rate',
     'encounters_from_phase2_interventions', 'fit_first_passage', 'fit_paper',
     'intervention_states', 'phase2_encounters', 'predicted_false_positive_fraction',
     'read_encounters_csv', 'read_interventions_csv', 'write_encounters_csv',

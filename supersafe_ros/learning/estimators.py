@@ -167,9 +167,15 @@ def admissible_mask(library_entries, true_vf: ValueFunction, tol: float | None =
                     dtype=bool)
 
 
-def _choose(entries, loglik, true_vf, admissible_tol):
-    """Index of the best entry (highest log-likelihood among the admissible ones)."""
-    if true_vf is None:
+def _choose(entries, loglik, true_vf, admissible_tol, admissible=None):
+    """Index of the best entry (highest log-likelihood among the admissible ones).
+
+    ``admissible``: a precomputed ``admissible_mask`` (an online learner computes it once)."""
+    if admissible is not None:
+        admissible = np.asarray(admissible, dtype=bool)
+        if not admissible.any():
+            raise ValueError('no library entry is admissible')
+    elif true_vf is None:
         admissible = np.ones(len(entries), dtype=bool)
     else:
         admissible = admissible_mask(entries, true_vf, tol=admissible_tol)
@@ -225,14 +231,23 @@ def fit_paper(entries, states, *, true_vf=None, alpha_k=0.0, admissible_tol=None
     s = _check_states(states, 'intervention states')
     if len(s) == 0:
         raise ValueError('no intervention states to fit')
-    values = np.stack([e.value(s) for e in entries])
+    return fit_paper_values(entries, np.stack([e.value(s) for e in entries]), true_vf=true_vf,
+                            alpha_k=alpha_k, admissible_tol=admissible_tol)
+
+
+def fit_paper_values(entries, values, *, true_vf=None, alpha_k=0.0, admissible_tol=None,
+                     admissible=None) -> FitResult:
+    """``fit_paper`` from the entries' values at the intervention states, (n_entries, p):
+    an online learner evaluates each new intervention once and keeps the columns."""
+    entries = _check_entries(entries)
+    values = np.asarray(values, dtype=float)
     mu, sigma, loglik, floored = paper_estimates(values)
-    best, admissible = _choose(entries, loglik, true_vf, admissible_tol)
+    best, admissible = _choose(entries, loglik, true_vf, admissible_tol, admissible)
     notes = []
     if floored.any():
         notes.append(f'sigma floored at {SIGMA_FLOOR:g} for {int(floored.sum())} entries '
                      '(all intervention values equal: degenerate data)')
-    return _result(entries, 'paper', mu, sigma, loglik, admissible, best, alpha_k, len(s),
+    return _result(entries, 'paper', mu, sigma, loglik, admissible, best, alpha_k, values.shape[1],
                    extra_cols={'sigma_floored': [bool(f) for f in floored]}, notes=notes)
 
 
@@ -443,13 +458,15 @@ def _newton(fun, x, lower, upper, max_iter=100, tol=1e-10):
     return x, f
 
 
-def maximise_first_passage(iv: EncounterIntervals, lapse=0.0, rows=None, method='newton'):
+def maximise_first_passage(iv: EncounterIntervals, lapse=0.0, rows=None, method='newton', start=None):
     """Maximise the first-passage log-likelihood over mu >= 0, sigma >= SIGMA_FLOOR for the
     entries ``rows`` (default: every entry that can explain the data), in the natural
     parameters eta = mu/sigma, tau = 1/sigma with analytic gradients.
 
     method 'newton': all entries at once (``_newton``, vectorised); 'lbfgsb': scipy's
     L-BFGS-B entry by entry (slower; kept as a cross-check).
+    start: (mu, sigma) arrays (n_entries,) to start from instead of the paper-style
+    estimate, e.g. the previous fit of an online learner (non-finite values fall back).
     Returns mu, sigma, loglik (n_entries,): nan, nan, -inf for entries not fitted."""
     n = iv.lo.shape[0]
     if rows is None:
@@ -462,6 +479,10 @@ def maximise_first_passage(iv: EncounterIntervals, lapse=0.0, rows=None, method=
         return mu, sigma, loglik
     sub = _subset(iv, rows)
     mu0, sd0 = _start(sub)
+    if start is not None:
+        smu, ssd = (np.asarray(a, dtype=float)[rows] for a in start)
+        ok = np.isfinite(smu) & np.isfinite(ssd) & (ssd > 0)
+        mu0, sd0 = np.where(ok, np.maximum(smu, 0.0), mu0), np.where(ok, ssd, sd0)
     x0 = np.stack([mu0 / sd0, 1.0 / sd0], axis=1)
     x0[:, 1] = np.clip(x0[:, 1], _TAU_MIN, _TAU_MAX)
     if method == 'newton':
@@ -510,11 +531,34 @@ def fit_first_passage(entries, encounters, *, true_vf=None, alpha_k=0.0, conditi
     lapse: probability of a lapse judgement (0 = the pure model).
     """
     entries = _check_entries(entries)
+    iv = encounter_intervals(entries, encounters, conditional=conditional)
+    return fit_first_passage_intervals(entries, iv, true_vf=true_vf, alpha_k=alpha_k, lapse=lapse,
+                                       admissible_tol=admissible_tol)
+
+
+def concat_intervals(parts) -> EncounterIntervals:
+    """One EncounterIntervals from several (same entries; encounters side by side): an
+    online learner computes each encounter's intervals once and joins them per refit."""
+    parts = list(parts)
+    if not parts:
+        raise ValueError('no encounters to fit')
+    m_full = None if any(p.m_full is None for p in parts) else np.concatenate([p.m_full for p in parts], 1)
+    return EncounterIntervals(np.concatenate([p.lo for p in parts], axis=1),
+                              np.concatenate([p.hi for p in parts], axis=1), m_full,
+                              np.concatenate([p.outcomes for p in parts]),
+                              np.concatenate([p.intervened for p in parts]))
+
+
+def fit_first_passage_intervals(entries, iv: EncounterIntervals, *, true_vf=None, alpha_k=0.0,
+                                lapse=0.0, admissible_tol=None, admissible=None, start=None) -> FitResult:
+    """``fit_first_passage`` from precomputed intervals (``encounter_intervals``);
+    ``start``: (mu, sigma) per entry to start the maximisation from (a previous fit)."""
+    entries = _check_entries(entries)
     if not (0.0 <= lapse < 1.0):
         raise ValueError(f'lapse must be in [0, 1), got {lapse}')
-    iv = encounter_intervals(entries, encounters, conditional=conditional)
-    mu, sigma, loglik = maximise_first_passage(iv, lapse)
-    best, admissible = _choose(entries, loglik, true_vf, admissible_tol)
+    conditional = iv.m_full is not None
+    mu, sigma, loglik = maximise_first_passage(iv, lapse, start=start)
+    best, admissible = _choose(entries, loglik, true_vf, admissible_tol, admissible)
     n_int = int(iv.intervened.sum())
     impossible = (iv.lo >= iv.hi).sum(axis=1)
     notes = []

@@ -1,12 +1,15 @@
-"""Append-only, durable store of accepted interventions (JSON lines).
+"""Append-only, durable stores of accepted records (JSON lines): interventions and encounters.
 
 One line per intervention::
 
     {"stamp_ns": 1700000000123456789, "frame": "obstacle_7", "x": -2.1, "y": 0.4,
      "theta": 0.05, "received": 1700000000.2}
 
-``append`` writes one whole line and fsyncs before returning, so an intervention
-that was acknowledged survives a crash or power cut. On open the file is read
+``append`` writes one whole line and, by default, fsyncs before returning, so a
+record that was acknowledged survives a crash or power cut. ``append(..., sync=False)``
+only hands the line to the kernel (it survives a crash of the process, not a power
+cut) and ``sync()`` fsyncs every such line at once: the learner's group commit, which
+takes a burst of interventions without one fsync each. On open the file is read
 back; a torn last line (the process died mid-write: no newline, or not JSON) is
 cut off so the next append starts on a clean line — only that never-acknowledged
 record is lost. A damaged line elsewhere is skipped and counted, never silently
@@ -68,13 +71,23 @@ class StoreLockedError(RuntimeError):
     """Another process holds the store."""
 
 
-class InterventionStore:
-    """The interventions of one subject, persisted to ``path`` (JSON lines)."""
+class RecordStore:
+    """Records of one subject persisted to ``path`` (JSON lines), duplicates (same
+    ``key``) refused. ``record_type`` has ``key``, ``to_json()`` and ``from_json(line)``."""
 
-    def __init__(self, path):
+    record_type = None
+
+    def __init__(self, path, record_type=None, keep: int | None = None):
+        """keep: hold only the newest ``keep`` records in ``entries`` (memory stays bounded
+        over hours; the file keeps all of them and ``len()`` counts all)."""
+        if record_type is not None:
+            self.record_type = record_type
+        self.keep = keep
+        self.count = 0
         self.path = os.path.abspath(os.path.expanduser(os.fspath(path)))
         os.makedirs(os.path.dirname(self.path), exist_ok=True)
-        self.entries: list[Intervention] = []
+        self.entries: list = []
+        self.unsynced = 0           # lines appended with sync=False since the last fsync
         self.skipped_lines = 0      # damaged lines found on load (kept in the file)
         self.torn_bytes = 0         # bytes of a torn last line cut off on load
         self._keys = set()
@@ -116,7 +129,7 @@ class InterventionStore:
             end = len(data) if last else nl + 1
             line = data[pos:end]
             try:
-                entry = Intervention.from_json(line.decode('utf-8'))
+                entry = self.record_type.from_json(line.decode('utf-8'))
             except (ValueError, KeyError, TypeError, UnicodeDecodeError):
                 entry = None
             if last:
@@ -129,8 +142,13 @@ class InterventionStore:
             elif entry.key not in self._keys:
                 self.entries.append(entry)
                 self._keys.add(entry.key)
+                if self.keep is not None and len(self.entries) > 2 * self.keep:
+                    del self.entries[:-self.keep]
             good_end = end
             pos = end
+        self.count = len(self._keys)
+        if self.keep is not None:
+            del self.entries[:-self.keep]
         if self.torn_bytes:
             f.truncate(good_end)
             f.flush()
@@ -138,6 +156,7 @@ class InterventionStore:
 
     def close(self):
         if self._file is not None:
+            self.sync()
             try:
                 fcntl.flock(self._file.fileno(), fcntl.LOCK_UN)
             finally:
@@ -152,29 +171,44 @@ class InterventionStore:
 
     # -- data -------------------------------------------------------------------------------
     def __len__(self):
-        return len(self.entries)
+        return self.count
 
-    def __contains__(self, entry: Intervention):
+    def __contains__(self, entry):
         return entry.key in self._keys
 
-    def states(self) -> np.ndarray:
-        """(N, 3) intervention states (x, y, theta) in their obstacles' frames."""
-        return np.asarray([e.state for e in self.entries], dtype=float).reshape(-1, 3)
+    def _stamped(self, entry):
+        """The entry as stored (subclasses add the receipt time)."""
+        return entry
 
-    def append(self, entry: Intervention) -> bool:
-        """Persist ``entry`` (write + fsync) and keep it; False if it is a duplicate."""
+    def append(self, entry, sync: bool = True) -> bool:
+        """Persist ``entry`` and keep it; False if it is a duplicate.
+
+        sync=True: write + fsync before returning. sync=False: write to the kernel only
+        (safe from a process crash); ``sync()`` makes it durable."""
         if self._file is None:
             raise RuntimeError('store is closed')
         if entry.key in self._keys:
             return False
-        if not entry.received:
-            entry = Intervention(entry.stamp_ns, entry.frame, entry.x, entry.y, entry.theta, time.time())
+        entry = self._stamped(entry)
         self._file.write((entry.to_json() + '\n').encode('utf-8'))
         self._file.flush()
-        os.fsync(self._file.fileno())
+        self.unsynced += 1
+        if sync:
+            self.sync()
         self.entries.append(entry)
         self._keys.add(entry.key)
+        self.count += 1
+        if self.keep is not None and len(self.entries) > 2 * self.keep:   # amortised trim
+            del self.entries[:-self.keep]
         return True
+
+    def sync(self) -> int:
+        """fsync every line appended since the last sync; returns how many."""
+        n = self.unsynced
+        if n and self._file is not None:
+            os.fsync(self._file.fileno())
+            self.unsynced = 0
+        return n
 
     def archive(self) -> str:
         """Move the current file aside (``<path>.<UTC time>.jsonl``) and start empty.
@@ -183,6 +217,7 @@ class InterventionStore:
         """
         archived = ''
         self.close()
+        self.unsynced = 0
         if os.path.exists(self.path) and os.path.getsize(self.path) > 0:
             stem = self.path[:-6] if self.path.endswith('.jsonl') else self.path
             archived = f"{stem}.{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}.jsonl"
@@ -194,3 +229,18 @@ class InterventionStore:
             self._fsync_dir()
         self._open()
         return archived
+
+
+class InterventionStore(RecordStore):
+    """The interventions of one subject, persisted to ``path`` (JSON lines)."""
+
+    record_type = Intervention
+
+    def _stamped(self, entry):
+        if entry.received:
+            return entry
+        return Intervention(entry.stamp_ns, entry.frame, entry.x, entry.y, entry.theta, time.time())
+
+    def states(self) -> np.ndarray:
+        """(N, 3) intervention states (x, y, theta) in their obstacles' frames."""
+        return np.asarray([e.state for e in self.entries], dtype=float).reshape(-1, 3)

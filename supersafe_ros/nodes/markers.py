@@ -25,6 +25,8 @@ def obstacles_to_markers(ids, xy, radius: float, stamp=None, frame=rosmsg.MAP_FR
     clear = Marker()
     clear.action = Marker.DELETEALL
     clear.ns = NAMESPACE
+    if stamp is not None:   # an empty set still says when it took effect (the learner orders by it)
+        clear.header.stamp = stamp
     out.markers.append(clear)
     for oid, (x, y) in zip(np.asarray(ids).tolist(), np.asarray(xy, dtype=float).reshape(-1, 2)):
         m = Marker()

@@ -30,9 +30,17 @@ QOS_EVERY_SAMPLE = QoSProfile(depth=200, history=HistoryPolicy.KEEP_LAST,
                               reliability=ReliabilityPolicy.RELIABLE,
                               durability=DurabilityPolicy.VOLATILE)
 # Events that must not be lost (/interventions, /world/intervention_log, decisions).
-QOS_EVENTS = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST,
+# A reliable writer drops its oldest unacknowledged sample when its history is full:
+# the depth covers a burst of 10,000 sent faster than a busy reader acknowledges.
+QOS_EVENTS = QoSProfile(depth=10000, history=HistoryPolicy.KEEP_LAST,
                         reliability=ReliabilityPolicy.RELIABLE,
                         durability=DurabilityPolicy.VOLATILE)
+# Readers that must keep every event even when they fall behind (the learner's
+# /interventions): reliable, a queue of 100,000, so a burst is never overwritten
+# unread (compatible with QOS_EVENTS writers; history depth is not part of the match).
+QOS_EVERY_EVENT = QoSProfile(depth=100000, history=HistoryPolicy.KEEP_LAST,
+                             reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.VOLATILE)
 # Logs of records (interventions, trips, crashes): like events, and a late joiner
 # (a monitor started with the team) still gets the last 1000 records.
 QOS_LOG = QoSProfile(depth=1000, history=HistoryPolicy.KEEP_LAST,

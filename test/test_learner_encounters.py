@@ -1,0 +1,195 @@
+"""The ROS-free encounter builder (supersafe_ros.learning.encounters)."""
+import math
+
+import numpy as np
+import pytest
+
+from supersafe_ros.learning.data import PHASE2_OFFSETS
+from supersafe_ros.learning.encounters import EncounterBuilder, EncounterRecord, feed, phase2_events
+from supersafe_ros.learning.intervention_store import RecordStore
+from supersafe_ros.reach.library import LibrarySpec, load_or_build_library
+from supersafe_ros.sim.watcher import Watcher
+
+LO, HI = (-8.0, -8.0), (8.0, 8.0)
+
+
+@pytest.fixture(scope='module')
+def supervisor_vf():
+    return load_or_build_library(LibrarySpec(shape=(41, 41, 24), omegas=(0.25, 0.5, 1.0, 2.0))).entry(0.5)
+
+
+def builder(**kw):
+    return EncounterBuilder(LO, HI, 3.0, **kw)
+
+
+def drive(b, robot, t0, x0, y, n, dt=0.2, speed=3.0, theta=0.0):
+    """n poses driving along +x (theta 0) from (x0, y); returns the last stamp."""
+    t = t0
+    for k in range(n):
+        t = t0 + k * dt
+        b.pose(robot, t, (x0 + speed * dt * k * math.cos(theta), y + speed * dt * k * math.sin(theta), theta))
+    return t
+
+
+def test_phase2_stream_gives_one_encounter_per_scene_ending_where_the_supervisor_intervened(supervisor_vf):
+    watcher = Watcher(supervisor_vf, mu=0.6, sigma=0.3, seed=4)
+    decisions = []
+    judge = watcher.judge
+
+    def spy(*a, **k):
+        d = judge(*a, **k)
+        if d is not None:
+            decisions.append(d)
+        return d
+    watcher.judge = spy
+    events = list(phase2_events(watcher, PHASE2_OFFSETS, dt=0.2))
+    b = builder()
+    n = feed(b, events)
+    b.finish_all()
+    records = b.pop_finished()
+    assert len(records) == len(PHASE2_OFFSETS) and n == len(decisions) > 3
+    assert sum(r.intervened for r in records) == n and 0 < n < len(records)
+    assert b.counts['unmatched_interventions'] == 0
+    poses = {ev[2]: ev[3] for ev in events if ev[0] == 'pose'}
+    for r, d in zip([r for r in records if r.intervened], decisions):
+        assert r.obstacle == d.obstacle_id
+        # the intervention frame is the first pose at or after the intervention, and every
+        # earlier frame is before it
+        assert r.t[-1] >= d.time and all(t < d.time for t in r.t[:-1])
+        assert r.t[-1] == min(t for t in poses if t >= d.time)
+    for r in records:
+        f = np.asarray(r.frames)
+        assert np.all((f[:, :2] >= LO) & (f[:, :2] <= HI))
+        assert r.reason == ('intervention' if r.intervened else 'passed')
+
+
+def test_inputs_out_of_order_are_ordered_by_their_stamps(supervisor_vf):
+    """Every scene's messages moved within the scene (poses kept in order per robot):
+    interventions anywhere, obstacle sets earlier than the poses they precede (a removal
+    read while older poses still wait; the node reads sets before poses). The same
+    encounters as in order."""
+    events = list(phase2_events(Watcher(supervisor_vf, mu=0.6, sigma=0.3, seed=5), PHASE2_OFFSETS, dt=0.2))
+    ordered = builder()
+    feed(ordered, events)
+    ordered.finish_all()
+    rng = np.random.default_rng(0)
+    shuffled, scene = [], []
+    for ev in events:
+        scene.append(ev)
+        if ev[0] == 'pose' and ev[3][0] < -20:
+            poses = [e for e in scene if e[0] == 'pose']
+            others, slots = [], []
+            for i, e in enumerate(scene):
+                if e[0] != 'pose':
+                    before = sum(1 for x in scene[:i] if x[0] == 'pose')
+                    top = before if e[0] == 'obstacles' else len(poses)
+                    others.append(e)
+                    slots.append(int(rng.integers(0, top + 1)))
+            merged = []
+            for i, p in enumerate(poses):
+                merged += [others[k] for k, s in enumerate(slots) if s == i] + [p]
+            merged += [others[k] for k, s in enumerate(slots) if s == len(poses)]
+            shuffled += merged
+            scene = []
+    b = builder()
+    feed(b, shuffled + scene)
+    b.finish_all()
+    a = [(r.obstacle, r.intervened, r.t) for r in ordered.pop_finished()]
+    c = [(r.obstacle, r.intervened, r.t) for r in b.pop_finished()]
+    assert sorted(a) == sorted(c) and b.counts['unmatched_interventions'] == 0
+
+
+def test_a_removal_stamped_by_a_lagging_clock_cuts_no_frame_before_it():
+    b = builder(grace=0.0, removal_delay=1.0)
+    b.set_obstacles([1], [(0.0, 0.0)], 0.5)
+    drive(b, 'r', 1.0, -7.0, 1.0, 3)                       # 1.0, 1.2, 1.4
+    b.set_obstacles([], np.zeros((0, 2)), 1.1)             # stamped 1.1, truly removed after 1.4
+    drive(b, 'r', 1.6, -7.0 + 1.8, 1.0, 5)                 # 1.6 .. 2.4: frames go on until 2.1
+    (r,) = b.pop_finished()
+    assert r.reason == 'obstacle_gone' and list(r.t) == pytest.approx([1.0, 1.2, 1.4, 1.6, 1.8, 2.0])
+
+
+def test_an_encounter_ends_when_the_robot_jumps_leaves_or_the_obstacle_goes():
+    b = builder(grace=0.0, removal_delay=0.0)
+    b.set_obstacles([1, 2], [(0.0, 0.0), (0.0, 30.0)], 0.5)
+    drive(b, 'r', 1.0, -7.0, 1.0, 5)                      # approaching obstacle 1
+    b.pose('r', 2.2, (-30.0, 1.0, 0.0))                   # teleport
+    b.pose('r', 2.4, (-30.0, 1.0, 0.0))                   # grace 0: final at the next pose
+    (jumped,) = b.pop_finished()
+    assert jumped.reason == 'jump' and not jumped.intervened and len(jumped.frames) == 5
+    drive(b, 'r', 3.0, -7.0, 1.0, 3)
+    b.set_obstacles([2], [(0.0, 30.0)], 3.5)              # obstacle 1 removed at t = 3.5
+    drive(b, 'r', 3.6, -7.0 + 3 * 0.6, 1.0, 2)
+    (gone,) = b.pop_finished()
+    assert gone.reason == 'obstacle_gone' and len(gone.frames) == 3
+    b.pose('r', 10.0, (-7.0, 30.0, math.pi))              # heading away from obstacle 2: no encounter
+    b.pose('r', 10.2, (-7.6, 30.0, math.pi))
+    assert b.open_count == 0
+    drive(b, 'r', 11.0, -7.9, 30.5, 30)                    # towards obstacle 2, then past it
+    assert [r.reason for r in b.pop_finished()] == ['passed']
+    b2 = builder(grace=0.0)
+    b2.set_obstacles([1], [(0.0, 0.0)], 0.0)
+    for t, x, y in ((1.0, -7.0, 7.5), (1.2, -6.5, 7.8), (1.4, -6.0, 8.2), (1.6, -5.5, 8.5)):
+        b2.pose('r', t, (x, y, 0.3))                       # approaching, out through the grid's top edge
+    assert [r.reason for r in b2.pop_finished()] == ['left_grid']
+
+
+def test_late_intervention_finds_its_encounter_within_the_grace_time():
+    b = builder(grace=2.0)
+    b.set_obstacles([7], [(0.0, 0.0)], 0.0)
+    drive(b, 'r', 1.0, -7.0, 2.5, 20)                      # passes at y 2.5: 'passed' at x > 0
+    assert b.open_count == 1 and not b.pop_finished()      # ended, held for the grace time
+    b.intervention(7, 2.0, (-7.0 + 3.0 * 1.0, 2.5, 0.0))    # at t = 2.0 (frame 5), arriving late
+    (r,) = b.pop_finished()
+    assert r.intervened and r.t[-1] == pytest.approx(2.0) and len(r.frames) == 6
+    # an intervention no encounter explains (another obstacle, or far from every frame)
+    b.intervention(8, 3.0, (-3.0, 0.0, 0.0))
+    b.intervention(7, 3.0, (5.0, -5.0, 0.0))
+    drive(b, 'r', 10.0, -30.0, 0.0, 2)
+    assert b.counts['unmatched_interventions'] == 2
+
+
+def test_intervention_ahead_of_the_poses_waits_for_them():
+    b = builder()
+    b.set_obstacles([1], [(0.0, 0.0)], 0.0)
+    b.pose('r', 1.0, (-7.0, 0.5, 0.0))
+    b.intervention(1, 1.5, (-5.5, 0.5, 0.0))              # the poses up to 1.5 are still on their way
+    assert not b.pop_finished() and b.counts['unmatched_interventions'] == 0
+    drive(b, 'r', 1.2, -6.4, 0.5, 3)                       # 1.2, 1.4, 1.6
+    (r,) = b.pop_finished()
+    assert r.intervened and list(r.t) == pytest.approx([1.0, 1.2, 1.4, 1.6])
+    # no new encounter with an intervened obstacle until it is removed
+    drive(b, 'r', 1.8, -5.2, 0.5, 3)
+    assert b.open_count == 0
+
+
+def test_memory_stays_bounded_over_a_long_run():
+    b = builder(max_frames=20, max_versions=20)
+    rng = np.random.default_rng(1)
+    t = 0.0
+    held = []
+    for scene in range(120):
+        b.set_obstacles(np.arange(scene * 3, scene * 3 + 3), rng.uniform(-5, 5, (3, 2)), t + 0.01)
+        for k in range(40):
+            t += 0.05
+            b.pose('a', t, (-5 + 0.02 * k, 0.0, 0.3))      # slow: encounters end at max_frames
+            b.pose('b', t, (rng.uniform(-6, 6), rng.uniform(-6, 6), rng.uniform(-3, 3)))
+        b.pop_finished()
+        held.append(b.open_count)
+    # what is held is what the grace time covers (robot b jumps every pose), not the run's length
+    assert len(b._versions) <= 20 and max(held[60:]) <= max(held[:60]) + 10 and max(held) < 200
+    assert b.counts['max_frames'] > 0
+
+
+def test_records_round_trip_through_the_store(tmp_path):
+    r = EncounterRecord('robot_3', 12, (1.0, 1.2), ((-7.0, 0.5, 0.0), (-6.4, 0.5, 0.01)), True, 'intervention')
+    with RecordStore(tmp_path / 'e.jsonl', EncounterRecord) as store:
+        assert store.append(r, sync=False) and not store.append(r)
+        assert store.sync() == 1
+    with RecordStore(tmp_path / 'e.jsonl', EncounterRecord, keep=1) as again:
+        assert len(again) == 1 and again.entries[0] == r
+    enc = r.to_encounter()
+    assert enc.intervened and enc.states.shape == (2, 3)
+    with pytest.raises(ValueError):
+        EncounterRecord.from_json('{"robot": "r", "obstacle": 1, "t": [1.0], "frames": [[NaN, 0, 0]], '
+                                  '"intervened": false, "reason": "passed"}')
