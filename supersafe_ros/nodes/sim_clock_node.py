@@ -166,6 +166,16 @@ class SimClockNode(Node):
             'late_steps': self.late_steps}))
 
     def loop(self):
+        try:
+            self.run_steps()
+        except Exception:
+            # a context shut down under the thread (an embedding process that did not
+            # call close() first) ends it quietly; anything else is a real failure
+            if self.stop.is_set() or not self.context.ok():
+                return
+            raise
+
+    def run_steps(self):
         self.wait_for_graph()
         self.get_logger().info('graph ready; starting sim time')
         wall0 = time.monotonic()
