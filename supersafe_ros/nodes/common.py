@@ -208,16 +208,22 @@ class LiveParameters:
     enforces the descriptor's type, range and ``read_only`` before this runs. A set of
     several parameters is all-or-nothing: every check runs before any apply. Declare every
     parameter that is not registered here ``read_only=True``, so that a set never answers
-    "successful" without effect.
+    "successful" without effect. ``after(names)``, if given, runs once per accepted set,
+    after every apply (e.g. to rebuild something that depends on several parameters).
     """
 
-    def __init__(self, node):
+    def __init__(self, node, after=None):
         self._node = node
         self._entries = {}
+        self._after = after
         node.add_on_set_parameters_callback(self._on_set)
 
     def add(self, name, apply, check=None) -> None:
         self._entries[name] = (apply, check)
+
+    @property
+    def names(self) -> set:
+        return set(self._entries)
 
     def _on_set(self, params):
         from rcl_interfaces.msg import SetParametersResult
@@ -230,5 +236,8 @@ class LiveParameters:
                 return SetParametersResult(successful=False, reason=f'{p.name}: {reason}')
         for p in ours:
             self._entries[p.name][0](p.value)
+        if ours and self._after is not None:
+            self._after({p.name for p in ours})
+        for p in ours:
             self._node.get_logger().info(f'parameter {p.name} := {p.value!r} in force')
         return SetParametersResult(successful=True)
