@@ -6,6 +6,7 @@ seconds): the assertions are about order and bounds, not about exact wall times.
 import time
 
 import numpy as np
+from rclpy.logging import LoggingSeverity
 from rclpy.node import Node
 
 from diagnostic_msgs.msg import DiagnosticStatus
@@ -60,6 +61,12 @@ class FakeRobot:
         return True
 
 
+def holding_for(rosout, item: str) -> bool:
+    """The clock logged that ``item`` is the only thing it still waits for."""
+    return any('sim_clock' in m.name and m.msg == f'waiting for the graph: {[item]}'
+               for m in rosout.logs)
+
+
 def test_parse_topic_counts():
     assert parse_topic_counts(['/a=2', '/b', '']) == [('/a', 2), ('/b', 1)]
 
@@ -70,13 +77,15 @@ def test_clock_waits_for_graph_then_steps_in_lockstep(ros_context):
         robots=['robot_0'], step=0.05, rate_factor=0.0, lockstep=True, ack_timeout=3.0,
         start_timeout=60.0, coarse_period=0.2, status_period=0.5,
         wait_for_publishers=['/test_gate=1']))
+    clock.get_logger().set_level(LoggingSeverity.DEBUG)
     driver = Node('clock_test_driver', context=ros_context)
     robot = FakeRobot(driver)
+    rosout = Rosout(driver)
     spin = Spinner(ros_context, clock, driver)
     try:
-        spin.until(lambda: clock.clock_pub.get_subscription_count() >= 1
-                   and robot.ack.get_subscription_count() >= 1, 20.0, 'the robot to match the clock')
-        spin.spin_for(1.0)                       # robot matched, but the gate has no publisher
+        # the clock holds: it has seen the robot, and says the gate alone is missing
+        spin.until(lambda: holding_for(rosout, '/test_gate publishers 0/1'), 30.0,
+                   'the clock to wait for the gate alone')
         assert robot.ticks == []
         gate = driver.create_publisher(Empty, '/test_gate', 1)
         spin.until(lambda: robot.poll() and len(robot.ticks) >= 60, 20.0, '60 steps')
@@ -108,8 +117,10 @@ def test_clock_keeps_observers_within_their_lag(ros_context):
     clock = SimClockNode(context=ros_context, parameter_overrides=params(
         robots=['robot_0'], observers=['/observer/step_done'], observer_lag=lag, step=0.05,
         rate_factor=0.0, ack_timeout=30.0, start_timeout=60.0))
+    clock.get_logger().set_level(LoggingSeverity.DEBUG)
     driver = Node('observer_test_driver', context=ros_context)
     robot = FakeRobot(driver)
+    rosout = Rosout(driver)
     robot.delay = 0.0
     obs_pub = driver.create_publisher(Clock, '/observer/step_done', rosmsg.QOS_ACK)
     state = {'acked': -1, 'violations': [], 'last_ack_wall': time.monotonic()}
@@ -130,7 +141,8 @@ def test_clock_keeps_observers_within_their_lag(ros_context):
         return robot.poll()
     spin = Spinner(ros_context, clock, driver)
     try:
-        spin.spin_for(1.0)
+        spin.until(lambda: holding_for(rosout, '/observer/step_done (not ready)'), 30.0,
+                   'the clock to wait for the observer alone')
         assert robot.ticks == []                 # the observer has not said it is ready
         obs_pub.publish(Clock())                 # ready: acknowledges t = 0
         state['acked'] = 0

@@ -159,6 +159,7 @@ class SimClockNode(Node):
         """Before the first step: wait for the robots (matched step_done publishers and
         /clock subscriptions) and for every topic count in wait_for_publishers/_subscriptions."""
         deadline = time.monotonic() + self.start_timeout
+        reported = None
         while not self.stop.is_set():
             missing = [r for r, s in zip(self.robots + self.observers, self.ack_subs)
                        if s.get_publisher_count() == 0]
@@ -172,6 +173,11 @@ class SimClockNode(Node):
                         for t, n in self.wait_subscriptions if self.count_subscribers(t) < n]
             if not missing:
                 return
+            if reported is None:
+                self.get_logger().info(f'waiting for the graph: {missing}')
+            elif missing != reported:      # detail: what is still missing, as it changes
+                self.get_logger().debug(f'waiting for the graph: {missing}')
+            reported = missing
             if time.monotonic() > deadline:
                 self.get_logger().error(f'still missing after {self.start_timeout} s: {missing}; '
                                         'starting anyway')
