@@ -8,7 +8,6 @@ as `supersafe team` starts it.
 import os
 import signal
 import subprocess
-import sys
 import threading
 import time
 
