@@ -15,6 +15,8 @@ NODES = [
     'learner_node',
     'supervisor_node',
     'sim_clock_node',
+    'rviz_intervention_node',
+    'supervisor_console_node',
 ]
 
 setup(
@@ -26,8 +28,12 @@ setup(
         ('share/' + package_name, ['package.xml']),
         (os.path.join('share', package_name, 'config'), glob('config/*.yaml')),
         (os.path.join('share', package_name, 'launch'), glob('launch/*.launch.py')),
+        # the console's page, scripts and styles (no build step, nothing from a CDN)
+        (os.path.join('share', package_name, 'console', 'static'),
+         glob('supersafe_ros/console/static/*')),
     ],
-    install_requires=['setuptools', 'numpy', 'scipy', 'matplotlib', 'pyyaml'],
+    install_requires=['setuptools', 'numpy', 'scipy', 'matplotlib', 'pyyaml', 'aiohttp'],
+    package_data={'supersafe_ros.console': ['static/*']},
     zip_safe=True,
     maintainer='supersafe_ros developers',
     maintainer_email='supersafe@example.org',

@@ -13,6 +13,18 @@ if [ -z "$py" ]; then
 fi
 [ -n "$py" ] || { echo "setup: no python3 found (Python 3.11 wanted: apt-get install python3 python3-venv)" >&2; exit 1; }
 
+# the console's browser tests drive headless Chromium from Debian (no downloads at run time)
+if ! command -v chromium >/dev/null 2>&1 || ! command -v chromedriver >/dev/null 2>&1; then
+  if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+    echo "setup: installing chromium and chromium-driver (Debian packages, for the console's browser tests)"
+    DEBIAN_FRONTEND=noninteractive apt-get install -y chromium chromium-driver >/dev/null \
+      || { apt-get update >/dev/null && DEBIAN_FRONTEND=noninteractive apt-get install -y chromium chromium-driver >/dev/null; } \
+      || echo "setup: could not install chromium/chromium-driver; the console's browser tests need them" >&2
+  else
+    echo "setup: chromium/chromedriver missing; as root: apt-get install -y chromium chromium-driver" >&2
+  fi
+fi
+
 stamp_src="$(cat requirements.txt setup.py setup.cfg package.xml | sha256sum | cut -d' ' -f1)"
 if [ -x .venv/bin/python ] && [ -f .venv/.supersafe-stamp ] && [ "$(cat .venv/.supersafe-stamp)" = "$stamp_src" ]; then
   exit 0

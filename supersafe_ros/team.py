@@ -29,11 +29,13 @@ CONFIG_FILES = {
     'sim_clock': 'clock.yaml', 'world': 'world.yaml', 'dubins_robot': 'robot.yaml',
     'planner': 'planner.yaml', 'safety_filter': 'safety_filter.yaml',
     'learner': 'learner.yaml', 'supervisor': 'supervisor.yaml',
+    'supervisor_console': 'console.yaml',
 }
 NODE_MODULES = {
     'sim_clock': 'sim_clock_node', 'world': 'world_node', 'dubins_robot': 'dubins_robot_node',
     'planner': 'planner_node', 'safety_filter': 'safety_filter_node',
     'learner': 'learner_node', 'supervisor': 'supervisor_node',
+    'supervisor_console': 'supervisor_console_node',
 }
 
 
@@ -113,7 +115,8 @@ def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
                 with_filter: bool = True, with_learner: bool = True,
                 with_supervisor: bool = True,
                 learner_store: str | Path | None = None,
-                use_sim_time: bool = True) -> list[NodeSpec]:
+                use_sim_time: bool = True,
+                console_port: int | None = None) -> list[NodeSpec]:
     """Every node of a team, in start order (the sim clock last).
 
     ``overrides``: {node kind: {param: value}} applied to every node of that kind
@@ -127,6 +130,7 @@ def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
     ``use_sim_time``: every node but the clock follows /clock. The config files default
     to the wall clock (what a real fleet runs); the simulation sets sim time here, for
     every node it starts, the filters and the learner included.
+    ``console_port``: also run the supervisor console (web page) on this port.
     """
     if n_robots < 1:
         raise ValueError('a team needs at least one robot')
@@ -168,6 +172,8 @@ def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
             coarse)
     if with_supervisor:
         add('supervisor', None, {**sim, 'robots': robots, 'seed': seed * 1000 + 999}, coarse)
+    if console_port is not None:
+        add('supervisor_console', None, {**sim, 'robots': robots, 'port': int(console_port)}, coarse)
     # the clock starts sim time only once the whole graph is up (the supervisor and the
     # filters may spend seconds loading value functions)
     publishers = ['/obstacle_markers=1'] + [f'/{r}/cmd_vel=1' for r in robots]
@@ -343,12 +349,34 @@ def format_stats(stats: dict, clock: dict) -> str:
     return '  '.join(parts)
 
 
+def gate_clock_on_recorder(argvs: list[list[str]]) -> tuple[list[list[str]], list[str]]:
+    """With a recorder: the sim clock also waits for its ready publisher, which it creates once
+    it has subscribed to /clock and every topic the clock waits for (so that the bag holds
+    the run from its first step). Returns (argvs, those topics)."""
+    from .ros_io.bag_recorder import READY_TOPIC
+    out, topics = [], ['/clock']
+    for argv in argvs:
+        argv = list(argv)
+        if process_name(argv) == 'sim_clock':
+            for i, a in enumerate(argv):
+                key, sep, value = a.partition(':=')
+                if argv[i - 1] == '-p' and key in ('wait_for_publishers', 'wait_for_subscriptions'):
+                    topics += [t.split('=')[0] for t in value.strip('[]').split(',') if t]
+                    if key == 'wait_for_publishers':
+                        entries = [t for t in value.strip('[]').split(',') if t] + [f'{READY_TOPIC}=1']
+                        argv[i] = f'{key}:=[{",".join(entries)}]'
+        out.append(argv)
+    return out, sorted(set(topics))
+
+
 def run_team(argvs: list[list[str]], duration: float = 0.0, timeout: float = 0.0,
              domain_id: int | None = None, log_dir: Path | None = None,
-             print_period: float = 5.0, out=sys.stdout) -> dict:
+             print_period: float = 5.0, out=sys.stdout, record: Path | None = None) -> dict:
     """Run a team until ``duration`` sim seconds pass (0: until interrupted) or ``timeout``
     wall seconds; returns {'stats', 'clock', 'interventions', 'events' (trips and crashes),
-    'exit_codes', 'dead', 'reason', 'cpu_seconds', 'cpu_seconds_at_start'}."""
+    'exit_codes', 'dead', 'reason', 'cpu_seconds', 'cpu_seconds_at_start'}, plus 'bag'
+    (a recording.bag.BagInfo) when ``record`` names a new bag folder: every topic is
+    recorded there (supersafe_ros.ros_io.bag_recorder)."""
     env = team_env(domain_id)
     log_dir = Path(log_dir or default_log_dir())
     stop = threading.Event()
@@ -362,9 +390,16 @@ def run_team(argvs: list[list[str]], duration: float = 0.0, timeout: float = 0.0
         if threading.current_thread() is threading.main_thread() else {}
     team = Team(argvs, env, log_dir)
     monitor = None
+    recorder = None
     print(f'team: {len(argvs)} processes, ROS_DOMAIN_ID={env["ROS_DOMAIN_ID"]}, logs in {log_dir}',
           file=out, flush=True)
     try:
+        if record is not None:   # first, so that it joins every topic as it appears
+            from .ros_io.bag_recorder import start_recorder
+            argvs, ready_after = gate_clock_on_recorder(argvs)
+            team.argvs = argvs
+            recorder = start_recorder(record, env['ROS_DOMAIN_ID'], ready_after=ready_after)
+            print(f'recording every topic to {record}', file=out, flush=True)
         team.start()
         monitor = TeamMonitor(env)
         wall0 = time.monotonic()
@@ -401,12 +436,16 @@ def run_team(argvs: list[list[str]], duration: float = 0.0, timeout: float = 0.0
         events = list(monitor.events) if monitor else []
         if monitor:
             monitor.close()
+        bag = recorder.stop() if recorder else None
         for s, h in old.items():
             signal.signal(s, h)
     print(f'team stopped ({reason[0]}): {format_stats(stats, clock)}', file=out, flush=True)
+    if bag is not None:
+        print(f'recorded {bag.message_count} messages on {len(bag.topics)} topics: {bag.path}',
+              file=out, flush=True)
     return {'stats': stats, 'clock': clock, 'interventions': interventions, 'events': events,
             'exit_codes': codes, 'dead': dead, 'reason': reason[0], 'cpu_seconds': cpu,
-            'cpu_seconds_at_start': cpu_at_start or {}}
+            'cpu_seconds_at_start': cpu_at_start or {}, 'bag': bag}
 
 
 def parse_overrides(items) -> dict:
@@ -428,8 +467,9 @@ def add_parser(subparsers):
         'team', help='run the ROS 2 node graph of a robot team as separate processes',
         description=__doc__.splitlines()[0])
     parser.add_argument('--robots', type=int, default=2, help='number of robots (default 2)')
-    parser.add_argument('--rate-factor', type=float, default=10.0,
-                        help='sim seconds per wall second (0: as fast as possible; default 10)')
+    parser.add_argument('--rate-factor', type=float, default=None,
+                        help='sim seconds per wall second (0: as fast as possible; default 10, '
+                             'or 1 with --console: a person watches in real time)')
     parser.add_argument('--step', type=float, default=0.05,
                         help='sim seconds per clock step = 1 / robot rate (default 0.05; 0.1 runs '
                              'about twice as fast on a busy machine)')
@@ -447,6 +487,10 @@ def add_parser(subparsers):
                         help='wire cmd_vel_nav straight into cmd_vel (testing only)')
     parser.add_argument('--no-learner', action='store_true', help='leave the learner out')
     parser.add_argument('--no-supervisor', action='store_true', help='leave the supervisor out')
+    parser.add_argument('--console', action='store_true',
+                        help='also serve the supervisor console (a web page) and print its URL')
+    parser.add_argument('--console-port', type=int, default=8765,
+                        help='TCP port of the console on 127.0.0.1 (default 8765)')
     parser.add_argument('--set', action='append', default=[], metavar='NODE.PARAM=VALUE',
                         help='parameter override, e.g. --set supervisor.mu=1.0 (repeatable)')
     parser.add_argument('--params-file', action='append', default=[], type=Path, metavar='FILE',
@@ -454,7 +498,17 @@ def add_parser(subparsers):
                              '(e.g. /**/supervisor: ros__parameters: {mu: 1.0}); the team\'s own values '
                              '(robots, seeds, step, rate factor, use_sim_time) still win: change those '
                              'with their options or --set; repeatable')
+    parser.add_argument('--record', type=Path, default=None, metavar='BAG',
+                        help='record every topic to a new rosbag2 MCAP bag folder BAG '
+                             '(ros2 bag play BAG, or open BAG/BAG_0.mcap in Foxglove)')
     parser.add_argument('--print-argv', action='store_true', help='print the processes and exit')
+    parser.add_argument('--hosts', type=int, default=1, metavar='K',
+                        help='run across K >= 2 hosts: private network namespaces this command '
+                             'makes and removes (needs root); host 0 runs world, learner, '
+                             'supervisor and clock, the robots are dealt over hosts 1..K-1')
+    parser.add_argument('--discovery-server', action='store_true',
+                        help='with --hosts: Fast DDS discovery server on host 0 instead of '
+                             'multicast discovery')
     parser.set_defaults(func=run)
     return parser
 
@@ -465,18 +519,33 @@ def default_log_dir() -> Path:
 
 def run(args) -> int:
     log_dir = args.log_dir or default_log_dir()
+    rate_factor = args.rate_factor if args.rate_factor is not None else (1.0 if args.console else 10.0)
     argvs = team_processes(
-        args.robots, args.rate_factor, args.seed, args.duration,
+        args.robots, rate_factor, args.seed, args.duration,
         overrides=parse_overrides(args.set), step=args.step,
         with_filter=not args.no_filter, with_learner=not args.no_learner,
         with_supervisor=not args.no_supervisor,
         learner_store=args.learner_store or log_dir / 'interventions.jsonl',
-        params_files=[p.resolve() for p in args.params_file])
+        params_files=[p.resolve() for p in args.params_file],
+        console_port=args.console_port if args.console else None)
+    record = getattr(args, 'record', None)
+    if record is not None and record.exists() and (not record.is_dir() or any(record.iterdir())):
+        print(f'--record {record}: exists and is not an empty folder; a bag is never overwritten')
+        return 2
+    if (args.hosts > 1 or args.discovery_server) and record is not None:
+        print('--record is not available with --hosts yet: record on host 0 with `supersafe record`')
+        return 2
+    if args.hosts > 1 or args.discovery_server:
+        from .hosts.placement import run_on_hosts
+        return run_on_hosts(argvs, args, log_dir)
     if args.print_argv:
         for argv in argvs:
             print(' '.join(argv))
         return 0
-    result = run_team(argvs, args.duration, args.timeout, args.domain_id, log_dir)
+    if args.console:
+        print(f'console: http://127.0.0.1:{args.console_port}/', flush=True)
+    result = run_team(argvs, args.duration, args.timeout, args.domain_id, log_dir,
+                      record=record)
     unclean = {n: c for n, c in result['exit_codes'].items() if c != 0}
     if unclean:
         print(f'processes that did not exit cleanly (exit codes): {unclean}; logs in {log_dir}')

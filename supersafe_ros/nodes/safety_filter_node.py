@@ -10,6 +10,9 @@ Topics (relative; run it in the robot's namespace such as /robot_0):
                                                             ERROR fail_safe; values: action, reason,
                                                             obstacle_index/x/y, value, alpha,
                                                             omega_max, source, cmd_*
+  pub  safety_filter/level_set  visualization_msgs/MarkerArray  the set in force at the robot's
+                                                            heading around each detection (RViz;
+                                                            level_set_markers, level_set_rate)
 
 The decision is ``supersafe_ros.filter.core`` (law, hysteresis, fail safe; see there).
 When it is made: on every planner command (and, with ``publish_on_pose``, on every
@@ -40,6 +43,7 @@ from ..ros_io import rosmsg
 from ..filter.core import FilterConfig, RobotFilter, SafeSet
 from ..ros_io.vfmsg import ValueFunctionMessageError, msg_to_value_function
 from .common import declare, run_node
+from .markers import LevelSetMarkerPublisher
 
 VALUE_FUNCTION_TOPIC = '/safe_set/value_function'
 LOG_THROTTLE_S = 2.0   # the same kind of complaint at most this often
@@ -128,6 +132,14 @@ class SafetyFilterNode(Node):
         self.period = 1.0 / rate
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.timer = self.create_timer(self.period, self.on_watchdog, clock=self.steady)
+        # RViz: the level set in force around each detected obstacle (computed only while watched)
+        level_set_rate = p('level_set_rate', 2.0,
+                           'rate of safety_filter/level_set markers [Hz, steady clock]', 0.1, 50.0)
+        if p('level_set_markers', True, 'publish the level set in force at the robot\'s heading around '
+             'each detected obstacle on safety_filter/level_set (LINE_STRIPs, for RViz)'):
+            self.level_set = LevelSetMarkerPublisher(
+                self, lambda: (self.safe_set, self.filter.pose.value, self.filter.detections.value),
+                level_set_rate)
 
     # -- helpers -------------------------------------------------------------------------
     def now_s(self) -> float:

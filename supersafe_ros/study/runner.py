@@ -365,6 +365,10 @@ def run_study(subjects: list, opts: StudyOptions, out=sys.stdout) -> dict:
                 progress.line(i, f'sweep mu+{k:g}sigma', g['sim_time'],
                               f'FP {g["false_positives"]} int {g["interventions"]} crashes {g["crashes"]}')
         records.append(rec)
+        # the subject's files, in the layout a human participant's session also writes
+        # (console/session.py), so the analysis can mix the two
+        from ..console.session import write_subject
+        write_subject(Path(opts.out_dir) / 'subjects' / f's{i:02d}', rec)
     return {'records': records, 'wall': time.monotonic() - t_start}
 
 

@@ -1,0 +1,3 @@
+"""The supervisor console: a web page where a person watches the team and removes
+obstacles (issue 8). ``state`` is the ROS-free model the page is drawn from,
+``server`` the aiohttp web server, ``static/`` the page itself (no build step)."""

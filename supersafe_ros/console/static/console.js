@@ -1,0 +1,193 @@
+// The supervisor console page: draws what the server sends and turns clicks on
+// obstacles into interventions. No framework, no build step.
+//
+// Hooks for tests, screen readers and scripts (stable):
+//   [data-obstacle-id="<id>"]  one element per obstacle (click = intervention)
+//   [data-robot="<ns>"]        one element per robot (data-x, data-y, data-theta: its pose)
+//   [data-stat="score|trips|crashes|interventions"]  text = the number
+//   window.supersafeConsole    counters: messages, renders, removals (click -> gone, ms)
+'use strict';
+(function () {
+  const SVG = 'http://www.w3.org/2000/svg';
+  const COLORS = ['#1f5fa8', '#e08a00', '#6a3d9a', '#1b9e77', '#d95f02', '#7570b3',
+                  '#e7298a', '#66a61e', '#a6761d', '#444444'];
+  const perf = {
+    messages: 0, renders: 0, errors: [], replies: [],
+    clicks: {},        // obstacle id -> Date.now() of the click
+    removals: {},      // obstacle id -> ms from click to the element leaving the page
+    connected: false,
+  };
+  window.supersafeConsole = perf;
+
+  const el = (id) => document.getElementById(id);
+  let field = null, trailLength = 40, ws = null;
+  let pending = null;                 // newest state not drawn yet
+  const trails = {};                  // robot -> [[x, y], ...]
+  const robotEls = {}, trailEls = {};
+  const obstacleEls = new Map();
+
+  function svg(tag, attrs) {
+    const node = document.createElementNS(SVG, tag);
+    for (const [k, v] of Object.entries(attrs || {})) node.setAttribute(k, v);
+    return node;
+  }
+
+  function say(text, isError) {
+    const m = el('message');
+    m.textContent = text;
+    m.classList.toggle('error', !!isError);
+  }
+
+  function setupField(f) {
+    field = f;
+    const w = f.half_width, h = f.half_height;
+    el('field').setAttribute('viewBox', `${-w} ${-h} ${2 * w} ${2 * h}`);
+    el('world').setAttribute('transform', 'scale(1,-1)');
+    const g = el('ground');
+    for (const [k, v] of Object.entries({ x: -w, y: -h, width: 2 * w, height: 2 * h })) g.setAttribute(k, v);
+    for (const [id, x] of [['goal-left', -f.goal_x], ['goal-right', f.goal_x]]) {
+      const line = el(id);
+      for (const [k, v] of Object.entries({ x1: x, x2: x, y1: -h, y2: h })) line.setAttribute(k, v);
+    }
+  }
+
+  function robotElement(name, index) {
+    const color = COLORS[index % COLORS.length];
+    const g = svg('g', { class: 'robot', 'data-robot': name, 'aria-label': name });
+    const title = svg('title'); title.textContent = name; g.appendChild(title);
+    // an arrow pointing along +x (the heading), about a robot's size
+    g.appendChild(svg('polygon', { class: 'robot-body', points: '0.9,0 -0.6,0.55 -0.3,0 -0.6,-0.55', fill: color }));
+    el('robots').appendChild(g);
+    const trail = svg('polyline', { class: 'trail', 'data-trail': name, stroke: color, points: '' });
+    el('trails').appendChild(trail);
+    robotEls[name] = g; trailEls[name] = trail; trails[name] = [];
+  }
+
+  function drawRobots(robots) {
+    // robots of an earlier graph (the session's phases) that this one does not have
+    for (const [name, g] of Object.entries(robotEls)) {
+      const here = name in robots;
+      if ((g.getAttribute('visibility') !== 'hidden') !== here) {
+        g.setAttribute('visibility', here ? 'visible' : 'hidden');
+        trailEls[name].setAttribute('visibility', here ? 'visible' : 'hidden');
+        if (!here) { trails[name].length = 0; trailEls[name].setAttribute('points', ''); }
+      }
+    }
+    let i = Object.keys(robotEls).length;
+    for (const [name, p] of Object.entries(robots)) {
+      if (!robotEls[name]) robotElement(name, i++);
+      const [x, y, th] = p;
+      const g = robotEls[name];
+      g.setAttribute('transform', `translate(${x} ${y}) rotate(${(th * 180 / Math.PI).toFixed(1)})`);
+      g.setAttribute('data-x', x); g.setAttribute('data-y', y); g.setAttribute('data-theta', th);
+      const t = trails[name];
+      const last = t[t.length - 1];
+      if (!last || Math.hypot(last[0] - x, last[1] - y) > 0.25) {
+        // a jump (scene reset, teleport) starts a new trail
+        if (last && Math.hypot(last[0] - x, last[1] - y) > 5) t.length = 0;
+        t.push([x, y]);
+        if (t.length > trailLength) t.shift();
+        trailEls[name].setAttribute('points', t.map((q) => q.join(',')).join(' '));
+      }
+    }
+  }
+
+  function drawObstacles(list) {
+    const seen = new Set();
+    for (const [id, x, y, r] of list) {
+      seen.add(id);
+      let c = obstacleEls.get(id);
+      if (!c) {
+        c = svg('circle', { class: 'obstacle', 'data-obstacle-id': id, tabindex: 0, role: 'button',
+                            'aria-label': `obstacle ${id}: remove` });
+        c.addEventListener('click', () => intervene(id));
+        c.addEventListener('keydown', (e) => { if (e.key === 'Enter') intervene(id); });
+        el('obstacles').appendChild(c);
+        obstacleEls.set(id, c);
+      }
+      c.setAttribute('cx', x); c.setAttribute('cy', y); c.setAttribute('r', r);
+    }
+    for (const [id, c] of obstacleEls) {
+      if (!seen.has(id)) {
+        c.remove();
+        obstacleEls.delete(id);
+        if (perf.clicks[id] !== undefined) perf.removals[id] = Date.now() - perf.clicks[id];
+      }
+    }
+  }
+
+  function drawStats(stats) {
+    for (const [k, v] of Object.entries(stats)) {
+      const d = document.querySelector(`[data-stat="${k}"]`);
+      if (d && d.textContent !== String(v)) d.textContent = String(v);
+    }
+  }
+
+  function render() {
+    const s = pending;
+    pending = null;
+    if (!s) return;
+    if (s.obstacles) drawObstacles(s.obstacles);
+    if (s.robots) drawRobots(s.robots);
+    if (s.stats) drawStats(s.stats);
+    perf.renders++;
+  }
+
+  function schedule(state) {
+    // several messages between two frames: keep the newest poses, and any obstacle or
+    // stats part (a later message may carry none)
+    if (pending) {
+      state.obstacles = state.obstacles || pending.obstacles;
+      state.stats = state.stats || pending.stats;
+    }
+    const first = !pending;
+    pending = state;
+    if (first) requestAnimationFrame(render);
+  }
+
+  function intervene(id) {
+    if (!ws || ws.readyState !== WebSocket.OPEN) { say('not connected to the team', true); return; }
+    perf.clicks[id] = Date.now();
+    ws.send(JSON.stringify({ type: 'intervene', obstacle: id, ref: perf.clicks[id] }));
+  }
+
+  function onMessage(ev) {
+    let msg;
+    try { msg = JSON.parse(ev.data); } catch (e) { return; }
+    perf.messages++;
+    if (msg.type === 'hello') {
+      setupField(msg.field);
+      if (msg.config && msg.config.trail_length !== undefined) trailLength = msg.config.trail_length;
+      msg.robots.forEach((r, i) => { if (!robotEls[r]) robotElement(r, i); });
+      schedule(msg.state);
+    } else if (msg.type === 'state') {
+      schedule(msg);
+    } else if (msg.type === 'intervention') {
+      perf.replies.push(msg);
+      if (msg.ok) say(`Intervention on obstacle ${msg.obstacle} sent (nearest robot: ${msg.robot}).`);
+      else say(msg.message, true);
+    } else if (msg.type === 'error') {
+      perf.errors.push(msg.message);
+      say(`server: ${msg.message}`, true);
+    }
+    document.dispatchEvent(new CustomEvent('supersafe-message', { detail: msg }));
+  }
+
+  function connect() {
+    const token = new URLSearchParams(location.search).get('token');
+    const url = `${location.protocol === 'https:' ? 'wss' : 'ws'}://${location.host}/ws` +
+      (token ? `?token=${encodeURIComponent(token)}` : '');
+    ws = new WebSocket(url);
+    perf.ws = ws;
+    ws.onopen = () => { perf.connected = true; const c = el('connection'); c.textContent = 'live'; c.classList.add('live'); };
+    ws.onmessage = onMessage;
+    ws.onclose = () => {
+      perf.connected = false;
+      const c = el('connection'); c.textContent = 'disconnected: retrying…'; c.classList.remove('live');
+      setTimeout(connect, 1000);
+    };
+  }
+
+  window.supersafeSend = (obj) => ws && ws.readyState === WebSocket.OPEN && ws.send(JSON.stringify(obj));
+  connect();
+})();

@@ -1,0 +1,1 @@
+"""Running the team across hosts: network namespaces (netns) and node placement (placement)."""

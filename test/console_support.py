@@ -1,0 +1,87 @@
+"""Headless Chromium for the console's browser tests and benchmark.
+
+Debian's chromium and chromium-driver (scripts/setup.sh installs them), driven by
+selenium with the driver's path given explicitly, so selenium-manager never tries to
+download anything.
+"""
+from __future__ import annotations
+
+import os
+import shutil
+import socket
+import tempfile
+import time
+import urllib.error
+import urllib.request
+
+CHROMIUM = os.environ.get('SUPERSAFE_CHROMIUM', '/usr/bin/chromium')
+CHROMEDRIVER = os.environ.get('SUPERSAFE_CHROMEDRIVER', '/usr/bin/chromedriver')
+FLAGS = ['--headless', '--no-sandbox', '--disable-gpu', '--disable-quic', '--no-first-run',
+         '--disable-background-networking', '--disable-component-update', '--disable-sync',
+         '--disable-dev-shm-usage', '--window-size=1200,760']
+
+
+class Browser:
+    """A headless Chromium with a fresh profile; ``driver`` is the selenium WebDriver."""
+
+    def __init__(self):
+        from selenium import webdriver
+        from selenium.webdriver.chrome.service import Service
+        for path in (CHROMIUM, CHROMEDRIVER):
+            if not os.access(path, os.X_OK):
+                raise RuntimeError(f'{path} is missing: apt-get install -y chromium chromium-driver '
+                                   '(scripts/setup.sh does this as root)')
+        self.profile = tempfile.mkdtemp(prefix='supersafe-chromium-')
+        options = webdriver.ChromeOptions()
+        options.binary_location = CHROMIUM
+        for flag in FLAGS + [f'--user-data-dir={self.profile}']:
+            options.add_argument(flag)
+        self.driver = webdriver.Chrome(service=Service(CHROMEDRIVER), options=options)
+
+    def pid(self) -> int | None:
+        """The browser's process id (for CPU accounting)."""
+        try:
+            return self.driver.service.process.pid
+        except AttributeError:
+            return None
+
+    def close(self):
+        try:
+            self.driver.quit()
+        finally:
+            shutil.rmtree(self.profile, ignore_errors=True)
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(('127.0.0.1', 0))
+        return s.getsockname()[1]
+
+
+def http_status(url: str, timeout: float = 5.0) -> int:
+    try:
+        with urllib.request.urlopen(url, timeout=timeout) as r:
+            return r.status
+    except urllib.error.HTTPError as exc:
+        return exc.code
+
+
+def wait_until(predicate, timeout: float, what: str, period: float = 0.1):
+    """Poll ``predicate`` until it returns a truthy value (returned) or ``timeout`` passes.
+    ``what`` may be a callable, evaluated at the time-out (to describe the state then)."""
+    deadline = time.monotonic() + timeout
+    last_exc = None
+    while time.monotonic() < deadline:
+        try:
+            value = predicate()
+            if value:
+                return value
+        except Exception as exc:   # e.g. connection refused while a server starts
+            last_exc = exc
+        time.sleep(period)
+    raise AssertionError(f'timed out after {timeout} s waiting for {what() if callable(what) else what}'
+                         + (f' (last error: {last_exc!r})' if last_exc else ''))
+
+
+def wait_for_server(url: str, timeout: float = 60.0):
+    wait_until(lambda: http_status(url, timeout=2.0) == 200, timeout, f'{url} to answer 200')

@@ -1,0 +1,166 @@
+"""The supervisor console on a running team, in a real headless Chromium.
+
+One team for the module: two robots, no simulated supervisor (the page's clicks are
+the only interventions), and sensors that miss every obstacle, so that the world's
+classification is known in advance: an intervention with a robot within
+near_distance (6 m) of the obstacle is needed (that robot had not detected it); one
+with no robot near is a false positive.
+"""
+import math
+import os
+from pathlib import Path
+
+import pytest
+
+from supersafe_ros import team
+from console_support import Browser, free_port, wait_for_server, wait_until
+
+REPO = Path(__file__).resolve().parents[1]
+SCREENSHOT = REPO / 'docs' / 'img' / 'console.png'
+NEAR_DISTANCE = 6.0     # world.yaml
+
+
+@pytest.fixture(scope='module')
+def console_team(tmp_path_factory):
+    port = free_port()
+    argvs = team.team_processes(
+        2, rate_factor=1.0, seed=3, step=0.1, with_learner=False, with_supervisor=False,
+        overrides={'safety_filter': {'standard_shape': [33, 33, 16]},
+                   'dubins_robot': {'miss_probability': 1.0}},
+        console_port=port)
+    env = team.team_env(int(os.environ['ROS_DOMAIN_ID']))
+    running = team.Team(argvs, env, tmp_path_factory.mktemp('console-team')).start()
+    monitor = browser = None
+    try:
+        monitor = team.TeamMonitor(env)
+        wait_for_server(f'http://127.0.0.1:{port}/', timeout=90)
+        browser = Browser()
+        browser.driver.get(f'http://127.0.0.1:{port}/')
+        yield browser.driver, monitor, running
+    finally:
+        if browser:
+            browser.close()
+        if monitor:
+            monitor.close()
+        codes = running.stop()
+    assert codes.get('supervisor_console') == 0, f'the console did not exit cleanly: {codes}'
+
+
+def scene(driver):
+    """Robots {ns: (x, y)}, obstacles {id: (x, y)} and counts as the page shows them."""
+    return driver.execute_script("""
+        const num = (e, a) => parseFloat(e.getAttribute(a));
+        const robots = {}, obstacles = {}, stats = {};
+        document.querySelectorAll('[data-robot]').forEach(e => {
+            if (e.hasAttribute('data-x')) robots[e.dataset.robot] = [num(e, 'data-x'), num(e, 'data-y')]; });
+        document.querySelectorAll('[data-obstacle-id]').forEach(e => {
+            obstacles[e.dataset.obstacleId] = [num(e, 'cx'), num(e, 'cy')]; });
+        document.querySelectorAll('[data-stat]').forEach(e => { stats[e.dataset.stat] = e.textContent; });
+        return {robots, obstacles, stats};""")
+
+
+def heading(driver, robot):
+    return float(driver.find_element('css selector', f'[data-robot="{robot}"]').get_attribute('data-theta'))
+
+
+def nearest(obstacle, robots):
+    return min(robots.items(), key=lambda kv: math.dist(kv[1], obstacle))
+
+
+def test_page_shows_ten_obstacles_and_the_moving_robots(console_team):
+    driver, monitor, running = console_team
+    first = wait_until(lambda: (s := scene(driver)) and len(s['obstacles']) == 10
+                       and len(s['robots']) == 2 and s, 60, 'ten obstacles and two robots')
+    assert set(first['robots']) == {'robot_0', 'robot_1'}
+    wait_until(lambda: all(math.dist(p, first['robots'][r]) > 1.0
+                           for r, p in scene(driver)['robots'].items()), 60, 'both robots to move')
+    # the page's counts are the world's counts
+    for key in ('score', 'trips', 'crashes', 'interventions'):
+        assert scene(driver)['stats'][key].lstrip('-').isdigit()
+    wait_until(lambda: int(scene(driver)['stats']['trips']) >= 1, 90, 'a first trip')
+    wait_until(lambda: all(scene(driver)['stats'][k] == f'{float(monitor.snapshot()[0][k]):g}'
+                           for k in ('trips', 'crashes', 'score')), 30, "the page to show the world's counts")
+    assert not running.dead()
+    # the picture in the README: the console as this test sees it
+    SCREENSHOT.parent.mkdir(parents=True, exist_ok=True)
+    assert driver.save_screenshot(str(SCREENSHOT)) and SCREENSHOT.stat().st_size > 10_000
+
+
+def click_when(driver, choose, what):
+    """Wait for an obstacle ``choose(obstacle_xy, robots)`` accepts, click it; its id.
+
+    The click event goes to that very element (a positional click could land on a
+    neighbour while a loaded machine scrolls or re-lays the page out); the page's own
+    click handler does the rest, as for a mouse click."""
+    def attempt():
+        s = scene(driver)
+        for oid, xy in s['obstacles'].items():
+            if len(s['robots']) == 2 and choose(xy, s['robots']):
+                clicked = driver.execute_script(
+                    'const e = document.querySelector(`[data-obstacle-id="${arguments[0]}"]`);'
+                    'if (!e) return false;'
+                    "e.dispatchEvent(new MouseEvent('click', {bubbles: true})); return true;", oid)
+                return (int(oid),) if clicked else None     # a tuple: obstacle 0 is an id too
+        return None
+    return wait_until(attempt, 120, what, period=0.05)[0]
+
+
+def logged(monitor, oid):
+    return next((i for i in list(monitor.interventions) if i.get('obstacle') == str(oid)), None)
+
+
+def test_clicking_an_obstacle_removes_it_and_the_world_classifies_the_intervention(console_team):
+    driver, monitor, running = console_team
+    wait_until(lambda: len(scene(driver)['obstacles']) == 10, 60, 'ten obstacles')
+    counted = int(scene(driver)['stats']['interventions'])
+
+    # no robot anywhere near: nobody needed saving, a false positive
+    far = click_when(driver, lambda xy, robots: nearest(xy, robots)[1] and
+                     math.dist(nearest(xy, robots)[1], xy) > NEAR_DISTANCE + 5.0,
+                     'an obstacle far from both robots')
+    record = wait_until(lambda: logged(monitor, far), 30, f'the world to log obstacle {far}')
+    assert record['false_positive'] == 'True' and record['near_robots'] == ''
+    wait_until(lambda: str(far) not in scene(driver)['obstacles'], 30, f'obstacle {far} to leave the page')
+    # the world spawns a replacement; the page follows
+    wait_until(lambda: len(scene(driver)['obstacles']) == 10, 30, 'the replacement obstacle')
+
+    # a robot close by, heading for it, that had not detected it: the intervention was
+    # needed. Heading for it, the robot stays within near_distance for about two seconds of
+    # wall time, whatever the page's lag behind the world on a loaded machine.
+    near_robot = {}
+
+    def close_by(xy, robots):
+        name, pos = nearest(xy, robots)
+        d = math.dist(pos, xy)
+        theta = heading(driver, name)
+        towards = ((xy[0] - pos[0]) * math.cos(theta) + (xy[1] - pos[1]) * math.sin(theta)) / max(d, 1e-9)
+        if 2.5 < d < NEAR_DISTANCE - 0.5 and towards > 0.8:
+            near_robot.update(name=name, distance=d, towards=towards, xy=xy, pos=pos)
+            return True
+        return False
+    near = click_when(driver, close_by, 'an obstacle 2.5-5.5 m ahead of a robot')
+    record = wait_until(lambda: logged(monitor, near), 30, f'the world to log obstacle {near}')
+    assert record['false_positive'] == 'False', (dict(record), near_robot)
+    assert near_robot['name'] in record['undetected_by'].split(','), record
+    # what the console sent: the nearest robot's pose relative to the obstacle
+    assert math.hypot(float(record['rel_x']), float(record['rel_y'])) < NEAR_DISTANCE, record
+    wait_until(lambda: str(near) not in scene(driver)['obstacles'], 30, f'obstacle {near} to leave the page')
+    wait_until(lambda: int(scene(driver)['stats']['interventions']) == counted + 2, 30,
+               lambda: f'the page to count both interventions (counted {counted}, now {scene(driver)["stats"]}, '
+               f'world {monitor.interventions} replies {driver.execute_script("return window.supersafeConsole.replies")})')
+
+    # clicking an obstacle that is already gone: a message on the page, nothing breaks
+    driver.execute_script(f"window.supersafeSend({{type: 'intervene', obstacle: {near}}});")
+    wait_until(lambda: 'already gone' in driver.find_element('id', 'message').text, 30,
+               'the page to say the obstacle is already gone')
+    assert len(list(monitor.interventions)) == 2 and not running.dead()
+
+
+def test_team_layout_with_the_console():
+    argvs = team.team_processes(3, console_port=9123, with_supervisor=False)
+    names = [team.process_name(a) for a in argvs]
+    assert 'supervisor' not in names and names[-1] == 'sim_clock'
+    console = argvs[names.index('supervisor_console')]
+    assert 'port:=9123' in console and 'robots:=[robot_0,robot_1,robot_2]' in console
+    assert any(a.endswith('config/console.yaml') for a in console)
+    assert 'supervisor_console' not in [team.process_name(a) for a in team.team_processes(2)]

@@ -1,0 +1,170 @@
+"""The private host network of `supersafe team --hosts` (root only; CI runs as root).
+
+Asserts what the namespaces look like, that nothing outside them changes, that every
+namespace and link goes away on exit, on an exception, on SIGINT/SIGTERM of the CLI, and
+that namespaces of a killed run are removed by the next one; and that without
+CAP_NET_ADMIN the CLI says so and exits non-zero.
+"""
+import os
+from pathlib import Path
+import shutil
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from supersafe_ros.hosts import netns
+from supersafe_ros.hosts.netns import HostNetwork, our_namespaces
+
+needs_root = pytest.mark.skipif(not netns.has_net_admin() or shutil.which('ip') is None,
+                                reason='needs root (CAP_NET_ADMIN) and iproute2')
+REPO = Path(__file__).resolve().parents[1]
+
+
+def root_view():
+    """Interfaces, addresses and routes of the test process's own namespace."""
+    return [subprocess.run(['ip', '-o', *a], capture_output=True, text=True).stdout
+            for a in (('link', 'show'), ('addr', 'show'), ('route', 'show'))]
+
+
+@needs_root
+def test_hosts_are_isolated_and_removed_on_exit():
+    before = root_view()
+    with HostNetwork(3) as net:
+        assert sorted(our_namespaces(os.getpid())) == sorted(net.hosts + [net.bridge_ns])
+        for i in range(3):
+            assert net.interfaces(i) == ['lo', 'eth0']
+            routes = subprocess.run(net.exec_prefix(i) + ['ip', 'route', 'show'],
+                                    capture_output=True, text=True).stdout
+            # on-link /24 and multicast only: no default route, nothing else reachable
+            assert 'default' not in routes
+            assert sorted(r.split()[0] for r in routes.splitlines()) == ['10.213.0.0/24',
+                                                                        '224.0.0.0/4']
+            addrs = subprocess.run(net.exec_prefix(i) + ['ip', '-o', '-4', 'addr', 'show'],
+                                   capture_output=True, text=True).stdout
+            assert f'inet {net.address(i)}/24' in addrs and 'inet 127.0.0.1/8' in addrs
+        # the caller's namespace gained nothing
+        assert root_view() == before
+        # the thread can visit a host and come back
+        with net.entered(1):
+            assert netns.current_namespace_is(net.hosts[1])
+        assert not netns.current_namespace_is(net.hosts[1])
+        # a link fault and its repair
+        with net.link_down(2):
+            assert not net.link_is_up(2)
+        assert net.link_is_up(2)
+    assert our_namespaces(os.getpid()) == []
+    assert root_view() == before
+
+
+@needs_root
+def test_hosts_removed_after_an_exception_inside():
+    with pytest.raises(RuntimeError):
+        with HostNetwork(2) as net:
+            sleeper = subprocess.Popen(net.exec_prefix(1) + ['sleep', '60'])
+            raise RuntimeError('boom')
+    # the process inside was stopped and the namespaces are gone
+    assert sleeper.wait(timeout=10) != 0
+    assert our_namespaces(os.getpid()) == []
+
+
+@needs_root
+def test_stale_namespaces_of_dead_runs_are_removed():
+    dead = subprocess.Popen(['true'])
+    dead.wait()                        # a pid that no longer runs
+    leftover = HostNetwork(2, pid=dead.pid)
+    leftover.create()                  # as if its run had been killed with SIGKILL
+    assert len(our_namespaces(dead.pid)) == 3
+    sleeper = subprocess.Popen(['sleep', '60'])
+    live = HostNetwork(2, pid=sleeper.pid)   # a run whose process is alive
+    try:
+        live.create()                  # the next run removes the dead run's namespaces
+        assert our_namespaces(dead.pid) == []
+        assert set(leftover.hosts + [leftover.bridge_ns]) == set(live.stale_removed)
+        with HostNetwork(2):           # and leaves a live run's alone
+            assert len(our_namespaces(sleeper.pid)) == 3
+    finally:
+        live.close()
+        leftover.close()
+        sleeper.kill()
+        sleeper.wait()
+    assert our_namespaces(sleeper.pid) == []
+
+
+def cli(*args):
+    return [sys.executable, '-m', 'supersafe_ros.cli', 'team', *args]
+
+
+@needs_root
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
+def test_cli_removes_its_namespaces_on_a_signal(tmp_path, sig):
+    # no robots' processes needed to see the plumbing: a team whose nodes start slowly
+    # is interrupted as soon as its namespaces exist
+    proc = subprocess.Popen(cli('--hosts', '3', '--robots', '2', '--duration', '600',
+                                '--log-dir', str(tmp_path)),
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    deadline = time.monotonic() + 60
+    while len(our_namespaces(proc.pid)) < 4 and time.monotonic() < deadline:
+        assert proc.poll() is None, proc.stdout.read()
+        time.sleep(0.1)
+    assert len(our_namespaces(proc.pid)) == 4
+    while not (tmp_path / 'pids.txt').exists() and time.monotonic() < deadline:
+        time.sleep(0.1)                # the nodes are started
+    proc.send_signal(sig)
+    out, _ = proc.communicate(timeout=60)
+    assert our_namespaces(proc.pid) == [], out
+    pids = [int(line.split()[0]) for line in (tmp_path / 'pids.txt').read_text().splitlines()]
+    alive = [p for p in pids if Path(f'/proc/{p}').exists()
+             and 'supersafe_ros' in Path(f'/proc/{p}/cmdline').read_text(errors='replace')]
+    assert alive == [], out
+
+
+def test_print_argv_places_shared_nodes_on_host_zero_and_deals_robots():
+    out = subprocess.run(cli('--hosts', '3', '--robots', '4', '--print-argv', '--discovery-server'),
+                         capture_output=True, text=True, check=True).stdout
+    placed = {}
+    for line in out.splitlines():
+        if line.startswith('host '):
+            host = int(line.split()[1])
+            name = line.split('] ', 1)[1].split(':', 1)[0]
+            placed[name] = host
+            assert ' ip netns exec supersafe-' in line
+            if name != 'discovery_server':
+                assert 'ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET' in line
+                assert 'ROS_DISCOVERY_SERVER=10.213.0.1:11811' in line
+                assert ('ROS_SUPER_CLIENT=TRUE' in line) == (name == 'sim_clock')
+    for shared in ('world', 'learner', 'supervisor', 'sim_clock', 'discovery_server'):
+        assert placed[shared] == 0
+    for i in range(4):
+        for kind in ('dubins_robot', 'planner', 'safety_filter'):
+            assert placed[f'robot_{i}/{kind}'] == 1 + i % 2
+
+
+@pytest.mark.skipif(shutil.which('setpriv') is None, reason='needs setpriv (util-linux)')
+def test_without_net_admin_it_says_so_and_exits_nonzero(tmp_path):
+    # drop CAP_NET_ADMIN (and run as nobody when root): the plumbing must refuse clearly
+    proc = subprocess.run(['setpriv', '--reuid=65534', '--regid=65534', '--clear-groups',
+                           '--inh-caps=-all', '--bounding-set=-all', *cli(
+                               '--hosts', '2', '--duration', '1', '--log-dir', str(tmp_path / 'l'))],
+                          capture_output=True, text=True, timeout=120,
+                          env={**os.environ, 'HOME': str(tmp_path)})
+    assert proc.returncode != 0
+    assert 'CAP_NET_ADMIN' in proc.stderr and 'root' in proc.stderr
+    assert 'Traceback' not in proc.stderr
+
+
+@needs_root
+def test_subnet_discovery_is_kept_only_inside_the_named_namespace():
+    from supersafe_ros.rosenv import ensure_local_ros_env
+    with HostNetwork(2) as net:
+        def ranged(name):
+            return ensure_local_ros_env({'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SUBNET',
+                                         'SUPERSAFE_NETNS': name})['ROS_AUTOMATIC_DISCOVERY_RANGE']
+        assert ranged(net.hosts[1]) == 'LOCALHOST'          # named, but this thread is not in it
+        with net.entered(1):
+            assert ranged(net.hosts[1]) == 'SUBNET'
+            assert ranged(net.hosts[0]) == 'LOCALHOST'      # another host's name
+            assert ranged('') == 'LOCALHOST'
+        assert ranged(net.hosts[1]) == 'LOCALHOST'
