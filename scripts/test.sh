@@ -5,4 +5,4 @@ root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 bash "$root/scripts/setup.sh"
 source "$root/scripts/ros-env.sh"
 cd "$root"
-exec .venv/bin/python -m pytest -q "$@" test
+exec .venv/bin/python -m pytest -q -rs "$@" test   # -rs: every skip says why

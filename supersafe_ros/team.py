@@ -74,12 +74,17 @@ def _param_value(v) -> str:
 
 def node_argv(node: str, namespace: str | None = None, params: dict | None = None,
               remaps: dict | None = None, config: Path | None = None,
-              python: str = sys.executable) -> list[str]:
-    """argv of one node process: python -m <module> --ros-args --params-file ... -r ... -p ..."""
+              python: str = sys.executable, params_files=()) -> list[str]:
+    """argv of one node process: python -m <module> --ros-args --params-file ... -r ... -p ...
+
+    ``params_files``: more YAML files, applied after the config file; the layout's own
+    values (``-p``, which rcl applies after every file) still win, as in the launch file."""
     argv = [python, '-m', f'{PACKAGE}.nodes.{NODE_MODULES[node]}', '--ros-args']
     cfg = (config or config_dir()) / CONFIG_FILES[node]
     if cfg.is_file():
         argv += ['--params-file', str(cfg)]
+    for extra in params_files:
+        argv += ['--params-file', str(extra)]
     if namespace:
         argv += ['-r', f'__ns:=/{namespace.strip("/")}']
     for src, dst in (remaps or {}).items():
@@ -110,6 +115,7 @@ def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
                 with_filter: bool = True, with_learner: bool = True,
                 with_supervisor: bool = True,
                 learner_store: str | Path | None = None,
+                use_sim_time: bool = True,
                 console_port: int | None = None) -> list[NodeSpec]:
     """Every node of a team, in start order (the sim clock last).
 
@@ -121,6 +127,9 @@ def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
     ``step``: sim seconds per clock step = 1 / robot rate (None: the override
     sim_clock.step, else 0.05). 0.1 halves the CPU per sim second; the robots then
     move 0.3 m between control decisions instead of 0.15 m.
+    ``use_sim_time``: every node but the clock follows /clock. The config files default
+    to the wall clock (what a real fleet runs); the simulation sets sim time here, for
+    every node it starts, the filters and the learner included.
     ``console_port``: also run the supervisor console (web page) on this port.
     """
     if n_robots < 1:
@@ -130,7 +139,7 @@ def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
     if unknown:
         raise ValueError(f'overrides for unknown nodes {sorted(unknown)}')
     robots = robot_names(n_robots)
-    sim = {'use_sim_time': True}
+    sim = {'use_sim_time': bool(use_sim_time)}
     layout = []
 
     def add(kind, namespace=None, base=None, remaps=None):
@@ -192,9 +201,10 @@ def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
 
 
 def team_processes(*args, config: Path | None = None, python: str = sys.executable,
-                   **kwargs) -> list[list[str]]:
-    """argv of every process of a team, in start order; arguments as ``team_layout``."""
-    return [node_argv(n.kind, n.namespace, n.params, n.remaps, config, python)
+                   params_files=(), **kwargs) -> list[list[str]]:
+    """argv of every process of a team, in start order; arguments as ``team_layout``,
+    ``params_files`` as ``node_argv``."""
+    return [node_argv(n.kind, n.namespace, n.params, n.remaps, config, python, params_files)
             for n in team_layout(*args, **kwargs)]
 
 
@@ -217,6 +227,8 @@ def team_env(domain_id: int | None = None, base: dict | None = None) -> dict:
         env['ROS_DOMAIN_ID'] = str(100 + os.getpid() % 100)
     env.setdefault('ROS_LOG_DIR', os.path.join(os.environ.get('TMPDIR', '/tmp'), 'supersafe-ros-log'))
     env['PYTHONUNBUFFERED'] = '1'
+    # the children write to log files: no colour escape codes in them
+    env.setdefault('RCUTILS_COLORIZED_OUTPUT', '0')
     return env
 
 
@@ -486,6 +498,11 @@ def add_parser(subparsers):
                         help='TCP port of the console on 127.0.0.1 (default 8765)')
     parser.add_argument('--set', action='append', default=[], metavar='NODE.PARAM=VALUE',
                         help='parameter override, e.g. --set supervisor.mu=1.0 (repeatable)')
+    parser.add_argument('--params-file', action='append', default=[], type=Path, metavar='FILE',
+                        help='a ROS 2 parameter file applied to every node after its config file '
+                             '(e.g. /**/supervisor: ros__parameters: {mu: 1.0}); the team\'s own values '
+                             '(robots, seeds, step, rate factor, use_sim_time) still win: change those '
+                             'with their options or --set; repeatable')
     parser.add_argument('--record', type=Path, default=None, metavar='BAG',
                         help='record every topic to a new rosbag2 MCAP bag folder BAG '
                              '(ros2 bag play BAG, or open BAG/BAG_0.mcap in Foxglove)')
@@ -514,6 +531,7 @@ def run(args) -> int:
         with_filter=not args.no_filter, with_learner=not args.no_learner,
         with_supervisor=not args.no_supervisor,
         learner_store=args.learner_store or log_dir / 'interventions.jsonl',
+        params_files=[p.resolve() for p in args.params_file],
         console_port=args.console_port if args.console else None)
     record = getattr(args, 'record', None)
     if record is not None and record.exists() and (not record.is_dir() or any(record.iterdir())):

@@ -29,5 +29,6 @@ os.environ.setdefault('ROS_LOG_DIR', str(REPO / '.cache' / 'ros-log'))
 def s3_data() -> Path:
     """The paper's own data (../shared/data/s3), or a skip saying where it was looked for."""
     if not S3_DATA.is_dir():
-        pytest.skip(f'paper data not found at {S3_DATA} (shared/ must sit beside the repository)')
+        pytest.skip(f'missing data: the paper\'s S3 files (*_reachset.json, pilot*_interventions.csv) '
+                    f'at {S3_DATA}; put the shared/ folder beside the repository')
     return S3_DATA

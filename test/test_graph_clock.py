@@ -1,7 +1,12 @@
-"""sim_clock_node at topic level: start gate, lockstep with acknowledgements, late steps."""
+"""sim_clock_node at topic level: start gate, lockstep with acknowledgements, late steps,
+parameters at run time.
+
+Timeouts are generous (a loaded 2-core machine can hold a test's callbacks for
+seconds): the assertions are about order and bounds, not about exact wall times."""
 import time
 
 import numpy as np
+from rclpy.logging import LoggingSeverity
 from rclpy.node import Node
 
 from diagnostic_msgs.msg import DiagnosticStatus
@@ -11,7 +16,8 @@ from std_msgs.msg import Empty
 from supersafe_ros.ros_io import rosmsg
 from supersafe_ros.nodes.sim_clock_node import SimClockNode, parse_topic_counts
 
-from test_graph_support import Spinner, params, ros_context  # noqa: F401
+from test_graph_support import (Rosout, Spinner, live_and_read_only, params,  # noqa: F401
+                                ros_context, set_parameters)
 
 
 def ns_of(msg):
@@ -55,6 +61,12 @@ class FakeRobot:
         return True
 
 
+def holding_for(rosout, item: str) -> bool:
+    """The clock logged that ``item`` is the only thing it still waits for."""
+    return any('sim_clock' in m.name and m.msg == f'waiting for the graph: {[item]}'
+               for m in rosout.logs)
+
+
 def test_parse_topic_counts():
     assert parse_topic_counts(['/a=2', '/b', '']) == [('/a', 2), ('/b', 1)]
 
@@ -62,14 +74,18 @@ def test_parse_topic_counts():
 def test_clock_waits_for_graph_then_steps_in_lockstep(ros_context):
     step_ns = 50_000_000
     clock = SimClockNode(context=ros_context, parameter_overrides=params(
-        robots=['robot_0'], step=0.05, rate_factor=0.0, lockstep=True, ack_timeout=0.3,
-        start_timeout=20.0, coarse_period=0.2, status_period=0.5,
+        robots=['robot_0'], step=0.05, rate_factor=0.0, lockstep=True, ack_timeout=3.0,
+        start_timeout=60.0, coarse_period=0.2, status_period=0.5,
         wait_for_publishers=['/test_gate=1']))
+    clock.get_logger().set_level(LoggingSeverity.DEBUG)
     driver = Node('clock_test_driver', context=ros_context)
     robot = FakeRobot(driver)
+    rosout = Rosout(driver)
     spin = Spinner(ros_context, clock, driver)
     try:
-        spin.spin_for(1.0)                       # robot matched, but the gate has no publisher
+        # the clock holds: it has seen the robot, and says the gate alone is missing
+        spin.until(lambda: holding_for(rosout, '/test_gate publishers 0/1'), 30.0,
+                   'the clock to wait for the gate alone')
         assert robot.ticks == []
         gate = driver.create_publisher(Empty, '/test_gate', 1)
         spin.until(lambda: robot.poll() and len(robot.ticks) >= 60, 20.0, '60 steps')
@@ -79,11 +95,11 @@ def test_clock_waits_for_graph_then_steps_in_lockstep(ros_context):
         # a step the robot does not acknowledge: the clock goes on after ack_timeout
         skip_at = robot.ticks[-1] + 3 * step_ns
         robot.skip.add(skip_at)
-        spin.until(lambda: robot.poll() and robot.ticks[-1] > skip_at + 5 * step_ns, 10.0,
+        spin.until(lambda: robot.poll() and robot.ticks[-1] > skip_at + 5 * step_ns, 30.0,
                    'steps past the skipped one')
-        spin.until(lambda: robot.poll() and robot.status and int(robot.status[-1]['late_steps']) >= 1, 5.0,
-                   'a late step in the status')
-        assert int(robot.status[-1]['late_steps']) == 1
+        spin.until(lambda: robot.poll() and robot.status and int(robot.status[-1]['late_steps']) >= 1,
+                   30.0, 'a late step in the status')
+        assert skip_at + step_ns in robot.ticks   # released after ack_timeout, nothing skipped
         assert robot.violations == []
         # coarse clock: every 0.2 s of sim time
         c = np.array(robot.coarse)
@@ -100,9 +116,11 @@ def test_clock_keeps_observers_within_their_lag(ros_context):
     step_ns, lag = 50_000_000, 2
     clock = SimClockNode(context=ros_context, parameter_overrides=params(
         robots=['robot_0'], observers=['/observer/step_done'], observer_lag=lag, step=0.05,
-        rate_factor=0.0, ack_timeout=2.0, start_timeout=20.0))
+        rate_factor=0.0, ack_timeout=30.0, start_timeout=60.0))
+    clock.get_logger().set_level(LoggingSeverity.DEBUG)
     driver = Node('observer_test_driver', context=ros_context)
     robot = FakeRobot(driver)
+    rosout = Rosout(driver)
     robot.delay = 0.0
     obs_pub = driver.create_publisher(Clock, '/observer/step_done', rosmsg.QOS_ACK)
     state = {'acked': -1, 'violations': [], 'last_ack_wall': time.monotonic()}
@@ -123,15 +141,59 @@ def test_clock_keeps_observers_within_their_lag(ros_context):
         return robot.poll()
     spin = Spinner(ros_context, clock, driver)
     try:
-        spin.spin_for(1.0)
+        spin.until(lambda: holding_for(rosout, '/observer/step_done (not ready)'), 30.0,
+                   'the clock to wait for the observer alone')
         assert robot.ticks == []                 # the observer has not said it is ready
         obs_pub.publish(Clock())                 # ready: acknowledges t = 0
         state['acked'] = 0
-        spin.until(lambda: observer_poll() and len(robot.ticks) >= 40, 20.0, '40 steps')
+        spin.until(lambda: observer_poll() and len(robot.ticks) >= 40, 60.0, '40 steps')
         assert state['violations'] == [] and robot.violations == []
         t = np.array(robot.ticks)
         assert np.all(np.diff(t) == step_ns)
         assert clock.late_steps == 0         # the observer's acknowledgements released every step
+    finally:
+        clock.close()
+        spin.shutdown()
+        clock.destroy_node()
+        driver.destroy_node()
+
+
+def test_clock_rate_factor_changes_at_run_time_and_read_only_sets_are_refused(ros_context):
+    """`ros2 param set /sim_clock rate_factor 1.0`: sim time then runs no faster than the
+    wall clock; `step` (the robots' rate depends on it) is refused and stays."""
+    step = 0.2
+    clock = SimClockNode(context=ros_context, parameter_overrides=params(
+        robots=['robot_0'], step=step, rate_factor=0.0, ack_timeout=30.0, start_timeout=60.0,
+        status_period=step))
+    driver = Node('clock_param_driver', context=ros_context)
+    robot = FakeRobot(driver)
+    robot.delay = 0.0
+    rosout = Rosout(driver)
+    spin = Spinner(ros_context, clock, driver)
+    try:
+        assert live_and_read_only(clock, clock.live.names) == []
+        spin.until(lambda: robot.poll() and len(robot.ticks) >= 30, 60.0, '30 steps at full speed')
+        fast = [s for s in robot.status if float(s['rate_factor_achieved']) > 0]
+        assert float(fast[-1]['rate_factor_achieved']) > 1.5    # well above 1x before the change
+        result, = set_parameters(spin, driver, '/sim_clock', rate_factor=1.0)
+        assert result.successful
+        spin.until(lambda: robot.poll() and robot.status
+                   and float(robot.status[-1]['rate_factor_target']) == 1.0, 30.0, 'the new target')
+        # from now on: sim time advances at most as fast as wall time (plus one step)
+        first_tick, wall0 = robot.ticks[-1], time.monotonic()
+        spin.until(lambda: robot.poll() and robot.ticks[-1] >= first_tick + 8 * int(step * 1e9), 60.0,
+                   '8 more steps')
+        wall = time.monotonic() - wall0
+        assert (robot.ticks[-1] - first_tick) * 1e-9 <= wall + step
+        # read-only and out-of-range values are refused with a reason, and change nothing
+        result, = set_parameters(spin, driver, '/sim_clock', step=0.05)
+        assert not result.successful and 'read-only' in result.reason
+        result, = set_parameters(spin, driver, '/sim_clock', rate_factor=-1.0)
+        assert not result.successful
+        assert clock.get_parameter('step').value == step and clock.step_ns == int(step * 1e9)
+        assert clock.get_parameter('rate_factor').value == 1.0 and clock.rate_factor == 1.0
+        spin.until(lambda: robot.poll() and rosout.has('sim_clock', 'rate_factor', 'in force'), 10.0,
+                   'the change logged')
     finally:
         clock.close()
         spin.shutdown()

@@ -14,7 +14,8 @@ from supersafe_ros.nodes.markers import obstacles_to_markers
 from supersafe_ros.reach.dynamics import DubinsCar
 from supersafe_ros.reach.grid import wrap_angle
 
-from test_graph_support import ClockDriver, Rosout, Spinner, matched, params, ros_context  # noqa: F401
+from test_graph_support import (ClockDriver, Rosout, Spinner, live_and_read_only, matched,  # noqa: F401
+                                params, ros_context, set_parameters)
 
 
 class Controller:
@@ -55,6 +56,21 @@ def rig(ros_context):
     spin.shutdown()
     robot.destroy_node()
     driver.destroy_node()
+
+
+def test_robot_parameters_are_live_or_read_only(rig):
+    robot, ctl, clock, rosout, spin = rig
+    assert live_and_read_only(robot, robot.live.names) == []
+    assert robot.live.names == {'detections_period'}
+    node = Node('robot_param_client', context=robot.context)
+    spin.add(node)
+    try:
+        result, = set_parameters(spin, node, '/robot_0/dubins_robot', w_max=3.0)
+        assert not result.successful and 'read-only' in result.reason
+        assert robot.robot.omega_max == 1.0
+    finally:
+        spin.remove(node)
+        node.destroy_node()
 
 
 def test_robot_integrates_commands_on_exact_arcs_and_clips_w_max(rig):
@@ -173,6 +189,15 @@ def test_planner_steers_to_its_goal_and_rejects_bad_poses(ros_context):
         pose.publish(rosmsg.state_to_pose((0.0, 0.0, math.pi / 2 - 0.1)))
         spin.until(lambda: len(out) == n + 1, 5.0, 'a command after the bad pose')
         assert out[-1].angular.z == pytest.approx(0.2)     # gain 2 x 0.1 rad
+        # `ros2 param set /robot_7/planner gain 5.0`: the next command uses it
+        assert live_and_read_only(planner, planner.live.names) == []
+        result, = set_parameters(spin, driver, '/robot_7/planner', gain=5.0)
+        assert result.successful
+        result, = set_parameters(spin, driver, '/robot_7/planner', gain=-1.0)   # out of range
+        assert not result.successful
+        pose.publish(rosmsg.state_to_pose((0.0, 0.0, math.pi / 2 - 0.1)))
+        spin.until(lambda: len(out) == n + 2, 5.0, 'a command after the change')
+        assert out[-1].angular.z == pytest.approx(0.5)     # gain 5 x 0.1 rad
     finally:
         spin.shutdown()
         planner.destroy_node()

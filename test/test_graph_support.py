@@ -113,3 +113,31 @@ class ClockDriver:
         self.publish(self.now_ns + int(round(dt * 1e9)))
         spinner.until(lambda: all(a >= self.now_ns for a in self.acks.values()), timeout,
                       f'step_done for t={self.now_ns * 1e-9:.3f}')
+
+
+def set_parameters(spinner, client_node, node_name, timeout=15.0, **values):
+    """What `ros2 param set` does: the node's SetParameters service, from another node.
+    Returns the rcl_interfaces SetParametersResult of each value, in order."""
+    from rcl_interfaces.srv import SetParameters
+    client = client_node.create_client(SetParameters, f'{node_name}/set_parameters')
+    try:
+        spinner.until(client.service_is_ready, timeout, f'{node_name}/set_parameters')
+        request = SetParameters.Request(parameters=[Parameter(k, value=v).to_parameter_msg()
+                                                    for k, v in values.items()])
+        future = client.call_async(request)
+        spinner.until(future.done, timeout, f'{node_name} to answer set_parameters')
+        return future.result().results
+    finally:
+        client_node.destroy_client(client)
+
+
+def live_and_read_only(node, live_names):
+    """Parameters a node declares that are neither live nor read-only (should be none):
+    a set of one of those would answer "successful" and change nothing."""
+    silent = []
+    for name in node._parameters:
+        if name in ('use_sim_time', 'start_type_description_service'):
+            continue                                     # rclpy's own, live
+        if name not in live_names and not node.describe_parameter(name).read_only:
+            silent.append(name)
+    return silent

@@ -107,6 +107,16 @@ def test_team_runs_to_duration_and_children_exit_cleanly(tmp_path):
     assert {'world.log', 'robot_0.dubins_robot.log', 'sim_clock.log'} <= logs
 
 
+def sim_time_runs(line: str) -> bool:
+    """A progress line 'sim 3.250 s ...' with sim time past 0 (not 'sim ? s': no clock yet),
+    so every node is built and spinning (the clock waits for the whole graph)."""
+    words = line.split()
+    try:
+        return len(words) > 1 and words[0] == 'sim' and float(words[1]) > 0
+    except ValueError:
+        return False
+
+
 def test_team_stops_cleanly_on_ctrl_c(tmp_path):
     proc = team_cli(tmp_path, '--timeout', '120')
     lines = []
@@ -117,9 +127,9 @@ def test_team_stops_cleanly_on_ctrl_c(tmp_path):
             if not line:
                 break
             lines.append(line)
-            if line.startswith('sim ') and not line.startswith('sim 0.000'):
+            if sim_time_runs(line):
                 break
-        assert any(l.startswith('sim ') and not l.startswith('sim 0.000') for l in lines), ''.join(lines)
+        assert any(sim_time_runs(l) for l in lines), ''.join(lines)
         os.kill(proc.pid, signal.SIGINT)
         out, _ = proc.communicate(timeout=30)
     finally:
@@ -132,17 +142,15 @@ def test_team_stops_cleanly_on_ctrl_c(tmp_path):
     assert children_alive(tmp_path / 'logs') == []
 
 
-def test_launch_file_builds_the_layout_with_stand_in_launch_modules(monkeypatch):
-    """No launch_ros here: stand-ins record what the launch file asks for."""
+def load_launch_file(monkeypatch):
+    """The launch file with stand-in launch modules (no launch_ros here): returns the
+    description's actions and the Recorder class they are made of."""
     import importlib.util
     import types
-
-    made = []
 
     class Recorder:
         def __init__(self, *args, **kwargs):
             self.args, self.kwargs = args, kwargs
-            made.append(self)
 
     class LaunchConfiguration:
         def __init__(self, name):
@@ -165,17 +173,31 @@ def test_launch_file_builds_the_layout_with_stand_in_launch_modules(monkeypatch)
     spec = importlib.util.spec_from_file_location('team_launch', REPO / 'launch' / 'team.launch.py')
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
-    description = module.generate_launch_description()
+    return module.generate_launch_description()
+
+
+def launch_nodes(description, **arguments):
+    """The nodes the launch file asks for with these launch arguments (others: defaults)."""
     defaults = {a.args[0]: a.kwargs['default_value'] for a in description
-                if isinstance(a, Recorder) and 'default_value' in a.kwargs}
+                if 'default_value' in a.kwargs}
+    unknown = set(arguments) - set(defaults)
+    assert not unknown, f'not launch arguments: {unknown}'
     opaque = [a for a in description if 'function' in a.kwargs][0]
-    values = dict(defaults, robots='3')
+    values = dict(defaults, **arguments)
 
     class Context:
         def perform_substitution(self, sub):
             return values[sub.name]
-    made.clear()
-    nodes = opaque.kwargs['function'](Context())
+    return opaque.kwargs['function'](Context())
+
+
+def test_launch_file_builds_the_layout_with_stand_in_launch_modules(monkeypatch):
+    description = load_launch_file(monkeypatch)
+    env = {a.args[0]: a.args[1].name for a in description
+           if len(a.args) == 2 and hasattr(a.args[1], 'name')}
+    assert env == {'ROS_AUTOMATIC_DISCOVERY_RANGE': 'discovery_range',
+                   'RCUTILS_COLORIZED_OUTPUT': 'colorized_output'}
+    nodes = launch_nodes(description, robots='3')
     kinds = [(n.kwargs['executable'], n.kwargs['namespace']) for n in nodes]
     expected = [(s.executable, s.namespace or '') for s in team.team_layout(3)]
     assert kinds == expected
@@ -183,6 +205,47 @@ def test_launch_file_builds_the_layout_with_stand_in_launch_modules(monkeypatch)
         assert n.kwargs['package'] == 'supersafe_ros'
         assert Path(n.kwargs['parameters'][0]).is_file() and n.kwargs['parameters'][1] == s.params
         assert n.kwargs['remappings'] == list(s.remaps.items())
+
+
+def test_launch_arguments_set_step_overrides_params_file_and_sim_time(monkeypatch, tmp_path):
+    description = load_launch_file(monkeypatch)
+    extra = tmp_path / 'fleet.yaml'
+    extra.write_text('/**/world:\n  ros__parameters:\n    n_obstacles: 4\n')
+    nodes = launch_nodes(description, robots='1', step='0.1', seed='7', rate_factor='0.0',
+                         set='supervisor.mu=1.25 world.respawn=false', params_file=str(extra),
+                         learner='false')
+    expected = team.team_layout(1, rate_factor=0.0, seed=7, step=0.1, with_learner=False,
+                                overrides={'supervisor': {'mu': 1.25}, 'world': {'respawn': False}})
+    assert [n.kwargs['parameters'][-1] for n in nodes] == [s.params for s in expected]
+    by_kind = {n.kwargs['executable']: n.kwargs['parameters'] for n in nodes}
+    assert 'learner_node' not in by_kind
+    assert by_kind['sim_clock_node'][-1]['step'] == 0.1
+    assert by_kind['dubins_robot_node'][-1]['rate'] == pytest.approx(10.0)
+    assert by_kind['supervisor_node'][-1]['mu'] == 1.25
+    # config file, then params_file, then the layout's values (which win)
+    assert by_kind['world_node'][1] == str(extra)
+    for n in nodes:
+        sim = n.kwargs['parameters'][-1]['use_sim_time']
+        assert sim is (n.kwargs['executable'] != 'sim_clock_node')
+    wall = launch_nodes(description, use_sim_time='false')
+    assert all(n.kwargs['parameters'][-1]['use_sim_time'] is False for n in wall)
+    with pytest.raises(ValueError):
+        launch_nodes(description, supervisor='maybe')
+
+
+def test_config_files_run_on_the_wall_clock_and_the_team_sets_sim_time():
+    """A node started from its config alone (a real fleet) must not wait for a /clock that
+    nobody publishes; the simulation sets use_sim_time for every node it starts."""
+    import yaml
+    for name in ('clock.yaml', 'world.yaml', 'robot.yaml', 'planner.yaml', 'supervisor.yaml'):
+        (section,) = yaml.safe_load((REPO / 'config' / name).read_text()).values()
+        assert section['ros__parameters']['use_sim_time'] is False, name
+    for spec in team.team_layout(2):
+        assert spec.params['use_sim_time'] is (spec.kind != 'sim_clock'), spec.kind
+    # the extra parameter files come after the config file and before the team's values
+    argv = team.node_argv('planner', 'robot_0', {'use_sim_time': True}, params_files=['/x.yaml'])
+    files = option(argv, '--params-file')
+    assert files[1] == '/x.yaml' and argv.index('/x.yaml') < argv.index('use_sim_time:=true')
 
 
 def test_children_die_with_a_killed_runner(tmp_path):

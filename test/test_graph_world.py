@@ -14,7 +14,8 @@ from supersafe_ros.nodes.markers import ObstacleMarkers, obstacles_to_markers
 from supersafe_ros.nodes.supervisor_node import SupervisorNode
 from supersafe_ros.nodes.world_node import WorldNode
 
-from test_graph_support import Rosout, Spinner, matched, params, ros_context  # noqa: F401
+from test_graph_support import (Rosout, Spinner, live_and_read_only, matched, params,  # noqa: F401
+                                ros_context, set_parameters)
 
 ROBOTS = ['robot_0', 'robot_1']
 
@@ -206,7 +207,10 @@ def test_supervisor_intervenes_at_its_level_and_names_the_robot(ros_context):
             msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(k * 5e7), 10**9)
             pose.publish(msg)
         spin.until(lambda: got and decisions, 5.0, 'an intervention')
-        spin.spin_for(0.3)                                  # any second one would arrive now
+        # every pose judged (its lockstep acknowledgement): a second intervention would be out
+        last_ns = (len(sent) - 1) * 50_000_000
+        spin.until(lambda: sup.acks.sent >= last_ns, 10.0, 'every pose judged')
+        spin.until(lambda: len(decisions) >= 1 and len(got) >= 1, 5.0, 'the decision on the wire')
         assert len(got) == 1                                # one per obstacle (pending removal)
         msg = got[0]
         assert msg.header.frame_id == 'obstacle_42'
@@ -271,8 +275,10 @@ def test_world_acknowledges_counted_poses_for_the_lockstep(world_rig, ros_contex
         last = acks[-1]
         assert last >= 0.0                        # ready (0) or counted up to a pose time
         robots.send_pose('robot_0', 0.0, 14.0, 0.0, t=last + 30.0)
-        spin.spin_for(0.2)
-        assert acks[-1] == last                   # robot_1 has not reached that time yet
+        spin.until(lambda: world.acks.latest['robot_0'] == int(round((last + 30.0) * 1e9)), 5.0,
+                   "robot_0's pose counted")
+        assert world.acks.sent == int(round(last * 1e9))   # robot_1 has not reached that time yet
+        assert acks[-1] == last
         robots.send_pose('robot_1', 0.0, -14.0, 0.0, t=last + 31.0)
         spin.until(lambda: acks[-1] == pytest.approx(last + 30.0), 5.0, 'the min over robots')
     finally:
@@ -311,4 +317,95 @@ def test_world_scene_reset_and_no_respawn(ros_context):
     finally:
         spin.shutdown()
         world.destroy_node()
+        driver.destroy_node()
+
+
+def test_world_intervention_with_no_robot_near_is_a_false_positive(world_rig):
+    """Nobody near the removed obstacle: nobody needed saving, so attention was wasted."""
+    world, robots, rosout, spin = world_rig
+    # both robots behind the left goal line: every obstacle (|x| <= 12) is > 6 m away
+    robots.send_pose('robot_0', -19.0, 10.0, 0.0, t=40.0)
+    robots.send_pose('robot_1', -19.0, -10.0, 0.0, t=40.0)
+    spin.until(lambda: world.acks.sent >= int(40e9), 5.0, 'the far poses counted')
+    ids, xy = robots.obstacles.arrays()
+    n0 = len(robots.log)
+    robots.intervention(int(ids[0]), (0.0, 3.0, 0.0), t=40.1)
+    spin.until(lambda: len(robots.log) == n0 + 1, 5.0, 'the intervention record')
+    rec = robots.log[-1]
+    assert rec['near_robots'] == '' and rec['robot'] == 'unknown'
+    assert rec['false_positive'] == 'True'
+
+
+def test_world_crash_tolerance_changes_at_run_time_and_the_field_is_read_only(world_rig):
+    world, robots, rosout, spin = world_rig
+    assert live_and_read_only(world, world.live.names) == []
+    client = world_rig_client(world, spin)
+    try:
+        result, = set_parameters(spin, client, '/world', crash_tolerance=1.0)
+        assert result.successful
+        result, = set_parameters(spin, client, '/world', radius=3.0)
+        assert not result.successful and 'read-only' in result.reason
+        assert world.world.config.radius == 1.8
+        ids, xy = robots.obstacles.arrays()
+        cx, cy = xy[-1]
+        n0 = len([e for e in robots.events if e[0] == 'crash'])
+        # 0.5 m inside the rim: a graze under a 1 m tolerance; 1.3 m inside: a crash
+        robots.send_pose('robot_1', -19.0, -10.0, 0.0, t=50.0)
+        robots.send_pose('robot_1', cx - 1.3, cy, 0.0, t=50.1)
+        robots.send_pose('robot_1', cx - 0.5, cy, 0.0, t=50.2)
+        robots.send_pose('robot_1', -19.0, -10.0, 0.0, t=50.3)
+        spin.until(lambda: len([e for e in robots.events if e[0] == 'crash']) > n0, 5.0, 'a crash')
+        crash = [e for e in robots.events if e[0] == 'crash'][-1][1]
+        assert float(crash['x']) == pytest.approx(cx - 0.5)   # the deep pose, not the graze
+        spin.until(lambda: world.acks.latest['robot_1'] >= int(50.3e9), 5.0, 'every pose counted')
+        assert len([e for e in robots.events if e[0] == 'crash']) == n0 + 1
+    finally:
+        set_parameters(spin, client, '/world', crash_tolerance=0.05)
+        spin.remove(client)
+        client.destroy_node()
+
+
+def world_rig_client(world, spin):
+    node = Node('world_param_client', context=world.context)
+    spin.add(node)
+    return node
+
+
+def test_supervisor_mu_and_w_max_change_at_run_time(ros_context):
+    """Between games the study sets the supervisor's mu and w_max: the next approach is
+    judged at the new level on the new V_S; the grid is read-only."""
+    sup = SupervisorNode(context=ros_context, parameter_overrides=params(
+        robots=['robot_0'], w_max=0.5, mu=0.8, sigma=0.0, horizon=2.0, seed=1,
+        grid_nxy=41, grid_ntheta=24))
+    driver = Node('supervisor_param_driver', context=ros_context)
+    markers = driver.create_publisher(MarkerArray, '/obstacle_markers', rosmsg.QOS_LATCHED)
+    pose = driver.create_publisher(PoseStamped, '/robot_0/pose', rosmsg.QOS_STREAM)
+    decisions = []
+    sub = driver.create_subscription(DiagnosticStatus, '/supervisor/decisions',
+                                     lambda m: decisions.append(rosmsg.diagnostic_values(m)),
+                                     rosmsg.QOS_EVENTS)
+    spin = Spinner(ros_context, sup, driver)
+    try:
+        assert live_and_read_only(sup, sup.live.names) == []
+        spin.until(lambda: matched(markers, pose, sub), 10.0, 'matching')
+        old_vf = sup.watcher.vf
+        for name, value in (('mu', 1.5), ('w_max', 1.0)):
+            result, = set_parameters(spin, driver, '/supervisor', **{name: value})
+            assert result.successful, result.reason
+        result, = set_parameters(spin, driver, '/supervisor', grid_nxy=65)
+        assert not result.successful and 'read-only' in result.reason
+        assert sup.watcher.vf is not old_vf and sup.watcher.mu == 1.5
+        markers.publish(obstacles_to_markers([7], np.array([[5.0, 1.0]]), 1.8))
+        spin.until(lambda: 7 in sup.obstacles.centres, 5.0, 'the obstacle')
+        for k, x in enumerate(np.arange(-6.0, 3.2, 0.15)):
+            msg = rosmsg.state_to_pose((x, 1.0, 0.0))
+            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(k * 5e7), 10**9)
+            pose.publish(msg)
+        spin.until(lambda: decisions, 10.0, 'an intervention')
+        d = decisions[0]
+        assert float(d['threshold']) == pytest.approx(1.5) and float(d['mu']) == 1.5
+        assert float(d['w_max']) == 1.0 and float(d['value']) == pytest.approx(1.5, abs=0.02)
+    finally:
+        spin.shutdown()
+        sup.destroy_node()
         driver.destroy_node()

@@ -251,3 +251,13 @@ def test_world_goals_do_not_depend_on_which_robot_finishes_first():
             w.update_pose(name, [16.5, 0.0, 0.0])       # both complete a trip
         goals.append({n: tuple(w.robots[n].goal) for n in 'ab'})
     assert goals[0] == goals[1]
+
+
+def test_world_intervention_with_no_robot_near_is_a_false_positive():
+    cfg = WorldConfig(n_obstacles=0, near_distance=6.0)
+    w = World(cfg, ['a'], seed=0)
+    w.obstacles[0] = np.array([0.0, 0.0])
+    w.next_id = 1
+    w.update_pose('a', [-10.0, 0.0, 0.0])                   # 10 m away: not near
+    rec, _ = w.intervene(0, time=1.0)
+    assert rec.near_robots == () and rec.false_positive     # nobody needed saving

@@ -1,14 +1,16 @@
 """Shared main() plumbing for the node executables.
 
 ``run_node(NodeClass, args)`` keeps DDS on loopback (before rclpy.init), builds
-the node, spins it, and shuts down cleanly on Ctrl-C or SIGTERM (rclpy's own
-signal handlers stop the context; spin then raises ExternalShutdownException).
-It returns a process exit code: 0 on a clean stop, 1 if the node failed to start.
+the node, spins it, and stops quietly on Ctrl-C or SIGTERM (``StopSignals``: the
+spin ends before the context is shut down). It returns a process exit code: 0 on
+a clean stop, 1 if the node failed to start.
 """
 from __future__ import annotations
 
 import os
+import signal
 import sys
+import threading
 import traceback
 
 from ..rosenv import ensure_local_ros_env
@@ -32,31 +34,93 @@ def make_executor(kind: str | None = None):
     return SingleThreadedExecutor()
 
 
+class StopSignals:
+    """SIGINT and SIGTERM turned into an orderly stop instead of an interruption.
+
+    rclpy's own handlers shut the context down the moment the signal lands, while a
+    callback or a node's thread may still be publishing: that is what printed
+    ``RCLError: ... context is invalid`` tracebacks on Ctrl-C. Here Python's handler
+    only raises KeyboardInterrupt while the node is still being built (a slow
+    constructor stops where it is); once the node spins, the signal (whichever thread
+    the OS gave it to) wakes a thread through ``signal.set_wakeup_fd``, which calls
+    ``on_stop`` (a guard condition that ends the spin loop), so the node is closed and
+    destroyed while the context is still valid. Handlers are installed even where the
+    signal was ignored (background jobs of a shell ignore SIGINT).
+    """
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+    def __init__(self):
+        self.requested = threading.Event()
+        self.state = 'constructing'          # -> 'spinning' -> 'stopping'
+        self.on_stop = None
+        self._lock = threading.Lock()
+        read_fd, write_fd = os.pipe()
+        os.set_blocking(write_fd, False)
+        signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
+        for s in self.SIGNALS:
+            signal.signal(s, self._handler)
+        threading.Thread(target=self._wait, args=(read_fd,), name='stop_signals',
+                         daemon=True).start()
+
+    def _handler(self, signum, frame):      # main thread, between bytecodes
+        self.requested.set()
+        if self.state == 'constructing':
+            raise KeyboardInterrupt
+
+    def _wait(self, read_fd):
+        while os.read(read_fd, 64):
+            self.requested.set()
+            with self._lock:
+                on_stop = self.on_stop if self.state == 'spinning' else None
+            if on_stop is not None:
+                on_stop()
+
+    def spinning(self, on_stop) -> bool:
+        """Hand over to the spin loop; False if a stop was asked for already."""
+        with self._lock:
+            self.on_stop = on_stop
+            self.state = 'spinning'
+        return not self.requested.is_set()
+
+    def stopping(self):
+        with self._lock:
+            self.state = 'stopping'
+
+
 def run_node(node_class, args=None, executor_class=None) -> int:
-    """Run one node until shutdown; ``args`` are the process argv (incl. --ros-args)."""
+    """Run one node until SIGINT/SIGTERM; ``args`` are the process argv (incl. --ros-args).
+
+    The stop is orderly and quiet: the spin loop ends, then the node's ``close()`` (its own
+    threads and timers), ``destroy_node()`` and the context's shutdown, in that order, so
+    nothing publishes or logs into a context that is gone. Exit code 0 on a stop asked for,
+    1 if the node failed to start or crashed (with the traceback on stderr).
+    """
     ensure_local_ros_env()
     import rclpy
-    from rclpy.executors import ExternalShutdownException
+    from rclpy.signals import SignalHandlerOptions
 
     argv = sys.argv if args is None else args
-    rclpy.init(args=argv)
+    signals = StopSignals() if threading.current_thread() is threading.main_thread() else None
+    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     node = None
     code = 0
+    stopping = threading.Event()
     try:
         node = node_class()
         executor = executor_class() if executor_class else make_executor()
         executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
+        wake = node.create_guard_condition(stopping.set)
+        if signals is None or signals.spinning(wake.trigger):
+            while not stopping.is_set() and rclpy.ok():
+                executor.spin_once()
+        if signals is not None:
+            signals.stopping()
+    except KeyboardInterrupt:
         pass
-    except Exception as exc:
-        if not rclpy.ok():
-            # rclpy can fail inside spin while a signal shuts the context down (e.g. a
-            # message being taken); the stop was asked for, so this is a clean exit
-            print(f'{type(exc).__name__} during shutdown: {exc}', file=sys.stderr)
-        else:  # a node that cannot start or crashes: say why, exit non-zero
-            traceback.print_exc()
-            code = 1
+    except Exception:  # a node that cannot start or crashes: say why, exit non-zero
+        traceback.print_exc()
+        code = 1
     finally:
         if node is not None:
             try:
@@ -66,8 +130,8 @@ def run_node(node_class, args=None, executor_class=None) -> int:
                 node.destroy_node()
             except Exception:
                 traceback.print_exc()
-        if rclpy.ok():
-            rclpy.try_shutdown()
+                code = code or 1
+        rclpy.try_shutdown()
     return code
 
 
@@ -144,16 +208,22 @@ class LiveParameters:
     enforces the descriptor's type, range and ``read_only`` before this runs. A set of
     several parameters is all-or-nothing: every check runs before any apply. Declare every
     parameter that is not registered here ``read_only=True``, so that a set never answers
-    "successful" without effect.
+    "successful" without effect. ``after(names)``, if given, runs once per accepted set,
+    after every apply (e.g. to rebuild something that depends on several parameters).
     """
 
-    def __init__(self, node):
+    def __init__(self, node, after=None):
         self._node = node
         self._entries = {}
+        self._after = after
         node.add_on_set_parameters_callback(self._on_set)
 
     def add(self, name, apply, check=None) -> None:
         self._entries[name] = (apply, check)
+
+    @property
+    def names(self) -> set:
+        return set(self._entries)
 
     def _on_set(self, params):
         from rcl_interfaces.msg import SetParametersResult
@@ -166,5 +236,8 @@ class LiveParameters:
                 return SetParametersResult(successful=False, reason=f'{p.name}: {reason}')
         for p in ours:
             self._entries[p.name][0](p.value)
+        if ours and self._after is not None:
+            self._after({p.name for p in ours})
+        for p in ours:
             self._node.get_logger().info(f'parameter {p.name} := {p.value!r} in force')
         return SetParametersResult(successful=True)

@@ -31,14 +31,16 @@ from visualization_msgs.msg import MarkerArray
 
 from ..ros_io import rosmsg
 from ..sim.dubins_sim import LossySensor, RobotSim, TIMEOUT_BEHAVIORS
-from .common import declare, run_node
+from .common import LiveParameters, declare, run_node
 from .markers import ObstacleMarkers
 
 
 class DubinsRobotNode(Node):
     def __init__(self, node_name='dubins_robot', **kwargs):
         super().__init__(node_name, **kwargs)
-        p = lambda *a, **k: declare(self, *a, **k)  # noqa: E731
+        # the car and its sensor are fixed for the node's life (read-only); only how often
+        # unchanged detections are repeated takes effect at run time
+        p = lambda *a, **k: declare(self, *a, read_only=True, **k)  # noqa: E731
         x0 = p('initial_x', -17.0, 'initial x in map [m]', -1e4, 1e4)
         y0 = p('initial_y', 0.0, 'initial y in map [m]', -1e4, 1e4)
         th0 = p('initial_theta', 0.0, 'initial heading [rad], 0 = +x', -math.pi, math.pi)
@@ -55,10 +57,12 @@ class DubinsRobotNode(Node):
                      f'fail-safe after command_timeout: one of {TIMEOUT_BEHAVIORS} '
                      '(loiter = turn at +w_max on a circle of radius speed/w_max)')
         seed = p('seed', -1, 'random seed of the sensor misses (-1: from the OS)', -1, 2**31 - 1)
-        self.detections_period = p(
-            'detections_period', 0.25,
+        self.detections_period = declare(
+            self, 'detections_period', 0.25,
             'detections are published when the seen set changes and at least this often [s]; '
-            '0 = every step', 0.0, 100.0)
+            '0 = every step; live', 0.0, 100.0)
+        self.live = LiveParameters(self)
+        self.live.add('detections_period', lambda v: setattr(self, 'detections_period', v))
         self.lockstep = p('lockstep', True, 'acknowledge each step on step_done (for sim_clock_node)')
         self.frame = p('frame_id', rosmsg.MAP_FRAME, 'frame of pose and detections')
 

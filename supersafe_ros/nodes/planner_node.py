@@ -15,17 +15,22 @@ from geometry_msgs.msg import PoseStamped, Twist
 
 from ..ros_io import rosmsg
 from ..sim.planner import goal_seeking_turn_rate
-from .common import declare, run_node
+from .common import LiveParameters, declare, run_node
 
 
 class PlannerNode(Node):
     def __init__(self, node_name='planner', **kwargs):
         super().__init__(node_name, **kwargs)
-        self.gain = declare(self, 'gain', 2.0, 'turn rate per radian of heading error [1/s]', 0.0, 100.0)
-        self.w_max = declare(self, 'w_max', 1.0, 'largest turn rate the planner asks for [rad/s]',
+        self.gain = declare(self, 'gain', 2.0, 'turn rate per radian of heading error [1/s]; live',
+                            0.0, 100.0)
+        self.w_max = declare(self, 'w_max', 1.0, 'largest turn rate the planner asks for [rad/s]; live',
                              0.0, 20.0)
-        self.speed = declare(self, 'speed', 3.0, 'linear.x written into cmd_vel_nav (informative)',
+        self.speed = declare(self, 'speed', 3.0, 'linear.x written into cmd_vel_nav (informative); live',
                              0.0, 100.0)
+        # every parameter takes effect at the next pose
+        self.live = LiveParameters(self)
+        for name in ('gain', 'w_max', 'speed'):
+            self.live.add(name, lambda v, name=name: setattr(self, name, v))
         self.goal = None
         self.pub = self.create_publisher(Twist, 'cmd_vel_nav', rosmsg.QOS_STREAM)
         self.create_subscription(PoseStamped, 'pose', self.on_pose, rosmsg.QOS_STREAM)
@@ -38,7 +43,7 @@ class PlannerNode(Node):
             self.get_logger().error(f'goal rejected: {exc}')
             return
         self.goal = (x, y)
-        self.get_logger().info(f'new goal ({x:.2f}, {y:.2f})')
+        self.get_logger().debug(f'new goal ({x:.2f}, {y:.2f})')   # the world logs trips
 
     def on_pose(self, msg: PoseStamped):
         if self.goal is None:

@@ -37,7 +37,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from rosgraph_msgs.msg import Clock
 
 from ..ros_io import rosmsg
-from .common import declare, run_node
+from .common import LiveParameters, declare, run_node
 
 
 def seconds_to_clock(t: float) -> Clock:
@@ -63,37 +63,53 @@ class SimClockNode(Node):
         if self.get_parameter('use_sim_time').value:
             self.get_logger().warn('use_sim_time is true for the clock source; forcing it off')
             self.set_parameters([Parameter('use_sim_time', Parameter.Type.BOOL, False)])
+        ro = lambda *a, **k: declare(self, *a, read_only=True, **k)  # noqa: E731
         p = lambda *a, **k: declare(self, *a, **k)  # noqa: E731
-        self.step_ns = int(round(p('step', 0.05, 'sim seconds per /clock step', 1e-4, 10.0) * 1e9))
-        self.rate_factor = p('rate_factor', 10.0,
-                             'sim seconds per wall second (0: as fast as the graph allows)', 0.0, 1e4)
-        self.lockstep = p('lockstep', True, 'wait for every robot to acknowledge each step')
-        self.robots = list(p('robots', ['robot_0'], 'robot namespaces to wait for in lockstep'))
-        self.observers = [t for t in p(
+        # fixed for the node's life: the robots' rate and the graph's shape depend on them
+        self.step_ns = int(round(ro('step', 0.05, 'sim seconds per /clock step (read-only: the '
+                                    "robots' rate is 1/step)", 1e-4, 10.0) * 1e9))
+        self.lockstep = ro('lockstep', True, 'wait for every robot to acknowledge each step')
+        self.robots = list(ro('robots', ['robot_0'], 'robot namespaces to wait for in lockstep'))
+        self.observers = [t for t in ro(
             'observers', [''],
             'acknowledgement topics of nodes that judge the robots\' poses (world, supervisor); '
             'the clock keeps them at most observer_lag steps behind') if t]
-        self.observer_lag = p('observer_lag', 2, 'steps an observer may lag behind the robots', 0, 1000)
-        self.ack_timeout = p('ack_timeout', 0.5, 'wall seconds to wait for a robot per step', 0.001, 60.0)
-        self.start_timeout = p('start_timeout', 60.0,
-                               'wall seconds to wait for every robot to appear before starting',
-                               0.0, 3600.0)
-        self.start_ns = int(round(p('start_time', 0.0, 'sim time of the first step [s]', 0.0, 1e9) * 1e9))
-        self.status_period = p('status_period', 1.0, 'sim seconds between status messages', 0.01, 1e4)
-        self.duration = p('duration', 0.0, 'stop advancing after this many sim seconds (0: never)',
-                          0.0, 1e9)
-        self.wait_publishers = parse_topic_counts(p(
+        self.start_timeout = ro('start_timeout', 60.0,
+                                'wall seconds to wait for every robot to appear before starting',
+                                0.0, 3600.0)
+        self.start_ns = int(round(ro('start_time', 0.0, 'sim time of the first step [s]', 0.0, 1e9) * 1e9))
+        self.wait_publishers = parse_topic_counts(ro(
             'wait_for_publishers', [''],
             "before the first step, wait until each 'topic=count' has that many publishers "
             "(e.g. '/interventions=1': the supervisor is up)"))
-        self.wait_subscriptions = parse_topic_counts(p(
+        self.wait_subscriptions = parse_topic_counts(ro(
             'wait_for_subscriptions', [''],
             "before the first step, wait until each 'topic=count' has that many subscriptions"))
-
+        # live: `ros2 param set /sim_clock rate_factor 2.0` takes effect at the next step
+        self.rate_factor = p('rate_factor', 10.0,
+                             'sim seconds per wall second (0: as fast as the graph allows); live',
+                             0.0, 1e4)
+        self.observer_lag = p('observer_lag', 2, 'steps an observer may lag behind the robots; live',
+                              0, 1000)
+        self.ack_timeout = p('ack_timeout', 0.5, 'wall seconds to wait for a robot per step; live',
+                             0.001, 60.0)
+        self.status_period = p('status_period', 1.0, 'sim seconds between status messages; live',
+                               0.01, 1e4)
+        self.duration = p('duration', 0.0, 'stop advancing after this many sim seconds from the '
+                          'start (0: never); live', 0.0, 1e9)
         self.coarse_ns = int(round(p(
             'coarse_period', 0.5,
             'sim seconds between /clock_coarse messages (0: none); nodes that only need coarse '
-            'time remap /clock to it and skip a callback per step', 0.0, 1e4) * 1e9))
+            'time remap /clock to it and skip a callback per step; live', 0.0, 1e4) * 1e9))
+        self.changed = threading.Event()      # wakes a pacing sleep when the rate changes
+        self.pace = None                      # (wall, sim ns) the pacing and achieved rate count from
+        self.live = live = LiveParameters(self)
+        live.add('rate_factor', self.set_rate_factor)
+        live.add('observer_lag', lambda v: self._set_and_wake('observer_lag', v))
+        live.add('ack_timeout', lambda v: self._set_and_wake('ack_timeout', v))
+        live.add('status_period', lambda v: setattr(self, 'status_period', v))
+        live.add('duration', lambda v: self._set_and_wake('duration', v))
+        live.add('coarse_period', lambda v: setattr(self, 'coarse_ns', int(round(v * 1e9))))
         self.clock_pub = self.create_publisher(Clock, '/clock', rosmsg.QOS_CLOCK)
         self.coarse_pub = self.create_publisher(Clock, '/clock_coarse', rosmsg.QOS_CLOCK)
         self.next_coarse = self.start_ns
@@ -119,6 +135,19 @@ class SimClockNode(Node):
             f'/clock: steps of {self.step_ns * 1e-9:g} s at {self.rate_factor:g}x, '
             f'lockstep {"on, robots " + str(self.robots) if self.lockstep else "off"}')
 
+    def set_rate_factor(self, value):
+        with self.cond:
+            self.rate_factor = value
+            if self.pace is not None:            # pace (and measure) from here on
+                self.pace = (time.monotonic(), self.now_ns)
+        self.changed.set()
+
+    def _set_and_wake(self, name, value):
+        with self.cond:
+            setattr(self, name, value)
+            self.cond.notify_all()
+        self.changed.set()
+
     def on_ack(self, robot, msg: Clock):
         t = msg.clock.sec * 1_000_000_000 + msg.clock.nanosec
         with self.cond:
@@ -130,6 +159,7 @@ class SimClockNode(Node):
         """Before the first step: wait for the robots (matched step_done publishers and
         /clock subscriptions) and for every topic count in wait_for_publishers/_subscriptions."""
         deadline = time.monotonic() + self.start_timeout
+        reported = None
         while not self.stop.is_set():
             missing = [r for r, s in zip(self.robots + self.observers, self.ack_subs)
                        if s.get_publisher_count() == 0]
@@ -143,6 +173,11 @@ class SimClockNode(Node):
                         for t, n in self.wait_subscriptions if self.count_subscribers(t) < n]
             if not missing:
                 return
+            if reported is None:
+                self.get_logger().info(f'waiting for the graph: {missing}')
+            elif missing != reported:      # detail: what is still missing, as it changes
+                self.get_logger().debug(f'waiting for the graph: {missing}')
+            reported = missing
             if time.monotonic() > deadline:
                 self.get_logger().error(f'still missing after {self.start_timeout} s: {missing}; '
                                         'starting anyway')
@@ -156,7 +191,8 @@ class SimClockNode(Node):
             self.coarse_pub.publish(msg)
             self.next_coarse = self.now_ns + self.coarse_ns
 
-    def publish_status(self, wall0, sim0):
+    def publish_status(self):
+        wall0, sim0 = self.pace
         wall = time.monotonic() - wall0
         sim = (self.now_ns - sim0) * 1e-9
         factor = sim / wall if wall > 0 else 0.0
@@ -166,12 +202,22 @@ class SimClockNode(Node):
             'late_steps': self.late_steps}))
 
     def loop(self):
+        try:
+            self.run_steps()
+        except Exception:
+            # a context shut down under the thread (an embedding process that did not
+            # call close() first) ends it quietly; anything else is a real failure
+            if self.stop.is_set() or not self.context.ok():
+                return
+            raise
+
+    def run_steps(self):
         self.wait_for_graph()
         self.get_logger().info('graph ready; starting sim time')
-        wall0 = time.monotonic()
-        sim0 = self.now_ns
-        next_status = sim0 + int(self.status_period * 1e9)
-        stop_ns = sim0 + int(self.duration * 1e9) if self.duration > 0 else None
+        with self.cond:
+            self.pace = (time.monotonic(), self.now_ns)
+        first_ns = self.now_ns
+        next_status = first_ns + int(self.status_period * 1e9)
         # the first message only sets the time (robots' timers count from it): no wait
         self.publish_clock()
         self.now_ns += self.step_ns
@@ -179,37 +225,49 @@ class SimClockNode(Node):
             self.publish_clock()
             self.steps += 1
             if self.lockstep:
-                deadline = time.monotonic() + self.ack_timeout
-                with self.cond:
-                    while not self.stop.is_set():
-                        waiting = [r for r in self.robots if self.acked[r] < self.now_ns]
-                        lagging = self.now_ns - self.observer_lag * self.step_ns
-                        waiting += [o for o in self.observers if self.acked[o] < lagging]
-                        left = deadline - time.monotonic()
-                        if not waiting or left <= 0:
-                            break
-                        self.cond.wait(left)
-                if waiting and not self.stop.is_set():
-                    self.late_steps += 1
-                    self.get_logger().warn(
-                        f'step {self.now_ns * 1e-9:.3f}: no acknowledgement from {waiting} within '
-                        f'{self.ack_timeout} s; advancing without them', throttle_duration_sec=5.0)
+                self.wait_for_acks()
             if self.now_ns >= next_status:
-                self.publish_status(wall0, sim0)
-                next_status += int(self.status_period * 1e9)
-            if stop_ns is not None and self.now_ns >= stop_ns:
-                self.publish_status(wall0, sim0)
+                self.publish_status()
+                next_status = self.now_ns + int(self.status_period * 1e9)
+            if self.duration > 0 and self.now_ns >= first_ns + int(round(self.duration * 1e9)):
+                self.publish_status()
                 self.get_logger().info(f'duration reached at sim time {self.now_ns * 1e-9:.3f}')
                 return
             self.now_ns += self.step_ns
-            if self.rate_factor > 0:
-                target = wall0 + (self.now_ns - sim0) * 1e-9 / self.rate_factor
-                delay = target - time.monotonic()
-                if delay > 0:
-                    self.stop.wait(delay)
+            self.pace_step()
+
+    def wait_for_acks(self):
+        started = time.monotonic()
+        with self.cond:
+            while not self.stop.is_set():
+                waiting = [r for r in self.robots if self.acked[r] < self.now_ns]
+                lagging = self.now_ns - self.observer_lag * self.step_ns
+                waiting += [o for o in self.observers if self.acked[o] < lagging]
+                left = started + self.ack_timeout - time.monotonic()
+                if not waiting or left <= 0:
+                    break
+                self.cond.wait(left)
+        if waiting and not self.stop.is_set():
+            self.late_steps += 1
+            self.get_logger().warn(
+                f'step {self.now_ns * 1e-9:.3f}: no acknowledgement from {waiting} within '
+                f'{self.ack_timeout} s; advancing without them', throttle_duration_sec=5.0)
+
+    def pace_step(self):
+        """Sleep until the wall time of the next step at the rate factor in force."""
+        while not self.stop.is_set():
+            self.changed.clear()
+            with self.cond:
+                factor, (wall0, sim0) = self.rate_factor, self.pace
+            if factor <= 0:
+                return
+            delay = wall0 + (self.now_ns - sim0) * 1e-9 / factor - time.monotonic()
+            if delay <= 0 or not self.changed.wait(delay):
+                return
 
     def close(self):
         self.stop.set()
+        self.changed.set()
         with self.cond:
             self.cond.notify_all()
         self.thread.join(timeout=2.0)

@@ -33,7 +33,7 @@ from visualization_msgs.msg import MarkerArray
 from ..ros_io import rosmsg
 from ..reach.grid import Grid
 from ..sim.watcher import Watcher
-from .common import StepAcknowledger, declare, run_node
+from .common import LiveParameters, StepAcknowledger, declare, run_node
 from .markers import ObstacleMarkers
 
 
@@ -54,27 +54,36 @@ def supervisor_value_function(grid: Grid, speed: float, w_max: float, radius: fl
 class SupervisorNode(Node):
     def __init__(self, node_name='supervisor', **kwargs):
         super().__init__(node_name, **kwargs)
+        # its beliefs and noise take effect at run time (between games of a study: the
+        # encounters start afresh); the grid of V_S and the robots watched are fixed
         p = lambda *a, **k: declare(self, *a, **k)  # noqa: E731
-        w_max = p('w_max', 0.75, "the supervisor's belief of the robots' turn-rate bound [rad/s]",
-                  0.0, 20.0)
-        speed = p('speed', 3.0, "the supervisor's belief of the robots' speed [m/s]", 0.01, 100.0)
-        radius = p('radius', 1.8, "the supervisor's belief of the obstacle radius [m]", 0.01, 100.0)
-        horizon = p('horizon', 3.0, 'horizon of V_S [s]', 0.0, 100.0)
-        mu = p('mu', 0.5, 'intervention level mu of V_S', -100.0, 100.0)
-        sigma = p('sigma', 0.2, 'std of the per-approach noise w', 0.0, 100.0)
-        seed = p('seed', -1, 'random seed of the noise (-1: from the OS)', -1, 2**31 - 1)
-        pending = p('pending_timeout', 5.0,
-                    'sim seconds to wait for a removal before judging that obstacle again', 0.01, 1e4)
-        half = p('grid_half_width', 8.0, 'V_S grid spans +-this in x and y [m]', 1.0, 100.0)
-        nxy = p('grid_nxy', 65, 'V_S grid nodes per axis in x and y', 5, 1001)
-        nth = p('grid_ntheta', 42, 'V_S grid nodes in theta', 4, 720)
-        self.robots = [r.strip('/') for r in p('robots', ['robot_0'], 'robot namespaces to watch')]
+        ro = lambda *a, **k: declare(self, *a, read_only=True, **k)  # noqa: E731
+        self.params = {
+            'w_max': p('w_max', 0.75, "the supervisor's belief of the robots' turn-rate bound "
+                       '[rad/s]; live (V_S is rebuilt)', 0.0, 20.0),
+            'speed': p('speed', 3.0, "the supervisor's belief of the robots' speed [m/s]; live",
+                       0.01, 100.0),
+            'radius': p('radius', 1.8, "the supervisor's belief of the obstacle radius [m]; live",
+                        0.01, 100.0),
+            'horizon': p('horizon', 3.0, 'horizon of V_S [s]; live', 0.0, 100.0),
+            'mu': p('mu', 0.5, 'intervention level mu of V_S; live', -100.0, 100.0),
+            'sigma': p('sigma', 0.2, 'std of the per-approach noise w; live', 0.0, 100.0),
+            'seed': p('seed', -1, 'random seed of the noise (-1: from the OS); live', -1, 2**31 - 1),
+            'pending_timeout': p('pending_timeout', 5.0, 'sim seconds to wait for a removal before '
+                                 'judging that obstacle again; live', 0.01, 1e4),
+        }
+        half = ro('grid_half_width', 8.0, 'V_S grid spans +-this in x and y [m]', 1.0, 100.0)
+        nxy = ro('grid_nxy', 65, 'V_S grid nodes per axis in x and y', 5, 1001)
+        nth = ro('grid_ntheta', 42, 'V_S grid nodes in theta', 4, 720)
+        self.robots = [r.strip('/') for r in ro('robots', ['robot_0'], 'robot namespaces to watch')]
 
-        grid = Grid((-half, -half), (half, half), (nxy, nxy, nth))
-        vf = supervisor_value_function(grid, speed, w_max, radius, horizon)
-        self.watcher = Watcher(vf, mu=mu, sigma=sigma, pending_timeout=pending,
-                               seed=seed)
-        self.params = {'w_max': w_max, 'mu': mu, 'sigma': sigma, 'horizon': horizon, 'radius': radius}
+        self.grid = Grid((-half, -half), (half, half), (nxy, nxy, nth))
+        self.vf = None
+        self.watcher = None
+        self.rebuild(set(self.params))
+        self.live = LiveParameters(self, after=self.rebuild)
+        for name in self.params:
+            self.live.add(name, lambda v, name=name: self.params.__setitem__(name, v))
         self.obstacles = ObstacleMarkers()
         self.intervention_pub = self.create_publisher(PoseStamped, '/interventions', rosmsg.QOS_EVENTS)
         self.decision_pub = self.create_publisher(DiagnosticStatus, '/supervisor/decisions',
@@ -84,34 +93,47 @@ class SupervisorNode(Node):
         for r in self.robots:
             self.acks.watch(self.create_subscription(
                 PoseStamped, f'/{r}/pose', lambda m, r=r: self.on_pose(r, m), rosmsg.QOS_EVERY_SAMPLE))
-        self._vs_args = (grid, speed, radius, horizon)
-        self._vs = {w_max: vf}
-        self._pending_timeout = pending
         self.create_subscription(DiagnosticStatus, '/supervisor/reset', self.on_reset, rosmsg.QOS_EVENTS)
-        self.get_logger().info(f'supervisor: V_S with w_max={w_max}, radius={radius}, '
-                               f'horizon={horizon}; mu={mu}, sigma={sigma}; watching {self.robots}')
+        self.get_logger().info(f'supervisor: watching {self.robots}')
+
+    def rebuild(self, changed):
+        """Put the parameters in force: V_S again if a belief changed, and a fresh watcher
+        (new encounters, new draws) that keeps the removals already asked for."""
+        q = self.params
+        if self.vf is None or changed & {'w_max', 'speed', 'radius', 'horizon'}:
+            self.vf = supervisor_value_function(self.grid, q['speed'], q['w_max'], q['radius'],
+                                                q['horizon'])
+        pending = dict(self.watcher.pending) if self.watcher is not None else {}
+        self.watcher = Watcher(self.vf, mu=q['mu'], sigma=q['sigma'], pending_timeout=q['pending_timeout'],
+                               seed=None if q['seed'] < 0 else q['seed'])
+        self.watcher.pending = pending
+        self.get_logger().info(f"supervisor: V_S with w_max={q['w_max']}, speed={q['speed']}, "
+                               f"radius={q['radius']}, horizon={q['horizon']}; mu={q['mu']}, "
+                               f"sigma={q['sigma']}, seed={q['seed']}")
 
     def on_reset(self, msg: DiagnosticStatus):
+        """A new subject or game: these beliefs and noise, and no encounter or pending removal
+        carried over (unlike a parameter change, which keeps the removals asked for)."""
         values = rosmsg.diagnostic_values(msg)
         try:
-            mu = float(values.get('mu', self.params['mu']))
-            sigma = float(values.get('sigma', self.params['sigma']))
-            w_max = float(values.get('w_max', self.params['w_max']))
-            seed = int(values.get('seed', -1))
-            if not (0.0 <= w_max <= 20.0 and -1 <= seed <= 2**31 - 1):
-                raise ValueError(f'w_max {w_max} or seed {seed} out of range')
-            if w_max not in self._vs:
-                grid, speed, radius, horizon = self._vs_args
-                self._vs[w_max] = supervisor_value_function(grid, speed, w_max, radius, horizon)
-            watcher = Watcher(self._vs[w_max], mu=mu, sigma=sigma,
-                              pending_timeout=self._pending_timeout, seed=None if seed < 0 else seed)
+            new = {'mu': float(values.get('mu', self.params['mu'])),
+                   'sigma': float(values.get('sigma', self.params['sigma'])),
+                   'w_max': float(values.get('w_max', self.params['w_max'])),
+                   'seed': int(values.get('seed', -1))}
+            if not (0.0 <= new['w_max'] <= 20.0 and -1 <= new['seed'] <= 2**31 - 1
+                    and new['sigma'] >= 0.0 and abs(new['mu']) <= 100.0):
+                raise ValueError(f"w_max {new['w_max']}, sigma {new['sigma']}, mu {new['mu']} or "
+                                 f"seed {new['seed']} out of range")
         except ValueError as exc:
             self.get_logger().error(f'/supervisor/reset rejected: {exc}; judging on unchanged')
             return
-        self.watcher = watcher
+        changed = {k for k, v in new.items() if v != self.params[k]}
+        self.params.update(new)
+        self.watcher = None
+        self.rebuild(changed)
         self.watcher.obstacles_changed(self.obstacles.arrays()[0])
-        self.params.update(w_max=w_max, mu=mu, sigma=sigma)
-        self.get_logger().info(f'supervisor reset: w_max={w_max}, mu={mu}, sigma={sigma}, seed={seed}')
+        self.get_logger().info(f"supervisor reset: w_max={new['w_max']}, mu={new['mu']}, "
+                               f"sigma={new['sigma']}, seed={new['seed']}")
 
     def on_markers(self, msg: MarkerArray):
         try:
@@ -143,10 +165,11 @@ class SupervisorNode(Node):
         self.intervention_pub.publish(out)
         values = {'robot': robot, 'obstacle': decision.obstacle_id, 'time': f'{decision.time:.4f}',
                   'value': f'{decision.value:.4f}', 'threshold': f'{decision.threshold:.4f}'}
-        values.update(self.params)
+        values.update({k: self.params[k] for k in ('w_max', 'mu', 'sigma', 'horizon', 'radius')})
         self.decision_pub.publish(rosmsg.make_diagnostic('intervention', values))
-        self.get_logger().info(f'intervene: {robot} at V_S={decision.value:.3f} <= '
-                               f'{decision.threshold:.3f} near obstacle {decision.obstacle_id}')
+        # the world's INFO line tells the story of each intervention; this is the detail
+        self.get_logger().debug(f'intervene: {robot} at V_S={decision.value:.3f} <= '
+                                f'{decision.threshold:.3f} near obstacle {decision.obstacle_id}')
 
 
 def main(args=None):

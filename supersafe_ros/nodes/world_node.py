@@ -36,6 +36,8 @@ unknown obstacle (already removed, or not an obstacle frame) is rejected and log
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 from rclpy.clock import Clock as RosClock, ClockType
 from rclpy.node import Node
 from rclpy.time import Time
@@ -46,7 +48,7 @@ from visualization_msgs.msg import MarkerArray
 
 from ..ros_io import rosmsg
 from ..sim.world import World, WorldConfig
-from .common import StepAcknowledger, declare, run_node
+from .common import LiveParameters, StepAcknowledger, declare, run_node
 from .markers import obstacles_to_markers
 
 # deep queues: the world must see every pose (a crash can last a single step)
@@ -56,7 +58,10 @@ QOS_EVERY_POSE = rosmsg.QOS_EVERY_SAMPLE
 class WorldNode(Node):
     def __init__(self, node_name='world', **kwargs):
         super().__init__(node_name, **kwargs)
-        p = lambda *a, **k: declare(self, *a, **k)  # noqa: E731
+        # the field, the obstacles' layout, the robots and the score's weights are fixed
+        # for a run (read-only); the judging tolerances take effect at run time (live)
+        p = lambda *a, **k: declare(self, *a, read_only=True, **k)  # noqa: E731
+        live = lambda *a, **k: declare(self, *a, **k)  # noqa: E731
         d = WorldConfig()
         cfg = WorldConfig(
             half_width=p('half_width', d.half_width, 'field spans x in +-half_width [m]', 1.0, 1e4),
@@ -65,19 +70,19 @@ class WorldNode(Node):
                      0.1, 1e4),
             n_obstacles=p('n_obstacles', d.n_obstacles, 'number of obstacles', 0, 1000),
             radius=p('radius', d.radius, 'obstacle radius [m]', 0.01, 100.0),
-            crash_tolerance=p('crash_tolerance', d.crash_tolerance,
+            crash_tolerance=live('crash_tolerance', d.crash_tolerance,
                               'a robot this close to the rim, inside, only grazes: not a crash [m]',
                               0.0, 10.0),
             spacing=p('spacing', d.spacing, 'least gap between obstacle discs [m]', 0.0, 100.0),
             goal_margin=p('goal_margin', d.goal_margin,
                           'obstacle centres stay this far inside the goal lines [m]', 0.0, 1e3),
-            respawn_clearance=p('respawn_clearance', d.respawn_clearance,
+            respawn_clearance=live('respawn_clearance', d.respawn_clearance,
                                 'a new obstacle appears at least this far from every robot [m]',
                                 0.0, 1e3),
-            near_distance=p('near_distance', d.near_distance,
+            near_distance=live('near_distance', d.near_distance,
                             'robots within this distance of a removed obstacle decide whether the '
                             'intervention was a false positive [m]', 0.01, 1e3),
-            detection_tolerance=p('detection_tolerance', d.detection_tolerance,
+            detection_tolerance=live('detection_tolerance', d.detection_tolerance,
                                   'a detection this close to a centre names that obstacle [m]',
                                   0.001, 100.0),
             trip_reward=p('trip_reward', d.trip_reward, 'score per completed trip', 0.0, 1e6),
@@ -88,12 +93,13 @@ class WorldNode(Node):
         self.robots = [r.strip('/') for r in p('robots', ['robot_0'], 'robot namespaces in the team')]
         seed = p('seed', 0, 'random seed of obstacle placement and goals (-1: from the OS)',
                  -1, 2**31 - 1)
-        stats_period = p('stats_period', 1.0, 'sim seconds between /world/stats messages', 0.01, 1e4)
-        self.match_tolerance = p('robot_match_tolerance', 1.0,
+        stats_period = live('stats_period', 1.0, 'sim seconds between /world/stats messages; live',
+                            0.01, 1e4)
+        self.match_tolerance = live('robot_match_tolerance', 1.0,
                                  'an intervention pose names the robot within this distance [m]',
                                  0.001, 100.0)
-        self.respawn = p('respawn', True, 'an intervention spawns a replacement obstacle '
-                         '(false: it only removes, as in the Phase II scenes)')
+        self.respawn = live('respawn', True, 'an intervention spawns a replacement obstacle '
+                            '(false: it only removes, as in the Phase II scenes); live')
         self.world = World(cfg, self.robots, seed=None if seed < 0 else seed)
 
         self.obstacles_pub = self.create_publisher(PoseArray, '/obstacles', rosmsg.QOS_LATCHED)
@@ -119,6 +125,12 @@ class WorldNode(Node):
                       'wall seconds between /world/stats messages sent because counts changed '
                       'between sim-time reports (e.g. after the clock stopped)', 0.01, 3600.0)
         self.stats_period_ns = int(round(stats_period * 1e9))
+        self.live = LiveParameters(self)
+        for name in ('crash_tolerance', 'respawn_clearance', 'near_distance', 'detection_tolerance'):
+            self.live.add(name, lambda v, name=name: self.set_config(name, v))
+        self.live.add('robot_match_tolerance', lambda v: setattr(self, 'match_tolerance', v))
+        self.live.add('respawn', lambda v: setattr(self, 'respawn', v))
+        self.live.add('stats_period', lambda v: setattr(self, 'stats_period_ns', int(round(v * 1e9))))
         self.stats_sent = None
         # sim-time statistics are driven by the poses themselves (below); this steady
         # timer only makes sure changed counts go out when no report is due
@@ -127,6 +139,9 @@ class WorldNode(Node):
         self.publish_stats()
         self.get_logger().info(f'world: {cfg.n_obstacles} obstacles r={cfg.radius}, '
                                f'robots {self.robots}')
+
+    def set_config(self, name, value):
+        self.world.config = replace(self.world.config, **{name: value})
 
     def now_s(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9

@@ -1,0 +1,88 @@
+"""Every node executable stops quietly: SIGINT (Ctrl-C) or SIGTERM -> exit 0, nothing on stderr.
+
+Log lines go to stdout here (RCUTILS_LOGGING_USE_STDOUT), so stderr holds only what
+is not a log line: tracebacks, rcl's "Failed to publish log message to rosout", and
+any print to stderr. Each node is a real process started from its installed config,
+as `supersafe team` starts it.
+"""
+import os
+import signal
+import subprocess
+import threading
+import time
+
+from supersafe_ros import team
+
+# small value-function grids: start-up is the point, not the numerics
+SMALL = {
+    'supervisor': {'grid_nxy': 17, 'grid_ntheta': 8},
+    'safety_filter': {'standard_shape': [17, 17, 8]},
+    'learner': {'library_shape': [17, 17, 8], 'library_omegas': [0.5, 1.0]},
+}
+NODES = [('sim_clock', None), ('world', None), ('dubins_robot', 'robot_0'), ('planner', 'robot_0'),
+         ('safety_filter', 'robot_0'), ('supervisor', None), ('learner', None)]
+
+
+class NodeProcess:
+    def __init__(self, kind, namespace, tmp_path):
+        params = dict(SMALL.get(kind, {}))
+        if kind == 'learner':
+            params['store_path'] = str(tmp_path / 'interventions.jsonl')
+        if kind == 'sim_clock':
+            params['start_timeout'] = 0.5       # starts stepping, with or without a graph
+        env = dict(os.environ, RCUTILS_LOGGING_USE_STDOUT='1', RCUTILS_COLORIZED_OUTPUT='0',
+                   PYTHONUNBUFFERED='1')
+        self.kind = kind
+        self.proc = subprocess.Popen(team.node_argv(kind, namespace, params), env=env,
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                     start_new_session=True)
+        self.stdout, self.stderr = [], []
+        self.readers = [threading.Thread(target=self._read, args=(s, out), daemon=True)
+                        for s, out in ((self.proc.stdout, self.stdout), (self.proc.stderr, self.stderr))]
+        for r in self.readers:
+            r.start()
+
+    @staticmethod
+    def _read(stream, out):
+        for line in stream:
+            out.append(line)
+
+    def logged(self) -> bool:
+        return any(f'[{self.kind}]' in line for line in self.stdout)
+
+    def finish(self, timeout):
+        try:
+            code = self.proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            os.killpg(self.proc.pid, signal.SIGKILL)
+            self.proc.wait()
+            code = 'hung'
+        for r in self.readers:
+            r.join(timeout=5)
+        return code
+
+
+def test_every_node_stops_quietly_on_a_signal(tmp_path):
+    procs = [NodeProcess(kind, ns, tmp_path) for kind, ns in NODES]
+    try:
+        deadline = time.monotonic() + 90
+        while time.monotonic() < deadline and not all(p.logged() or p.proc.poll() is not None
+                                                       for p in procs):
+            time.sleep(0.1)
+        for p in procs:
+            assert p.proc.poll() is None, f'{p.kind} exited early: {"".join(p.stderr)}'
+        # SIGINT (Ctrl-C, team) and SIGTERM (launch's escalation), each both right after
+        # the first log line (often still in the constructor) and a second later (spinning)
+        signals = [signal.SIGINT, signal.SIGTERM]
+        for i, p in enumerate(procs[::2]):
+            p.proc.send_signal(signals[i % 2])
+        time.sleep(1.0)
+        for i, p in enumerate(procs[1::2]):
+            p.proc.send_signal(signals[(i + 1) % 2])
+        results = {p.kind: (p.finish(30), ''.join(p.stderr)) for p in procs}
+    finally:
+        for p in procs:
+            if p.proc.poll() is None:
+                os.killpg(p.proc.pid, signal.SIGKILL)
+    bad = {k: v for k, v in results.items() if v != (0, '')}
+    assert not bad, bad
