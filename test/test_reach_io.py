@@ -145,3 +145,33 @@ def test_cli_reach_writes_the_documented_file(tmp_path):
     r = subprocess.run([sys.executable, '-m', 'supersafe_ros.cli', 'reach', '--speed', '3',
                         '--omega-max', '1', '--out', str(out)], capture_output=True, text=True)
     assert r.returncode == 2 and '--radius' in r.stderr
+
+
+def test_filter_law_acts_at_the_level_itself_and_leaves_passing_pairs_at_zero():
+    X, Y, TH = GRID.mesh()
+    vf = ValueFunction(GRID, X + 0.5 * np.sin(TH))
+    states = np.array([[0.5, 0.0, 0.4], [3.0, 0.0, 0.0]])
+    level = float(vf.value(states[:1])[0])
+    d = filter_law(vf, level, states, omega_max=2.0)        # V == alpha exactly: override
+    assert list(d.override) == [True, False]
+    assert d.control[0] == 2.0 and d.control[1] == 0.0      # the robot's w_max, and nothing when passing
+
+
+def test_a_ridge_in_theta_turns_left():
+    """dV/dtheta = 0 on the nodes at theta = 0 (V symmetric in theta): a tie, turned left."""
+    X, Y, TH = GRID.mesh()
+    vf = ValueFunction(GRID, X - 0.3 * np.cos(TH))
+    d = filter_law(vf, 10.0, np.array([[-1.0, 0.0, 0.0], [-1.0, 0.5, 0.0]]), omega_max=1.0)
+    assert list(d.control) == [1.0, 1.0]
+
+
+def test_most_constraining_takes_each_robots_smallest_value_from_any_pair():
+    X, Y, TH = GRID.mesh()
+    vf = ValueFunction(GRID, X + 0.5 * np.sin(TH))
+    # robot 0: pairs 0 (V ~ 0.1, overriding, turning right past pi/2) and 2 (far); robot 1: pair 1
+    states = np.array([[-0.2, 0.0, np.pi / 2 + 0.6], [1.5, 0.0, 0.0], [3.5, 0.0, 0.0]])
+    d = filter_law(vf, 0.5, states, omega_max=1.0)
+    override, control, value, pair = most_constraining([0, 1, 0], d, 2)
+    assert list(pair) == [0, 1]
+    assert list(override) == [True, False] and list(control) == [-1.0, 0.0]
+    assert value == pytest.approx(d.value[[0, 1]])
