@@ -135,6 +135,10 @@ def test_print_argv_places_shared_nodes_on_host_zero_and_deals_robots():
                 assert 'ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET' in line
                 assert 'ROS_DISCOVERY_SERVER=10.213.0.1:11811' in line
                 assert ('ROS_SUPER_CLIENT=TRUE' in line) == (name == 'sim_clock')
+            if name.endswith('/safety_filter'):
+                # a robot host's filter counts a still /clock as a lost link after 1 s
+                stall = [a for a in line.split() if a.startswith('clock_stall_timeout:=')]
+                assert stall == ['clock_stall_timeout:=1.0'], line
     for shared in ('world', 'learner', 'supervisor', 'sim_clock', 'discovery_server'):
         assert placed[shared] == 0
     for i in range(4):

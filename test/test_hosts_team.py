@@ -12,10 +12,14 @@
   1 and 2; after a kill -9 and a restart it reloads all of them.
 * Discovery server: the same game with the Fast DDS discovery server on host 0; the graph
   as host 0 sees it (a super client) matches the one-host graph within a measured bound.
-* Link fault: host 1's link down for 2 s in that game. Host 1 keeps running on its own
-  (its filter keeps deciding), host 0 hears nothing from robot_0 meanwhile, robot_0
-  moves again once the link is back, and the world counts no crash.
+* Link fault: host 1's link down for 2 s in that game. Host 1's sim time stands still
+  (the clock is on host 0); its filter sees its inputs go stale on the wall clock
+  (clock_stall_timeout 1 s on robot hosts) and reports fail_safe; host 0 hears nothing
+  from robot_0 meanwhile. Once the link is back the filter passes or overrides again,
+  robot_0 moves on, trips go on, robot_0 moves at most one step (0.3 m) across the
+  sim-time jump, and the world counts no crash.
 """
+from collections import Counter
 import json
 import os
 import re
@@ -142,6 +146,7 @@ def test_discovery_server_graph_and_link_fault(one_host, tmp_path):
         print(f'discovery server: graph complete {t.graph_complete_at(expected_graph):.1f} s '
               'after the start')
         t.wait_sim(10.0, RUN)
+        trips_at_cut = int(t.stats()['trips'])
 
         cut = time.monotonic()
         with t.net.link_down(1):
@@ -152,44 +157,67 @@ def test_discovery_server_graph_and_link_fault(one_host, tmp_path):
         def poses(probe, lo, hi):
             return [r for r in probe.of('/robot_0/pose') if lo <= r['t'] < hi]
 
+        def states(probe, lo, hi):
+            return [r for r in probe.of('/robot_0/safety_filter/state') if lo <= r['t'] < hi]
+
+        def fail_safe(records):
+            return [r for r in records if r['values']['action'] == 'fail_safe']
+
         t.wait(lambda: poses(host0, back, float('inf')), START, 'robot_0 heard on host 0 again')
         t.wait_sim(GAME, RUN)
         stats = counts(t.stats())
         crashes = [e for e in t.events() if e['event'] == 'crash']
 
-        def states(probe, lo, hi):
-            return [r for r in probe.of('/robot_0/safety_filter/state') if lo <= r['t'] < hi]
-
-        # the cable was out: in the second half of the cut host 1 heard its filter's states
-        # (a wall-clock watchdog publishes them), host 0 heard none of them (1 s margin for
-        # samples in flight and watchers slowed by a loaded machine)
+        # the cable was out: host 1 heard its filter's states (a wall-clock watchdog publishes
+        # them), host 0 heard none of them (1 s margin for samples in flight and watchers
+        # slowed by a loaded machine)
+        seen1 = states(host1, cut, back)
         assert states(host1, cut + 1.0, back), 'the filter on host 1 published no state while cut off'
         assert states(host0, cut + 1.0, back) == []
         assert states(host0, back, float('inf')), 'host 0 never heard the filter again'
         during0 = poses(host0, cut + 1.0, back)
         assert during0 == []
-        # host 1 went on without host 0: its filter kept deciding on its own inputs...
-        seen1 = states(host1, cut + 0.1, back)
-        # ...but its sim time comes from host 0's clock: robot_0 did not move meanwhile
+        # host 1's sim time comes from host 0's clock: it stood still, robot_0 did not move...
         before = poses(host1, 0.0, cut)[-1]
         during1 = poses(host1, cut + 0.1, back)
         assert all(abs(p['stamp'] - before['stamp']) <= STEP + 1e-6 for p in during1)
-        # robot_0 resumed: it moves on after the link returns
+        # ...and the filter saw its inputs go stale on the wall clock (clock_stall_timeout
+        # 1 s on robot hosts) and failed safe while the link was down
+        failed = fail_safe(seen1)
+        assert failed, f'the filter on host 1 never failed safe while cut off: {seen1[-3:]}'
+        # the robots resume: the filter passes or overrides again, robot_0 moves on, trips go on
+        assert [s for s in states(host1, back, float('inf')) if s['values']['action'] != 'fail_safe']
         after = poses(host0, back, float('inf'))
         assert after[-1]['stamp'] > before['stamp'] + 10.0
         moved = ((after[-1]['x'] - before['x']) ** 2 + (after[-1]['y'] - before['y']) ** 2) ** 0.5
         assert moved > 1.0
-        # the world on host 0 counted no phantom crash
+        assert stats['trips'] > trips_at_cut
+        # the sim-time jump on reconnect (the clock went on without robot_0): robot_0 moved
+        # at most one step (speed 3 m/s x STEP) across it, not the whole jump
+        track = sorted(poses(host1, 0.0, float('inf')), key=lambda p: p['stamp'])
+        gap, p0, p1 = max(((b['stamp'] - a['stamp'], a, b) for a, b in zip(track, track[1:])),
+                          key=lambda g: g[0])
+        jump = ((p1['x'] - p0['x']) ** 2 + (p1['y'] - p0['y']) ** 2) ** 0.5
+        assert gap > 2 * STEP, f'no sim-time jump seen on host 1 (largest gap {gap:.2f} s)'
+        assert jump <= 3.0 * STEP + 1e-3, (gap, jump)
+        # no collision (with a detected obstacle or any other), no phantom crash on host 0
         assert stats['crashes'] == 0 and crashes == []
-        first = after[0]
-        jump = ((first['x'] - before['x']) ** 2 + (first['y'] - before['y']) ** 2) ** 0.5
-        actions = sorted({s['values']['action'] + ': ' + s['values']['reason'].split(':')[0]
-                          for s in seen1})
-        resumed = sorted({s['values']['action'] + ': ' + s['values']['reason'].split('(')[0]
-                          for s in states(host1, back, back + 3.0)})
-        print(f'link fault: host 1 filter in the 3 s after the link returned: {resumed}')
-        print(f'link fault: host 0 heard {len(during0)} robot_0 poses while cut; host 1 heard '
-              f'{len(during1)} (stamps frozen at {before["stamp"]:.1f} s) and {len(seen1)} filter '
-              f'states {actions}, host 0 {len(states(host0, cut + 0.1, back))} states; first '
-              f'pose back on host 0 at sim {first["stamp"]:.1f} s, '
-              f'{jump:.2f} m from the last before the cut; game {stats}')
+
+        def tally(records):   # action: count, and the fail-safe reasons
+            out = Counter(r['values']['action'] for r in records)
+            why = sorted({r['values']['reason'].split('(')[0].strip() for r in fail_safe(records)})
+            return dict(out), why
+
+        actions, resumed = tally(seen1), tally(states(host1, back, back + 3.0))
+        robot_log = (tmp_path / 'log' / 'robot_0.dubins_robot.log').read_text(errors='replace')
+        pauses = [line.split(']: ', 1)[-1] for line in robot_log.splitlines()
+                  if 'sim time jumped' in line]
+        print(f'link fault, host 1: {len(seen1)} filter states while cut, the first fail_safe '
+              f'{failed[0]["t"] - cut:.2f} s after the cut, {len(failed)} fail_safe in all: '
+              f'{actions}; robot_0 poses {len(during1)} (stamps frozen at {before["stamp"]:.1f} s); '
+              f'after the link returned (3 s): {resumed}; sim-time jump {gap:.2f} s, robot_0 '
+              f'moved {jump:.2f} m across it; robot log: {pauses}')
+        print(f'link fault, host 0: {len(during0)} robot_0 poses and '
+              f'{len(states(host0, cut + 1.0, back))} filter states in the last 1 s of the cut; '
+              f'first pose back at sim {after[0]["stamp"]:.1f} s; trips {trips_at_cut} at the cut, '
+              f'game {stats}, crash events {len(crashes)}')

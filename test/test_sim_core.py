@@ -51,6 +51,37 @@ def test_robot_parked_until_first_command_then_loiters_on_timeout():
         assert np.hypot(*(r.state[:2] - start[:2])) <= 6.0 + 1e-9
 
 
+def test_robot_sim_time_jump_moves_at_most_one_step_then_pauses():
+    step, speed = 0.1, 3.0
+    r = RobotSim([0.0, 0.0, 0.0], speed=speed, omega_max=1.0, command_timeout=0.5, max_step=step)
+    r.advance(0.0)
+    t = 0.0
+    for _ in range(10):                        # normal steps: full motion
+        r.command(0.0, t)
+        t += step
+        r.advance(t)
+    assert r.state[0] == pytest.approx(10 * step * speed)
+    assert r.paused == 0.0
+    # sim time jumps 0.7 s (the clock went on without this robot): one step of motion
+    r.command(0.0, t)
+    before = r.state.copy()
+    t += 0.7
+    r.advance(t)
+    moved = np.hypot(*(r.state[:2] - before[:2]))
+    assert moved == pytest.approx(speed * step)          # not 0.7 * 3 = 2.1 m
+    assert r.last_pause == pytest.approx(0.6) and r.paused == pytest.approx(0.6)
+    # the pause does not age the command: still commanded, no loiter after the jump
+    assert r.mode(t) == 'commanded'
+    # a jump under a turn command: one step of the arc, as the filter judged it
+    r.command(1.0, t)
+    before = r.state.copy()
+    r.advance(t + 5.0)
+    assert r.state[2] - before[2] == pytest.approx(1.0 * step)
+    assert np.hypot(*(r.state[:2] - before[:2])) <= speed * step + 1e-12
+    with pytest.raises(ValueError):
+        RobotSim([0.0, 0.0, 0.0], max_step=0.0)
+
+
 def test_robot_rejects_bad_parameters():
     with pytest.raises(ValueError):
         RobotSim([0.0, float('nan'), 0.0])

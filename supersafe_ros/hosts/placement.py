@@ -13,6 +13,12 @@ reachable), SUPERSAFE_NETNS=<host> (so rosenv keeps SUBNET), and with a discover
 server ROS_DISCOVERY_SERVER=<host 0>:11811. The sim clock then also gets
 ROS_SUPER_CLIENT=TRUE: a plain discovery-server client learns only the endpoints of
 topics it uses, and the clock waits for publishers of topics it does not read.
+
+Filters on robot hosts get ``clock_stall_timeout`` = ``LINK_STALL_TIMEOUT`` (1 s)
+instead of the one-host team's 10 s: across hosts a /clock that stands still most
+likely means the link to host 0 is down, and the filter must then judge its inputs'
+ages on the wall clock soon (filter.timebase), so it fails safe within
+max(pose_timeout, 1 s) of the cut (docs/deployment.md, link faults).
 """
 from __future__ import annotations
 
@@ -53,6 +59,25 @@ def is_clock(argv: list[str]) -> bool:
     return any(a.endswith('.sim_clock_node') for a in argv)
 
 
+LINK_STALL_TIMEOUT = 1.0    # [steady s] a robot host's filter: /clock still this long = link lost
+_STALL_ARG = 'clock_stall_timeout:='
+
+
+def with_link_stall_timeout(argv: list[str], timeout: float = LINK_STALL_TIMEOUT) -> list[str]:
+    """A filter's argv with ``clock_stall_timeout`` set to ``timeout`` (others unchanged)."""
+    if not any(a.endswith('safety_filter_node') for a in argv):
+        return list(argv)
+    out = [a for a in argv]
+    value = f'{_STALL_ARG}{float(timeout)}'
+    for i, a in enumerate(out):
+        if a.startswith(_STALL_ARG) and i > 0 and out[i - 1] == '-p':
+            out[i] = value
+            return out
+    if '--ros-args' not in out:
+        out.append('--ros-args')
+    return out + ['-p', value]
+
+
 def host_ros_env(net: HostNetwork, host: int, discovery_server: bool,
                  super_client: bool = False) -> dict:
     """The ROS discovery settings of a process on ``host`` (values '' mean: unset)."""
@@ -80,6 +105,8 @@ def place(argvs: list[list[str]], net: HostNetwork, discovery_server: bool = Fal
     placed = []
     for argv in argvs:
         host = host_of(argv, net.n_hosts)
+        if host > 0:
+            argv = with_link_stall_timeout(argv)
         env = host_ros_env(net, host, discovery_server, super_client=is_clock(argv))
         placed.append((host, net.exec_prefix(host) + env_argv(env) + list(argv)))
     return placed

@@ -15,7 +15,10 @@ Topics (relative; run it in a namespace such as /robot_0):
 
 Steps run on a timer of the node's clock: with use_sim_time they follow /clock.
 Each step integrates the exact arc from the previous step time under the command
-in force. Lockstep: after publishing the pose of step t the robot acknowledges t
+in force, but never more than ``max_step`` (default: one period, 1/rate): when sim
+time jumps (the clock went on without this robot, e.g. its link was down) the rest
+of the jump is a pause (see sim.dubins_sim: no motion, logged), so no command moves
+the robot further than the one control period the filter judged it for. Lockstep: after publishing the pose of step t the robot acknowledges t
 on ``step_done`` once a command has arrived in reply (or at once when it has no
 live controller: parked or timed out), so the clock never outruns the control loop.
 """
@@ -56,6 +59,8 @@ class DubinsRobotNode(Node):
         behavior = p('timeout_behavior', 'loiter',
                      f'fail-safe after command_timeout: one of {TIMEOUT_BEHAVIORS} '
                      '(loiter = turn at +w_max on a circle of radius speed/w_max)')
+        max_step = p('max_step', 0.0, 'most sim time integrated in one step [s]; the rest of a '
+                     'sim-time jump is a pause (no motion); 0 = one period (1/rate)', 0.0, 100.0)
         seed = p('seed', -1, 'random seed of the sensor misses (-1: from the OS)', -1, 2**31 - 1)
         self.detections_period = declare(
             self, 'detections_period', 0.25,
@@ -67,7 +72,8 @@ class DubinsRobotNode(Node):
         self.frame = p('frame_id', rosmsg.MAP_FRAME, 'frame of pose and detections')
 
         self.robot = RobotSim([x0, y0, th0], speed=speed, omega_max=w_max,
-                              command_timeout=timeout, timeout_behavior=behavior)
+                              command_timeout=timeout, timeout_behavior=behavior,
+                              max_step=max_step if max_step > 0 else 1.0 / rate)
         self.sensor = LossySensor(sensor_range=rng_, miss_probability=miss, seed=seed)
         self.obstacles = ObstacleMarkers()
         self.pending_ack = None     # sim time (ns) of a step awaiting its command
@@ -133,6 +139,11 @@ class DubinsRobotNode(Node):
         stamp = self.get_clock().now()
         now = stamp.nanoseconds * 1e-9
         state = self.robot.advance(now)
+        if self.robot.last_pause > 0:
+            self.get_logger().warn(
+                f'sim time jumped {self.robot.last_pause + self.robot.max_step:.3f} s: moved for '
+                f'{self.robot.max_step:.3f} s, paused for {self.robot.last_pause:.3f} s '
+                f'({self.robot.paused:.3f} s paused in all)', throttle_duration_sec=1.0)
         self.steps += 1
         ids, xy = self.obstacles.arrays()
         seen_ids, seen = self.sensor.sense(state[:2], ids, xy)
