@@ -209,9 +209,11 @@ def team_processes(*args, config: Path | None = None, python: str = sys.executab
 
 
 def process_name(argv: list[str]) -> str:
-    """A short label for a process argv: 'robot_0/planner', 'world', ..."""
+    """A short label for a process argv: 'robot_0/planner', 'world', ... (a renamed node,
+    ``-r __node:=NAME``, by its name: two learners get two logs)"""
     module = next(a for a in argv if a.startswith(f'{PACKAGE}.nodes.'))
     kind = module.rsplit('.', 1)[1].removesuffix('_node')
+    kind = next((a.split(':=', 1)[1] for a in argv if a.startswith('__node:=')), kind)
     ns = next((a.split(':=', 1)[1].strip('/') for a in argv if a.startswith('__ns:=')), '')
     return f'{ns}/{kind}' if ns else kind
 

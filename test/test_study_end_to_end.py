@@ -44,7 +44,14 @@ def test_one_subject_study_through_the_graph(tmp_path):
     assert 'anova' in res and 'tukey' in res and 'shorter_arcs_than_conservative' in res['h2']
     subj = res['subjects'][0]
     assert subj['fits']['learned']['estimator'] == 'paper'
-    assert subj['fits']['learned_fp']['estimator'] == 'first-passage'
+    # learned_fp is the first-passage learner node's fit: it built one encounter per scene
+    # from robot_0/pose and /obstacle_markers, with the scenes' interventions
+    fp = subj['fits']['learned_fp']
+    assert fp['estimator'] == 'first-passage'
+    n_int = sum(s['intervened'] for s in subj['phase2']['scenes'])
+    assert (fp['encounters'], fp['interventions']) == (3, n_int)
+    assert fp['unmatched_interventions'] == 0
+    assert subj['phase2']['offline_first_passage']['encounters'] == 3      # the runner's cross-check
     # the Phase II protocol ran through the graph: one scene per offset, each from x = -8
     scenes = subj['phase2']['scenes']
     assert [s['y0'] for s in scenes] == [-1.0, 0.0, 1.0]

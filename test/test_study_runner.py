@@ -207,3 +207,53 @@ def test_stored_frames_of_the_learner_store(tmp_path):
     assert runner._stored_frames(store) == set()          # no file yet: nothing stored
     store.write_text('{"frame": "obstacle_3", "x": -5.0}\nnot json\n{"frame": "obstacle_7"}\n')
     assert runner._stored_frames(store) == {'obstacle_3', 'obstacle_7'}
+
+
+def test_phase2_graph_runs_a_first_passage_learner_on_its_own_topics_and_store(tmp_path):
+    from supersafe_ros.team import process_name
+    subject = Subject(0, 0.5, 1.0, 0.2, 100)
+    argvs = runner.phase2_argvs(subject, runner.StudyOptions(), tmp_path / 'i.jsonl', 0.0,
+                                tmp_path / 'fp' / 'i.jsonl')
+    learners = {process_name(a): a for a in argvs if 'supersafe_ros.nodes.learner_node' in a}
+    assert set(learners) == {'learner', 'learner_fp'}        # two processes, two logs
+
+    def ros_args(argv, flag):
+        return [argv[i + 1] for i, a in enumerate(argv) if a == flag]
+    paper, fp = (ros_args(learners[n], '-p') for n in ('learner', 'learner_fp'))
+    assert 'estimator:=paper' in paper and f'store_path:={tmp_path / "i.jsonl"}' in paper
+    assert 'estimator:=first-passage' in fp and 'robots:=[robot_0]' in fp
+    assert f'store_path:={tmp_path / "fp" / "i.jsonl"}' in fp
+    assert 'library_shape:=[65,65,42]' in fp                  # the config file's, re-keyed to the new name
+    remaps = ros_args(learners['learner_fp'], '-r')
+    assert '__node:=learner_fp' in remaps
+    assert f'/safe_set/value_function:={runner.FP_VF_TOPIC}' in remaps
+    assert f'/safe_set/fit:={runner.FP_FIT_TOPIC}' in remaps
+    assert not any(a.startswith('__node') or a.startswith('/safe_set') for a in ros_args(learners['learner'], '-r'))
+    # without an fp store (the console's Phase II) the graph has the paper learner only
+    argvs = runner.phase2_argvs(subject, runner.StudyOptions(), tmp_path / 'i.jsonl', 0.0)
+    assert [process_name(a) for a in argvs].count('learner_fp') == 0
+
+
+def test_learned_fp_is_the_first_passage_learner_message_with_its_newest_counts():
+    from supersafe_ros.ros_io.vfmsg import value_function_to_msg
+    std, _ = runner.reference_sets()
+    msg = value_function_to_msg(std, source='learned', estimator='first-passage', omega_max=1.0, mu=0.9,
+                                sigma=0.3, alpha=0.9, log_likelihood=-5.0, interventions=2, encounters=3,
+                                index=8)
+    # the newest refit chose the same set (not re-sent) on more data: its status has the counts
+    status = {'index': '8', 'published_index': '8', 'alpha': '0.900000', 'published_alpha': '0.900000',
+              'omega_max': '1.0', 'mu': '0.900000', 'sigma': '0.310000', 'log_likelihood': '-6.0',
+              'fitted_interventions': '3', 'fitted_encounters': '4', 'encounters': '4',
+              'unmatched_interventions': '0'}
+    fit = runner.first_passage_learner_fit(msg, status)
+    assert fit['estimator'] == 'first-passage'
+    assert (fit['interventions'], fit['encounters'], fit['sigma']) == (3, 4, 0.31)
+    # a newer fit that was refused: the set in force is the message's, with its own values
+    refused = dict(status, index='9', alpha='1.2', sigma='0.5')
+    fit = runner.first_passage_learner_fit(msg, refused)
+    assert (fit['interventions'], fit['encounters'], fit['sigma'], fit['mu']) == (2, 3, 0.3, 0.9)
+    assert runner.first_passage_learner_fit(None, status) is None
+    p2 = runner.Phase2Result([], np.zeros((0, 3)), 'paper-msg', {'estimator': 'paper'}, 0.0, 0.0,
+                             fp_msg=msg, fp_fit=fit)
+    sets = runner.learned_sets(p2, ('learned', 'learned_fp'))
+    assert sets['learned'] == ('paper-msg', {'estimator': 'paper'}) and sets['learned_fp'] == (msg, fit)

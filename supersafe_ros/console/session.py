@@ -183,10 +183,16 @@ def write_subject(directory, record: dict) -> Path:
     """<dir>/subject.json (+ learned_vf.npz): one subject, human or simulated."""
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
-    rec = {k: v for k, v in record.items() if k != 'learned_vf'}
+    rec = {k: v for k, v in record.items() if k not in ('learned_vf', 'learned_vfs')}
     if record.get('learned_vf') is not None:
         record['learned_vf'].save_npz(directory / 'learned_vf.npz')
         rec['learned_vf'] = 'learned_vf.npz'
+    if 'learned_vfs' in record:     # the study's records: one learned set per learned condition
+        rec['learned_vfs'] = {}
+        for c, vf in record['learned_vfs'].items():
+            if vf is not None:
+                vf.save_npz(directory / f'learned_vf_{c}.npz')
+            rec['learned_vfs'][c] = f'learned_vf_{c}.npz' if vf is not None else None
     path = directory / 'subject.json'
     tmp = path.with_suffix('.json.tmp')
     tmp.write_text(json.dumps(jsonable(rec), indent=1))
@@ -200,5 +206,8 @@ def load_subject(directory) -> dict:
     rec = json.loads((directory / 'subject.json').read_text())
     rec['learned_vf'] = (ValueFunction.load_npz(directory / rec['learned_vf'])
                          if rec.get('learned_vf') else None)
+    if 'learned_vfs' in rec:
+        rec['learned_vfs'] = {c: ValueFunction.load_npz(directory / f) if f else None
+                              for c, f in rec['learned_vfs'].items()}
     rec['sweep'] = {float(k): v for k, v in (rec.get('sweep') or {}).items()}
     return rec

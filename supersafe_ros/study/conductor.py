@@ -34,7 +34,7 @@ import time
 
 ROBOT = 'robot_0'
 POSE_TOL = 0.05
-READERS = 3       # world, learner, this conductor
+READERS = 3       # world, learner, this conductor (the study's Phase II adds its first-passage learner)
 SETTLE_S = 1.0
 LEAD_IN = 6.0     # m behind the start line where the robot waits while a scene is set
 
@@ -45,7 +45,7 @@ def yaw_of(q) -> float:
 
 class Phase2Conductor:
     def __init__(self, env: dict, offsets, x0: float = -8.0, x_end: float = 2.5,
-                 step_length: float = 0.6):
+                 step_length: float = 0.6, readers: int = READERS):
         from ..ros_io.background_node import BackgroundNode
         from rclpy.qos import QoSProfile, DurabilityPolicy, HistoryPolicy, ReliabilityPolicy
         from geometry_msgs.msg import PoseArray, PoseStamped, PoseWithCovarianceStamped, Twist
@@ -55,6 +55,7 @@ class Phase2Conductor:
         self.msgs = {'PoseArray': PoseArray, 'PoseWithCovarianceStamped': PoseWithCovarianceStamped,
                      'Twist': Twist}
         self.offsets = [float(v) for v in offsets]
+        self.readers = int(readers)     # /interventions readers to wait for before the first scene
         self.x0, self.x_end = float(x0), float(x_end)
         # a teleported, commanded robot moves one step before its next pose: teleport that
         # much behind x0 so that the scene's first pose is at x0
@@ -144,7 +145,7 @@ class Phase2Conductor:
                 # every /interventions reader (world, learner, this node) visible, then a
                 # settling second of wall time: the graph's counts come before the pairwise
                 # matches, and an intervention sent before the learner's match is lost
-                if self.node.count_subscribers('/interventions') >= READERS:
+                if self.node.count_subscribers('/interventions') >= self.readers:
                     if self.settle_until is None:
                         self.settle_until = time.monotonic() + SETTLE_S
                     elif time.monotonic() >= self.settle_until:
@@ -247,5 +248,74 @@ class Phase2Conductor:
             pub.publish(m)
         return len(missing)
 
+    def watch_learner(self, vf_topic: str, fit_topic: str) -> 'LearnerWatch':
+        """Follow a (remapped) learner's latched value function and fit status."""
+        return LearnerWatch(self.node, vf_topic, fit_topic)
+
     def close(self):
         self.ros.close()
+
+
+class LearnerWatch:
+    """A learner's value-function messages and /safe_set/fit statuses (remapped topics).
+
+    Under first-passage the value function's metadata is not the thing to wait on: it is
+    sent only when the chosen entry or level changes, so its counts can lag the data. The
+    fit status comes after every refit with the counts the fit used
+    (``fitted_interventions``, ``fitted_encounters``) and which set is in force
+    (``published_index``, ``published_alpha``)."""
+
+    def __init__(self, node, vf_topic: str, fit_topic: str):
+        from diagnostic_msgs.msg import DiagnosticStatus
+        from std_msgs.msg import Float32MultiArray
+        from ..ros_io import rosmsg
+        self.vf_msgs, self.statuses = [], []
+        self.cond = threading.Condition()
+        node.create_subscription(Float32MultiArray, vf_topic, self._on_vf, rosmsg.QOS_LATCHED)
+        node.create_subscription(DiagnosticStatus, fit_topic,
+                                 lambda m: self._on_status(rosmsg.diagnostic_values(m)), rosmsg.QOS_LATCHED)
+
+    def _on_vf(self, msg):
+        with self.cond:
+            self.vf_msgs.append(msg)
+            self.cond.notify_all()
+
+    def _on_status(self, values: dict):
+        with self.cond:
+            self.statuses.append(values)
+            self.cond.notify_all()
+
+    def _in_force(self):
+        """(value-function message, status) when the newest status's set in force is the
+        newest learned message's, else None."""
+        from ..ros_io.vfmsg import msg_metadata
+        if not self.statuses or not self.vf_msgs:
+            return None
+        status, msg = self.statuses[-1], self.vf_msgs[-1]
+        meta = msg_metadata(msg)
+        try:
+            same = (meta.get('source') == 'learned'
+                    and int(status.get('published_index', -1)) == int(meta.get('index', -2))
+                    and math.isclose(float(status.get('published_alpha', 'nan')), float(meta.get('alpha')),
+                                     rel_tol=1e-6, abs_tol=1e-9))
+        except (TypeError, ValueError):
+            return None
+        return (msg, status) if same else None
+
+    def wait_for_counts(self, interventions: int, encounters: int, timeout: float = 15.0):
+        """(value-function message, status) once the learner's fit used at least
+        ``interventions`` interventions in ``encounters`` encounters and its message is the
+        set in force; at the timeout the newest such pair, or (None, newest status or None)."""
+        deadline = time.monotonic() + timeout
+        with self.cond:
+            while True:
+                pair = self._in_force()
+                if pair is not None:
+                    st = pair[1]
+                    if (int(st.get('fitted_interventions', 0)) >= interventions
+                            and int(st.get('fitted_encounters', 0)) >= encounters):
+                        return pair
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return pair if pair is not None else (None, self.statuses[-1] if self.statuses else None)
+                self.cond.wait(left)

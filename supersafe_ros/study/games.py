@@ -102,12 +102,14 @@ class GameGraph:
         self.rosmsg = rosmsg
 
     # -- confirmations ------------------------------------------------------------------
-    KEYS = (('safety_filter', ' set in force'), ('supervisor', 'supervisor reset'),
-            ('dubins_robot', 'teleported to'))
+    # the filter confirms a learned set ("learned set in force: ...") and the standard set
+    # ("... the local standard set is in force ...") in different words
+    KEYS = (('safety_filter', (' set in force', ' set is in force')), ('supervisor', ('supervisor reset',)),
+            ('dubins_robot', ('teleported to',)))
 
     def on_log(self, log):
-        for kind, prefix in self.KEYS:
-            if log.name.endswith(kind) and prefix in log.msg:
+        for kind, markers in self.KEYS:
+            if log.name.endswith(kind) and any(m in log.msg for m in markers):
                 with self.cond:
                     key = (log.name, kind)
                     self.logs[key] = self.logs.get(key, 0) + 1

@@ -10,9 +10,14 @@ Per subject (a simulated supervisor from ``population.draw_subjects``):
    with u = 0 (it answers every pose with a zero Twist on cmd_vel, which is also the
    lockstep acknowledgement). A scene ends at the supervisor's intervention or when
    the robot has passed the obstacle.
-2. Fits (``learned_sets``): Learned = the learner node's fit from the interventions it
-   received (paper estimator, alpha = mu); Learned FP = ``fit_first_passage`` over the
-   same library from the recorded approaches (every scene, intervened or not).
+2. Fits (``learned_sets``): both from learner nodes in the Phase II graph. Learned = the
+   learner's fit from the interventions it received (``estimator: paper``, alpha = mu);
+   Learned FP = a second learner (``learner_fp``, ``estimator: first-passage``, robots
+   [robot_0], its own store and topics ``/study/learner_fp/...``), which builds the
+   encounters itself from ``robot_0/pose``, ``/obstacle_markers`` and ``/interventions``
+   (every scene, intervened or not). ``first_passage_fit`` fits the same estimator
+   offline from the conductor's recorded scenes; the runner keeps it as a cross-check
+   (``phase2.offline_first_passage`` in the JSON).
 3. Phase III (``study.games.GameGraph``): one kept-alive team graph per subject (world,
    2 x (robot, planner, filter), supervisor; no learner), one game per condition and
    alpha-sweep game, reset between games; the condition's safe set reaches the filters
@@ -25,6 +30,7 @@ import functools
 import json
 import math
 from pathlib import Path
+import shutil
 import sys
 import time
 
@@ -74,8 +80,42 @@ class Progress:
 
 
 # -- graphs -----------------------------------------------------------------------------
-def phase2_argvs(subject: Subject, opts: StudyOptions, store: Path, first_offset: float) -> list:
-    """Clock, world (no respawn, one disc), one robot, supervisor, learner; no planner/filter:
+# the Phase II graph's second learner (first-passage): its node name and topics
+FP_LEARNER = 'learner_fp'
+FP_VF_TOPIC = f'/study/{FP_LEARNER}/value_function'
+FP_FIT_TOPIC = f'/study/{FP_LEARNER}/fit'
+
+
+def _config_params(kind: str) -> dict:
+    """ros__parameters of a node's config file (for a renamed node, which the file's
+    ``/**/<name>`` key no longer matches)."""
+    import yaml
+    from ..team import CONFIG_FILES, config_dir
+    path = config_dir() / CONFIG_FILES[kind]
+    try:
+        doc = yaml.safe_load(path.read_text()) or {}
+    except OSError:
+        return {}
+    params = next(iter(doc.values()), {}).get('ros__parameters', {})
+    # '' (a default such as cache_dir) cannot be given as -p NAME:=
+    return {k: v for k, v in params.items() if v != ''}
+
+
+def fp_learner_argv(spec, fp_store: Path) -> list:
+    """The first-passage learner beside the paper's: the layout's learner spec renamed
+    (node ``learner_fp``, so ``~/reset`` is /learner_fp/reset), with its own store and
+    its value function and fit status on their own topics."""
+    params = {**_config_params('learner'), **spec.params,
+              'estimator': 'first-passage', 'robots': ['robot_0'], 'store_path': str(fp_store)}
+    remaps = {**spec.remaps, '__node': FP_LEARNER,
+              '/safe_set/value_function': FP_VF_TOPIC, '/safe_set/fit': FP_FIT_TOPIC}
+    return node_argv('learner', spec.namespace, params, remaps)
+
+
+def phase2_argvs(subject: Subject, opts: StudyOptions, store: Path, first_offset: float,
+                 fp_store: Path | None = None) -> list:
+    """Clock, world (no respawn, one disc), one robot, supervisor, learner (paper); with
+    ``fp_store`` also the first-passage learner (``fp_learner_argv``). No planner/filter:
     the conductor answers the robot's poses (u = 0)."""
     sup = {'w_max': subject.omega_max, 'mu': subject.mu, 'sigma': subject.sigma,
            'seed': subject.seed, 'robots': ['robot_0']}
@@ -96,6 +136,8 @@ def phase2_argvs(subject: Subject, opts: StudyOptions, store: Path, first_offset
         if spec.kind == 'supervisor':
             params['seed'] = subject.seed   # team_layout derives one from the world seed
         argvs.append(node_argv(spec.kind, spec.namespace, params, spec.remaps))
+        if spec.kind == 'learner' and fp_store is not None:
+            argvs.append(fp_learner_argv(spec, fp_store))
     return argvs
 
 
@@ -104,11 +146,13 @@ def phase2_argvs(subject: Subject, opts: StudyOptions, store: Path, first_offset
 class Phase2Result:
     scenes: list                       # per offset: {'y0', 'intervened', 'state', 'frames'}
     states: np.ndarray                 # (n, 3) intervention states (relative to the obstacle)
-    vf_msg: object                     # the learner's (or runner's) value-function message, or None
+    vf_msg: object                     # the paper learner's value-function message, or None
     fit: dict | None
     sim_time: float
     wall: float
     notes: list = field(default_factory=list)
+    fp_msg: object = None              # the first-passage learner's value-function message, or None
+    fp_fit: dict | None = None         # its fit (estimator, omega_max, mu, sigma, alpha, counts)
 
 
 def run_phase2(subject: Subject, opts: StudyOptions, domain_id: int, log_dir: Path,
@@ -117,12 +161,21 @@ def run_phase2(subject: Subject, opts: StudyOptions, domain_id: int, log_dir: Pa
     env = team_env(domain_id)
     log_dir.mkdir(parents=True, exist_ok=True)
     store = log_dir / 'interventions.jsonl'
+    with_fp = 'learned_fp' in opts.conditions
     if store.exists():
         store.unlink()
+    # the first-passage learner's interventions and encounters (<store>.encounters.jsonl)
+    fp_store = log_dir / FP_LEARNER / 'interventions.jsonl' if with_fp else None
+    if fp_store is not None and fp_store.parent.exists():
+        shutil.rmtree(fp_store.parent)
     offsets = [float(v) for v in opts.phase2_offsets]
-    argvs = phase2_argvs(subject, opts, store, offsets[0])
+    argvs = phase2_argvs(subject, opts, store, offsets[0], fp_store)
     t0 = time.monotonic()
-    conductor = Phase2Conductor(env, offsets, x0=PHASE2_X0, x_end=PHASE2_X_END, step_length=SPEED * opts.step)
+    # world, paper learner, first-passage learner, the conductor itself
+    conductor = Phase2Conductor(env, offsets, x0=PHASE2_X0, x_end=PHASE2_X_END, step_length=SPEED * opts.step,
+                                readers=4 if with_fp else 3)
+    fp_watch = conductor.watch_learner(FP_VF_TOPIC, FP_FIT_TOPIC) if with_fp else None
+    fp_msg = fp_fit = None
     team = Team(argvs, env, log_dir)
     notes = []
     try:
@@ -144,6 +197,16 @@ def run_phase2(subject: Subject, opts: StudyOptions, domain_id: int, log_dir: Pa
             vf_msg = conductor.wait_for_fit(n, timeout=10.0)
             if vf_msg is None or _fit_count(vf_msg) < n:
                 notes.append(f'the learner fitted {_fit_count(vf_msg) if vf_msg else 0} of {n} interventions')
+        if fp_watch is not None and n >= 3:
+            # every scene is one encounter; the last one becomes final once the robot has
+            # passed its obstacle (the graph still runs: the conductor keeps answering)
+            fp_msg, status = fp_watch.wait_for_counts(n, len(conductor.scenes), timeout=20.0)
+            fp_fit = first_passage_learner_fit(fp_msg, status)
+            if fp_fit is None or (fp_fit['interventions'], fp_fit['encounters']) != (n, len(conductor.scenes)):
+                got = (f"{fp_fit['interventions']} interventions in {fp_fit['encounters']} encounters"
+                       if fp_fit else f'no fit (status: {status.get("message", "") if status else "none"})')
+                notes.append(f'the first-passage learner fitted {got}; '
+                             f'the scenes had {n} in {len(conductor.scenes)}')
     finally:
         team.stop()
         conductor.close()
@@ -158,7 +221,32 @@ def run_phase2(subject: Subject, opts: StudyOptions, domain_id: int, log_dir: Pa
     # sim time the scenes spanned (the clock also ran, parked, while the graph settled
     # and while the learner fitted)
     span = scenes[-1]['end_time'] - scenes[0]['start_time'] if scenes else 0.0
-    return Phase2Result(scenes, states, vf_msg, fit, span, time.monotonic() - t0, notes)
+    return Phase2Result(scenes, states, vf_msg, fit, span, time.monotonic() - t0, notes, fp_msg, fp_fit)
+
+
+FIT_KEYS = ('omega_max', 'mu', 'sigma', 'alpha', 'log_likelihood')
+
+
+def first_passage_learner_fit(vf_msg, status: dict | None) -> dict | None:
+    """The fit of the set in force (``vf_msg``), from the learner's newest status when that
+    status's fit is the one published (its counts are newer than the message's, which is
+    sent only when the set changes), else from the message's own metadata."""
+    from ..ros_io.vfmsg import msg_metadata
+    if vf_msg is None:
+        return None
+    meta = msg_metadata(vf_msg)
+    fit = {k: meta.get(k) for k in FIT_KEYS}
+    fit.update(estimator=meta.get('estimator'), interventions=int(meta.get('interventions') or 0),
+               encounters=int(meta.get('encounters') or 0), index=meta.get('index'))
+    if status and status.get('index') == status.get('published_index') and \
+            status.get('alpha') == status.get('published_alpha'):
+        fit.update({k: float(status[k]) for k in FIT_KEYS},
+                   interventions=int(status['fitted_interventions']),
+                   encounters=int(status['fitted_encounters']))
+    if status:
+        fit['stored_encounters'] = int(status.get('encounters', 0))
+        fit['unmatched_interventions'] = int(status.get('unmatched_interventions', 0))
+    return fit
 
 
 def _fit_count(vf_msg) -> int:
@@ -276,17 +364,26 @@ def reference_sets():
 def learned_sets(p2: Phase2Result, conditions) -> dict:
     """condition -> (value function message or None, fit dict or None) of one subject.
 
-    learned: the learner node's fit (paper estimator, alpha = mu), taken from the graph.
-    learned_fp: the first-passage estimator, fitted here from the recorded Phase II
-    approaches (every scene, intervened or not). This is the one place to change when the
-    learner node fits first-passage online: take its value-function message instead.
+    learned: the paper learner node's fit (alpha = mu); learned_fp: the first-passage
+    learner node's (alpha = mu, over every encounter, intervened or not). Both are the
+    nodes' last messages, taken from the Phase II graph.
     """
     out = {}
     if 'learned' in conditions:
         out['learned'] = (p2.vf_msg, p2.fit)
     if 'learned_fp' in conditions:
-        out['learned_fp'] = first_passage_fit(p2.scenes) if len(p2.states) >= 1 else (None, None)
+        out['learned_fp'] = (p2.fp_msg, p2.fp_fit)
     return out
+
+
+def offline_cross_check(p2: Phase2Result) -> dict | None:
+    """The first-passage fit done offline from the conductor's recorded scenes, beside the
+    learner node's (the two see the same scenes; they differ only by what the node
+    receives on topics): chosen omega_max, mu, sigma, counts."""
+    if not len(p2.states):
+        return None
+    _, fit = first_passage_fit(p2.scenes)
+    return {k: fit.get(k) for k in FIT_KEYS + ('interventions', 'encounters')}
 
 
 def sweep_condition(conditions):
@@ -316,6 +413,8 @@ def run_study(subjects: list, opts: StudyOptions, out=sys.stdout) -> dict:
                          'notes': p2.notes}
         rec['states'] = p2.states.tolist()
         fits = learned_sets(p2, conditions)
+        if 'learned_fp' in fits:
+            rec['phase2']['offline_first_passage'] = offline_cross_check(p2)
         for c, (msg, fit) in fits.items():
             rec['fits'][c] = fit
             rec['learned_vfs'][c] = msg_to_value_function(msg) if msg is not None else None
