@@ -83,6 +83,7 @@ class GameGraph:
         self.clock_params['start_timeout'] = float(start_timeout)
         self.cond = threading.Condition()
         self.logs = {}                  # (node name, message prefix) -> count
+        self.rejected = None            # a filter's rejection of a set: that game cannot run
         # the monitor (stats, intervention log, events) and this runner's endpoints share
         # one context: the graph discovers it once, so each game's clock is matched at once
         self.monitor = TeamMonitor(env)
@@ -108,6 +109,10 @@ class GameGraph:
             ('dubins_robot', ('teleported to',)))
 
     def on_log(self, log):
+        if log.name.endswith('safety_filter') and ' rejected' in log.msg:
+            with self.cond:        # the set this game needs will not come into force
+                self.rejected = f'{log.name}: {log.msg}'
+                self.cond.notify_all()
         for kind, markers in self.KEYS:
             if log.name.endswith(kind) and any(m in log.msg for m in markers):
                 with self.cond:
@@ -121,6 +126,8 @@ class GameGraph:
 
     def _wait(self, what: str, done, deadline: float):
         while not done():
+            if self.rejected:
+                raise RuntimeError(f'game {self.games}: a filter rejected the set: {self.rejected}')
             dead = self.team.dead()
             if dead:
                 raise RuntimeError(f'graph processes exited: {dead} (logs in {self.team.log_dir})')
