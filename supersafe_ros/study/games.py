@@ -109,7 +109,8 @@ class GameGraph:
             ('dubins_robot', ('teleported to',)))
 
     def on_log(self, log):
-        if log.name.endswith('safety_filter') and ' rejected' in log.msg:
+        if (log.name.endswith('safety_filter') and ' rejected' in log.msg
+                and (' set ' in log.msg or 'value function' in log.msg)):
             with self.cond:        # the set this game needs will not come into force
                 self.rejected = f'{log.name}: {log.msg}'
                 self.cond.notify_all()
