@@ -175,3 +175,26 @@ def test_most_constraining_takes_each_robots_smallest_value_from_any_pair():
     assert list(pair) == [0, 1]
     assert list(override) == [True, False] and list(control) == [-1.0, 0.0]
     assert value == pytest.approx(d.value[[0, 1]])
+
+
+def test_a_robot_without_pairs_is_unconstrained_even_when_the_last_pair_overrides():
+    X, Y, TH = GRID.mesh()
+    vf = ValueFunction(GRID, X + 0.5 * np.sin(TH))
+    states = np.array([[1.5, 0.0, 0.0], [3.5, 0.0, 0.0], [-0.2, 0.0, np.pi / 2 + 0.6]])
+    d = filter_law(vf, 0.5, states, omega_max=1.0)
+    assert list(d.override) == [False, False, True]
+    override, control, value, pair = most_constraining([1, 0, 0], d, 3)
+    assert list(pair) == [2, 0, -1] and list(override) == [True, False, False]
+    assert list(control) == [-1.0, 0.0, 0.0] and value[2] == np.inf
+
+
+def test_a_tie_is_judged_relative_to_the_gradients_scale():
+    """V scaled by 1e4: a dV/dtheta of -0.01 next to the ridge is round-off (a tie: left);
+    on the unscaled V the same relative slope would be -1e-6."""
+    X, Y, TH = GRID.mesh()
+    vf = ValueFunction(GRID, 1e4 * (X - 0.3 * np.cos(TH)))
+    dth = GRID.spacing[2]
+    g_next = 1e4 * 0.3 * np.sin(dth)             # dV/dtheta at the next heading node (approximately)
+    eps = 0.01 * dth / g_next                     # interpolated slope about -0.01 at theta = -eps
+    d = filter_law(vf, 1e6, np.array([[-1.0, 0.0, -eps], [-1.0, 0.0, -0.5 * dth]]), omega_max=1.0)
+    assert list(d.control) == [1.0, -1.0]         # a real slope still turns its way
