@@ -82,6 +82,7 @@ class SafetyFilterNode(Node):
         self._held = None                  # (filter time, steady time held since) of a held answer
         self.holds = 0                     # answers held for a cluster solve (statistics)
         self._hold_spent = False           # a hold timed out: no more until nothing is solving
+        self._last_out = None              # the last decision published
         self.name = self.get_fully_qualified_name()
         self._last_publish = -1e18     # steady seconds
         self._throttle = StateThrottle()
@@ -164,7 +165,12 @@ class SafetyFilterNode(Node):
             t, since = self._held
             self.decide(t, hold=now - since < self.cluster_hold_timeout, held_since=since)
         elif self.lockstep and now - self._last_pose_arrival < self.lockstep_silence:
-            return                  # the pose's answer is the robot's command (and its step's ack)
+            # the pose's answer is the robot's command (and its step's ack); the state topic
+            # still reports the set in force (a new learned set) while no pose comes
+            out = self._last_out
+            if out is not None and self._throttle.due(now, out.action, self.wiring.set_update,
+                                                      self.wiring.state_period):
+                self.state_pub.publish(self.wiring.state_message(self.name, out))
         elif now - self._last_publish >= self.period * 0.999:
             self.decide()
 
@@ -198,6 +204,7 @@ class SafetyFilterNode(Node):
         now = time.monotonic()
         self._last_publish = now
         self.decisions += 1
+        self._last_out = out
         self._tell_story(out)
         if self._throttle.due(now, out.action, w.set_update, w.state_period):
             self.state_pub.publish(w.state_message(self.name, out))
