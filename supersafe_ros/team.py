@@ -110,6 +110,12 @@ class NodeSpec:
         return NODE_MODULES[self.kind]
 
 
+# steady seconds a lockstepped filter may hold a step for a cluster's union value
+# (holds of up to 7.3 s were measured with 4 robots at load 10 on 2 cores); the
+# filter's clock_stall_timeout stays longer, or it would count the held /clock as stopped
+CLUSTER_HOLD_TIMEOUT = 15.0
+
+
 def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
                 duration: float = 0.0, overrides: dict | None = None, step: float | None = None,
                 with_filter: bool = True, with_learner: bool = True,
@@ -168,9 +174,14 @@ def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
             # a reply that misses its step holds for one more: look ahead two steps
             # (see filter.core: delay compensation, lookahead). A lockstepped robot does not
             # move while /clock waits (a busy machine, a slow rate factor), so the filter
-            # counts a stopped /clock as lost only after 10 s (docs/filter_node.md)
+            # counts a stopped /clock as lost only after 20 s (docs/filter_node.md).
+            # lockstep: the filter answers each pose once, on that pose (the robot's step
+            # acknowledgement), and holds that answer while a cluster's union value is being
+            # solved: sim time waits for the solve instead of a fallback (docs/graph_safety.md)
             add('safety_filter', name, {**sim, 'control_period': step, 'lookahead': 2.0 * step,
-                                        'clock_stall_timeout': 10.0})
+                                        'clock_stall_timeout': CLUSTER_HOLD_TIMEOUT + 5.0,
+                                        'lockstep': True, 'lockstep_silence': CLUSTER_HOLD_TIMEOUT + 5.0,
+                                        'cluster_hold_timeout': CLUSTER_HOLD_TIMEOUT})
     if with_learner:
         add('learner', None, {**sim, 'robots': robots,
                               **({'store_path': str(learner_store)} if learner_store else {})},
@@ -193,6 +204,8 @@ def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
     add('sim_clock', None, {
         'use_sim_time': False, 'robots': robots, 'observers': observers,
         'rate_factor': float(rate_factor),
+        # a filter holding its answer for a cluster solve is waited for, not skipped
+        **({'ack_timeout': CLUSTER_HOLD_TIMEOUT + 5.0} if with_filter else {}),
         'duration': float(duration), 'step': step, 'wait_for_publishers': publishers,
         # every robot's and filter's /clock reader, so that no one misses the first steps
         'wait_for_subscriptions': [f'/{r}/pose={pose_readers}' for r in robots]

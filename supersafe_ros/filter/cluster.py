@@ -255,6 +255,11 @@ class ClusterStore:
             self._thread.start()
         return self
 
+    def solving(self, key) -> bool:
+        """True while ``key`` is requested and neither solved nor failed."""
+        with self._lock:
+            return key in self.requested
+
     def pending(self) -> int:
         with self._lock:
             return len(self.requested)

@@ -150,6 +150,7 @@ class FilterOutput:
     omega_max_set: float = math.nan  # omega_max of the safe set's model
     pose_age: float = 0.0        # seconds the pose was propagated over before judging
     lookahead: float = 0.0       # hold time the planner's command was judged over [s]
+    clusters_solving: int = 0    # clusters near the robot whose union value is still being solved
 
     @property
     def level(self) -> int:
@@ -171,6 +172,7 @@ class FilterOutput:
             'source': self.source,
             'pose_age': f'{self.pose_age:.6g}',
             'lookahead': f'{self.lookahead:.6g}',
+            'clusters_solving': str(self.clusters_solving),
         }
 
 
@@ -445,7 +447,8 @@ def step_many(filters, safe_set: SafeSet, t, clusters=None) -> list:
         if i in state_of and cfg.clusters and len(f.detections.value) > 1:
             _add_cluster_constraints(c, f, state_of[i], horizons[i], t, clusters)
         common = dict(alpha=alpha, source=safe_set.source, omega_max_set=set_omega,
-                      pose_age=float(age_of.get(i, 0.0)), lookahead=float(horizons.get(i, 0.0)))
+                      pose_age=float(age_of.get(i, 0.0)), lookahead=float(horizons.get(i, 0.0)),
+                      clusters_solving=c.solving)
         if problems[i]:
             f.overriding = False   # re-enter by the law once inputs are back
             k = c.smallest()
@@ -501,6 +504,7 @@ class _Constraints:
     def __init__(self):
         self.value, self.level, self.turn, self.value_next = [], [], [], []
         self.obstacle, self.sound, self.source, self.members, self.group = [], [], [], [], []
+        self.solving = 0     # clusters of this robot whose union value is being solved
 
     @classmethod
     def of_pairs(cls, f, i, first, value, turn, value_next, obstacle, alpha, source):
@@ -614,6 +618,8 @@ def _add_cluster_constraints(c: _Constraints, f, state, horizon, t, store) -> No
         solved = store.get(key)
         if solved is None:
             store.request(key, centres)
+            if store.solving(key):
+                c.solving += 1
         if solved is not None:
             v, _ = solved.evaluate(cl.to_frame(np.vstack([state[None], points, ahead[None]]), origin, angle))
             turn = 1.0 if v[1] >= v[2] - solved.tie else -1.0

@@ -19,7 +19,21 @@ The decision is ``supersafe_ros.filter.core`` (law, hysteresis, fail safe, delay
 compensation; see there). When it is made: on every planner command (and, with
 ``publish_on_pose``, on every pose), plus a watchdog on the steady clock that
 publishes when nothing went out for 1/rate s, so the robot never starves, even with
-the planner dead or /clock halted waiting in lockstep.
+the planner dead.
+
+``lockstep`` (a simulated robot under sim_clock_node, set by ``supersafe team``): the
+robot acknowledges its step on the first command that arrives after its pose, and the
+clock then advances. So every command that goes out must be the answer to the newest
+pose: the filter decides and publishes on each pose only. A planner command only
+updates the command judged at the next pose (one step later, which the filter judges
+like any other), and the watchdog speaks only after ``lockstep_silence`` steady seconds
+without a pose. Otherwise the watchdog (timers run before subscriptions in rclpy's
+executor) answered a step on the pose before, the clock advanced on that answer, and
+under load the filter fell steps behind: decisions on poses 0.8 s old let a robot
+into a disc (docs/graph_safety.md). With ``cluster_hold_timeout`` > 0 the answer to a
+pose near a cluster whose union value is still being solved is held (the lockstep
+clock waits, sim time stands still) until the value is in force, at most that many
+steady seconds; the clock's ``ack_timeout`` must be longer.
 
 Ages of inputs: on the filter's time base (``filter.timebase``): sim time while
 /clock advances, the steady clock with ``use_sim_time`` false or when ROS time
@@ -53,6 +67,22 @@ class SafetyFilterNode(Node):
         self.publish_on_pose = declare(self, 'publish_on_pose', False,
                                        'also decide and publish on every pose (not in a lockstep graph)')
         w.live.add('publish_on_pose', lambda v: setattr(self, 'publish_on_pose', bool(v)))
+        self.lockstep = declare(self, 'lockstep', False,
+                                'the robot is lockstepped (sim_clock_node): answer each pose once, on '
+                                'that pose; planner commands and the watchdog do not publish',
+                                read_only=True)
+        self.lockstep_silence = declare(self, 'lockstep_silence', 2.0,
+                                        'lockstep: the watchdog publishes only after this long without '
+                                        'a pose [steady s]', 0.01, 3600.0, read_only=True)
+        self.cluster_hold_timeout = declare(self, 'cluster_hold_timeout', 0.0,
+                                            'lockstep: hold the answer to a pose while a cluster\'s union '
+                                            'value is being solved, at most this long [steady s]; 0 = '
+                                            'never hold (the fallback acts)', 0.0, 600.0, read_only=True)
+        self._last_pose_arrival = time.monotonic()   # steady seconds
+        self._held = None                  # (filter time, steady time held since) of a held answer
+        self.holds = 0                     # answers held for a cluster solve (statistics)
+        self._hold_spent = False           # a hold timed out: no more until nothing is solving
+        self._last_out = None              # the last decision published
         self.name = self.get_fully_qualified_name()
         self._last_publish = -1e18     # steady seconds
         self._throttle = StateThrottle()
@@ -103,7 +133,11 @@ class SafetyFilterNode(Node):
         except ValueError as exc:   # MessageError is a ValueError
             self.filter.reject_pose(str(exc), t)
             w.complain('pose', f'pose rejected: {exc}; failing safe', level='error')
-        if self.publish_on_pose:
+        if self.lockstep:
+            self._last_pose_arrival = time.monotonic()
+            self._held = None
+            self.decide(t, hold=self.cluster_hold_timeout > 0.0)
+        elif self.publish_on_pose:
             self.decide(t)
 
     def on_detections(self, msg: PoseArray):
@@ -122,16 +156,47 @@ class SafetyFilterNode(Node):
             self.filter.update_command(rosmsg.twist_turn_rate(msg), t)
         except ValueError as exc:
             w.complain('cmd', f'cmd_vel_nav rejected: {exc}; keeping the previous command')
-        self.decide(t)
+        if not self.lockstep:       # in lockstep the next pose's answer judges it
+            self.decide(t)
 
     def on_watchdog(self):
-        if time.monotonic() - self._last_publish >= self.period * 0.999:
+        now = time.monotonic()
+        if self._held is not None:
+            t, since = self._held
+            self.decide(t, hold=now - since < self.cluster_hold_timeout, held_since=since)
+        elif self.lockstep and now - self._last_pose_arrival < self.lockstep_silence:
+            # the pose's answer is the robot's command (and its step's ack); the state topic
+            # still reports the set in force (a new learned set) while no pose comes
+            out = self._last_out
+            if out is not None and self._throttle.due(now, out.action, self.wiring.set_update,
+                                                      self.wiring.state_period):
+                self.state_pub.publish(self.wiring.state_message(self.name, out))
+        elif now - self._last_publish >= self.period * 0.999:
             self.decide()
 
     # -- output --------------------------------------------------------------------------------
-    def decide(self, t=None):
+    def decide(self, t=None, hold=False, held_since=None):
+        """Decide at ``t`` and publish, unless ``hold`` and a cluster near the robot is being
+        solved: then the answer waits (the watchdog decides again) and None is returned."""
         w = self.wiring
         out = self.filter.step(w.safe_set, w.now() if t is None else t)
+        if not out.clusters_solving:
+            self._hold_spent = False
+        if hold and out.clusters_solving and not self._hold_spent:
+            if held_since is None:
+                self.holds += 1
+                held_since = time.monotonic()
+            self._held = (w.now() if t is None else t, held_since)
+            return None
+        if held_since is not None and out.clusters_solving:
+            # one hold per solve: a solve this slow must not stall every step after it
+            self._hold_spent = True
+            w.complain('cluster_hold', f'a cluster value still solving after {self.cluster_hold_timeout:g} s: '
+                       'answering with the fallback until it lands', level='warn')
+        if held_since is not None and not out.clusters_solving:
+            self.get_logger().info(f'step held {time.monotonic() - held_since:.2f} s until the cluster '
+                                   'value was in force')
+        self._held = None
         twist = Twist()
         twist.linear.x = float(out.linear)
         twist.angular.z = float(out.omega)
@@ -139,6 +204,7 @@ class SafetyFilterNode(Node):
         now = time.monotonic()
         self._last_publish = now
         self.decisions += 1
+        self._last_out = out
         self._tell_story(out)
         if self._throttle.due(now, out.action, w.set_update, w.state_period):
             self.state_pub.publish(w.state_message(self.name, out))

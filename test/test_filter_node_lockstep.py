@@ -1,0 +1,101 @@
+"""safety_filter_node in a lockstep graph (issue 9: every decision on the pose it is for).
+
+A lockstepped robot acknowledges its step on the first command after its pose, and
+the clock then advances. So the filter must answer each pose once, on that pose:
+not on the planner's command (which may answer the pose before), not on its
+watchdog; and while a cluster's union value is being solved it holds the answer.
+"""
+import time
+
+import pytest
+from rclpy.parameter import Parameter
+
+from supersafe_ros.filter import core
+from supersafe_ros.nodes.safety_filter_node import SafetyFilterNode
+
+from filter_learner_support import Spinner, matched, ros_context  # noqa: F401  (fixture)
+from test_filter_node import NS, SHAPE, Driver
+
+# two discs 4.5 m apart: one cluster (rims closer than a turning diameter)
+PAIR = ((4.0, -2.0), (8.5, -2.0))
+
+
+@pytest.fixture(scope='module')
+def setup(ros_context):
+    params = [Parameter('standard_shape', value=SHAPE), Parameter('rate', value=50.0),
+              Parameter('state_rate', value=100.0), Parameter('lockstep', value=True),
+              Parameter('lockstep_silence', value=60.0), Parameter('cluster_hold_timeout', value=60.0)]
+    node = SafetyFilterNode(namespace=NS, context=ros_context, parameter_overrides=params)
+    # the cluster solver of this process: requests are recorded, solved only when the test says
+    store = core.default_cluster_store(node.filter.config)
+    asked = {}
+
+    def request(key, centres):
+        if key not in store.values and key not in store.requested:
+            store.requested[key] = time.monotonic()
+            asked[key] = centres
+    store.request = request
+    driver = Driver(ros_context)
+    spin = Spinner(ros_context, node, driver.node)
+    spin.until(lambda: matched(*driver.endpoints()), 10.0, 'filter topics to match')
+    yield node, driver, spin, store, asked
+    del store.request
+    spin.shutdown()
+    node.destroy_node()
+    driver.node.destroy_node()
+
+
+def answers_to(driver, spin, pose, detections, cmd=None, settle=0.2):
+    """Send a planner command first (if any), then the pose; the commands the filter sent.
+    ``settle`` stays below the filter's cmd_timeout (0.5 s), or the command is stale."""
+    driver.out.clear()
+    driver.states.clear()
+    if cmd is not None:
+        driver.send(pose=None, detections=detections, cmd=cmd)
+        spin.spin_for(settle)
+        assert driver.out == [], 'a planner command alone must not answer (it would ack a step)'
+    driver.send(pose=pose, detections=detections)
+    return driver.out
+
+
+def state_of(driver, twist):
+    """The state message of the decision that sent ``twist`` (the topic also repeats states)."""
+    from supersafe_ros.ros_io import rosmsg
+    same = [rosmsg.diagnostic_values(m) for m in driver.states]
+    same = [v for v in same if abs(float(v['cmd_angular_z']) - twist.angular.z) < 1e-6]
+    return same[-1] if same else {}
+
+
+def test_each_pose_is_answered_once_on_that_pose(setup):
+    node, driver, spin, _, _ = setup
+    far = ((40.0, 40.0),)
+    for k in range(3):
+        out = answers_to(driver, spin, (-10.0, 0.0, 0.0), far, cmd=0.3)
+        spin.until(lambda: len(out) >= 1, 5.0, 'the answer to the pose')
+        spin.spin_for(0.4)          # the watchdog (50 Hz) must stay silent while poses flow
+        assert len(out) == 1, f'{len(out)} commands for one pose'
+        assert abs(out[0].angular.z - 0.3) < 1e-6      # the planner's command, judged on that pose
+    # heading straight at a disc 1 m off its rim: the answer to that pose overrides
+    out = answers_to(driver, spin, (4.0 - 2.8, -2.0, 0.0), ((4.0, -2.0),), cmd=0.0)
+    spin.until(lambda: len(out) >= 1 and state_of(driver, out[0]), 5.0, 'the answer to the pose')
+    st = state_of(driver, out[0])
+    assert st['action'] == 'override', st
+    assert abs(abs(out[0].angular.z) - 1.0) < 1e-6
+    assert float(st['pose_age']) < 0.05, st
+
+
+def test_the_answer_waits_for_a_clusters_value(setup):
+    node, driver, spin, store, asked = setup
+    # near the pair, heading along it: the union's value decides
+    out = answers_to(driver, spin, (0.0, 1.0, 0.0), PAIR, cmd=0.0)
+    spin.until(lambda: asked, 5.0, 'the cluster solve to be requested')
+    spin.spin_for(0.5)
+    assert out == [], 'answered while the cluster value was being solved'
+    assert node.holds >= 1
+    key, centres = next(iter(asked.items()))
+    store._solve(key, centres)          # the value lands
+    spin.until(lambda: len(out) >= 1 and state_of(driver, out[0]), 20.0, 'the held answer')
+    assert len(out) == 1
+    st = state_of(driver, out[0])
+    assert st['clusters_solving'] == '0', st
+    assert st['source'] == 'cluster' or st['action'] == 'pass', st
