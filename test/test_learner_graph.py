@@ -73,10 +73,20 @@ def test_phase2_session_through_the_graph_counts_every_encounter(tmp_path):
     assert codes.get('learner') == 0, codes
     records = [EncounterRecord.from_json(line)
                for line in (tmp_path / 'subject.encounters.jsonl').read_text().splitlines()]
-    assert [r.intervened for r in records] == [s['intervened'] for s in scenes]
-    assert len({r.obstacle for r in records}) == len(scenes)
+    # A scene reset can set the next obstacle before the robot's teleport is read: the robot,
+    # still past the last obstacle, is briefly near the new one, and that encounter ends at
+    # the teleport ('jump'), as specified (seen in 2 of 6 runs on an idle machine). Each
+    # scene's own encounter is the one that did not end in a jump.
+    first = {}
+    for r in records:
+        if r.reason != 'jump':
+            first.setdefault(r.obstacle, r)
+    scene_records = [first.get(int(s['obstacle'])) for s in scenes]
+    assert None not in scene_records, (records, scenes)
+    assert [r.intervened for r in scene_records] == [s['intervened'] for s in scenes]
+    assert sum(r.intervened for r in records) == n_iv
     stored = [json.loads(line) for line in store.read_text().splitlines()]
     assert len(stored) == n_iv
-    for r, s in zip(records, scenes):
+    for r, s in zip(scene_records, scenes):
         # from the start line (a first pose read before its obstacle set may be missed)
         assert r.frames[0][0] <= -8.0 + 2 * 3.0 * STEP + 0.05 and abs(r.frames[0][1] - s["y0"]) < 0.05

@@ -49,7 +49,9 @@ def test_one_subject_study_through_the_graph(tmp_path):
     fp = subj['fits']['learned_fp']
     assert fp['estimator'] == 'first-passage'
     n_int = sum(s['intervened'] for s in subj['phase2']['scenes'])
-    assert (fp['encounters'], fp['interventions']) == (3, n_int)
+    # at least one encounter per scene; a scene reset can add one that ends at the teleport
+    # (a 'jump', as specified; see test_learner_graph)
+    assert fp['encounters'] >= 3 and fp['interventions'] == n_int
     assert fp['unmatched_interventions'] == 0
     assert subj['phase2']['offline_first_passage']['encounters'] == 3      # the runner's cross-check
     # the Phase II protocol ran through the graph: one scene per offset, each from x = -8
