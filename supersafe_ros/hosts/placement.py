@@ -64,18 +64,23 @@ _STALL_ARG = 'clock_stall_timeout:='
 
 
 def with_link_stall_timeout(argv: list[str], timeout: float = LINK_STALL_TIMEOUT) -> list[str]:
-    """A filter's argv with ``clock_stall_timeout`` set to ``timeout`` (others unchanged)."""
+    """A filter's argv with ``clock_stall_timeout`` and ``lockstep_silence`` set to ``timeout``
+    (others unchanged): a lockstepped filter answers only poses, so without a pose for this
+    long (the link is down) its watchdog decides again, on inputs that are then stale."""
     if not any(a.endswith('safety_filter_node') for a in argv):
         return list(argv)
-    out = [a for a in argv]
-    value = f'{_STALL_ARG}{float(timeout)}'
-    for i, a in enumerate(out):
-        if a.startswith(_STALL_ARG) and i > 0 and out[i - 1] == '-p':
-            out[i] = value
-            return out
-    if '--ros-args' not in out:
-        out.append('--ros-args')
-    return out + ['-p', value]
+    out = list(argv)
+    for arg in (_STALL_ARG, 'lockstep_silence:='):
+        value = f'{arg}{float(timeout)}'
+        for i, a in enumerate(out):
+            if a.startswith(arg) and i > 0 and out[i - 1] == '-p':
+                out[i] = value
+                break
+        else:
+            if '--ros-args' not in out:
+                out.append('--ros-args')
+            out += ['-p', value]
+    return out
 
 
 def host_ros_env(net: HostNetwork, host: int, discovery_server: bool,
