@@ -192,13 +192,13 @@ def test_discovery_server_graph_and_link_fault(one_host, tmp_path):
         moved = ((after[-1]['x'] - before['x']) ** 2 + (after[-1]['y'] - before['y']) ** 2) ** 0.5
         assert moved > 1.0
         assert stats['trips'] > trips_at_cut
-        # the sim-time jump on reconnect (the clock went on without robot_0): robot_0 moved
-        # at most one step (speed 3 m/s x STEP) across it, not the whole jump
+        # across the cut robot_0 moved at most one step (speed 3 m/s x STEP) between two poses:
+        # either the clock waited for it (the team's ack_timeout, 20 s, is longer than the
+        # cut: no sim-time jump), or it went on without it and the robot paused for the rest
         track = sorted(poses(host1, 0.0, float('inf')), key=lambda p: p['stamp'])
         gap, p0, p1 = max(((b['stamp'] - a['stamp'], a, b) for a, b in zip(track, track[1:])),
                           key=lambda g: g[0])
         jump = ((p1['x'] - p0['x']) ** 2 + (p1['y'] - p0['y']) ** 2) ** 0.5
-        assert gap > 2 * STEP, f'no sim-time jump seen on host 1 (largest gap {gap:.2f} s)'
         assert jump <= 3.0 * STEP + 1e-3, (gap, jump)
         # no collision (with a detected obstacle or any other), no phantom crash on host 0
         assert stats['crashes'] == 0 and crashes == []
