@@ -178,8 +178,13 @@ def test_condition_messages_carry_the_set_and_alpha_the_filter_uses():
     assert ran == 'learned' and alpha == pytest.approx(1.4)
     assert meta['source'] == 'learned' and filter_alpha(meta, 0.0) == pytest.approx(1.4)
     msg, alpha, ran = runner.condition_message('conservative', learned)
-    assert ran == 'conservative' and alpha is None and msg_metadata(msg)['source'] == 'standard'
-    assert msg_metadata(msg)['grid'] == cons.grid.to_dict()
+    meta = msg_metadata(msg)
+    # not 'standard': a filter replaces a 'standard' message by its own standard set (radius
+    # 1.8), which is how the Conservative games once ran on the Standard set
+    assert ran == 'conservative' and alpha is None and meta['source'] == 'conservative'
+    assert filter_alpha(meta, 0.0) == 0.0 and meta['grid'] == cons.grid.to_dict()
+    msg, alpha, ran = runner.condition_message('standard', learned)
+    assert ran == 'standard' and msg_metadata(msg)['source'] == 'standard'
     # no fit: the learned condition runs (and is reported as) the standard set
     msg, alpha, ran = runner.condition_message('learned_fp', learned)
     assert ran == 'standard' and msg_metadata(msg)['condition'] == 'standard'

@@ -38,13 +38,17 @@ RESEND_S = 15.0       # wall seconds before a reset request is sent again
 
 
 def game_message(vf, alpha: float | None, label: str, **meta):
-    """The value-function message of one condition: ``alpha`` None = the filter's standard
-    alpha (Standard, Conservative); else that alpha (Learned sets: mu + k sigma)."""
+    """The value-function message of one condition. Standard: ``source: standard``, which
+    puts each filter's own standard set back in force (the filters trust no received copy
+    of it). Any other set (Conservative; Learned at mu + k sigma) is sent with its level,
+    ``alpha`` None = 0 (the study's standard level), and each filter checks it against its
+    standard set before using it."""
     from ..ros_io.vfmsg import value_function_to_msg
-    if alpha is None:
+    if label == 'standard':
         return value_function_to_msg(vf, source='standard', condition=label, **meta)
-    return value_function_to_msg(vf, source='learned', condition=label, alpha=float(alpha),
-                                 mu=None, sigma=None, **meta)
+    level = 0.0 if alpha is None else float(alpha)
+    return value_function_to_msg(vf, source='learned' if alpha is not None else label, condition=label,
+                                 alpha=level, mu=None, sigma=None, **meta)
 
 
 def graph_argvs(world_seed: int, supervisor: dict, step: float, rate_factor: float) -> tuple:
