@@ -143,3 +143,33 @@ def test_background_solve_never_blocks_and_then_takes_over(standard):
     out = f.step(standard, 0.05, clusters=st)
     assert out.source == 'cluster' and len(st.latencies) == 1
     assert list(st.latencies.values())[0] > 0.0 and not st.errors
+
+
+def test_a_half_written_cluster_file_is_solved_again_not_left_on_the_fallback(tmp_path, monkeypatch):
+    """A cluster file cut short (a copy or a write interrupted) must not put its cluster on
+    the fallback rule for good: the store solves it again. A solve that really fails is
+    kept with its reason (the filter nodes log it and count it on their state topic)."""
+    from supersafe_ros.filter import cluster as cl
+    monkeypatch.setenv('SUPERSAFE_CACHE', str(tmp_path))
+    settings = ClusterSettings(cell=0.7, headings=16, reach=4.0)
+    pair = np.array([[0.0, 0.0], [4.5, 0.0]])
+    key, _, _, centres = canonical(pair, settings.key_resolution)
+    first = ClusterStore(settings, background=False)
+    first.request(key, centres)
+    path = cl.cache_path(settings, key)
+    assert first.get(key) is not None and path.exists()
+    path.write_bytes(path.read_bytes()[:300])
+    second = ClusterStore(settings, background=False)
+    second.request(key, centres)
+    assert second.errors == {}
+    assert second.get(key) is not None and second.get(key).solve_time > 0.0     # solved, not read
+    np.testing.assert_allclose(second.get(key).vf.values, first.get(key).vf.values)
+
+    def broken(*args):
+        raise RuntimeError('solver broke')
+    monkeypatch.setattr(cl, 'solve_cluster', broken)
+    third = ClusterStore(settings, background=False)
+    other, _, _, other_centres = canonical(pair * 1.2, settings.key_resolution)
+    third.request(other, other_centres)
+    assert third.get(other) is None and not third.solving(other)
+    assert 'solver broke' in third.errors[other]

@@ -198,3 +198,46 @@ def test_a_tie_is_judged_relative_to_the_gradients_scale():
     eps = 0.01 * dth / g_next                     # interpolated slope about -0.01 at theta = -eps
     d = filter_law(vf, 1e6, np.array([[-1.0, 0.0, -eps], [-1.0, 0.0, -0.5 * dth]]), omega_max=1.0)
     assert list(d.control) == [1.0, -1.0]         # a real slope still turns its way
+
+
+def _save_many(path, seed, count):
+    """One writer process: save a value function to ``path`` ``count`` times."""
+    rng = np.random.default_rng(seed)
+    vf = ValueFunction(GRID, rng.normal(size=GRID.shape))
+    for _ in range(count):
+        vf.save_npz(path)
+
+
+def test_processes_saving_one_cache_file_at_once_never_leave_it_unreadable(tmp_path):
+    # a team on a cold cache: every filter solves the same set and saves it under one name.
+    # With a shared temporary name, one writer's rename took the other's half-written file
+    # (FileNotFoundError in the other, or a damaged file for readers).
+    import multiprocessing
+    path = tmp_path / 'same.npz'
+    ctx = multiprocessing.get_context('spawn')
+    writers = [ctx.Process(target=_save_many, args=(str(path), seed, 60)) for seed in (1, 2)]
+    for w in writers:
+        w.start()
+    reads = 0
+    while any(w.is_alive() for w in writers):
+        if path.exists():
+            ValueFunction.load_npz(path)      # whole, from one writer or the other
+            reads += 1
+    for w in writers:
+        w.join()
+        assert w.exitcode == 0
+    assert reads > 0
+    assert ValueFunction.load_npz(path).values.shape == GRID.shape
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['same.npz']   # no temporary left
+
+
+def test_a_damaged_cache_file_is_solved_again(tmp_path):
+    grid = Grid((-4, -4), (4, 4), (9, 9, 8))
+    vf = load_or_solve(grid, 3.0, 1.0, 1.0, horizon=0.5, cache_dir=tmp_path)
+    (path,) = tmp_path.glob('dubins-*.npz')
+    path.write_bytes(path.read_bytes()[:200])          # a half-copied file
+    with pytest.raises(ValueError, match='not a readable value-function file'):
+        ValueFunction.load_npz(path)
+    again = load_or_solve(grid, 3.0, 1.0, 1.0, horizon=0.5, cache_dir=tmp_path)
+    assert not again.from_cache and np.allclose(again.values, vf.values)
+    assert load_or_solve(grid, 3.0, 1.0, 1.0, horizon=0.5, cache_dir=tmp_path).from_cache

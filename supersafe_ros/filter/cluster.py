@@ -298,7 +298,7 @@ class ClusterStore:
             if path is not None and path.exists():
                 try:
                     vf = ValueFunction.load_npz(path)
-                except (OSError, ValueError, KeyError):    # damaged: solve again
+                except (OSError, ValueError):    # damaged or half-copied: solve again
                     vf = None
             if vf is not None:
                 pass

@@ -122,7 +122,9 @@ class FilterWiring:
 
         self.names = list(names)
         self.filters = [RobotFilter(self.config, name) for name in self.names]
-        default_cluster_store(self.config).start()   # cluster values: solver process ready before obstacles
+        # cluster values: solver process ready before obstacles
+        default_cluster_store(self.config).start()
+        self._cluster_errors_told = {}
         sim = bool(node.get_parameter('use_sim_time').value)
         self.time = FilterTime(sim, stall)
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)
@@ -365,7 +367,18 @@ class FilterWiring:
         values['sets_rejected'] = str(self.set_updates['rejected'])
         values['time_base'] = ('wall (steady)' if not self.time.sim else
                                'wall (sim time stands still)' if self.time.stalled else 'sim')
+        values['cluster_solves_failed'] = str(self.report_cluster_errors())
         return values
+
+    def report_cluster_errors(self) -> int:
+        """Log each cluster solve that failed (its cluster stays on the fallback); the count."""
+        store = default_cluster_store(self.config)     # the config's store (cluster_link is live)
+        errors = list(store.errors.items())
+        for key, why in errors[self._cluster_errors_told.get(id(store), 0):]:
+            self.node.get_logger().error(f'cluster value {key} could not be solved ({why}): that '
+                                         'cluster stays on the fallback rule')
+        self._cluster_errors_told[id(store)] = len(errors)
+        return len(errors)
 
     def state_message(self, name: str, out):
         return rosmsg.make_diagnostic(name, self.state_values(out), f'{out.action}: {out.reason}', out.level)

@@ -17,6 +17,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 import json
 import os
+import threading
+import zipfile
 
 import numpy as np
 
@@ -104,17 +106,28 @@ class ValueFunction:
     # -- .npz ---------------------------------------------------------------
     def save_npz(self, path) -> None:
         path = os.fspath(path)
-        tmp = path + '.tmp.npz'
-        np.savez(tmp, value=self.values.astype(np.float32), x=self.grid.x, y=self.grid.y,
-                 theta=self.grid.theta, meta=np.array(json.dumps(self.meta, sort_keys=True)))
-        os.replace(tmp, path)  # atomic: a reader never sees half a file
+        # a temporary name of this process and thread: processes that solve the same set at
+        # once (a team's filters on a cold cache) must not write into one another's file
+        tmp = f'{path}.{os.getpid()}-{threading.get_ident()}.tmp.npz'
+        try:
+            np.savez(tmp, value=self.values.astype(np.float32), x=self.grid.x, y=self.grid.y,
+                     theta=self.grid.theta, meta=np.array(json.dumps(self.meta, sort_keys=True)))
+            os.replace(tmp, path)  # atomic: a reader never sees half a file
+        except BaseException:
+            if os.path.exists(tmp):
+                os.remove(tmp)
+            raise
 
     @classmethod
     def load_npz(cls, path) -> 'ValueFunction':
-        with np.load(os.fspath(path), allow_pickle=False) as f:
-            x, y, theta = f['x'], f['y'], f['theta']
-            value = f['value']
-            meta = json.loads(str(f['meta'])) if 'meta' in f else {}
+        """Read a value function saved by ``save_npz``; ValueError if the file is damaged."""
+        try:
+            with np.load(os.fspath(path), allow_pickle=False) as f:
+                x, y, theta = f['x'], f['y'], f['theta']
+                value = f['value']
+                meta = json.loads(str(f['meta'])) if 'meta' in f else {}
+        except (EOFError, zipfile.BadZipFile, KeyError, json.JSONDecodeError) as exc:
+            raise ValueError(f'{path}: not a readable value-function file ({type(exc).__name__}: {exc})') from exc
         grid = Grid((x[0], y[0]), (x[-1], y[-1]), value.shape)
         if not (np.allclose(grid.x, x) and np.allclose(grid.y, y) and np.allclose(grid.theta, theta)):
             raise ValueError(f'{path}: node coordinates are not a regular grid of this package')
