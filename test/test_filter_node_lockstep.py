@@ -99,3 +99,56 @@ def test_the_answer_waits_for_a_clusters_value(setup):
     st = state_of(driver, out[0])
     assert st['clusters_solving'] == '0', st
     assert st['source'] == 'cluster' or st['action'] == 'pass', st
+
+
+def test_a_pose_the_clock_has_passed_is_not_answered(ros_context):
+    """Sim time: the clock passes a step only once the robot has acknowledged it. A pose
+    the clock has passed was acknowledged without this filter (a parked robot acknowledges
+    by itself): answering it would acknowledge the robot's newer step with a decision on
+    the older pose. Start-up in the team graph left filters 1-5 steps behind that way."""
+    from geometry_msgs.msg import PoseStamped, PoseArray, Twist
+    from rclpy.node import Node
+    from rosgraph_msgs.msg import Clock
+    from supersafe_ros.ros_io import rosmsg
+    ns = '/robot_sim'
+    params = [Parameter('standard_shape', value=SHAPE), Parameter('use_sim_time', value=True),
+              Parameter('lockstep', value=True), Parameter('lockstep_silence', value=60.0),
+              Parameter('pose_timeout', value=5.0), Parameter('detections_timeout', value=5.0)]
+    node = SafetyFilterNode(namespace=ns, context=ros_context, parameter_overrides=params)
+    drv = Node('lockstep_clock_driver', namespace=ns, context=ros_context)
+    clock = drv.create_publisher(Clock, '/clock', rosmsg.QOS_CLOCK)
+    pose = drv.create_publisher(PoseStamped, 'pose', rosmsg.QOS_STREAM)
+    det = drv.create_publisher(PoseArray, 'detections', rosmsg.QOS_STREAM)
+    out = []
+    sub = drv.create_subscription(Twist, 'cmd_vel', out.append, rosmsg.QOS_STREAM)
+    spin = Spinner(ros_context, node, drv)
+    try:
+        spin.until(lambda: matched(clock, pose, det, sub), 10.0, 'topics to match')
+
+        def tick(sec):
+            m = Clock()
+            m.clock.sec = sec
+            clock.publish(m)
+            spin.until(lambda: node.get_clock().now().nanoseconds == sec * 1_000_000_000, 5.0,
+                       f'the filter at sim time {sec}')
+
+        def send_pose(sec):
+            stamp = Clock().clock
+            stamp.sec = sec
+            det.publish(rosmsg.xy_to_posearray([(40.0, 40.0)], stamp, 'map'))
+            pose.publish(rosmsg.state_to_pose((0.0, 0.0, 0.0), stamp, 'map'))
+
+        tick(10)
+        send_pose(10)
+        spin.until(lambda: len(out) == 1, 5.0, 'the answer to the current pose')
+        tick(12)                      # the clock went on without an answer to the pose of 11
+        send_pose(11)
+        spin.until(lambda: node.poses_skipped == 1, 5.0, 'the passed pose to be skipped')
+        assert len(out) == 1, 'a pose the clock had passed was answered'
+        send_pose(12)
+        spin.until(lambda: len(out) == 2, 5.0, 'the answer to the current pose')
+        assert node.poses_skipped == 1
+    finally:
+        spin.shutdown()
+        node.destroy_node()
+        drv.destroy_node()

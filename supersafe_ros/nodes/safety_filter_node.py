@@ -81,6 +81,7 @@ class SafetyFilterNode(Node):
         self._last_pose_arrival = time.monotonic()   # steady seconds
         self._held = None                  # (filter time, steady time held since) of a held answer
         self.holds = 0                     # answers held for a cluster solve (statistics)
+        self.poses_skipped = 0             # lockstep: poses the clock had passed (not answered)
         self._hold_spent = False           # a hold timed out: no more until nothing is solving
         self._last_out = None              # the last decision published
         self.name = self.get_fully_qualified_name()
@@ -136,9 +137,34 @@ class SafetyFilterNode(Node):
         if self.lockstep:
             self._last_pose_arrival = time.monotonic()
             self._held = None
+            if self._clock_passed(msg.header.stamp):
+                return
             self.decide(t, hold=self.cluster_hold_timeout > 0.0)
         elif self.publish_on_pose:
             self.decide(t)
+
+    def _clock_passed(self, stamp) -> bool:
+        """Lockstep with sim time: True (and counted) if /clock is already past this pose.
+
+        The clock cannot pass a step before the robot acknowledges it, and the robot
+        acknowledges on the first command after its pose. A pose the clock has passed was
+        acknowledged without this filter's answer (a parked or timed-out robot acknowledges
+        by itself; so does a reply to an older pose), and the robot is already at a newer
+        pose, queued behind this one. Answering it would acknowledge the newer step with a
+        decision on the older pose, and the filter would stay a step behind from then on
+        (seen at start-up: up to 5 steps, 1 s, for seconds). Skipping it lets the next,
+        current pose be answered. Unstamped poses and wall time are always answered.
+        """
+        stamp_ns = stamp.sec * 1_000_000_000 + stamp.nanosec
+        if not self.wiring.time.sim or stamp_ns <= 0:
+            return False
+        if stamp_ns >= self.get_clock().now().nanoseconds:
+            return False
+        self.poses_skipped += 1
+        self.wiring.complain('lockstep', f'skipped a pose the clock has already passed ({self.poses_skipped} '
+                             'so far): its step went on without this answer; answering the current pose',
+                             level='info')
+        return True
 
     def on_detections(self, msg: PoseArray):
         w = self.wiring
