@@ -185,3 +185,33 @@ def test_control_period_median_is_numpys():
         for _ in range(200):
             d = list(rng.choice([0.02, 0.05, 0.1, 1 / 3], n) + rng.normal(0, 1e-3, n) * (rng.random() < 0.5))
             assert repr(_median(d)) == repr(float(np.median(d)))
+
+
+def test_batched_input_updates_equal_the_per_robot_ones(standard):
+    """update_poses / update_detections_all (the fleet node's batched messages) leave every
+    filter as update_pose / update_detections would, and so decide the same."""
+    from supersafe_ros.filter.core import update_detections_all, update_poses
+    rng = np.random.default_rng(7)
+    fleets = [build_fleet(11, 60)[0] for _ in range(2)]
+    t = 10.0
+    for tick in range(4):
+        t += 0.02
+        states = np.stack([rng.uniform(-5, 25, 60), rng.uniform(-5, 20, 60), rng.uniform(-4, 4, 60)], axis=1)
+        skip = ['bad row' if rng.random() < 0.1 else '' for _ in range(60)]
+        stamp = t - 0.01 * tick
+        for f, s, why in zip(fleets[1], states, skip):
+            if not why:
+                f.update_pose(s, t, stamp=stamp)
+        update_poses(fleets[0], states, t, stamp=stamp, skip=skip)
+        if tick % 2:
+            dets = LAYOUT[rng.choice(len(LAYOUT), 6, replace=False)]
+            update_detections_all(fleets[0], dets, t)
+            for f in fleets[1]:
+                f.update_detections(dets, t)
+        outs = [step_many(fs, standard, t + 0.005) for fs in fleets]
+        for a, b, fa, fb in zip(*outs, *fleets):
+            assert record(a, fa) == record(b, fb)
+            assert (fa.pose.t, fa.pose.stamp, list(fa._pose_intervals)) == (fb.pose.t, fb.pose.stamp,
+                                                                            list(fb._pose_intervals))
+    with pytest.raises(ValueError):
+        update_poses(fleets[0], np.full((60, 3), np.nan), t)

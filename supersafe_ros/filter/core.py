@@ -342,6 +342,43 @@ class RobotFilter:
         return segments
 
 
+def update_poses(filters, states, t, stamp=None, skip=None) -> None:
+    """``filters[i].update_pose(states[i], t, stamp)`` for every robot whose ``skip[i]`` is
+    falsy (the fleet node's batched poses: one validation for all rows, then a few
+    assignments per robot instead of a call that re-validates one row). Raises ValueError
+    before updating anyone if a row to take is not finite or the stamp is not."""
+    s = np.asarray(states, dtype=float).reshape(len(filters), 3)
+    take = np.ones(len(filters), bool) if skip is None else ~np.array([bool(b) for b in skip], dtype=bool)
+    if not np.all(np.isfinite(s[take])):
+        raise ValueError('poses are not finite (x, y, theta)')
+    t = float(t)
+    stamp = t if stamp is None else float(stamp)
+    if not math.isfinite(stamp):
+        raise ValueError(f'pose stamp is not finite ({stamp})')
+    for f, row, ok in zip(filters, s, take.tolist()):
+        if not ok:
+            continue
+        pose = f.pose
+        previous = pose.stamp if pose.value is not None else None
+        pose.value, pose.t, pose.rejected, pose.stamp = row, t, '', stamp
+        if previous is not None and stamp > previous:
+            f._pose_intervals.append(stamp - previous)
+            f._period = None
+
+
+def update_detections_all(filters, centres, t) -> None:
+    """``update_detections(centres, t)`` for every robot, with one array shared by all (the
+    fleet node's batched detections; robots that share it share its cluster frames)."""
+    c = np.asarray(centres, dtype=float)
+    if c.size == 0:
+        c = np.zeros((0, 2))
+    if c.ndim != 2 or c.shape[1] != 2 or not np.all(np.isfinite(c)):
+        raise ValueError(f'detections must be finite (N, 2) centres, got shape {c.shape}')
+    t = float(t)
+    for f in filters:
+        f.detections.accept(c, t)
+
+
 def _median(values) -> float:
     """np.median of a few finite floats, bit for bit (the mean of the two middle ones for an even
     count, (a + b) / 2 as numpy computes it), at a tenth of its cost (~2 us for 16 values)."""

@@ -44,7 +44,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseArray, PoseStamped, Twist
 from std_msgs.msg import Float64MultiArray
 
-from ..filter.core import FAIL_SAFE, step_many
+from ..filter.core import FAIL_SAFE, step_many, update_detections_all, update_poses
 from ..ros_io import fleetmsg, rosmsg
 from .common import declare, run_node
 from .filter_wiring import FilterWiring, StateThrottle
@@ -175,8 +175,7 @@ class FleetSafetyFilterNode(Node):
                 f.reject_detections(str(exc), t)
             w.complain('fleet detections', f'fleet/detections rejected: {exc}; failing safe', level='error')
             return
-        for f in w.filters:
-            f.update_detections(xy, t)
+        update_detections_all(w.filters, xy, t)     # one array shared by every robot
 
     def on_fleet_commands(self, msg: Float64MultiArray):
         w = self.wiring
@@ -205,13 +204,12 @@ class FleetSafetyFilterNode(Node):
             w.complain('fleet poses', f'fleet/poses rejected: {exc}; failing safe (every robot)', level='error')
         else:
             stamp = w.stamp(msg.header.stamp, t)
-            for f, s, why in zip(w.filters, states, bad):
+            for f, why in zip(w.filters, bad):
                 if why:
                     f.reject_pose(why, t)
                     w.complain(f'pose {f.name}', f'{f.name}: fleet/poses row rejected: {why}; failing safe',
                                level='error')
-                else:
-                    f.update_pose(s, t, stamp=stamp)
+            update_poses(w.filters, states, t, stamp=stamp, skip=bad)   # the good rows, validated at once
         self.decide(t)
         self._last_batched = time.monotonic()
 
