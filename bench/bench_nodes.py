@@ -241,7 +241,7 @@ def bench_latency(args):
                 d.spin_for(max(0.0, 0.02 - (time.monotonic_ns() - t0) * 1e-9))   # 50 Hz
             results[chain] = lat
             both = lat['pass'] + lat['override']
-            print(f'[latency] pose -> cmd_vel, {chain}: {ms(both)}')
+            print(f'[latency] pose -> cmd_vel, {chain}: {ms(both)} (load {os.getloadavg()[0]:.1f})')
             print(f"[latency]    pass: {ms(lat['pass'])}; override: {ms(lat['override'])}")
         finally:
             d.close()
@@ -477,7 +477,7 @@ def _capacity(tag, m, cpu, ticks):
     per_tick = cpu / ticks
     print(f'[{tag}]          filter CPU per tick of {m} robots (inputs taken, one step_many, outputs '
           f'published) {per_tick * 1e3:.1f} ms ({per_tick / m * 1e6:.0f} us per robot) -> one core would '
-          f'serve ~{m * 0.02 / per_tick:.0f} robots at 50 Hz')
+          f'serve ~{m * 0.02 / per_tick:.0f} robots at 50 Hz (load {os.getloadavg()[0]:.1f})')
 
 
 def bench_fleet(args):
@@ -525,7 +525,7 @@ def bench_fleet(args):
             print(f'[fleet] M={m:4d}: fed at {ticks / (t1 - t0):5.1f} Hz per robot; decisions per robot median '
                   f'{np.median(decided):5.1f}/s, min {decided.min():5.1f}/s; robots failing safe at most {fail}; '
                   f'fleet process CPU {100 * cpu / (t1 - t0):5.1f} % of its one core; feeder CPU '
-                  f'{100 * feeder / (t1 - t0):5.1f} %')
+                  f'{100 * feeder / (t1 - t0):5.1f} % (load {os.getloadavg()[0]:.1f})')
             _capacity('fleet', m, cpu, _window_rates.ticks)
         finally:
             d.close()
@@ -585,11 +585,11 @@ def bench_batched(args):
             decided, fail = _window_rates(reports, t0, t1)
             print(f'[batched] N={n:5d}: fed at {ticks / (t1 - t0):5.1f} Hz; decisions per robot median '
                   f'{np.median(decided):5.1f}/s, min {decided.min():5.1f}/s; robots failing safe at most {fail}; '
-                  f'process CPU {100 * cpu / (t1 - t0):5.1f} % of its one core')
+                  f'process CPU {100 * cpu / (t1 - t0):5.1f} % of its one core (load {os.getloadavg()[0]:.1f})')
             _capacity('batched', n, cpu, _window_rates.ticks)
             if latency:
                 print(f'[batched]          fleet/poses -> fleet/cmd_vel (replies within the tick, '
-                      f'{len(latency)} of {ticks}): {ms(latency)}')
+                      f'{len(latency)} of {ticks}): {ms(latency)} (load {os.getloadavg()[0]:.1f})')
         finally:
             d.close()
             stop([child])
