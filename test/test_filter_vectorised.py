@@ -187,12 +187,13 @@ def test_control_period_median_is_numpys():
             assert repr(_median(d)) == repr(float(np.median(d)))
 
 
-def test_batched_input_updates_equal_the_per_robot_ones(standard):
+def test_batched_input_updates_equal_the_per_robot_ones(standard, solved_values):
     """update_poses / update_detections_all (the fleet node's batched messages) leave every
     filter as update_pose / update_detections would, and so decide the same."""
     from supersafe_ros.filter.core import update_detections_all, update_poses
     rng = np.random.default_rng(7)
     fleets = [build_fleet(11, 60)[0] for _ in range(2)]
+    stores = [make_store('pending', solved_values) for _ in range(2)]
     t = 10.0
     for tick in range(4):
         t += 0.02
@@ -208,7 +209,7 @@ def test_batched_input_updates_equal_the_per_robot_ones(standard):
             update_detections_all(fleets[0], dets, t)
             for f in fleets[1]:
                 f.update_detections(dets, t)
-        outs = [step_many(fs, standard, t + 0.005) for fs in fleets]
+        outs = [step_many(fs, standard, t + 0.005, st) for fs, st in zip(fleets, stores)]
         for a, b, fa, fb in zip(*outs, *fleets):
             assert record(a, fa) == record(b, fb)
             assert (fa.pose.t, fa.pose.stamp, list(fa._pose_intervals)) == (fb.pose.t, fb.pose.stamp,

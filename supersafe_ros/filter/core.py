@@ -419,9 +419,15 @@ def propagate_poses(filters, use, t):
         pose = f.pose
         age = max(0.0, min(t - min(pose.t, pose.stamp), f.config.hold_timeout))
         ages[row] = age
-        plan = f.segments_since(t - age, t)
+        t0 = t - age
+        sent = f.sent
+        if sent and sent[-1][0] <= t0 and t > t0:
+            plan = ((sent[-1][1], t - t0),)   # nothing sent since the pose: one arc (segments_since's answer)
+        else:
+            plan = f.segments_since(t0, t)
         plans.append(plan)
-        depth = max(depth, len(plan))
+        if len(plan) > depth:
+            depth = len(plan)
     if depth == 0:
         return states, ages
     speed = np.array([filters[i].config.speed for i in use])
