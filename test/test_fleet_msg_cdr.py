@@ -3,7 +3,9 @@ rclpy's deserialization and ``posearray_to_states`` read (states bit for bit, th
 rows and reasons, the same stamp, the same rejections)."""
 import numpy as np
 import pytest
-from rclpy.serialization import serialize_message
+from rclpy.serialization import deserialize_message, serialize_message
+
+from diagnostic_msgs.msg import DiagnosticStatus
 
 from supersafe_ros.ros_io import fleetmsg, rosmsg
 from supersafe_ros.ros_io.rosmsg import MessageError
@@ -52,3 +54,20 @@ def test_truncated_or_foreign_buffers():
     data = serialize_message(msg)
     with pytest.raises(MessageError, match='not a serialized PoseArray'):
         fleetmsg.posearray_cdr_to_states(data[:-8], 5)
+
+
+def test_refilled_state_status_equals_a_new_one():
+    """A robot's state status is refilled in place (the fleet node's periodic states): it must
+    read back (serialized) exactly as a new one, whether the keys stay or change."""
+    rng = np.random.default_rng(3)
+    keys = [f'k{i}' for i in range(19)]
+    status = rosmsg.make_diagnostic('r0', {k: 'x' for k in keys}, 'start', 0)
+    for trial in range(30):
+        ks = keys if trial % 3 else keys[:int(rng.integers(1, 19))] + ['extra']
+        values = {k: rng.choice(['pass', 1.5, -3, float('nan'), '']) for k in ks}
+        level, message = int(rng.integers(0, 3)), f'm{trial}'
+        status = rosmsg.refill_diagnostic(status, f'r{trial}', values, message, level)
+        fresh = rosmsg.make_diagnostic(f'r{trial}', values, message, level)
+        a, b = (deserialize_message(serialize_message(m), DiagnosticStatus) for m in (status, fresh))
+        assert (a.level, a.name, a.message, a.hardware_id) == (b.level, b.name, b.message, b.hardware_id)
+        assert [(kv.key, kv.value) for kv in a.values] == [(kv.key, kv.value) for kv in b.values]
