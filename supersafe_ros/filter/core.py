@@ -52,8 +52,12 @@ it: no pose yet, the newest pose was invalid (NaN/inf, wrong frame) or older tha
   default) around where its state was lost, instead of driving on blindly.
 
 ``step_many`` evaluates many robots with one vectorised call of the law (one
-value-function interpolation over every robot-obstacle pair); ``RobotFilter.step``
-is the one-robot case of it.
+value-function interpolation over every robot-obstacle pair); every robot's
+constraints (per obstacle and per cluster) are rows of one table, and the rule that
+picks the governing one is applied with array reductions over it, so the Python left
+per robot is reading its inputs and writing its ``FilterOutput``. It decides exactly
+as the robot-by-robot implementation it replaced (test_filter_vectorised.py keeps that
+one as the reference). ``RobotFilter.step`` is the one-robot case of it.
 """
 from __future__ import annotations
 
