@@ -550,17 +550,19 @@ def step_many(filters, safe_set: SafeSet, t, clusters=None) -> list:
     cl = _cluster_rows(filters, use, states, planned, horizon, speed, bang, dets, start, t, clusters)
     group[cl['member_pairs']] = n_pairs + cl['member_groups']
     tab = _Table()
-    tab.robot = np.concatenate([pair_robot, cl['robot']])
-    tab.position = np.concatenate([position, counts[cl['robot']] + cl['index']])
-    tab.value = np.concatenate([value, cl['value']])
-    tab.level = np.concatenate([np.full(n_pairs, float(safe_set.alpha)), cl['level']])
-    tab.turn = np.concatenate([turn, cl['turn']])
-    tab.value_next = np.concatenate([value_next, cl['value_next']])
-    tab.obstacle = np.concatenate([position, cl['obstacle']])
-    tab.xy = np.concatenate([centres, cl['xy']])
-    tab.sound = np.concatenate([np.zeros(n_pairs, bool), np.ones(len(cl['robot']), bool)])
-    tab.group = np.concatenate([group, n_pairs + cl['group']])
-    tab.members = np.concatenate([np.ones(n_pairs, np.intp), cl['members']])
+    k = len(cl['robot'])
+    cat = (lambda a, b: np.concatenate([a, b])) if k else (lambda a, b: a)   # noqa: E731
+    tab.robot = cat(pair_robot, cl['robot'])
+    tab.position = cat(position, counts[cl['robot']] + cl['index'])
+    tab.value = cat(value, cl['value'])
+    tab.level = cat(np.full(n_pairs, float(safe_set.alpha)), cl['level'])
+    tab.turn = cat(turn, cl['turn'])
+    tab.value_next = cat(value_next, cl['value_next'])
+    tab.obstacle = cat(position, cl['obstacle'])
+    tab.xy = cat(centres, cl['xy'])
+    tab.sound = cat(np.zeros(n_pairs, bool), np.ones(k, bool))
+    tab.group = cat(group, n_pairs + cl['group'])
+    tab.members = cat(np.ones(n_pairs, np.intp), cl['members'])
     tab.source = [safe_set.source] * n_pairs + cl['source']
 
     overriding, margin = per[:, 4] != 0.0, per[:, 5].copy()
@@ -717,6 +719,13 @@ class _ClusterFrames:
                                         if groups else np.zeros(0)])
 
 
+_NONE_I, _NONE_F = np.zeros(0, np.intp), np.zeros(0)
+_NONE_I.flags.writeable = _NONE_F.flags.writeable = False
+_NO_CLUSTERS = dict(robot=_NONE_I, index=_NONE_I, value=_NONE_F, level=_NONE_F, turn=_NONE_F, value_next=_NONE_F,
+                    obstacle=_NONE_I, xy=_NONE_F.reshape(0, 2), group=_NONE_I, members=_NONE_I, source=[],
+                    member_pairs=_NONE_I, member_groups=_NONE_I, n_groups=0)
+
+
 def _cluster_rows(filters, use, states, planned, horizon, speed, bang, dets, start, t, store_arg) -> dict:
     """The cluster constraints of every robot, as table columns (see ``_Table``).
 
@@ -760,11 +769,7 @@ def _cluster_rows(filters, use, states, planned, horizon, speed, bang, dets, sta
                 entry = entries[(id(fr), id(store))] = (fr, store, [])
             entry[2].append(row)
     if not entries:
-        return dict(robot=np.zeros(0, np.intp), index=np.zeros(0, np.intp), value=np.zeros(0),
-                    level=np.zeros(0), turn=np.zeros(0), value_next=np.zeros(0), obstacle=np.zeros(0, np.intp),
-                    xy=np.zeros((0, 2)), group=np.zeros(0, np.intp), members=np.zeros(0, np.intp), source=[],
-                    member_pairs=np.zeros(0, np.intp), member_groups=np.zeros(0, np.intp), n_groups=0,
-                    solving=solving)
+        return dict(_NO_CLUSTERS, solving=solving)
     entries = list(entries.values())
 
     # the union's value of each cluster geometry, looked up (and requested) in the order the
