@@ -141,6 +141,7 @@ class FilterWiring:
         self._last_log = {}
         self.set_update = ('none', 'no value function received')   # (accepted|rejected|ignored|none, why)
         self.set_updates = {'accepted': 0, 'rejected': 0}
+        self._state_msgs = {}    # robot name -> its state status, refilled (rosmsg.refill_diagnostic)
         self._learned = None               # the newest well-formed learned value function
         self._work = threading.Condition()
         self._pending = None               # newest unprocessed job: ('message', bytes) | ('reselect',)
@@ -381,7 +382,14 @@ class FilterWiring:
         return len(errors)
 
     def state_message(self, name: str, out):
-        return rosmsg.make_diagnostic(name, self.state_values(out), f'{out.action}: {out.reason}', out.level)
+        """The state of robot ``name`` (one status object per robot, refilled each time)."""
+        cache = self._state_msgs
+        old = cache.get(name)
+        values, message = self.state_values(out), f'{out.action}: {out.reason}'
+        status = (rosmsg.make_diagnostic(name, values, message, out.level) if old is None else
+                  rosmsg.refill_diagnostic(old, name, values, message, out.level))
+        cache[name] = status
+        return status
 
 
 class StateThrottle:

@@ -44,7 +44,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseArray, PoseStamped, Twist
 from std_msgs.msg import Float64MultiArray
 
-from ..filter.core import FAIL_SAFE, step_many
+from ..filter.core import FAIL_SAFE, step_many, update_detections_all, update_poses
 from ..ros_io import fleetmsg, rosmsg
 from .common import declare, run_node
 from .filter_wiring import FilterWiring, StateThrottle
@@ -118,7 +118,8 @@ class FleetSafetyFilterNode(Node):
                                      rosmsg.QOS_STREAM)
             self.create_subscription(Float64MultiArray, 'fleet/cmd_vel_nav', self.on_fleet_commands,
                                      rosmsg.QOS_STREAM)
-            self.create_subscription(PoseArray, 'fleet/poses', self.on_fleet_poses, rosmsg.QOS_STREAM)
+            # raw: the poses are read straight from the CDR buffer (fleetmsg.posearray_cdr_to_states)
+            self.create_subscription(PoseArray, 'fleet/poses', self.on_fleet_poses, rosmsg.QOS_STREAM, raw=True)
             self.fleet_cmd_pub = self.create_publisher(Float64MultiArray, 'fleet/cmd_vel', rosmsg.QOS_STREAM)
             self.fleet_state_pub = self.create_publisher(DiagnosticArray, 'fleet/safety_filter/state',
                                                          rosmsg.QOS_STREAM)
@@ -175,8 +176,7 @@ class FleetSafetyFilterNode(Node):
                 f.reject_detections(str(exc), t)
             w.complain('fleet detections', f'fleet/detections rejected: {exc}; failing safe', level='error')
             return
-        for f in w.filters:
-            f.update_detections(xy, t)
+        update_detections_all(w.filters, xy, t)     # one array shared by every robot
 
     def on_fleet_commands(self, msg: Float64MultiArray):
         w = self.wiring
@@ -194,24 +194,28 @@ class FleetSafetyFilterNode(Node):
                 continue
             f.update_command(omega, t)
 
-    def on_fleet_poses(self, msg: PoseArray):
+    def on_fleet_poses(self, data: bytes):
+        """A serialized PoseArray (raw subscription); a PoseArray object is taken too."""
         w = self.wiring
         t = w.now()
         try:
-            states, bad = fleetmsg.posearray_to_states(msg, self.n, w.frame)
+            if isinstance(data, PoseArray):
+                states, bad = fleetmsg.posearray_to_states(data, self.n, w.frame)
+                header_stamp = data.header.stamp
+            else:
+                states, bad, header_stamp = fleetmsg.posearray_cdr_to_states(data, self.n, w.frame)
         except ValueError as exc:
             for f in w.filters:
                 f.reject_pose(str(exc), t)
             w.complain('fleet poses', f'fleet/poses rejected: {exc}; failing safe (every robot)', level='error')
         else:
-            stamp = w.stamp(msg.header.stamp, t)
-            for f, s, why in zip(w.filters, states, bad):
+            stamp = w.stamp(header_stamp, t)
+            for f, why in zip(w.filters, bad):
                 if why:
                     f.reject_pose(why, t)
                     w.complain(f'pose {f.name}', f'{f.name}: fleet/poses row rejected: {why}; failing safe',
                                level='error')
-                else:
-                    f.update_pose(s, t, stamp=stamp)
+            update_poses(w.filters, states, t, stamp=stamp, skip=bad)   # the good rows, validated at once
         self.decide(t)
         self._last_batched = time.monotonic()
 

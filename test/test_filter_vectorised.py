@@ -1,0 +1,218 @@
+"""The vectorised ``step_many`` decides exactly as the per-robot implementation it replaced.
+
+``filter_reference_support.step_many_reference`` is the robot-by-robot code of commit
+003abdd, kept verbatim. Both run on identical fleets (built twice from one seed) over
+several closed-loop ticks: random poses near obstacles, detections with clusters of
+close obstacles (shared arrays, as the fleet node's batched detections, and per-robot
+ones), commands beyond w_max, silent and missing planners, delayed, stale, rejected and
+missing poses and detections (fail safe with and without a last valid state),
+hysteresis, head-on ties and duplicate obstacles (ties in the smallest value), mixed
+robot configurations, and cluster stores whose union values are solved, pending or
+solved inline at the request. Every field of every output (turn rate, action, the
+full reason, governing obstacle, V, level, source, pose age, lookahead, clusters
+being solved), the overriding state and the commands remembered must be identical,
+bit for bit; and the fleets must have exercised every kind of decision.
+"""
+import math
+
+import numpy as np
+import pytest
+
+from filter_reference_support import step_many_reference
+from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore, ClusterValue, solve_cluster
+from supersafe_ros.filter.core import FilterConfig, RobotFilter, SafeSet, step_many
+from supersafe_ros.reach.dynamics import DubinsCar
+from supersafe_ros.reach.grid import Grid
+from supersafe_ros.reach.sets import Disc
+from supersafe_ros.reach.solver import solve_avoid
+
+# a coarse union solve (fast); the filter reads its link distance, radius and margin from it
+SETTINGS = ClusterSettings(cell=0.8, headings=12, reach=5.0, disk_cache=False)
+LAYOUT = np.array([[0.0, 0.0], [4.5, 0.0], [9.0, 0.0],          # a row 4.5 m apart
+                   [0.0, 14.0], [3.3, 15.5], [6.6, 14.0],       # a cup
+                   [20.0, 0.0], [20.0, 0.0],                    # a duplicate (ties in the min)
+                   [-15.0, 10.0], [30.0, 30.0]])                # lone obstacles
+
+
+@pytest.fixture(scope='module')
+def standard():
+    vf = solve_avoid(Grid((-8, -8), (8, 8), (41, 41, 24)), DubinsCar(3.0, 1.0), Disc(0, 0, 1.8), horizon=3.0)
+    return SafeSet(vf, 0.0, 'standard')
+
+
+class PendingStore(ClusterStore):
+    """Requests are queued but never solved: the fallback stays in force, and robots count
+    the clusters being solved."""
+
+    def request(self, key, centres):
+        with self._lock:
+            if key not in self.values:
+                self.requested.setdefault(key, 0.0)
+
+
+@pytest.fixture(scope='module')
+def solved_values():
+    """Union values of the row's first pair and of the cup (solved once, shared by the stores)."""
+    from supersafe_ros.filter.cluster import canonical
+    out = {}
+    for members in ([0, 1], [3, 4, 5]):
+        key, _, _, centres = canonical(LAYOUT[members], SETTINGS.key_resolution)
+        vf, seconds = solve_cluster(SETTINGS, centres)
+        out[key] = ClusterValue(vf, centres, seconds, lower=SETTINGS.lower_bound)
+    return out
+
+
+def make_store(kind, solved_values):
+    if kind == 'inline':        # solves at the request: robots after the first see the value
+        return ClusterStore(SETTINGS, background=False)
+    store = PendingStore(SETTINGS) if kind == 'pending' else ClusterStore(SETTINGS, fallback_only=True)
+    for key, value in solved_values.items():
+        store.values[key] = value
+    return store
+
+
+def build_fleet(seed, n):
+    """n robot filters and the shared detection arrays, all from ``seed`` (call twice: two
+    identical fleets)."""
+    rng = np.random.default_rng(seed)
+    shared = [LAYOUT.copy(), LAYOUT[[0, 1, 2, 9]].copy(), LAYOUT[[3, 4, 5, 6, 7]].copy(), np.zeros((0, 2))]
+    filters = []
+    t = 10.0
+    for i in range(n):
+        cfg = FilterConfig(omega_max=float(rng.choice([1.0, 1.0, 0.5])),
+                           clear_margin=float(rng.choice([0.2, 0.0, 0.5])),
+                           lookahead=float(rng.choice([0.1, 0.0, 0.2])),
+                           control_period=float(rng.choice([0.0, 0.0, 0.05])),
+                           compensate_delay=bool(rng.random() < 0.85),
+                           clusters=bool(rng.random() < 0.8),
+                           cluster_alpha=float(rng.choice([0.0, 0.0, 0.2])))
+        f = RobotFilter(cfg, name=f'r{i}')
+        centre = LAYOUT[rng.integers(len(LAYOUT))]
+        if rng.random() < 0.08:      # head on to an obstacle: dV/dtheta is a tie, the turn is left
+            pose = (centre[0] - 3.0, centre[1], 0.0)
+            dets = centre[None].copy()
+        else:
+            pose = (centre[0] + rng.uniform(-7, 7), centre[1] + rng.uniform(-7, 7), rng.uniform(-4, 4))
+            choice = rng.random()
+            dets = (shared[rng.integers(len(shared))] if choice < 0.6 else
+                    LAYOUT[rng.choice(len(LAYOUT), rng.integers(1, 6), replace=False)].copy())
+        pose_kind = rng.choice(['fresh'] * 6 + ['delayed', 'stale', 'lost', 'rejected', 'never'])
+        if pose_kind != 'never':
+            # a history of poses and commands: the control period is measured from it
+            for k in range(int(rng.integers(1, 5))):
+                tk = t - 0.02 * (4 - k)
+                f.update_pose(pose, tk, stamp=tk - rng.uniform(0.0, 0.01))
+                f.record_sent(float(rng.uniform(-1, 1)), tk)
+            age = {'fresh': 0.0, 'delayed': rng.uniform(0.01, 0.3), 'stale': rng.uniform(0.6, 0.95),
+                   'lost': 1.5, 'rejected': 0.0}[pose_kind]
+            f.update_pose(pose, t - age, stamp=t - age - rng.uniform(0.0, 0.12))
+            if pose_kind == 'rejected':
+                f.reject_pose('wrong frame', t)
+        det_kind = rng.choice(['fresh'] * 8 + ['stale', 'rejected', 'never'])
+        if det_kind != 'never':
+            f.update_detections(dets, t - (rng.uniform(1.05, 1.5) if det_kind == 'stale' else rng.uniform(0, 0.5)))
+            if det_kind == 'rejected':
+                f.reject_detections('bad frame', t)
+        cmd_kind = rng.choice(['fresh'] * 6 + ['wide', 'silent', 'none'])
+        if cmd_kind != 'none':
+            w = float(rng.uniform(-3, 3) if cmd_kind == 'wide' else rng.uniform(-1, 1))
+            f.update_command(w, t - (0.8 if cmd_kind == 'silent' else rng.uniform(0, 0.1)))
+        f.overriding = bool(rng.random() < 0.3)
+        filters.append(f)
+    return filters, t
+
+
+def advance(filters, outs, rng, t, dt):
+    """One closed-loop step: each robot moves under the command it got; some inputs arrive."""
+    for f, o in zip(filters, outs):
+        r = rng.random(4)
+        if f.pose.value is not None and r[0] < 0.9:
+            x, y, th = f.pose.value
+            th2 = th + o.omega * dt
+            moved = (x + 3.0 * dt * math.cos(th), y + 3.0 * dt * math.sin(th), th2)
+            f.update_pose(moved, t, stamp=t - (0.02 if r[1] < 0.3 else 0.0))
+        if r[2] < 0.5:
+            f.update_command(float(rng.uniform(-1.5, 1.5)), t)
+        if r[3] < 0.05 and f.detections.value is not None:
+            f.update_detections(f.detections.value.copy(), t)   # a new detections array, same centres
+
+
+def record(o, f):
+    return repr((o.omega, o.linear, o.action, o.reason, o.obstacle_index, o.obstacle_xy, o.value, o.alpha,
+                 o.source, o.omega_max_set, o.pose_age, o.lookahead, o.clusters_solving, f.overriding,
+                 list(f.sent)))
+
+
+@pytest.mark.parametrize('seed, store_kind, alpha, source', [
+    (1, 'solved', 0.0, 'standard'), (2, 'pending', 0.0, 'standard'), (3, 'solved', 0.3, 'learned'),
+    (4, 'inline', 0.0, 'standard'), (5, 'pending', -0.2, 'learned')])
+def test_vectorised_step_many_decides_as_the_per_robot_reference(standard, solved_values, seed, store_kind,
+                                                                  alpha, source):
+    safe = SafeSet(standard.vf, alpha, source)
+    fleets = [build_fleet(seed, 240) for _ in range(2)]
+    stores = [make_store(store_kind, solved_values) for _ in range(2)]
+    rngs = [np.random.default_rng(100 + seed) for _ in range(2)]
+    seen = {'actions': set(), 'reasons': set(), 'sources': set(), 'solving': 0, 'ties': 0}
+    t = fleets[0][1]
+    for tick in range(6):
+        new = step_many(fleets[0][0], safe, t, stores[0])
+        ref = step_many_reference(fleets[1][0], safe, t, stores[1])
+        for i, (a, b, fa, fb) in enumerate(zip(new, ref, fleets[0][0], fleets[1][0])):
+            assert record(a, fa) == record(b, fb), f'tick {tick}, robot {i}'
+            seen['actions'].add(a.action)
+            seen['reasons'].add(a.reason.split(' ')[0].split('=')[0].rstrip(';:'))
+            seen['sources'].add(a.source)
+            seen['solving'] += a.clusters_solving
+            seen['ties'] += ('obstacle 7' in a.reason or 'obstacle 6' in a.reason)
+        t += 0.02
+        for (filters, _), rng, outs in zip(fleets, rngs, (new, ref)):
+            advance(filters, outs, rng, t, 0.02)
+    # the fleets exercised every kind of decision (so the comparison cannot pass vacuously)
+    assert seen['actions'] == {'pass', 'override', 'fail_safe'}, seen
+    assert {'V', 'the', 'clear', 'pose', 'detections', 'no'} <= seen['reasons'], seen['reasons']
+    assert 'cluster-fallback' in seen['sources'] or 'cluster' in seen['sources'], seen['sources']
+    if store_kind in ('solved', 'inline'):
+        assert 'cluster' in seen['sources'], seen['sources']
+    if store_kind == 'pending':
+        assert seen['solving'] > 0
+
+
+def test_control_period_median_is_numpys():
+    """The control period's median (sorted, in Python) equals np.median bit for bit."""
+    from supersafe_ros.filter.core import _median
+    rng = np.random.default_rng(0)
+    for n in range(1, 17):
+        for _ in range(200):
+            d = list(rng.choice([0.02, 0.05, 0.1, 1 / 3], n) + rng.normal(0, 1e-3, n) * (rng.random() < 0.5))
+            assert repr(_median(d)) == repr(float(np.median(d)))
+
+
+def test_batched_input_updates_equal_the_per_robot_ones(standard, solved_values):
+    """update_poses / update_detections_all (the fleet node's batched messages) leave every
+    filter as update_pose / update_detections would, and so decide the same."""
+    from supersafe_ros.filter.core import update_detections_all, update_poses
+    rng = np.random.default_rng(7)
+    fleets = [build_fleet(11, 60)[0] for _ in range(2)]
+    stores = [make_store('pending', solved_values) for _ in range(2)]
+    t = 10.0
+    for tick in range(4):
+        t += 0.02
+        states = np.stack([rng.uniform(-5, 25, 60), rng.uniform(-5, 20, 60), rng.uniform(-4, 4, 60)], axis=1)
+        skip = ['bad row' if rng.random() < 0.1 else '' for _ in range(60)]
+        stamp = t - 0.01 * tick
+        for f, s, why in zip(fleets[1], states, skip):
+            if not why:
+                f.update_pose(s, t, stamp=stamp)
+        update_poses(fleets[0], states, t, stamp=stamp, skip=skip)
+        if tick % 2:
+            dets = LAYOUT[rng.choice(len(LAYOUT), 6, replace=False)]
+            update_detections_all(fleets[0], dets, t)
+            for f in fleets[1]:
+                f.update_detections(dets, t)
+        outs = [step_many(fs, standard, t + 0.005, st) for fs, st in zip(fleets, stores)]
+        for a, b, fa, fb in zip(*outs, *fleets):
+            assert record(a, fa) == record(b, fb)
+            assert (fa.pose.t, fa.pose.stamp, list(fa._pose_intervals)) == (fb.pose.t, fb.pose.stamp,
+                                                                            list(fb._pose_intervals))
+    with pytest.raises(ValueError):
+        update_poses(fleets[0], np.full((60, 3), np.nan), t)
