@@ -1,6 +1,12 @@
-"""The study through the real node graph: Phase II, the fits, Phase III, per subject.
+"""The study: Phase II, the fits, Phase III, per subject, on one of two engines.
 
-Per subject (a simulated supervisor from ``population.draw_subjects``):
+``StudyOptions.engine``: ``core`` (the default) runs the experiment below in this process
+with the package's ROS-free modules (``study.engine``: the same parameters and order of
+events, deterministic for a seed, ~100x less CPU); ``graph`` runs it through the real
+node graph as described here (the through-the-graph validation). Both give the same
+records, so the analysis, plots, JSON and power do not care which ran.
+
+Per subject through the graph (a simulated supervisor from ``population.draw_subjects``):
 
 1. Phase II (``run_phase2``): a light graph — sim clock, world (``respawn`` false),
    one robot, supervisor (the subject's w_max, mu, sigma, seed), learner — and the
@@ -65,6 +71,10 @@ class StudyOptions:
     sweep_k: tuple = (0.0, 1.0, 2.0)
     game_timeout: float = 120.0      # wall s per game before giving up on it
     plots: bool = True
+    engine: str = 'core'             # core: in this process (study.engine); graph: the node graph
+
+
+ENGINES = ('core', 'graph')
 
 
 class Progress:
@@ -153,6 +163,9 @@ class Phase2Result:
     notes: list = field(default_factory=list)
     fp_msg: object = None              # the first-passage learner's value-function message, or None
     fp_fit: dict | None = None         # its fit (estimator, omega_max, mu, sigma, alpha, counts)
+    vf: object = None                  # core engine: the paper fit's ValueFunction (no message)
+    fp_vf: object = None               # core engine: the first-passage fit's ValueFunction
+    cpu_s: float | None = None         # core engine: CPU seconds of the phase
 
 
 def run_phase2(subject: Subject, opts: StudyOptions, domain_id: int, log_dir: Path,
@@ -281,15 +294,21 @@ def phase2_encounters_from_scenes(scenes: list) -> list:
     return out
 
 
-def first_passage_fit(scenes: list):
-    """fit_first_passage over the library (conservative prior) -> (message, fit dict)."""
+def first_passage_offline(scenes: list):
+    """fit_first_passage over the library (conservative prior) -> (FitResult, fit dict);
+    no ROS message (the core engine's cross-check)."""
     from ..learning.estimators import fit_first_passage
     from ..reach.library import load_or_build_library
-    from ..ros_io.vfmsg import value_function_to_msg
     lib = load_or_build_library()
     true_vf = lib.entry(TRUE_OMEGA)
     fit = fit_first_passage(lib.entries, phase2_encounters_from_scenes(scenes), true_vf=true_vf)
-    summary = {k: v for k, v in fit.to_dict().items() if k not in ('candidates', 'notes')}
+    return fit, {k: v for k, v in fit.to_dict().items() if k not in ('candidates', 'notes')}
+
+
+def first_passage_fit(scenes: list):
+    """fit_first_passage over the library (conservative prior) -> (message, fit dict)."""
+    from ..ros_io.vfmsg import value_function_to_msg
+    fit, summary = first_passage_offline(scenes)
     msg = value_function_to_msg(fit.value_function, **summary, source='learned')
     return msg, summary
 
@@ -382,8 +401,21 @@ def offline_cross_check(p2: Phase2Result) -> dict | None:
     receives on topics): chosen omega_max, mu, sigma, counts."""
     if not len(p2.states):
         return None
-    _, fit = first_passage_fit(p2.scenes)
+    _, fit = first_passage_offline(p2.scenes)
     return {k: fit.get(k) for k in FIT_KEYS + ('interventions', 'encounters')}
+
+
+def learned_value_functions(p2: Phase2Result, conditions) -> dict:
+    """condition -> (ValueFunction or None, fit or None): the core engine's value functions,
+    or the graph learners' messages decoded."""
+    out = {}
+    for c, (msg, fit) in learned_sets(p2, conditions).items():
+        vf = p2.vf if c == 'learned' else p2.fp_vf
+        if vf is None and msg is not None:
+            from ..ros_io.vfmsg import msg_to_value_function
+            vf = msg_to_value_function(msg)
+        out[c] = (vf, fit if vf is not None else None)
+    return out
 
 
 def sweep_condition(conditions):
@@ -391,15 +423,56 @@ def sweep_condition(conditions):
     return next((c for c in ('learned', 'learned_fp') if c in conditions), None)
 
 
+class GraphGames:
+    """Phase III of one subject through its kept-alive node graph (``games.GameGraph``)."""
+
+    def __init__(self, subject, world_seed: int, opts: StudyOptions, env: dict, log_dir: Path):
+        from .games import GameGraph
+        self.subject, self.world_seed, self.opts = subject, world_seed, opts
+        self.graph = GameGraph(env, world_seed, supervisor_params(subject), opts.step, opts.rate_factor,
+                               log_dir)
+
+    def play(self, condition: str, learned: dict, k: float):
+        """(result dict of ``GameGraph.play``, alpha or None, the set that ran)."""
+        msg, alpha, ran = condition_message(condition, learned, k)
+        result = self.graph.play(msg, self.world_seed, supervisor_seed(self.subject, self.world_seed),
+                                 self.opts.game_seconds,
+                                 self.opts.game_timeout + (120.0 if self.graph.games == 0 else 0.0))
+        return result, alpha, ran
+
+    def close(self):
+        self.graph.close()
+
+
+class CoreGames:
+    """Phase III of one subject in this process (``engine.CoreStudy.play``)."""
+
+    def __init__(self, core, subject, world_seed: int, opts: StudyOptions):
+        self.core, self.subject, self.world_seed, self.opts = core, subject, world_seed, opts
+
+    def play(self, condition: str, learned: dict, k: float):
+        safe_set, alpha, ran = self.core.safe_set(condition, learned, k)
+        return self.core.play(self.subject, self.world_seed, safe_set, self.opts), alpha, ran
+
+    def close(self):
+        pass
+
+
 def run_study(subjects: list, opts: StudyOptions, out=sys.stdout) -> dict:
-    """Run every subject; returns the raw per-subject records (see ``summarize``)."""
-    from ..ros_io.vfmsg import msg_to_value_function
+    """Run every subject on ``opts.engine``; returns the raw per-subject records (see
+    ``summarize``)."""
     from .analysis import ordered
-    from .games import GameGraph
+    if opts.engine not in ENGINES:
+        raise ValueError(f"engine '{opts.engine}' is not one of {ENGINES}")
     conditions = ordered(opts.conditions)
     progress = Progress(len(subjects), out)
-    domain = opts.domain_id if opts.domain_id is not None else int(team_env()['ROS_DOMAIN_ID'])
-    env = team_env(domain)
+    core = env = domain = None
+    if opts.engine == 'core':
+        from .engine import CoreStudy
+        core = CoreStudy()
+    else:
+        domain = opts.domain_id if opts.domain_id is not None else int(team_env()['ROS_DOMAIN_ID'])
+        env = team_env(domain)
     logs = Path(opts.out_dir) / 'logs'
     records = []
     t_start = time.monotonic()
@@ -407,17 +480,20 @@ def run_study(subjects: list, opts: StudyOptions, out=sys.stdout) -> dict:
         rec = {'subject': subject.to_dict(), 'games': {}, 'sweep': {}, 'fits': {}, 'learned_vfs': {}}
         progress.line(i, 'phase II', None, f'w_max {subject.omega_max:g} mu {subject.mu:g} '
                       f'sigma {subject.sigma:g}, {len(opts.phase2_offsets)} offsets')
-        p2 = run_phase2(subject, opts, domain, logs / f's{i:02d}-phase2', progress)
+        if core is not None:
+            p2 = core.phase2(subject, opts, with_fp='learned_fp' in conditions)
+        else:
+            p2 = run_phase2(subject, opts, domain, logs / f's{i:02d}-phase2', progress)
         rec['phase2'] = {'scenes': [{k: v for k, v in s.items() if k != 'frames'} for s in p2.scenes],
                          'interventions': len(p2.states), 'sim_time': p2.sim_time, 'wall': p2.wall,
-                         'notes': p2.notes}
+                         'notes': p2.notes, 'engine': opts.engine}
         rec['states'] = p2.states.tolist()
-        fits = learned_sets(p2, conditions)
+        fits = learned_value_functions(p2, conditions)
         if 'learned_fp' in fits:
             rec['phase2']['offline_first_passage'] = offline_cross_check(p2)
-        for c, (msg, fit) in fits.items():
+        for c, (vf, fit) in fits.items():
             rec['fits'][c] = fit
-            rec['learned_vfs'][c] = msg_to_value_function(msg) if msg is not None else None
+            rec['learned_vfs'][c] = vf
         progress.line(i, 'phase II done', p2.sim_time, f'{len(p2.states)} interventions' + ''.join(
             f'; {c}: ' + (f'w {f["omega_max"]:g} mu {f["mu"]:.3g} sigma {f["sigma"]:.3g}' if f
                           else 'no fit (too few interventions): Standard set')
@@ -428,18 +504,15 @@ def run_study(subjects: list, opts: StudyOptions, out=sys.stdout) -> dict:
         swept = sweep_condition(conditions)
         if i < opts.sweep_subjects and swept and rec['fits'].get(swept):
             games += [(swept, k) for k in opts.sweep_k if k != 0.0]
-        graph = GameGraph(env, world_seed, supervisor_params(subject), opts.step, opts.rate_factor,
-                          logs / f's{i:02d}-phase3')
+        player = (CoreGames(core, subject, world_seed, opts) if core is not None else
+                  GraphGames(subject, world_seed, opts, env, logs / f's{i:02d}-phase3'))
         try:
             for cond, k in games:
-                msg, alpha, ran = condition_message(cond, learned, k)
-                result = graph.play(msg, world_seed, supervisor_seed(subject, world_seed),
-                                    opts.game_seconds,
-                                    opts.game_timeout + (120.0 if graph.games == 0 else 0.0))
+                result, alpha, ran = player.play(cond, learned, k)
                 g = game_counts(result)
                 g.update(wall=result['wall'], wall_running=result['wall_running'], cpu_s=result['cpu_s'],
                          cpu_by_process=result['cpu_by_process'],
-                         resends=result['resends'], set=ran,
+                         resends=result['resends'], set=ran, engine=opts.engine,
                          alpha=alpha, complete=g['sim_time'] >= opts.game_seconds - 1e-6)
                 if k == 0.0:
                     rec['games'][cond] = g
@@ -456,7 +529,7 @@ def run_study(subjects: list, opts: StudyOptions, out=sys.stdout) -> dict:
         except KeyboardInterrupt:
             raise
         finally:
-            graph.close()
+            player.close()
         records.append(rec)
         # the subject's files, in the layout a human participant's session also writes
         # (console/session.py), so the analysis can mix the two
