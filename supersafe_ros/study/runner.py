@@ -212,8 +212,11 @@ def run_phase2(subject: Subject, opts: StudyOptions, domain_id: int, log_dir: Pa
                 notes.append(f'the learner fitted {_fit_count(vf_msg) if vf_msg else 0} of {n} interventions')
         if fp_watch is not None and n >= 3:
             # every scene is one encounter; the last one becomes final once the robot has
-            # passed its obstacle (the graph still runs: the conductor keeps answering)
-            fp_msg, status = fp_watch.wait_for_counts(n, len(conductor.scenes), timeout=20.0)
+            # passed its obstacle (the graph still runs: the conductor keeps answering) and
+            # 2 s of pose time have passed; the wait ends as soon as the fit has them all, so
+            # a long timeout costs nothing when the learner is quick, and a loaded machine
+            # (a deep pose queue, scipy refits at a third of the learner's time) gets it
+            fp_msg, status = fp_watch.wait_for_counts(n, len(conductor.scenes), timeout=60.0)
             fp_fit = first_passage_learner_fit(fp_msg, status)
             if fp_fit is None or (fp_fit['interventions'], fp_fit['encounters']) != (n, len(conductor.scenes)):
                 got = (f"{fp_fit['interventions']} interventions in {fp_fit['encounters']} encounters"
