@@ -135,3 +135,22 @@ def test_the_core_study_reports_every_condition_and_the_h2_measures(tmp_path):
         assert g['engine'] == 'core' and g['complete'] and g['set'] in (c, 'standard')
     assert set(subj['sweep']) == {'0', '1', '2'}
     assert 'anova' in res and 'shorter_arcs_than_conservative' in res['h2']
+
+
+def test_the_core_records_do_not_depend_on_the_number_of_workers(tmp_path):
+    from supersafe_ros.study.population import draw_subjects
+    from supersafe_ros.study.runner import run_study
+    subjects = draw_subjects(2, 3)
+    runs = []
+    for workers in (1, 2):
+        opts = StudyOptions(subjects=2, seed=3, game_seconds=15.0, phase2_offsets=(-1.0, 0.0, 1.0),
+                            conditions=('standard', 'conservative'), sweep_subjects=0, workers=workers,
+                            out_dir=tmp_path / f'w{workers}')
+        recs = run_study(subjects, opts, out=io.StringIO())['records']
+        # as JSON text: NaN measures (no trip completed) compare equal there
+        runs.append([json.dumps(({c: {k: v for k, v in g.items() if k not in ('wall', 'wall_running', 'cpu_s',
+                                                                             'cpu_by_process')}
+                                  for c, g in r['games'].items()}, r['states']), sort_keys=True)
+                     for r in recs])
+    assert runs[0] == runs[1]
+    assert runs[0][0] != runs[0][1]          # two subjects, two different records

@@ -50,6 +50,9 @@ def _add_engine(parser):
                              'core modules, deterministic for a seed, minutes for 12 subjects; graph: every '
                              'Phase II scene and game through the real ROS node graph (the through-the-graph '
                              'validation, ~30 ms CPU per step over 8 processes)')
+    parser.add_argument('--workers', type=int, default=0,
+                        help='core engine: subjects run in this many processes (default 0: one per core); '
+                             'the results do not depend on it')
 
 
 def add_parser(subparsers):
@@ -95,7 +98,7 @@ def options_from_args(args):
                         conditions=parse_conditions(args.conditions),
                         out_dir=Path(args.out), domain_id=args.domain_id,
                         sweep_subjects=max(0, args.sweep_subjects), plots=not args.no_plots,
-                        engine=getattr(args, 'engine', 'core'))
+                        engine=getattr(args, 'engine', 'core'), workers=max(0, getattr(args, 'workers', 0)))
     if args.phase2_offsets:
         opts.phase2_offsets = tuple(float(v) for v in args.phase2_offsets.split(',') if v.strip())
     return opts

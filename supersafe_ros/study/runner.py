@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 import functools
 import json
 import math
+import os
 from pathlib import Path
 import shutil
 import sys
@@ -72,6 +73,7 @@ class StudyOptions:
     game_timeout: float = 120.0      # wall s per game before giving up on it
     plots: bool = True
     engine: str = 'core'             # core: in this process (study.engine); graph: the node graph
+    workers: int = 0                 # core: subjects run in this many processes (0: one per core)
 
 
 ENGINES = ('core', 'graph')
@@ -463,82 +465,116 @@ class CoreGames:
 
 def run_study(subjects: list, opts: StudyOptions, out=sys.stdout) -> dict:
     """Run every subject on ``opts.engine``; returns the raw per-subject records (see
-    ``summarize``)."""
+    ``summarize``). The core engine runs subjects in parallel processes (``opts.workers``):
+    subjects are independent, and each subject's record depends on its seeds only, so the
+    records are the same whatever the number of workers."""
     from .analysis import ordered
     if opts.engine not in ENGINES:
         raise ValueError(f"engine '{opts.engine}' is not one of {ENGINES}")
     conditions = ordered(opts.conditions)
     progress = Progress(len(subjects), out)
-    core = env = domain = None
+    t_start = time.monotonic()
     if opts.engine == 'core':
-        from .engine import CoreStudy
-        core = CoreStudy()
+        workers = opts.workers or os.cpu_count() or 1
+        workers = max(1, min(int(workers), len(subjects)))
+        if workers > 1:
+            import concurrent.futures
+            import multiprocessing
+            # fork: the workers inherit the loaded value functions (no rclpy runs in this
+            # process with the core engine)
+            with concurrent.futures.ProcessPoolExecutor(
+                    workers, mp_context=multiprocessing.get_context('fork')) as pool:
+                jobs = [pool.submit(_core_subject, i, subject, opts, conditions, progress.t0)
+                        for i, subject in enumerate(subjects)]
+                records = [j.result() for j in jobs]
+        else:
+            records = [_core_subject(i, subject, opts, conditions, progress.t0, out)
+                       for i, subject in enumerate(subjects)]
     else:
         domain = opts.domain_id if opts.domain_id is not None else int(team_env()['ROS_DOMAIN_ID'])
         env = team_env(domain)
-    logs = Path(opts.out_dir) / 'logs'
-    records = []
-    t_start = time.monotonic()
-    for i, subject in enumerate(subjects):
-        rec = {'subject': subject.to_dict(), 'games': {}, 'sweep': {}, 'fits': {}, 'learned_vfs': {}}
-        progress.line(i, 'phase II', None, f'w_max {subject.omega_max:g} mu {subject.mu:g} '
-                      f'sigma {subject.sigma:g}, {len(opts.phase2_offsets)} offsets')
-        if core is not None:
-            p2 = core.phase2(subject, opts, with_fp='learned_fp' in conditions)
-        else:
-            p2 = run_phase2(subject, opts, domain, logs / f's{i:02d}-phase2', progress)
-        rec['phase2'] = {'scenes': [{k: v for k, v in s.items() if k != 'frames'} for s in p2.scenes],
-                         'interventions': len(p2.states), 'sim_time': p2.sim_time, 'wall': p2.wall,
-                         'notes': p2.notes, 'engine': opts.engine}
-        rec['states'] = p2.states.tolist()
-        fits = learned_value_functions(p2, conditions)
-        if 'learned_fp' in fits:
-            rec['phase2']['offline_first_passage'] = offline_cross_check(p2)
-        for c, (vf, fit) in fits.items():
-            rec['fits'][c] = fit
-            rec['learned_vfs'][c] = vf
-        progress.line(i, 'phase II done', p2.sim_time, f'{len(p2.states)} interventions' + ''.join(
-            f'; {c}: ' + (f'w {f["omega_max"]:g} mu {f["mu"]:.3g} sigma {f["sigma"]:.3g}' if f
-                          else 'no fit (too few interventions): Standard set')
-            for c, f in rec['fits'].items()) + ''.join(f'; {n}' for n in p2.notes))
-        world_seed = opts.seed * 1000 + i
-        learned = {c: (rec['learned_vfs'][c], rec['fits'][c]) for c in fits}
-        games = [(c, 0.0) for c in conditions]
-        swept = sweep_condition(conditions)
-        if i < opts.sweep_subjects and swept and rec['fits'].get(swept):
-            games += [(swept, k) for k in opts.sweep_k if k != 0.0]
-        player = (CoreGames(core, subject, world_seed, opts) if core is not None else
-                  GraphGames(subject, world_seed, opts, env, logs / f's{i:02d}-phase3'))
-        try:
-            for cond, k in games:
-                result, alpha, ran = player.play(cond, learned, k)
-                g = game_counts(result)
-                g.update(wall=result['wall'], wall_running=result['wall_running'], cpu_s=result['cpu_s'],
-                         cpu_by_process=result['cpu_by_process'],
-                         resends=result['resends'], set=ran, engine=opts.engine,
-                         alpha=alpha, complete=g['sim_time'] >= opts.game_seconds - 1e-6)
-                if k == 0.0:
-                    rec['games'][cond] = g
-                    name = f'phase III {cond}'
-                else:
-                    rec['sweep'][k] = g
-                    name = f'sweep mu+{k:g}sigma'
-                progress.line(i, name, g['sim_time'],
-                              f'FP {g["false_positives"]} int {g["interventions"]} crashes {g["crashes"]} '
-                              f'trips {g["trips"]} arc {g["avoidance_length"]:.2f} m '
-                              f'({g["wall"]:.1f} s)')
-            if swept in rec['games'] and rec['sweep']:
-                rec['sweep'][0.0] = rec['games'][swept]
-        except KeyboardInterrupt:
-            raise
-        finally:
-            player.close()
-        records.append(rec)
+        records = []
+        for i, subject in enumerate(subjects):
+            player = lambda world_seed, i=i, subject=subject: GraphGames(  # noqa: E731
+                subject, world_seed, opts, env, Path(opts.out_dir) / 'logs' / f's{i:02d}-phase3')
+            phase2 = lambda subject, i=i: run_phase2(  # noqa: E731
+                subject, opts, domain, Path(opts.out_dir) / 'logs' / f's{i:02d}-phase2', progress)
+            records.append(run_subject(i, subject, opts, conditions, progress, phase2, player))
+    for i, rec in enumerate(records):
         # the subject's files, in the layout a human participant's session also writes
         # (console/session.py), so the analysis can mix the two
         from ..console.session import write_subject
         write_subject(Path(opts.out_dir) / 'subjects' / f's{i:02d}', rec)
     return {'records': records, 'wall': time.monotonic() - t_start}
+
+
+@functools.lru_cache(maxsize=1)
+def _core():
+    from .engine import CoreStudy
+    return CoreStudy()
+
+
+def _core_subject(i, subject, opts, conditions, t0, out=None):
+    """One subject on the core engine (in a worker process, or here)."""
+    progress = Progress(opts.subjects if opts.subjects else 1, out or sys.stdout)
+    progress.t0 = t0
+    core = _core()
+    return run_subject(i, subject, opts, conditions, progress,
+                       lambda subject: core.phase2(subject, opts, with_fp='learned_fp' in conditions),
+                       lambda world_seed: CoreGames(core, subject, world_seed, opts))
+
+
+def run_subject(i, subject, opts, conditions, progress, phase2, player_for) -> dict:
+    """Phase II, fits and Phase III of one subject; ``phase2(subject)`` -> Phase2Result,
+    ``player_for(world_seed)`` -> GraphGames | CoreGames."""
+    rec = {'subject': subject.to_dict(), 'games': {}, 'sweep': {}, 'fits': {}, 'learned_vfs': {}}
+    progress.line(i, 'phase II', None, f'w_max {subject.omega_max:g} mu {subject.mu:g} '
+                  f'sigma {subject.sigma:g}, {len(opts.phase2_offsets)} offsets')
+    p2 = phase2(subject)
+    rec['phase2'] = {'scenes': [{k: v for k, v in s.items() if k != 'frames'} for s in p2.scenes],
+                     'interventions': len(p2.states), 'sim_time': p2.sim_time, 'wall': p2.wall,
+                     'notes': p2.notes, 'engine': opts.engine}
+    rec['states'] = p2.states.tolist()
+    fits = learned_value_functions(p2, conditions)
+    if 'learned_fp' in fits:
+        rec['phase2']['offline_first_passage'] = offline_cross_check(p2)
+    for c, (vf, fit) in fits.items():
+        rec['fits'][c] = fit
+        rec['learned_vfs'][c] = vf
+    progress.line(i, 'phase II done', p2.sim_time, f'{len(p2.states)} interventions' + ''.join(
+        f'; {c}: ' + (f'w {f["omega_max"]:g} mu {f["mu"]:.3g} sigma {f["sigma"]:.3g}' if f
+                      else 'no fit (too few interventions): Standard set')
+        for c, f in rec['fits'].items()) + ''.join(f'; {n}' for n in p2.notes))
+    world_seed = opts.seed * 1000 + i
+    learned = {c: (rec['learned_vfs'][c], rec['fits'][c]) for c in fits}
+    games = [(c, 0.0) for c in conditions]
+    swept = sweep_condition(conditions)
+    if i < opts.sweep_subjects and swept and rec['fits'].get(swept):
+        games += [(swept, k) for k in opts.sweep_k if k != 0.0]
+    player = player_for(world_seed)
+    try:
+        for cond, k in games:
+            result, alpha, ran = player.play(cond, learned, k)
+            g = game_counts(result)
+            g.update(wall=result['wall'], wall_running=result['wall_running'], cpu_s=result['cpu_s'],
+                     cpu_by_process=result['cpu_by_process'],
+                     resends=result['resends'], set=ran, engine=opts.engine,
+                     alpha=alpha, complete=g['sim_time'] >= opts.game_seconds - 1e-6)
+            if k == 0.0:
+                rec['games'][cond] = g
+                name = f'phase III {cond}'
+            else:
+                rec['sweep'][k] = g
+                name = f'sweep mu+{k:g}sigma'
+            progress.line(i, name, g['sim_time'],
+                          f'FP {g["false_positives"]} int {g["interventions"]} crashes {g["crashes"]} '
+                          f'trips {g["trips"]} arc {g["avoidance_length"]:.2f} m '
+                          f'({g["wall"]:.1f} s)')
+        if swept in rec['games'] and rec['sweep']:
+            rec['sweep'][0.0] = rec['games'][swept]
+    finally:
+        player.close()
+    return rec
 
 
 # -- report -----------------------------------------------------------------------------
