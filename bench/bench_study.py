@@ -71,6 +71,10 @@ def compare(args) -> int:
     base = args.out or Path(tempfile.mkdtemp(prefix='supersafe-bench-compare-'))
     runs = {}
     for engine in ('core', 'graph'):
+        if engine == 'graph' and args.reuse_graph and (base / engine / 'study.json').is_file():
+            runs[engine] = json.loads((base / engine / 'study.json').read_text())
+            print(f'graph: reused {base / engine / "study.json"}', flush=True)
+            continue
         res, wall, load0, load1 = run_study(args, engine, base / engine, 0)
         runs[engine] = res
         print(f'{engine:5s}: {wall:7.1f} s wall, load {load0[0]:.2f} -> {load1[0]:.2f}', flush=True)
@@ -116,6 +120,8 @@ def main():
     ap.add_argument('--sweep-subjects', type=int, default=2)
     ap.add_argument('--game-seconds', type=float, default=None, help='default the study\'s (120)')
     ap.add_argument('--compare', action='store_true', help='the same study on both engines, side by side')
+    ap.add_argument('--reuse-graph', action='store_true',
+                    help='--compare: reuse <out>/graph/study.json of an earlier run with the same options')
     ap.add_argument('--no-plots', action='store_true')
     ap.add_argument('--quiet', action='store_true', help='hide the study\'s own output')
     ap.add_argument('--out', type=Path, default=None, help='study output (default a temporary directory)')

@@ -18,15 +18,22 @@ One step at sim time t (``sim_clock_node`` lockstep; the nodes named in brackets
    intervention goes to the world, which classifies it (FP or not), removes the obstacle
    and spawns a replacement [supervisor -> world];
 4. a new goal (the first pose, a trip) starts a new sensor trip [world -> robot goal];
-5. each filter decides on this step's pose and detections with the planner command it
-   has, which is the planner's answer to the previous pose: a lockstepped filter answers
-   a pose on arrival, and the planner's answer to the same pose arrives after it
-   (safety_filter_node, ``lockstep``) [safety_filter]. Clusters of detected obstacles are
-   solved before the decision, as the graph's filter holds its answer until the union
-   value is in force (``cluster_hold_timeout``);
+5. the planner answers the pose with the goal it knew before this step's world update
+   [planner], and each filter decides on this step's pose and detections with that
+   command [safety_filter]. Clusters of detected obstacles are solved before the decision,
+   as the graph's filter holds its answer until the union value is in force
+   (``cluster_hold_timeout``);
 6. the robot takes the decision as its command at t, the world the decision's action
-   (H2 meters of the next segment); the planner answers the pose with the goal it knew
-   before this step's world update [planner].
+   (H2 meters of the next segment).
+
+Which planner command a lockstepped filter judges is a race in the graph: it answers a
+pose on arrival, and the planner's answer to the same pose may come before or after
+(safety_filter_node, ``lockstep``). ``planner_lag`` True judges the previous pose's
+command instead. Measured against the graph (bench/bench_study.py --compare, 2 subjects,
+8 games): the graph completed 11-16 trips per game, as this loop does without the lag
+(16); with the lag the goal-seeking planner, saturated when the new goal is behind the
+robot, chatters between +-w_max one step out of phase and some robots drive off the
+field (4-6 trips in some games). So the default is no lag.
 
 Differences from the graph, on purpose: no message is lost or reordered (the graph's
 supervisor and world may lag the robots by up to two steps, ``observer_lag``); each
@@ -83,7 +90,7 @@ class TeamLoop:
     def __init__(self, world_config: WorldConfig, world_seed: int, starts: dict, robot_seeds: dict,
                  robot: RobotParams, filter_config: FilterConfig, safe_set: SafeSet,
                  watcher: Watcher | None, step: float, respawn: bool = True, filtered: bool = True,
-                 clusters: ClusterStore | None = None, planner_lag: bool = True):
+                 clusters: ClusterStore | None = None, planner_lag: bool = False):
         if not (math.isfinite(step) and step > 0):
             raise ValueError(f'step must be positive, got {step}')
         self.step_s = float(step)
