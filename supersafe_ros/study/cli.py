@@ -47,7 +47,8 @@ def _add_common(parser, subjects_default):
 def _add_engine(parser):
     parser.add_argument('--engine', choices=('core', 'graph'), default='core',
                         help='core (default): the same closed loop in this process with the ROS-free '
-                             'core modules, deterministic for a seed, minutes for 12 subjects; graph: every '
+                             'core modules, deterministic for a seed, ~2 ms of CPU per lockstep step (plus '
+                             'each new obstacle cluster\'s value, solved once into the cache); graph: every '
                              'Phase II scene and game through the real ROS node graph (the through-the-graph '
                              'validation, ~30 ms CPU per step over 8 processes)')
     parser.add_argument('--workers', type=int, default=0,
