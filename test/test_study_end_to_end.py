@@ -1,5 +1,6 @@
-"""A short study through the real node graph: 1 subject, 3 Phase II offsets, four 20 s games
-on one kept-alive Phase III graph (reset between games)."""
+"""A short study through the real node graph (``--engine graph``): 1 subject, 3 Phase II
+offsets, four 20 s games on one kept-alive Phase III graph (reset between games); and the
+same subject's Phase II on the in-process engine agrees with the graph's."""
 import io
 import json
 import math
@@ -16,7 +17,7 @@ def test_one_subject_study_through_the_graph(tmp_path):
     out_json = tmp_path / 'out.json'
     args = parser.parse_args(['study', '--subjects', '1', '--seed', '5', '--game-seconds', '20',
                               '--phase2-offsets=-1.0,0.0,1.0', '--sweep-subjects', '0',
-                              '--out', str(tmp_path / 'study'), '--json', str(out_json)])
+                              '--out', str(tmp_path / 'study'), '--json', str(out_json), '--engine', 'graph'])
     text = io.StringIO()
     assert cli.run(args, out=text) == 0
     printed = text.getvalue()
@@ -62,3 +63,18 @@ def test_one_subject_study_through_the_graph(tmp_path):
             assert -8.0 <= s['state'][0] <= 2.6 and abs(s['state'][1] - s['y0']) < 1e-6
     for name in ('false_positives.png', 'efficiency.png'):
         assert (tmp_path / 'study' / name).is_file()
+    assert res['options']['engine'] == 'graph' and games['standard']['engine'] == 'graph'
+
+    # the in-process engine plays the same scenes: the supervisor's draws are keyed by
+    # (seed, robot, obstacle id, approach), and both number the scenes' discs from 0
+    from supersafe_ros.study.engine import CoreStudy
+    from supersafe_ros.study.population import Subject
+    from supersafe_ros.study.runner import StudyOptions
+    core = CoreStudy().phase2(Subject(**subj['subject']), StudyOptions(phase2_offsets=(-1.0, 0.0, 1.0)))
+    assert [s['intervened'] for s in core.scenes] == [s['intervened'] for s in scenes]
+    for c, g in zip(core.scenes, scenes):
+        if g['intervened']:
+            assert math.dist(c['state'][:2], g['state'][:2]) < 1e-3
+    if subj['fits']['learned']:
+        assert core.fit['omega_max'] == subj['fits']['learned']['omega_max']
+        assert math.isclose(core.fit['mu'], subj['fits']['learned']['mu'], abs_tol=1e-3)

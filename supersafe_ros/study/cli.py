@@ -1,6 +1,8 @@
-"""`supersafe study` and `supersafe demo`: the paper's study in simulation, through the node graph.
+"""`supersafe study` and `supersafe demo`: the paper's study in simulation.
 
-See docs/study.md and ``supersafe_ros.study.runner``.
+By default (``--engine core``) every phase runs in this process with the package's
+ROS-free modules (``study.engine``); ``--engine graph`` runs it through the real node
+graph (the through-the-graph validation). See docs/study.md and ``supersafe_ros.study.runner``.
 """
 from __future__ import annotations
 
@@ -36,8 +38,22 @@ def _add_common(parser, subjects_default):
     parser.add_argument('--sweep-subjects', type=int, default=2,
                         help='observed alpha sweep (extra Learned games at mu+sigma, mu+2sigma) for the '
                              'first k subjects (default 2; 0 = predicted sweep only)')
-    parser.add_argument('--domain-id', type=int, default=None, help='ROS_DOMAIN_ID (default inherited)')
+    _add_engine(parser)
+    parser.add_argument('--domain-id', type=int, default=None, help='ROS_DOMAIN_ID (graph engine; '
+                        'default inherited)')
     parser.add_argument('--no-plots', action='store_true', help='skip the PNG figures')
+
+
+def _add_engine(parser):
+    parser.add_argument('--engine', choices=('core', 'graph'), default='core',
+                        help='core (default): the same closed loop in this process with the ROS-free '
+                             'core modules, deterministic for a seed, ~2 ms of CPU per lockstep step (plus '
+                             'each new obstacle cluster\'s value, solved once into the cache); graph: every '
+                             'Phase II scene and game through the real ROS node graph (the through-the-graph '
+                             'validation, ~30 ms CPU per step over 8 processes)')
+    parser.add_argument('--workers', type=int, default=0,
+                        help='core engine: subjects run in this many processes (default 0: one per core); '
+                             'the results do not depend on it')
 
 
 def add_parser(subparsers):
@@ -45,11 +61,15 @@ def add_parser(subparsers):
                                   description=__doc__.splitlines()[0])
     _add_common(study, 12)
     study.set_defaults(func=run)
+    study.epilog = 'engines: see docs/study.md, "Two engines"'
+
     demo = subparsers.add_parser(
         'demo', help=f'a small study: {DEMO_SUBJECTS} subjects, seed {DEMO_SEED}, out ./study-out',
-        description='A small study (3 simulated supervisors) through the node graph; prints Table 1 '
-                    'and where the plots are. Builds the value-function cache on first use.')
-    demo.add_argument('--domain-id', type=int, default=None, help='ROS_DOMAIN_ID (default inherited)')
+        description='A small study (3 simulated supervisors); prints Table 1 and where the plots are. '
+                    'Builds the value-function cache on first use.')
+    _add_engine(demo)
+    demo.add_argument('--domain-id', type=int, default=None, help='ROS_DOMAIN_ID (graph engine; default '
+                      'inherited)')
     demo.add_argument('--out', type=Path, default=Path('study-out'), help='output directory')
     demo.set_defaults(func=run_demo)
     return study
@@ -78,7 +98,8 @@ def options_from_args(args):
                         rate_factor=args.rate_factor, game_seconds=args.game_seconds,
                         conditions=parse_conditions(args.conditions),
                         out_dir=Path(args.out), domain_id=args.domain_id,
-                        sweep_subjects=max(0, args.sweep_subjects), plots=not args.no_plots)
+                        sweep_subjects=max(0, args.sweep_subjects), plots=not args.no_plots,
+                        engine=getattr(args, 'engine', 'core'), workers=max(0, getattr(args, 'workers', 0)))
     if args.phase2_offsets:
         opts.phase2_offsets = tuple(float(v) for v in args.phase2_offsets.split(',') if v.strip())
     return opts
@@ -143,7 +164,8 @@ def run(args, out=sys.stdout) -> int:
     for c, v in summary['conditions'].items():
         print(f"{c:13s} interventions {sum(v['interventions']):4d}  crashes {sum(v['crashes']):3d}  "
               f"trips {sum(v['trips']):4d}  (sums over subjects)", file=out)
-    print(f'\n{len(subjects)} subjects in {total:.0f} s wall; results {json_path}', file=out)
+    print(f'\n{len(subjects)} subjects in {total:.0f} s wall ({opts.engine} engine); results {json_path}',
+          file=out)
     if paths:
         print('plots: ' + ', '.join(str(p) for p in paths), file=out)
     return 0

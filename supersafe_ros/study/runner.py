@@ -1,6 +1,12 @@
-"""The study through the real node graph: Phase II, the fits, Phase III, per subject.
+"""The study: Phase II, the fits, Phase III, per subject, on one of two engines.
 
-Per subject (a simulated supervisor from ``population.draw_subjects``):
+``StudyOptions.engine``: ``core`` (the default) runs the experiment below in this process
+with the package's ROS-free modules (``study.engine``: the same parameters and order of
+events, deterministic for a seed, ~100x less CPU); ``graph`` runs it through the real
+node graph as described here (the through-the-graph validation). Both give the same
+records, so the analysis, plots, JSON and power do not care which ran.
+
+Per subject through the graph (a simulated supervisor from ``population.draw_subjects``):
 
 1. Phase II (``run_phase2``): a light graph — sim clock, world (``respawn`` false),
    one robot, supervisor (the subject's w_max, mu, sigma, seed), learner — and the
@@ -29,6 +35,7 @@ from dataclasses import dataclass, field
 import functools
 import json
 import math
+import os
 from pathlib import Path
 import shutil
 import sys
@@ -65,6 +72,11 @@ class StudyOptions:
     sweep_k: tuple = (0.0, 1.0, 2.0)
     game_timeout: float = 120.0      # wall s per game before giving up on it
     plots: bool = True
+    engine: str = 'core'             # core: in this process (study.engine); graph: the node graph
+    workers: int = 0                 # core: subjects run in this many processes (0: one per core)
+
+
+ENGINES = ('core', 'graph')
 
 
 class Progress:
@@ -153,6 +165,9 @@ class Phase2Result:
     notes: list = field(default_factory=list)
     fp_msg: object = None              # the first-passage learner's value-function message, or None
     fp_fit: dict | None = None         # its fit (estimator, omega_max, mu, sigma, alpha, counts)
+    vf: object = None                  # core engine: the paper fit's ValueFunction (no message)
+    fp_vf: object = None               # core engine: the first-passage fit's ValueFunction
+    cpu_s: float | None = None         # core engine: CPU seconds of the phase
 
 
 def run_phase2(subject: Subject, opts: StudyOptions, domain_id: int, log_dir: Path,
@@ -199,8 +214,11 @@ def run_phase2(subject: Subject, opts: StudyOptions, domain_id: int, log_dir: Pa
                 notes.append(f'the learner fitted {_fit_count(vf_msg) if vf_msg else 0} of {n} interventions')
         if fp_watch is not None and n >= 3:
             # every scene is one encounter; the last one becomes final once the robot has
-            # passed its obstacle (the graph still runs: the conductor keeps answering)
-            fp_msg, status = fp_watch.wait_for_counts(n, len(conductor.scenes), timeout=20.0)
+            # passed its obstacle (the graph still runs: the conductor keeps answering) and
+            # 2 s of pose time have passed; the wait ends as soon as the fit has them all, so
+            # a long timeout costs nothing when the learner is quick, and a loaded machine
+            # (a deep pose queue, scipy refits at a third of the learner's time) gets it
+            fp_msg, status = fp_watch.wait_for_counts(n, len(conductor.scenes), timeout=60.0)
             fp_fit = first_passage_learner_fit(fp_msg, status)
             if fp_fit is None or (fp_fit['interventions'], fp_fit['encounters']) != (n, len(conductor.scenes)):
                 got = (f"{fp_fit['interventions']} interventions in {fp_fit['encounters']} encounters"
@@ -281,15 +299,21 @@ def phase2_encounters_from_scenes(scenes: list) -> list:
     return out
 
 
-def first_passage_fit(scenes: list):
-    """fit_first_passage over the library (conservative prior) -> (message, fit dict)."""
+def first_passage_offline(scenes: list):
+    """fit_first_passage over the library (conservative prior) -> (FitResult, fit dict);
+    no ROS message (the core engine's cross-check)."""
     from ..learning.estimators import fit_first_passage
     from ..reach.library import load_or_build_library
-    from ..ros_io.vfmsg import value_function_to_msg
     lib = load_or_build_library()
     true_vf = lib.entry(TRUE_OMEGA)
     fit = fit_first_passage(lib.entries, phase2_encounters_from_scenes(scenes), true_vf=true_vf)
-    summary = {k: v for k, v in fit.to_dict().items() if k not in ('candidates', 'notes')}
+    return fit, {k: v for k, v in fit.to_dict().items() if k not in ('candidates', 'notes')}
+
+
+def first_passage_fit(scenes: list):
+    """fit_first_passage over the library (conservative prior) -> (message, fit dict)."""
+    from ..ros_io.vfmsg import value_function_to_msg
+    fit, summary = first_passage_offline(scenes)
     msg = value_function_to_msg(fit.value_function, **summary, source='learned')
     return msg, summary
 
@@ -382,8 +406,21 @@ def offline_cross_check(p2: Phase2Result) -> dict | None:
     receives on topics): chosen omega_max, mu, sigma, counts."""
     if not len(p2.states):
         return None
-    _, fit = first_passage_fit(p2.scenes)
+    _, fit = first_passage_offline(p2.scenes)
     return {k: fit.get(k) for k in FIT_KEYS + ('interventions', 'encounters')}
+
+
+def learned_value_functions(p2: Phase2Result, conditions) -> dict:
+    """condition -> (ValueFunction or None, fit or None): the core engine's value functions,
+    or the graph learners' messages decoded."""
+    out = {}
+    for c, (msg, fit) in learned_sets(p2, conditions).items():
+        vf = p2.vf if c == 'learned' else p2.fp_vf
+        if vf is None and msg is not None:
+            from ..ros_io.vfmsg import msg_to_value_function
+            vf = msg_to_value_function(msg)
+        out[c] = (vf, fit if vf is not None else None)
+    return out
 
 
 def sweep_condition(conditions):
@@ -391,78 +428,153 @@ def sweep_condition(conditions):
     return next((c for c in ('learned', 'learned_fp') if c in conditions), None)
 
 
+class GraphGames:
+    """Phase III of one subject through its kept-alive node graph (``games.GameGraph``)."""
+
+    def __init__(self, subject, world_seed: int, opts: StudyOptions, env: dict, log_dir: Path):
+        from .games import GameGraph
+        self.subject, self.world_seed, self.opts = subject, world_seed, opts
+        self.graph = GameGraph(env, world_seed, supervisor_params(subject), opts.step, opts.rate_factor,
+                               log_dir)
+
+    def play(self, condition: str, learned: dict, k: float):
+        """(result dict of ``GameGraph.play``, alpha or None, the set that ran)."""
+        msg, alpha, ran = condition_message(condition, learned, k)
+        result = self.graph.play(msg, self.world_seed, supervisor_seed(self.subject, self.world_seed),
+                                 self.opts.game_seconds,
+                                 self.opts.game_timeout + (120.0 if self.graph.games == 0 else 0.0))
+        return result, alpha, ran
+
+    def close(self):
+        self.graph.close()
+
+
+class CoreGames:
+    """Phase III of one subject in this process (``engine.CoreStudy.play``)."""
+
+    def __init__(self, core, subject, world_seed: int, opts: StudyOptions):
+        self.core, self.subject, self.world_seed, self.opts = core, subject, world_seed, opts
+
+    def play(self, condition: str, learned: dict, k: float):
+        safe_set, alpha, ran = self.core.safe_set(condition, learned, k)
+        return self.core.play(self.subject, self.world_seed, safe_set, self.opts), alpha, ran
+
+    def close(self):
+        pass
+
+
 def run_study(subjects: list, opts: StudyOptions, out=sys.stdout) -> dict:
-    """Run every subject; returns the raw per-subject records (see ``summarize``)."""
-    from ..ros_io.vfmsg import msg_to_value_function
+    """Run every subject on ``opts.engine``; returns the raw per-subject records (see
+    ``summarize``). The core engine runs subjects in parallel processes (``opts.workers``):
+    subjects are independent, and each subject's record depends on its seeds only, so the
+    records are the same whatever the number of workers."""
     from .analysis import ordered
-    from .games import GameGraph
+    if opts.engine not in ENGINES:
+        raise ValueError(f"engine '{opts.engine}' is not one of {ENGINES}")
     conditions = ordered(opts.conditions)
     progress = Progress(len(subjects), out)
-    domain = opts.domain_id if opts.domain_id is not None else int(team_env()['ROS_DOMAIN_ID'])
-    env = team_env(domain)
-    logs = Path(opts.out_dir) / 'logs'
-    records = []
     t_start = time.monotonic()
-    for i, subject in enumerate(subjects):
-        rec = {'subject': subject.to_dict(), 'games': {}, 'sweep': {}, 'fits': {}, 'learned_vfs': {}}
-        progress.line(i, 'phase II', None, f'w_max {subject.omega_max:g} mu {subject.mu:g} '
-                      f'sigma {subject.sigma:g}, {len(opts.phase2_offsets)} offsets')
-        p2 = run_phase2(subject, opts, domain, logs / f's{i:02d}-phase2', progress)
-        rec['phase2'] = {'scenes': [{k: v for k, v in s.items() if k != 'frames'} for s in p2.scenes],
-                         'interventions': len(p2.states), 'sim_time': p2.sim_time, 'wall': p2.wall,
-                         'notes': p2.notes}
-        rec['states'] = p2.states.tolist()
-        fits = learned_sets(p2, conditions)
-        if 'learned_fp' in fits:
-            rec['phase2']['offline_first_passage'] = offline_cross_check(p2)
-        for c, (msg, fit) in fits.items():
-            rec['fits'][c] = fit
-            rec['learned_vfs'][c] = msg_to_value_function(msg) if msg is not None else None
-        progress.line(i, 'phase II done', p2.sim_time, f'{len(p2.states)} interventions' + ''.join(
-            f'; {c}: ' + (f'w {f["omega_max"]:g} mu {f["mu"]:.3g} sigma {f["sigma"]:.3g}' if f
-                          else 'no fit (too few interventions): Standard set')
-            for c, f in rec['fits'].items()) + ''.join(f'; {n}' for n in p2.notes))
-        world_seed = opts.seed * 1000 + i
-        learned = {c: (rec['learned_vfs'][c], rec['fits'][c]) for c in fits}
-        games = [(c, 0.0) for c in conditions]
-        swept = sweep_condition(conditions)
-        if i < opts.sweep_subjects and swept and rec['fits'].get(swept):
-            games += [(swept, k) for k in opts.sweep_k if k != 0.0]
-        graph = GameGraph(env, world_seed, supervisor_params(subject), opts.step, opts.rate_factor,
-                          logs / f's{i:02d}-phase3')
-        try:
-            for cond, k in games:
-                msg, alpha, ran = condition_message(cond, learned, k)
-                result = graph.play(msg, world_seed, supervisor_seed(subject, world_seed),
-                                    opts.game_seconds,
-                                    opts.game_timeout + (120.0 if graph.games == 0 else 0.0))
-                g = game_counts(result)
-                g.update(wall=result['wall'], wall_running=result['wall_running'], cpu_s=result['cpu_s'],
-                         cpu_by_process=result['cpu_by_process'],
-                         resends=result['resends'], set=ran,
-                         alpha=alpha, complete=g['sim_time'] >= opts.game_seconds - 1e-6)
-                if k == 0.0:
-                    rec['games'][cond] = g
-                    name = f'phase III {cond}'
-                else:
-                    rec['sweep'][k] = g
-                    name = f'sweep mu+{k:g}sigma'
-                progress.line(i, name, g['sim_time'],
-                              f'FP {g["false_positives"]} int {g["interventions"]} crashes {g["crashes"]} '
-                              f'trips {g["trips"]} arc {g["avoidance_length"]:.2f} m '
-                              f'({g["wall"]:.1f} s)')
-            if swept in rec['games'] and rec['sweep']:
-                rec['sweep'][0.0] = rec['games'][swept]
-        except KeyboardInterrupt:
-            raise
-        finally:
-            graph.close()
-        records.append(rec)
+    if opts.engine == 'core':
+        workers = opts.workers or os.cpu_count() or 1
+        workers = max(1, min(int(workers), len(subjects)))
+        if workers > 1:
+            import concurrent.futures
+            import multiprocessing
+            # fork: the workers inherit the loaded value functions (no rclpy runs in this
+            # process with the core engine)
+            with concurrent.futures.ProcessPoolExecutor(
+                    workers, mp_context=multiprocessing.get_context('fork')) as pool:
+                jobs = [pool.submit(_core_subject, i, subject, opts, conditions, progress.t0)
+                        for i, subject in enumerate(subjects)]
+                records = [j.result() for j in jobs]
+        else:
+            records = [_core_subject(i, subject, opts, conditions, progress.t0, out)
+                       for i, subject in enumerate(subjects)]
+    else:
+        domain = opts.domain_id if opts.domain_id is not None else int(team_env()['ROS_DOMAIN_ID'])
+        env = team_env(domain)
+        records = []
+        for i, subject in enumerate(subjects):
+            player = lambda world_seed, i=i, subject=subject: GraphGames(  # noqa: E731
+                subject, world_seed, opts, env, Path(opts.out_dir) / 'logs' / f's{i:02d}-phase3')
+            phase2 = lambda subject, i=i: run_phase2(  # noqa: E731
+                subject, opts, domain, Path(opts.out_dir) / 'logs' / f's{i:02d}-phase2', progress)
+            records.append(run_subject(i, subject, opts, conditions, progress, phase2, player))
+    for i, rec in enumerate(records):
         # the subject's files, in the layout a human participant's session also writes
         # (console/session.py), so the analysis can mix the two
         from ..console.session import write_subject
         write_subject(Path(opts.out_dir) / 'subjects' / f's{i:02d}', rec)
     return {'records': records, 'wall': time.monotonic() - t_start}
+
+
+@functools.lru_cache(maxsize=1)
+def _core():
+    from .engine import CoreStudy
+    return CoreStudy()
+
+
+def _core_subject(i, subject, opts, conditions, t0, out=None):
+    """One subject on the core engine (in a worker process, or here)."""
+    progress = Progress(opts.subjects if opts.subjects else 1, out or sys.stdout)
+    progress.t0 = t0
+    core = _core()
+    return run_subject(i, subject, opts, conditions, progress,
+                       lambda subject: core.phase2(subject, opts, with_fp='learned_fp' in conditions),
+                       lambda world_seed: CoreGames(core, subject, world_seed, opts))
+
+
+def run_subject(i, subject, opts, conditions, progress, phase2, player_for) -> dict:
+    """Phase II, fits and Phase III of one subject; ``phase2(subject)`` -> Phase2Result,
+    ``player_for(world_seed)`` -> GraphGames | CoreGames."""
+    rec = {'subject': subject.to_dict(), 'games': {}, 'sweep': {}, 'fits': {}, 'learned_vfs': {}}
+    progress.line(i, 'phase II', None, f'w_max {subject.omega_max:g} mu {subject.mu:g} '
+                  f'sigma {subject.sigma:g}, {len(opts.phase2_offsets)} offsets')
+    p2 = phase2(subject)
+    rec['phase2'] = {'scenes': [{k: v for k, v in s.items() if k != 'frames'} for s in p2.scenes],
+                     'interventions': len(p2.states), 'sim_time': p2.sim_time, 'wall': p2.wall,
+                     'notes': p2.notes, 'engine': opts.engine}
+    rec['states'] = p2.states.tolist()
+    fits = learned_value_functions(p2, conditions)
+    if 'learned_fp' in fits:
+        rec['phase2']['offline_first_passage'] = offline_cross_check(p2)
+    for c, (vf, fit) in fits.items():
+        rec['fits'][c] = fit
+        rec['learned_vfs'][c] = vf
+    progress.line(i, 'phase II done', p2.sim_time, f'{len(p2.states)} interventions' + ''.join(
+        f'; {c}: ' + (f'w {f["omega_max"]:g} mu {f["mu"]:.3g} sigma {f["sigma"]:.3g}' if f
+                      else 'no fit (too few interventions): Standard set')
+        for c, f in rec['fits'].items()) + ''.join(f'; {n}' for n in p2.notes))
+    world_seed = opts.seed * 1000 + i
+    learned = {c: (rec['learned_vfs'][c], rec['fits'][c]) for c in fits}
+    games = [(c, 0.0) for c in conditions]
+    swept = sweep_condition(conditions)
+    if i < opts.sweep_subjects and swept and rec['fits'].get(swept):
+        games += [(swept, k) for k in opts.sweep_k if k != 0.0]
+    player = player_for(world_seed)
+    try:
+        for cond, k in games:
+            result, alpha, ran = player.play(cond, learned, k)
+            g = game_counts(result)
+            g.update(wall=result['wall'], wall_running=result['wall_running'], cpu_s=result['cpu_s'],
+                     cpu_by_process=result['cpu_by_process'],
+                     resends=result['resends'], set=ran, engine=opts.engine,
+                     alpha=alpha, complete=g['sim_time'] >= opts.game_seconds - 1e-6)
+            if k == 0.0:
+                rec['games'][cond] = g
+                name = f'phase III {cond}'
+            else:
+                rec['sweep'][k] = g
+                name = f'sweep mu+{k:g}sigma'
+            progress.line(i, name, g['sim_time'],
+                          f'FP {g["false_positives"]} int {g["interventions"]} crashes {g["crashes"]} '
+                          f'trips {g["trips"]} arc {g["avoidance_length"]:.2f} m '
+                          f'({g["wall"]:.1f} s)')
+        if swept in rec['games'] and rec['sweep']:
+            rec['sweep'][0.0] = rec['games'][swept]
+    finally:
+        player.close()
+    return rec
 
 
 # -- report -----------------------------------------------------------------------------
