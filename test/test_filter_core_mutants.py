@@ -1,0 +1,153 @@
+"""Tests that kill the mutants of ``supersafe_ros.filter.core`` that survived the fast tests.
+
+Each test names the mutation it guards against (issue 9: mutation testing with mutmut,
+``bash bench/mutation.sh core``); the equivalent survivors are listed with a reason in
+docs/filter_learner.md. ROS-free and fast, like test_filter_core.py.
+"""
+import numpy as np
+import pytest
+
+from supersafe_ros.filter.core import (FAIL_SAFE, OVERRIDE, PASS, FilterConfig, RobotFilter, SafeSet, arc_flow,
+                                       evaluate_pairs)
+from supersafe_ros.reach.dynamics import DubinsCar
+from supersafe_ros.reach.grid import Grid
+from supersafe_ros.reach.sets import Disc
+from supersafe_ros.reach.solver import solve_avoid
+
+OBSTACLE = (10.0, 5.0)
+T = 10.0          # a clock that does not start at 0 (t0 = 0 hides sign errors in time differences)
+
+
+@pytest.fixture(scope='module')
+def standard():
+    vf = solve_avoid(Grid((-8, -8), (8, 8), (41, 41, 24)), DubinsCar(3.0, 1.0), Disc(0, 0, 1.8), horizon=3.0)
+    return SafeSet(vf, 0.0, 'standard')
+
+
+def robot(t=T, pose=(0.0, 0.0, 0.0), detections=(OBSTACLE,), cmd=0.3, **cfg):
+    f = RobotFilter(FilterConfig(**cfg))
+    f.update_pose(pose, t)
+    f.update_detections(np.asarray(detections, dtype=float).reshape(-1, 2), t)
+    if cmd is not None:
+        f.update_command(cmd, t)
+    return f
+
+
+def at(rel_x, rel_y, theta):
+    return (OBSTACLE[0] + rel_x, OBSTACLE[1] + rel_y, theta)
+
+
+# -- the planner's command the lookahead judges (_planned_turn) ---------------------------------
+# Right of the obstacle's axis heading +x: a left turn (+0.9) held 0.2 s ends near the disc
+# (V ~ 0.05), straight on does not (V ~ 0.46). At level 0.25 the lookahead tells them apart.
+RIGHT, HOLD, LEVEL = at(-4.0, -1.0, 0.0), 0.2, 0.25
+
+
+def test_lookahead_judges_a_fresh_command_on_a_clock_not_starting_at_zero(standard):
+    """Kills ``t + command.t <= cmd_timeout`` (a fresh command judged as silent when t > 0)."""
+    level = SafeSet(standard.vf, LEVEL)
+    out = robot(pose=RIGHT, cmd=0.9, lookahead=HOLD).step(level, T)
+    assert out.action == OVERRIDE and 'would reach' in out.reason
+    out = robot(pose=RIGHT, cmd=0.0, lookahead=HOLD).step(level, T)
+    assert out.action == PASS and out.omega == 0.0
+
+
+def test_a_silent_planners_stale_command_is_judged_as_the_zero_it_becomes(standard):
+    """The filter forwards 0 for a silent planner, so the lookahead judges 0, not the stale
+    command (kills ``value is not None or age <= timeout``) nor a +1 (kills ``else 1.0``)."""
+    level = SafeSet(standard.vf, LEVEL)
+    f = robot(pose=RIGHT, cmd=0.9, lookahead=HOLD, control_period=HOLD, cmd_timeout=0.5)
+    f.update_pose(RIGHT, T + 1.0)
+    f.update_detections(np.array([OBSTACLE]), T + 1.0)
+    out = f.step(level, T + 1.0)
+    assert out.action == PASS and out.omega == 0.0 and 'planner silent' in out.reason
+
+
+def test_a_command_exactly_cmd_timeout_old_is_forwarded_and_judged(standard):
+    """At age == cmd_timeout the command is still forwarded, so the lookahead must judge it
+    (kills ``age < cmd_timeout`` in _planned_turn: it would judge 0 and forward +0.9)."""
+    level = SafeSet(standard.vf, LEVEL)
+    f = robot(t=0.0, pose=RIGHT, cmd=0.9, lookahead=HOLD, control_period=HOLD, cmd_timeout=0.5)
+    f.update_pose(RIGHT, 0.5)
+    f.update_detections(np.array([OBSTACLE]), 0.5)
+    out = f.step(level, 0.5)
+    assert out.action == OVERRIDE and 'would reach' in out.reason
+    # and with a harmless command at the same age: forwarded (not silent)
+    g = robot(t=0.0, pose=RIGHT, cmd=-0.9, lookahead=HOLD, control_period=HOLD, cmd_timeout=0.5)
+    g.update_pose(RIGHT, 0.5)
+    g.update_detections(np.array([OBSTACLE]), 0.5)
+    out = g.step(level, 0.5)
+    assert out.action == PASS and out.omega == -0.9
+
+
+# -- staleness: problem() and step_many agree at the boundary -----------------------------------
+def test_an_input_exactly_timeout_old_is_not_stale(standard):
+    """step_many's rule is ``age > timeout``; problem() must say the same (kills ``>=``)."""
+    f = robot(t=0.0, pose=at(-7.5, 6.0, 0.0), cmd=0.3, pose_timeout=0.5, detections_timeout=0.5)
+    assert f.problem(0.5) == ''
+    assert f.step(standard, 0.5).action == PASS
+    # a stale detections input is reported as such, not as a stale pose
+    g = robot(t=0.0, pose=at(-7.5, 6.0, 0.0), cmd=0.3, pose_timeout=0.5, detections_timeout=0.25)
+    out = g.step(standard, 0.5)
+    assert out.action == FAIL_SAFE and out.reason.startswith('detections stale')
+
+
+# -- what the robot did since its pose (segments_since) ------------------------------------------
+def sent_filter(cmd=None, sent=()):
+    f = RobotFilter(FilterConfig())
+    if cmd is not None:
+        f.update_command(cmd, T - 1.0)
+    for ts, w in sent:
+        f.record_sent(w, ts)
+    return f
+
+
+def segments(f, t0, t1):
+    return [(w, round(d, 12)) for w, d in f.segments_since(t0, t1)]
+
+
+def test_segments_before_any_command_sent():
+    """Nothing sent yet: the planner's command (clipped) held all along, else 0
+    (kills ``before = 0.0`` always, ``else 1.0``)."""
+    assert segments(sent_filter(), T, T + 0.3) == [(0.0, 0.3)]
+    assert segments(sent_filter(cmd=2.5), T, T + 0.3) == [(1.0, 0.3)]
+    assert segments(sent_filter(cmd=-0.4), T, T + 0.3) == [(-0.4, 0.3)]
+
+
+def test_segments_of_an_empty_interval():
+    """t1 == t0: nothing was held (kills ``t1 < t0``)."""
+    assert segments(sent_filter(cmd=0.4, sent=[(T, 0.4)]), T + 0.2, T + 0.2) == []
+
+
+def test_segments_with_commands_sent_in_and_after_the_interval():
+    """Durations are differences of times (kills ``ts + start``); commands sent at or after t1
+    are skipped, not an end of the search (kills ``>`` for ``>=`` and ``break`` for ``continue``)."""
+    f = sent_filter(cmd=0.1, sent=[(T, 0.4), (T + 0.1, -0.6), (T + 0.4, 0.9)])
+    assert segments(f, T + 0.05, T + 0.25) == [(0.4, 0.05), (-0.6, 0.15)]
+    assert segments(f, T + 0.05, T + 0.4) == [(0.4, 0.05), (-0.6, 0.3)]
+    assert segments(f, T + 0.15, T + 0.3) == [(-0.6, 0.15)]
+
+
+def test_pose_propagated_over_two_commands_on_a_clock_not_starting_at_zero(standard):
+    """The decision-level consequence of the segment durations (test_filter_core's propagation
+    test starts at t = 0, where ``ts + start`` equals ``ts - start``)."""
+    car = DubinsCar(3.0, 1.0)
+    f = robot(pose=at(-6.5, 2.0, -0.3), cmd=0.4, lookahead=0.0)
+    assert f.step(standard, T).action == PASS
+    f.update_command(-0.6, T + 0.1)
+    assert f.step(standard, T + 0.1).omega == -0.6
+    out = f.step(standard, T + 0.25)
+    expected = car.flow(car.flow(np.array([-6.5, 2.0, -0.3]), 0.4, 0.1), -0.6, 0.15)
+    assert out.pose_age == pytest.approx(0.25)
+    assert out.value == pytest.approx(float(evaluate_pairs(standard.vf, expected[None])[0][0]), abs=1e-9)
+
+
+# -- arc_flow ------------------------------------------------------------------------------------
+def test_arc_flow_is_straight_and_exact_for_negligible_turns():
+    """|omega dt| <= 1e-9 takes the straight-line formula: the arc formula would divide a
+    cancelled sine difference by a tiny omega (~1e-7 m of error; kills ``omega / dt``)."""
+    s = np.array([[0.3, -0.2, 0.7]])
+    for w, dt in ((1e-9, 0.1), (2e-9, 0.2), (0.0, 0.1)):
+        got = arc_flow(s, np.array([3.0]), np.array([w]), np.array([dt]))[0]
+        assert got[0] == pytest.approx(0.3 + 3.0 * dt * np.cos(0.7), abs=1e-12)
+        assert got[1] == pytest.approx(-0.2 + 3.0 * dt * np.sin(0.7), abs=1e-12)
