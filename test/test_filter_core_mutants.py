@@ -151,3 +151,85 @@ def test_arc_flow_is_straight_and_exact_for_negligible_turns():
         got = arc_flow(s, np.array([3.0]), np.array([w]), np.array([dt]))[0]
         assert got[0] == pytest.approx(0.3 + 3.0 * dt * np.cos(0.7), abs=1e-12)
         assert got[1] == pytest.approx(-0.2 + 3.0 * dt * np.sin(0.7), abs=1e-12)
+
+
+# -- the rule at its boundaries (_govern): "override when V <= alpha" ------------------------------
+def test_value_exactly_at_alpha_overrides(standard):
+    """V == alpha is inside the override set (kills ``V < level`` for entering)."""
+    pose = at(-6.0, 0.0, 0.0)
+    v = robot(pose=pose, lookahead=0.0).step(standard, T).value
+    assert 0.0 < v < 5.0
+    out = robot(pose=pose, lookahead=0.0).step(SafeSet(standard.vf, v), T)
+    assert out.action == OVERRIDE and out.value == v and out.reason.startswith('V=')
+
+
+def test_lookahead_value_exactly_at_alpha_overrides(standard):
+    """V after the planner's hold == alpha also overrides (kills ``V_next < level``)."""
+    from supersafe_ros.filter.core import _sampled_control
+    rel = np.array([[RIGHT[0] - OBSTACLE[0], RIGHT[1] - OBSTACLE[1], RIGHT[2]]])
+    one = np.ones(1)
+    _, v_next = _sampled_control(standard.vf, rel, 0.9 * one, HOLD * one, 3.0 * one, one, one)
+    level = float(v_next[0])
+    f = robot(pose=RIGHT, cmd=0.9, lookahead=HOLD, control_period=HOLD)
+    out = f.step(SafeSet(standard.vf, level), T)
+    assert out.value > level
+    assert out.action == OVERRIDE and 'would reach' in out.reason
+
+
+def test_value_exactly_at_alpha_plus_margin_keeps_overriding(standard):
+    """Hysteresis: overriding continues while V <= alpha + clear_margin (kills ``<``)."""
+    pose = at(-6.0, 0.0, 0.0)
+    v = robot(pose=pose, lookahead=0.0).step(standard, T).value
+    assert 0.0 < v < 5.0
+    f = robot(pose=pose, lookahead=0.0, clear_margin=v)      # alpha 0 + margin v == v exactly
+    f.overriding = True
+    out = f.step(standard, T)
+    assert out.action == OVERRIDE and 'not clear' in out.reason
+
+
+# -- which constraint governs (_govern on a hand-made table) ---------------------------------------
+def table(rows):
+    """A constraint table for _govern: rows of (robot, position, value, level, value_next, sound,
+    group)."""
+    from supersafe_ros.filter.core import _Table
+    tab = _Table()
+    cols = list(zip(*rows))
+    tab.robot, tab.position = np.array(cols[0], np.intp), np.array(cols[1], np.intp)
+    tab.value, tab.level, tab.value_next = (np.array(c, float) for c in cols[2:5])
+    tab.sound, tab.group = np.array(cols[5], bool), np.array(cols[6], np.intp)
+    return tab
+
+
+def govern(rows, overriding=False, margin=0.2):
+    from supersafe_ros.filter.core import _govern
+    tab = table(rows)
+    k, kind = _govern(tab, np.array([overriding]), np.array([margin]), int(tab.group.max()) + 1, 1)
+    return int(k[0]), int(kind[0])
+
+
+INF = np.inf
+
+
+def test_a_clusters_union_constraint_sets_its_members_aside_whatever_makes_it_act():
+    """Two members (rows 0, 1; not sound; group 2) and their cluster's union row (row 2, sound,
+    group 2). Whenever the union row acts (enters, looks ahead, or holds its hysteresis) it
+    governs, even where a member's own row would enter with a smaller V (kills ``enter & ahead``
+    and ``ahead & stay`` in ``acts``)."""
+    member = lambda pos, v: (0, pos, v, 0.0, INF, False, 2)     # noqa: E731
+    # the union row enters (not ahead): it governs, not the member with the smaller V
+    assert govern([member(0, -0.5), member(1, 1.0), (0, 2, -0.1, 0.0, 1.0, True, 2)]) == (2, 1)
+    # the union row only looks ahead to its level: still it, as 'ahead'
+    assert govern([member(0, -0.2), member(1, 1.0), (0, 2, 0.5, 0.0, -0.1, True, 2)]) == (2, 2)
+    # the union row only holds its hysteresis: still it, as 'stay'
+    assert govern([member(0, -0.1), member(1, 1.0), (0, 2, 0.1, 0.0, INF, True, 2)], overriding=True) == (2, 3)
+    # the union row does not act: the members are judged as lone obstacles
+    assert govern([member(0, -0.1), member(1, 1.0), (0, 2, 0.5, 0.0, INF, True, 2)]) == (0, 1)
+
+
+def test_the_smallest_value_above_its_own_level_governs_across_levels():
+    """A lone obstacle (level alpha = 0) and a cluster (level cluster_alpha = 0.3): the smaller
+    V - level governs, for entering and for the lookahead (kills ``V + level`` in either score)."""
+    lone_enter, cluster_enter = (0, 0, -0.1, 0.0, INF, False, 0), (0, 1, 0.1, 0.3, INF, True, 1)
+    assert govern([lone_enter, cluster_enter]) == (1, 1)        # 0.1 - 0.3 < -0.1 - 0
+    lone_ahead, cluster_ahead = (0, 0, 1.0, 0.0, -0.1, False, 0), (0, 1, 1.0, 0.3, 0.1, True, 1)
+    assert govern([lone_ahead, cluster_ahead]) == (1, 2)
