@@ -228,8 +228,26 @@ def test_a_clusters_union_constraint_sets_its_members_aside_whatever_makes_it_ac
 
 def test_the_smallest_value_above_its_own_level_governs_across_levels():
     """A lone obstacle (level alpha = 0) and a cluster (level cluster_alpha = 0.3): the smaller
-    V - level governs, for entering and for the lookahead (kills ``V + level`` in either score)."""
+    V - level governs, for entering, the lookahead and the hysteresis (kills ``V + level`` in
+    each score)."""
     lone_enter, cluster_enter = (0, 0, -0.1, 0.0, INF, False, 0), (0, 1, 0.1, 0.3, INF, True, 1)
     assert govern([lone_enter, cluster_enter]) == (1, 1)        # 0.1 - 0.3 < -0.1 - 0
     lone_ahead, cluster_ahead = (0, 0, 1.0, 0.0, -0.1, False, 0), (0, 1, 1.0, 0.3, 0.1, True, 1)
     assert govern([lone_ahead, cluster_ahead]) == (1, 2)
+    lone_stay, cluster_stay = (0, 0, 0.1, 0.0, INF, False, 0), (0, 1, 0.35, 0.3, INF, True, 1)
+    assert govern([lone_stay, cluster_stay], overriding=True) == (1, 3)
+
+
+# -- the lookahead's reach (_sampled_control) ----------------------------------------------------
+def test_a_long_hold_judges_robots_that_start_off_the_grid(standard):
+    """With a 2 s hold at 3 m/s a robot 5 m outside the value's grid (V = +inf now) ends its
+    hold on the grid, at V below a high level: the lookahead overrides. Pairs are skipped only
+    if two holds (2 speed H, + 1 m) cannot reach the grid (kills ``speed / H`` and ``2 / speed``
+    in that reach)."""
+    pose = at(-13.0, 0.0, 0.0)
+    level = SafeSet(standard.vf, 5.5)
+    out = robot(pose=pose, cmd=0.0, lookahead=2.0).step(level, T)
+    assert out.value == np.inf
+    assert out.action == OVERRIDE and 'would reach' in out.reason
+    # a short hold from there cannot reach the grid: the command passes
+    assert robot(pose=pose, cmd=0.0, lookahead=0.2).step(level, T).action == PASS
