@@ -276,3 +276,19 @@ def test_lookahead_values_on_lopsided_grids_equal_their_definition(lo, hi):
     assert 100 < finite.sum() < n - 100          # both kinds, well mixed
     np.testing.assert_array_equal(np.isfinite(got), finite)
     np.testing.assert_allclose(got[finite], expected[finite], atol=1e-6)
+
+
+@pytest.mark.parametrize('turns', [-5, 5])
+def test_an_unwrapped_heading_decides_as_the_wrapped_one(standard, turns):
+    """A pose may carry an unwrapped yaw (theta + 2 pi k, e.g. from an odometry integrator):
+    the decision is the same as for the wrapped heading (kills a skip shortcut that compares
+    theta with the grid's y bounds). The heading is off the grid's heading nodes, where V is
+    continuous in theta."""
+    level = SafeSet(standard.vf, LEVEL)
+    pose = (RIGHT[0], RIGHT[1], 0.1)
+    wound = (RIGHT[0], RIGHT[1], 0.1 + 2.0 * np.pi * turns)
+    for cmd, action in ((0.9, OVERRIDE), (-0.9, PASS)):
+        a = robot(pose=pose, cmd=cmd, lookahead=HOLD, control_period=HOLD).step(level, T)
+        b = robot(pose=wound, cmd=cmd, lookahead=HOLD, control_period=HOLD).step(level, T)
+        assert a.action == b.action == action and a.omega == b.omega
+        assert b.value == pytest.approx(a.value, abs=1e-9)
