@@ -292,3 +292,17 @@ def test_an_unwrapped_heading_decides_as_the_wrapped_one(standard, turns):
         b = robot(pose=wound, cmd=cmd, lookahead=HOLD, control_period=HOLD).step(level, T)
         assert a.action == b.action == action and a.omega == b.omega
         assert b.value == pytest.approx(a.value, abs=1e-9)
+
+
+def test_near_the_grids_edge_the_turn_whose_hold_leaves_the_grid_is_taken(standard):
+    """Heading out of the grid near its edge, the right turn's hold ends off the grid (V = +inf:
+    farther than the grid from the obstacle) and the left one's on it: the avoid turn is the
+    right one, though the law's dV/dtheta says left there (kills judging the holds only where
+    both end on the grid)."""
+    rel, h = np.array([-7.505, 1.086, -2.59]), 0.2
+    car = DubinsCar(3.0, 1.0)
+    left, right = (float(standard.vf.value(car.flow(rel, w, h)[None], outside=np.inf)[0]) for w in (1.0, -1.0))
+    value, law_turn = evaluate_pairs(standard.vf, rel[None])
+    assert np.isfinite(left) and right == np.inf and law_turn[0] == 1.0 and value[0] < 6.0
+    out = robot(pose=at(*rel), cmd=0.0, lookahead=h, control_period=h).step(SafeSet(standard.vf, 6.0), T)
+    assert out.action == OVERRIDE and out.reason.startswith('V=') and out.omega == -1.0
