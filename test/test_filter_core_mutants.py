@@ -306,3 +306,38 @@ def test_near_the_grids_edge_the_turn_whose_hold_leaves_the_grid_is_taken(standa
     assert np.isfinite(left) and right == np.inf and law_turn[0] == 1.0 and value[0] < 6.0
     out = robot(pose=at(*rel), cmd=0.0, lookahead=h, control_period=h).step(SafeSet(standard.vf, 6.0), T)
     assert out.action == OVERRIDE and out.reason.startswith('V=') and out.omega == -1.0
+
+
+# -- which robots are judged, which fail safe, and on what (step_many's input checks) ---------------
+@pytest.mark.parametrize('pose_age, det_age', [(0.3, 0.0), (0.0, 0.3), (0.5, 0.0), (0.0, 0.5)])
+def test_inputs_older_than_hold_timeout_but_not_stale_are_judged(standard, pose_age, det_age):
+    """hold_timeout may be shorter than the staleness timeouts: an input older than it but not
+    stale (up to exactly its timeout) is judged like any other, never dropped (kills the quick
+    staleness test reading ``t + t_in`` or ``>=``, or sending robots with a pose and detections
+    to the full check, which then drops them)."""
+    cfg = dict(pose_timeout=0.5, detections_timeout=0.5, hold_timeout=0.2, lookahead=0.0)
+    f = RobotFilter(FilterConfig(**cfg))
+    f.update_pose(at(-7.5, 6.0, 0.0), 0.5 - pose_age)
+    f.update_detections(np.array([OBSTACLE]), 0.5 - det_age)
+    f.update_command(0.3, 0.5)
+    out = f.step(standard, 0.5)
+    assert out.action == PASS and out.omega == 0.3
+    # the same on a clock far from 0
+    g = RobotFilter(FilterConfig(**cfg))
+    g.update_pose(at(-7.5, 6.0, 0.0), T - 0.25 if pose_age else T)
+    g.update_detections(np.array([OBSTACLE]), T - 0.25 if det_age else T)
+    g.update_command(0.3, T)
+    assert g.step(standard, T).action == PASS
+
+
+@pytest.mark.parametrize('stale', ['pose', 'detections'])
+def test_a_last_valid_state_exactly_hold_timeout_old_is_still_avoided_from(standard, stale):
+    """Fail safe with the last valid pose and detections up to hold_timeout old, inclusive
+    (kills ``<`` for either input)."""
+    f = RobotFilter(FilterConfig(pose_timeout=0.5, detections_timeout=0.5, hold_timeout=1.0))
+    f.update_pose(at(-6.0, 3.0, 0.0), 0.0 if stale == 'pose' else 1.0)
+    f.update_detections(np.array([OBSTACLE]), 0.0 if stale == 'detections' else 1.0)
+    f.update_command(0.0, 1.0)
+    out = f.step(standard, 1.0)
+    assert out.action == FAIL_SAFE and out.reason.startswith(f'{stale} stale') and 'avoiding obstacle 0' in out.reason
+    assert out.linear == 3.0 and abs(out.omega) == 1.0
