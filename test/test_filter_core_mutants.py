@@ -341,3 +341,33 @@ def test_a_last_valid_state_exactly_hold_timeout_old_is_still_avoided_from(stand
     out = f.step(standard, 1.0)
     assert out.action == FAIL_SAFE and out.reason.startswith(f'{stale} stale') and 'avoiding obstacle 0' in out.reason
     assert out.linear == 3.0 and abs(out.omega) == 1.0
+
+
+# -- the output records (_outputs) -----------------------------------------------------------------
+def test_the_governing_obstacle_is_named_when_another_has_the_smaller_value(standard):
+    """Obstacle 0 governs by the lookahead (the planner's left turn would reach it) while
+    obstacle 1 has the smaller V but is not reached: the output names obstacle 0 and turns
+    away from it (kills reading only governing rows > 0, which named none and took another
+    row's turn)."""
+    level = SafeSet(standard.vf, LEVEL)
+    other = (RIGHT[0] + 1.5, RIGHT[1] - 2.0)
+    cfg = dict(cmd=0.9, lookahead=HOLD, control_period=HOLD, clusters=False)
+    alone = robot(pose=RIGHT, **cfg).step(level, T)
+    smaller = robot(pose=RIGHT, detections=[other], **cfg).step(level, T)
+    assert alone.action == OVERRIDE and smaller.action == PASS and LEVEL < smaller.value < alone.value
+    out = robot(pose=RIGHT, detections=[OBSTACLE, other], **cfg).step(level, T)
+    assert out.action == OVERRIDE and 'would reach' in out.reason and 'obstacle 0' in out.reason
+    assert (out.obstacle_index, out.omega, out.value) == (0, alone.omega, alone.value)
+
+
+def test_a_set_without_omega_max_in_its_metadata_is_usable(standard):
+    """A value function whose metadata lacks omega_max still filters (omega_max_set is NaN)
+    (kills converting the missing omega_max with float())."""
+    from supersafe_ros.reach.value_function import ValueFunction
+    vf = standard.vf
+    bare = SafeSet(ValueFunction(vf.grid, vf.values, {k: v for k, v in vf.meta.items() if k != 'omega_max'}), 0.0)
+    assert bare.omega_max is None
+    for pose, action in ((at(-3.0, 0.6, 0.0), OVERRIDE), (at(-7.5, 6.0, 0.0), PASS)):
+        a = robot(pose=pose).step(standard, T)
+        b = robot(pose=pose).step(bare, T)
+        assert a.action == b.action == action and a.omega == b.omega and np.isnan(b.omega_max_set)
