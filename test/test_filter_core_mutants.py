@@ -371,3 +371,20 @@ def test_a_set_without_omega_max_in_its_metadata_is_usable(standard):
         a = robot(pose=pose).step(standard, T)
         b = robot(pose=pose).step(bare, T)
         assert a.action == b.action == action and a.omega == b.omega and np.isnan(b.omega_max_set)
+
+
+def test_the_loiter_fallback_turns_left_on_an_exact_tie(standard):
+    """Heading exactly between the two members of a cluster whose union value is not in force
+    (a fallback-only store), the two loiter circles are equally clear: a tie, so the turn is
+    left, as everywhere in the filter (kills ``left > right`` in the fallback's turn). The
+    circle is clear now (0.2 m) but not after the planner's 0.2 s hold: the fallback governs
+    by the lookahead and sets its members' own rows aside."""
+    from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore
+    from supersafe_ros.filter.core import step_many
+    store = ClusterStore(ClusterSettings(), fallback_only=True)
+    f = robot(pose=at(-5.0, 0.0, 0.0), detections=[(OBSTACLE[0], OBSTACLE[1] + 4.0), (OBSTACLE[0], OBSTACLE[1] - 4.0)],
+              cmd=0.0, lookahead=0.2, control_period=0.2)
+    out = step_many([f], standard, T, store)[0]
+    assert out.action == OVERRIDE and 'would reach' in out.reason and 'cluster of 2' in out.reason
+    assert out.source == 'cluster-fallback' and out.value == pytest.approx(np.hypot(5.0, 1.0) - 4.9)
+    assert out.omega == 1.0
