@@ -388,3 +388,20 @@ def test_the_loiter_fallback_turns_left_on_an_exact_tie(standard):
     assert out.action == OVERRIDE and 'would reach' in out.reason and 'cluster of 2' in out.reason
     assert out.source == 'cluster-fallback' and out.value == pytest.approx(np.hypot(5.0, 1.0) - 4.9)
     assert out.omega == 1.0
+
+
+def test_new_detections_replace_the_clusters_of_the_old_ones(standard):
+    """The cluster frames cached for a detections array are used only for that array: after
+    new detections (the pair moved 30 m away) the old cluster no longer constrains the robot
+    (kills reusing the cache when the array is not the cached one)."""
+    from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore
+    from supersafe_ros.filter.core import step_many
+    store = ClusterStore(ClusterSettings(), fallback_only=True)
+    pair = np.array([(OBSTACLE[0], OBSTACLE[1] + 4.0), (OBSTACLE[0], OBSTACLE[1] - 4.0)])
+    f = robot(pose=at(-5.0, 0.0, 0.0), detections=pair, cmd=0.0, lookahead=0.2, control_period=0.2)
+    assert step_many([f], standard, T, store)[0].source == 'cluster-fallback'
+    f.update_pose(at(-5.0, 0.0, 0.0), T + 0.02)
+    f.update_detections(pair + 30.0, T + 0.02)
+    f.update_command(0.0, T + 0.02)
+    out = step_many([f], standard, T + 0.02, store)[0]
+    assert out.action == PASS and out.value > 30.0     # the moved cluster's loiter clearance
