@@ -405,3 +405,31 @@ def test_new_detections_replace_the_clusters_of_the_old_ones(standard):
     f.update_command(0.0, T + 0.02)
     out = step_many([f], standard, T + 0.02, store)[0]
     assert out.action == PASS and out.value > 30.0     # the moved cluster's loiter clearance
+
+
+def test_a_diagonal_clusters_union_value_is_read_in_its_canonical_frame(standard):
+    """A pair of obstacles on a diagonal (its canonical frame is rotated: sin(angle) != 0, unlike
+    the axis-aligned layouts elsewhere): the V the filter reports for the cluster is the union
+    value at the robot's state mapped by ``cluster.to_frame`` (kills sign and operator errors
+    in the vectorised frame transform)."""
+    from supersafe_ros.filter.cluster import (ClusterSettings, ClusterStore, ClusterValue, canonical,
+                                              solve_cluster, to_frame)
+    from supersafe_ros.filter.core import step_many
+    settings = ClusterSettings(cell=0.8, headings=12, reach=5.0, disk_cache=False)
+    dets = np.array([OBSTACLE, (OBSTACLE[0] + 3.0, OBSTACLE[1] + 3.0)])
+    key, origin, angle, centres = canonical(dets, settings.key_resolution)
+    assert abs(np.sin(angle)) > 0.3
+    vf, seconds = solve_cluster(settings, centres)
+    store = ClusterStore(settings, fallback_only=True)
+    store.values[key] = value = ClusterValue(vf, centres, seconds, lower=settings.lower_bound)
+    checked = 0
+    for pose in (at(-3.0, 1.0, 0.4), at(1.5, -2.5, 1.2), at(4.0, 6.5, -2.0), at(-1.0, 5.0, -0.7)):
+        expected = float(value.evaluate(to_frame(np.array(pose), origin, angle))[0][0])
+        if not np.isfinite(expected):
+            continue
+        f = robot(pose=pose, detections=dets, cmd=0.0, lookahead=0.0, cluster_alpha=50.0)
+        out = step_many([f], standard, T, store)[0]
+        assert out.action == OVERRIDE and out.source == 'cluster'
+        assert out.value == pytest.approx(expected, abs=1e-9)
+        checked += 1
+    assert checked >= 3
