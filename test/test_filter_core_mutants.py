@@ -433,3 +433,31 @@ def test_a_diagonal_clusters_union_value_is_read_in_its_canonical_frame(standard
         assert out.value == pytest.approx(expected, abs=1e-9)
         checked += 1
     assert checked >= 3
+
+
+def test_robots_with_different_cluster_stores_keep_their_own_fallback(standard, monkeypatch):
+    """Robots of different turn rates use different default cluster stores (loiter circles of
+    radius 3 m and 6 m). Stepped together, each robot's loiter fallback is computed with its
+    own store's settings, exactly as when stepped alone (kills selecting every fallback row
+    for every store, where the last store's circles win)."""
+    from supersafe_ros.filter import core
+    from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore
+    for w in (1.0, 0.5):       # fallback-only default stores: no background solves in a test
+        cfg = FilterConfig(omega_max=w)
+        settings = ClusterSettings(radius=cfg.radius, speed=cfg.speed, omega_max=w, link=cfg.cluster_link)
+        monkeypatch.setitem(core._STORES, settings, ClusterStore(settings, fallback_only=True))
+
+    def fleet():
+        out = []
+        for w, dx in ((1.0, 0.0), (0.5, 100.0)):
+            pair = [(OBSTACLE[0] + dx, OBSTACLE[1] + 4.0), (OBSTACLE[0] + dx, OBSTACLE[1] - 4.0)]
+            out.append(robot(pose=at(-5.0 + dx, 0.0, 0.0), detections=pair, cmd=0.0, lookahead=0.2,
+                             control_period=0.2, omega_max=w))
+        return out
+
+    alone = [core.step_many([f], standard, T)[0] for f in fleet()]
+    together = core.step_many(fleet(), standard, T)
+    assert alone[0].source == 'cluster-fallback' and alone[0].value == pytest.approx(np.hypot(5.0, 1.0) - 4.9)
+    for a, b in zip(alone, together):
+        assert (a.action, a.omega, a.value, a.source, a.obstacle_index) == (b.action, b.omega, b.value, b.source,
+                                                                            b.obstacle_index)
