@@ -407,14 +407,18 @@ def test_new_detections_replace_the_clusters_of_the_old_ones(standard):
     assert out.action == PASS and out.value > 30.0     # the moved cluster's loiter clearance
 
 
-def test_a_diagonal_clusters_union_value_is_read_in_its_canonical_frame(standard):
+def test_a_diagonal_clusters_union_value_is_read_in_its_canonical_frame(standard, monkeypatch):
     """A pair of obstacles on a diagonal (its canonical frame is rotated: sin(angle) != 0, unlike
     the axis-aligned layouts elsewhere): the V the filter reports for the cluster is the union
     value at the robot's state mapped by ``cluster.to_frame`` (kills sign and operator errors
-    in the vectorised frame transform)."""
+    in the vectorised frame transform). ``RobotFilter.step`` uses the store it is given, not
+    the process's default one (here a fallback-only store without the union value)."""
+    from supersafe_ros.filter import core
     from supersafe_ros.filter.cluster import (ClusterSettings, ClusterStore, ClusterValue, canonical,
                                               solve_cluster, to_frame)
     from supersafe_ros.filter.core import step_many
+    default = ClusterSettings(radius=1.8, speed=3.0, omega_max=1.0, link=0.0)
+    monkeypatch.setitem(core._STORES, default, ClusterStore(default, fallback_only=True))
     settings = ClusterSettings(cell=0.8, headings=12, reach=5.0, disk_cache=False)
     dets = np.array([OBSTACLE, (OBSTACLE[0] + 3.0, OBSTACLE[1] + 3.0)])
     key, origin, angle, centres = canonical(dets, settings.key_resolution)
@@ -431,6 +435,8 @@ def test_a_diagonal_clusters_union_value_is_read_in_its_canonical_frame(standard
         out = step_many([f], standard, T, store)[0]
         assert out.action == OVERRIDE and out.source == 'cluster'
         assert out.value == pytest.approx(expected, abs=1e-9)
+        g = robot(pose=pose, detections=dets, cmd=0.0, lookahead=0.0, cluster_alpha=50.0)
+        assert g.step(standard, T, store).value == out.value
         checked += 1
     assert checked >= 3
 
@@ -461,3 +467,51 @@ def test_robots_with_different_cluster_stores_keep_their_own_fallback(standard, 
     for a, b in zip(alone, together):
         assert (a.action, a.omega, a.value, a.source, a.obstacle_index) == (b.action, b.omega, b.value, b.source,
                                                                             b.obstacle_index)
+
+
+
+# -- inputs, batched (update_poses, update_detections_all) and the default cluster store ----------
+def test_batched_poses_without_a_stamp_take_the_arrival_time():
+    """(kills ``float(stamp)`` for a missing stamp)"""
+    from supersafe_ros.filter.core import update_poses
+    filters = [RobotFilter(), RobotFilter()]
+    update_poses(filters, [(0.0, 0.0, 0.0), (1.0, 2.0, 3.0)], T)
+    assert [f.pose.stamp for f in filters] == [T, T]
+
+
+def test_batched_poses_with_a_repeated_stamp_do_not_shorten_the_measured_period():
+    """A pose stamped as the previous one adds no interval to the control period's median, as
+    in update_pose (kills ``>=``: zero intervals would measure a period of 0)."""
+    from supersafe_ros.filter.core import update_poses
+    batched, single = RobotFilter(), RobotFilter()
+    for stamp in (0.0, 0.2, 0.2, 0.2):
+        update_poses([batched], [(0.0, 0.0, 0.0)], stamp + 0.01, stamp=stamp)
+        single.update_pose((0.0, 0.0, 0.0), stamp + 0.01, stamp=stamp)
+    assert batched.control_period() == single.control_period() == pytest.approx(0.2)
+
+
+def test_batched_detections_accept_none_and_reject_malformed():
+    """No detections is (0, 2); non-finite centres and rows that are not (x, y) are rejected
+    (kills the empty case read as size 1, replaced by None, (1, 2) or (0, 3), and ``and`` for
+    ``or`` in the shape/finite check)."""
+    from supersafe_ros.filter.core import update_detections_all
+    filters = [RobotFilter(), RobotFilter()]
+    for empty in ([], np.zeros((0, 2))):
+        update_detections_all(filters, empty, T)
+        assert all(f.detections.value.shape == (0, 2) for f in filters)
+    for bad in ([[np.nan, 0.0]], [[0.0, 1.0, 2.0]], [0.0, 1.0]):
+        with pytest.raises(ValueError):
+            update_detections_all(filters, bad, T)
+
+
+def test_the_default_cluster_store_follows_the_robots_configuration(monkeypatch):
+    """One shared store per robot configuration, with that robot's radius, speed, turn rate and
+    link distance (kills every wrong or missing field, and not keeping or creating the store)."""
+    from supersafe_ros.filter import core
+    monkeypatch.setattr(core, '_STORES', {})
+    cfg = FilterConfig(radius=1.5, speed=2.0, omega_max=0.8, cluster_link=7.0)
+    store = core.default_cluster_store(cfg)
+    st = store.settings
+    assert (st.radius, st.speed, st.omega_max, st.link) == (1.5, 2.0, 0.8, 7.0)
+    assert core.default_cluster_store(cfg) is store
+    assert core.default_cluster_store(FilterConfig()) is not store
