@@ -515,3 +515,15 @@ def test_the_default_cluster_store_follows_the_robots_configuration(monkeypatch)
     assert (st.radius, st.speed, st.omega_max, st.link) == (1.5, 2.0, 0.8, 7.0)
     assert core.default_cluster_store(cfg) is store
     assert core.default_cluster_store(FilterConfig()) is not store
+
+
+def test_a_robots_inputs_accept_a_pose_row_and_empty_detections_and_reject_a_bare_number():
+    """A pose as one (1, 3) row is a pose; ``[]`` is no detections; a bare number is not a
+    detections array (kills ``reshape(None)`` and the empty case read as size 1)."""
+    f = RobotFilter()
+    f.update_pose(np.array([[1.0, 2.0, 0.5]]), T)
+    assert f.pose.value.tolist() == [1.0, 2.0, 0.5]
+    f.update_detections([], T)
+    assert f.detections.value.shape == (0, 2)
+    with pytest.raises(ValueError):
+        f.update_detections([5.0], T)
