@@ -525,5 +525,17 @@ def test_a_robots_inputs_accept_a_pose_row_and_empty_detections_and_reject_a_bar
     assert f.pose.value.tolist() == [1.0, 2.0, 0.5]
     f.update_detections([], T)
     assert f.detections.value.shape == (0, 2)
-    with pytest.raises(ValueError):
-        f.update_detections([5.0], T)
+    for bad in ([5.0], np.zeros((2, 3))):
+        with pytest.raises(ValueError):
+            f.update_detections(bad, T)
+
+
+def test_the_measured_period_counts_the_planners_command_intervals():
+    """Poses every 0.05 s, commands every 0.2 s: a command holds 0.2 s, the larger median
+    (kills never recording a command interval)."""
+    f = RobotFilter()
+    for k in range(9):
+        f.update_pose((0.0, 0.0, 0.0), 0.05 * k, stamp=0.05 * k)
+        if k % 4 == 0:
+            f.update_command(0.1, 0.05 * k)
+    assert f.control_period() == pytest.approx(0.2)
