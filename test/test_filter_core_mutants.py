@@ -4,6 +4,8 @@ Each test names the mutation it guards against (issue 9: mutation testing with m
 ``bash bench/mutation.sh core``); the equivalent survivors are listed with a reason in
 docs/filter_learner.md. ROS-free and fast, like test_filter_core.py.
 """
+import math
+
 import numpy as np
 import pytest
 
@@ -531,11 +533,34 @@ def test_a_robots_inputs_accept_a_pose_row_and_empty_detections_and_reject_a_bar
 
 
 def test_the_measured_period_counts_the_planners_command_intervals():
-    """Poses every 0.05 s, commands every 0.2 s: a command holds 0.2 s, the larger median
-    (kills never recording a command interval)."""
+    """Poses every 0.05 s, commands every 0.2 s (each sent twice at once): a command holds
+    0.2 s, the larger median (kills never recording a command interval, and recording the
+    zero interval of a repeated command)."""
     f = RobotFilter()
     for k in range(9):
         f.update_pose((0.0, 0.0, 0.0), 0.05 * k, stamp=0.05 * k)
         if k % 4 == 0:
             f.update_command(0.1, 0.05 * k)
+            f.update_command(0.1, 0.05 * k)
     assert f.control_period() == pytest.approx(0.2)
+
+
+@pytest.mark.parametrize('source', ['pose', 'command'])
+def test_the_measured_period_is_the_median_of_the_last_16_intervals(source):
+    """20 intervals of 0.5 s, then 16 of 0.1 s: the period is the recent 0.1 s, not the median
+    of the whole history (kills unbounded interval histories)."""
+    f = RobotFilter()
+    times = np.concatenate([0.5 * np.arange(21), 10.0 + 0.1 * np.arange(1, 17)])
+    for t in times:
+        if source == 'pose':
+            f.update_pose((0.0, 0.0, 0.0), t, stamp=t)
+        else:
+            f.update_command(0.1, t)
+    assert f.control_period() == pytest.approx(0.1)
+
+
+def test_the_configuration_rejects_negative_and_infinite_times():
+    """(kills ``finite or >= 0``)"""
+    for bad in (-1.0, math.inf):
+        with pytest.raises(ValueError):
+            FilterConfig(pose_timeout=bad)
