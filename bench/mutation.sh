@@ -1,12 +1,16 @@
 #!/usr/bin/env bash
 # Mutation testing (mutmut, from PyPI) of the modules whose decisions matter most.
-#   bash bench/mutation.sh [world|law|core|all]
+#   bash bench/mutation.sh [world|law|core|all] [MUTANT-NAME-GLOB...]
+# (globs restrict the run to some functions, e.g. 'supersafe_ros.filter.core.x_step_many__mutmut_*';
+# the rest are counted as not checked)
 # Works on a copy of the committed tree in a scratch folder with its own venv
 # (mutmut rewrites the sources it mutates); prints the score and lists every
 # surviving mutant with its diff. Runs only the fast ROS-free tests of each module.
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 target="${1:-all}"
+shift || true
+only=("$@")
 work="${MUTATION_DIR:-${TMPDIR:-/tmp}/supersafe-mutation}"
 venv="$work/venv"
 source "$root/scripts/ros-env.sh"
@@ -29,14 +33,16 @@ run_one() {  # name, source path, test files...
     echo 'also_copy = supersafe_ros'
     echo '    test'
   } >> "$dir/setup.cfg"
-  (cd "$dir" && "$venv/bin/mutmut" run --max-children "${MUTATION_JOBS:-2}" >/dev/null 2>&1 || true)
+  (cd "$dir" && "$venv/bin/mutmut" run --max-children "${MUTATION_JOBS:-2}" "${only[@]}" >/dev/null 2>&1 || true)
   local res; res="$(cd "$dir" && "$venv/bin/mutmut" results --all true 2>/dev/null || true)"
-  local total killed survived notests
+  local total killed survived notests timeouts unchecked
   total=$(grep -c ': ' <<<"$res" || true)
   killed=$(grep -c ': killed' <<<"$res" || true)
   survived=$(grep -c ': survived' <<<"$res" || true)
   notests=$(grep -c ': no tests' <<<"$res" || true)
-  echo "== $name ($src): $total mutants, $killed killed, $survived survived, $notests not covered by the selected tests"
+  timeouts=$(grep -c ': timeout' <<<"$res" || true)
+  unchecked=$(grep -c ': not checked' <<<"$res" || true)
+  echo "== $name ($src): $total mutants, $killed killed, $survived survived, $timeouts timeouts, $notests not covered by the selected tests, $unchecked not checked (outside the globs)"
   grep -E ': (survived|no tests)' <<<"$res" | while read -r m _; do
     m="${m%:}"
     echo "--- $m"
@@ -46,5 +52,6 @@ run_one() {  # name, source path, test files...
 case "$target" in
   world|all) run_one world supersafe_ros/sim/world.py test/test_sim_core.py test/test_sim_world_rules.py ;;&
   law|all) run_one law supersafe_ros/filter/law.py test/test_filter_core.py test/test_reach_io.py ;;&
-  core|all) run_one core supersafe_ros/filter/core.py test/test_filter_core.py ;;
+  core|all) run_one core supersafe_ros/filter/core.py test/test_filter_core.py test/test_filter_core_mutants.py \
+             test/test_filter_vectorised.py ;;
 esac
