@@ -187,8 +187,15 @@ def test_team_run_records_every_topic_and_the_interventions_the_world_logged(tmp
     assert info.path == tmp_path / 'team_bag' and (info.path / 'metadata.yaml').is_file()
     assert {'/clock', '/robot_0/pose', '/robot_0/cmd_vel', '/obstacle_markers', '/world/stats',
             '/interventions', '/world/intervention_log'} <= set(info.topics)
-    assert info.topics['/robot_0/pose'] >= round(duration / step), info.topics     # every step's pose
     _, _, _, messages = read_bag(info.mcap_path)
+    # every step's pose: no step missing between the first and the last; the pose of the
+    # final step races the recorder's stop (the run ends when the clock reaches it)
+    stamps = sorted(d.header.stamp.sec + d.header.stamp.nanosec * 1e-9
+                    for topic, _, _, d, _ in messages if topic == '/robot_0/pose')
+    assert info.topics['/robot_0/pose'] == len(stamps) >= round(duration / step) - 1, info.topics
+    assert stamps[0] <= step + 1e-6 and stamps[-1] >= duration - step - 1e-6, (stamps[0], stamps[-1])
+    gaps = [round(b - a, 6) for a, b in zip(stamps, stamps[1:])]
+    assert set(gaps) == {step}, sorted(set(gaps))
     recorded = [int(d.header.frame_id.removeprefix('obstacle_'))
                 for topic, _, _, d, _ in messages if topic == '/interventions']
     logged = [int(v['obstacle']) for v in result['interventions']]

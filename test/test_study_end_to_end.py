@@ -44,6 +44,7 @@ def test_one_subject_study_through_the_graph(tmp_path):
     assert res['conditions']['standard']['observed_fp_ratio'] == 1.0
     assert 'anova' in res and 'tukey' in res and 'shorter_arcs_than_conservative' in res['h2']
     subj = res['subjects'][0]
+    assert subj['fits']['learned'] is not None, subj['phase2']      # its notes say what went wrong
     assert subj['fits']['learned']['estimator'] == 'paper'
     # learned_fp is the first-passage learner node's fit: it built one encounter per scene
     # from robot_0/pose and /obstacle_markers, with the scenes' interventions

@@ -203,13 +203,15 @@ def run_phase2(subject: Subject, opts: StudyOptions, domain_id: int, log_dir: Pa
                 raise RuntimeError(f'Phase II did not finish in time (scene {conductor.scene_index}, '
                                    f'logs in {log_dir})')
         n = sum(1 for s in conductor.scenes if s['intervened'])
-        vf_msg = conductor.wait_for_fit(n, timeout=5.0) if n >= 3 else None
+        # the waits end as soon as the fit counts every intervention: long timeouts cost
+        # nothing on a quiet machine and let a loaded one (a 710 KB publish per refit) finish
+        vf_msg = conductor.wait_for_fit(n, timeout=20.0) if n >= 3 else None
         if n >= 3 and (vf_msg is None or _fit_count(vf_msg) < n):
             # the learner missed some (e.g. sent before its subscription matched): send again
             stored = _stored_frames(store)
             k = conductor.resend(stored)
             notes.append(f'the learner had {len(stored)} of {n} interventions; {k} sent again')
-            vf_msg = conductor.wait_for_fit(n, timeout=10.0)
+            vf_msg = conductor.wait_for_fit(n, timeout=30.0)
             if vf_msg is None or _fit_count(vf_msg) < n:
                 notes.append(f'the learner fitted {_fit_count(vf_msg) if vf_msg else 0} of {n} interventions')
         if fp_watch is not None and n >= 3:
