@@ -16,7 +16,8 @@ from supersafe_ros.reach.grid import Grid
 from supersafe_ros.reach.sets import Disc
 from supersafe_ros.reach.solver import solve_avoid
 
-OBSTACLE = (10.0, 5.0)
+from test_filter_core import OBSTACLE, at, robot as _robot  # noqa: F401  (the same helpers)
+
 T = 10.0          # a clock that does not start at 0 (t0 = 0 hides sign errors in time differences)
 
 
@@ -26,17 +27,9 @@ def standard():
     return SafeSet(vf, 0.0, 'standard')
 
 
-def robot(t=T, pose=(0.0, 0.0, 0.0), detections=(OBSTACLE,), cmd=0.3, **cfg):
-    f = RobotFilter(FilterConfig(**cfg))
-    f.update_pose(pose, t)
-    f.update_detections(np.asarray(detections, dtype=float).reshape(-1, 2), t)
-    if cmd is not None:
-        f.update_command(cmd, t)
-    return f
-
-
-def at(rel_x, rel_y, theta):
-    return (OBSTACLE[0] + rel_x, OBSTACLE[1] + rel_y, theta)
+def robot(t=T, **kw):
+    """test_filter_core's robot, on a clock that starts at T."""
+    return _robot(t=t, **kw)
 
 
 # -- the planner's command the lookahead judges (_planned_turn) ---------------------------------

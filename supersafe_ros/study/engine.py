@@ -36,7 +36,7 @@ import numpy as np
 
 from ..filter.admissibility import check_learned_set
 from ..filter.core import FilterConfig, SafeSet
-from ..learning.encounters import EncounterBuilder, phase2_events
+from ..learning.encounters import EncounterBuilder, feed, phase2_events
 from ..learning.estimators import (admissible_mask, encounter_intervals, fit_first_passage_intervals,
                                    fit_paper_values)
 from ..reach.grid import Grid
@@ -144,13 +144,7 @@ class Learners:
         """(value function, fit dict) of the first-passage estimator on the encounters the
         learner node builds from the same event stream, or (None, None)."""
         builder = EncounterBuilder(self.lo, self.hi, **self.builder_args)
-        for ev in events:
-            if ev[0] == 'pose':
-                builder.pose(ev[1], ev[2], ev[3])
-            elif ev[0] == 'obstacles':
-                builder.set_obstacles(ev[2], ev[3], ev[1])
-            else:
-                builder.intervention(ev[1], ev[2], ev[3])
+        feed(builder, events)
         builder.finish_all()
         records = builder.pop_finished()
         encounters = [r.to_encounter() for r in records]
