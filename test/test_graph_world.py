@@ -398,10 +398,17 @@ def test_supervisor_mu_and_w_max_change_at_run_time(ros_context):
         assert sup.watcher.vf is not old_vf and sup.watcher.mu == 1.5
         markers.publish(obstacles_to_markers([7], np.array([[5.0, 1.0]]), 1.8))
         spin.until(lambda: 7 in sup.obstacles.centres, 5.0, 'the obstacle')
+        # one pose at a time, as a lockstepped robot sends them: each is judged (the
+        # supervisor's step_done) before the next (a burst was judged from a later pose
+        # once in a loaded CI run, at V 0.34 below the threshold)
         for k, x in enumerate(np.arange(-6.0, 3.2, 0.15)):
             msg = rosmsg.state_to_pose((x, 1.0, 0.0))
-            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(k * 5e7), 10**9)
+            t_ns = int((k + 1) * 5e7)
+            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(t_ns, 10**9)
             pose.publish(msg)
+            spin.until(lambda: sup.acks.sent >= t_ns, 10.0, f'pose {k} judged')
+            if decisions:
+                break
         spin.until(lambda: decisions, 10.0, 'an intervention')
         d = decisions[0]
         assert float(d['threshold']) == pytest.approx(1.5) and float(d['mu']) == 1.5
