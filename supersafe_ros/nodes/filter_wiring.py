@@ -124,7 +124,8 @@ class FilterWiring:
         self.filters = [RobotFilter(self.config, name) for name in self.names]
         # cluster values: solver process ready before obstacles
         default_cluster_store(self.config).start()
-        self._cluster_errors_told = {}
+        self._cluster_errors_told = {}     # id(store) -> failed solves already logged
+        self._store, self._store_config = None, None
         sim = bool(node.get_parameter('use_sim_time').value)
         self.time = FilterTime(sim, stall)
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)
@@ -373,13 +374,20 @@ class FilterWiring:
 
     def report_cluster_errors(self) -> int:
         """Log each cluster solve that failed (its cluster stays on the fallback); the count."""
-        store = default_cluster_store(self.config)     # the config's store (cluster_link is live)
-        errors = list(store.errors.items())
-        for key, why in errors[self._cluster_errors_told.get(id(store), 0):]:
-            self.node.get_logger().error(f'cluster value {key} could not be solved ({why}): that '
-                                         'cluster stays on the fallback rule')
-        self._cluster_errors_told[id(store)] = len(errors)
-        return len(errors)
+        # called for every state message (1,000 robots in a fleet tick): the store is looked up
+        # only when the config changed (cluster_link is live), the errors listed only when new
+        if self._store_config is not self.config:
+            self._store, self._store_config = default_cluster_store(self.config), self.config
+        store = self._store
+        told, failed = self._cluster_errors_told.get(id(store), 0), len(store.errors)
+        if failed > told:
+            with store._lock:
+                new = list(store.errors.items())[told:]
+            for key, why in new:
+                self.node.get_logger().error(f'cluster value {key} could not be solved ({why}): that '
+                                             'cluster stays on the fallback rule')
+            self._cluster_errors_told[id(store)] = told + len(new)
+        return failed
 
     def state_message(self, name: str, out):
         """The state of robot ``name`` (one status object per robot, refilled each time)."""
