@@ -8,6 +8,7 @@ as `supersafe team` starts it.
 import os
 import signal
 import subprocess
+import sys
 import threading
 import time
 
@@ -86,3 +87,27 @@ def test_every_node_stops_quietly_on_a_signal(tmp_path):
                 os.killpg(p.proc.pid, signal.SIGKILL)
     bad = {k: v for k, v in results.items() if v != (0, '')}
     assert not bad, bad
+
+
+def test_a_stop_swallowed_while_importing_still_stops_the_node(tmp_path):
+    """A SIGTERM that lands while a node is still importing raises SystemExit inside
+    whatever import is running; a library's bare ``except:`` can swallow it (a killed team
+    runner's world node once kept running so, and drove the next test's robots). run_node
+    must still stop before it starts rclpy or builds the node."""
+    built = tmp_path / 'built'
+    script = f'''
+import os, signal, sys
+import supersafe_ros.nodes as nodes
+from supersafe_ros.nodes.common import run_node
+try:
+    nodes._stop_while_importing(signal.SIGTERM, None)   # as the import-time handler does
+except BaseException:
+    pass                                                 # ... and an import swallowed it
+class Node:
+    def __init__(self):
+        open({str(built)!r}, 'w').close()
+sys.exit(run_node(Node, ['x']))
+'''
+    proc = subprocess.run([sys.executable, '-c', script], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    assert not built.exists()

@@ -2,6 +2,12 @@
 import os as _os
 import signal as _signal
 import sys as _sys
+import threading as _threading
+
+# set by a stop signal that came while the node was still importing: SystemExit raised
+# inside an import can be swallowed by a library's bare ``except:``, so run_node checks
+# this too before it starts rclpy (a killed team runner's node once kept running so)
+stop_requested_while_importing = _threading.Event()
 
 
 def _stop_quietly_while_importing():
@@ -14,13 +20,16 @@ def _stop_quietly_while_importing():
     if program != '-m' and not program.endswith('_node'):
         return
 
-    def stop(signum, frame):
-        raise SystemExit(0)
     try:
         for s in (_signal.SIGINT, _signal.SIGTERM):
-            _signal.signal(s, stop)
+            _signal.signal(s, _stop_while_importing)
     except ValueError:         # not the main thread: not a node process being started
         pass
+
+
+def _stop_while_importing(signum, frame):
+    stop_requested_while_importing.set()
+    raise SystemExit(0)
 
 
 _stop_quietly_while_importing()

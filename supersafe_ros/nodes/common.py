@@ -100,8 +100,11 @@ def run_node(node_class, args=None, executor_class=None) -> int:
     import rclpy
     from rclpy.signals import SignalHandlerOptions
 
+    from . import stop_requested_while_importing
     argv = sys.argv if args is None else args
     signals = StopSignals() if threading.current_thread() is threading.main_thread() else None
+    if stop_requested_while_importing.is_set():
+        return 0          # stopped while importing, and the SystemExit was swallowed
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     node = None
     code = 0
