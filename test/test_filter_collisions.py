@@ -173,3 +173,41 @@ def test_a_half_written_cluster_file_is_solved_again_not_left_on_the_fallback(tm
     third.request(other, other_centres)
     assert third.get(other) is None and not third.solving(other)
     assert 'solver broke' in third.errors[other]
+
+
+def test_the_disk_cache_of_cluster_values_stays_within_its_bound(tmp_path, monkeypatch):
+    """Every new detection pattern adds a cluster file; the folder keeps the most recently
+    used ones within $SUPERSAFE_CLUSTER_CACHE_MB (a read counts as a use), and a pruned
+    cluster is simply solved again."""
+    import os
+    from supersafe_ros.filter import cluster as cl
+    monkeypatch.setenv('SUPERSAFE_CACHE', str(tmp_path))
+    settings = ClusterSettings(cell=0.7, headings=16, reach=4.0)
+    keys = []
+    for gap in (4.0, 4.5, 5.0):
+        key, _, _, centres = canonical(np.array([[0.0, 0.0], [gap, 0.0]]), settings.key_resolution)
+        ClusterStore(settings, background=False).request(key, centres)
+        keys.append((key, centres, cl.cache_path(settings, key)))
+    sizes = [p.stat().st_size for _, _, p in keys]
+    for k, (_, _, p) in enumerate(keys):          # oldest first: 4.0, 4.5, 5.0
+        os.utime(p, (1000.0 + k, 1000.0 + k))
+    # a read of the oldest makes it the most recent
+    reader = ClusterStore(settings, background=False)
+    reader.request(keys[0][0], keys[0][1])
+    assert reader.get(keys[0][0]).solve_time == 0.0          # read, not solved
+    # room for two files: the least recently used (4.5) goes
+    limit = sizes[0] + sizes[2] + 10
+    assert cl.prune_disk_cache(keys[0][2].parent, limit) == 1
+    assert [p.exists() for _, _, p in keys] == [True, False, True]
+    # the store prunes by itself at its first write: a bound of 0 leaves only what it
+    # writes after that check... and nothing of the old files
+    monkeypatch.setenv('SUPERSAFE_CLUSTER_CACHE_MB', '0')
+    writer = ClusterStore(settings, background=False)
+    key, _, _, centres = canonical(np.array([[0.0, 0.0], [5.5, 0.0]]), settings.key_resolution)
+    writer.request(key, centres)
+    assert writer.get(key) is not None and not writer.errors
+    assert list(keys[0][2].parent.glob('cluster-*.npz')) == []
+    # pruned values are solved again
+    again = ClusterStore(settings, background=False)
+    again.request(keys[1][0], keys[1][1])
+    assert again.get(keys[1][0]).solve_time > 0.0

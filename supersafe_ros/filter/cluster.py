@@ -226,6 +226,7 @@ class ClusterStore:
         self._queue: queue.Queue = queue.Queue()
         self._thread = None
         self.ready = threading.Event()     # the solver (thread and worker process) is up
+        self._saved = 0                    # values written to the disk cache
 
     def get(self, key):
         with self._lock:
@@ -298,6 +299,7 @@ class ClusterStore:
             if path is not None and path.exists():
                 try:
                     vf = ValueFunction.load_npz(path)
+                    os.utime(path)               # recently used: the last to be pruned
                 except (OSError, ValueError):    # damaged or half-copied: solve again
                     vf = None
             if vf is not None:
@@ -313,6 +315,9 @@ class ClusterStore:
                 try:
                     path.parent.mkdir(parents=True, exist_ok=True)
                     vf.save_npz(path)
+                    self._saved += 1
+                    if self._saved % PRUNE_EVERY == 1:
+                        prune_disk_cache(path.parent, disk_cache_limit())
                 except OSError:
                     pass                 # a read-only cache only costs the next solve
             value = ClusterValue(vf, c, solve_time, lower=st.lower_bound)
@@ -346,6 +351,50 @@ def solve_cluster(settings: ClusterSettings, centres):
 
 
 CACHE_VERSION = 1   # bump when the solve or its settings' meaning changes
+DISK_CACHE_MB = 1024    # default bound of the clusters/ folder ($SUPERSAFE_CLUSTER_CACHE_MB)
+PRUNE_EVERY = 50        # a store checks the bound at its first write and every 50th after
+
+
+def disk_cache_limit() -> int:
+    """Bytes the clusters/ folder may hold: $SUPERSAFE_CLUSTER_CACHE_MB (default 1024)."""
+    try:
+        mb = float(os.environ.get('SUPERSAFE_CLUSTER_CACHE_MB', DISK_CACHE_MB))
+    except ValueError:
+        mb = DISK_CACHE_MB
+    return int(max(mb, 0.0) * 1e6)
+
+
+def prune_disk_cache(folder, limit_bytes: int) -> int:
+    """Delete the least recently used cluster files (by mtime: a read touches its file)
+    until ``folder`` holds at most ``limit_bytes``; returns how many were deleted.
+
+    Each study layout and detection pattern adds new clusters (a few hundred kB to 1 MB
+    each), so without a bound the cache grew to 4 GB on one machine. A file deleted here
+    while another process reads it costs that process one solve."""
+    entries = []
+    try:
+        with os.scandir(folder) as it:
+            for e in it:
+                if e.name.startswith('cluster-') and e.name.endswith('.npz'):
+                    try:
+                        st = e.stat()
+                    except OSError:
+                        continue
+                    entries.append((st.st_mtime, st.st_size, e.path))
+    except OSError:
+        return 0
+    total = sum(size for _, size, _ in entries)
+    deleted = 0
+    for _, size, path in sorted(entries):
+        if total <= limit_bytes:
+            break
+        try:
+            os.remove(path)
+        except OSError:
+            continue
+        total -= size
+        deleted += 1
+    return deleted
 
 
 def cache_path(settings: ClusterSettings, key):
