@@ -124,8 +124,11 @@ class _SlabStepper:
         for i in range(1, self.samples + 1):
             t = dt * i / (self.samples + 1)
             sx, sy = self._displacement(u, t)
-            pts = np.stack([self.X[None] + sx[:, None, None], self.Y[None] + sy[:, None, None]], -1)
-            np.minimum(path, self.keepout.signed_distance(pts).astype(np.float32), out=path)
+            # x varies along the grid's first axis only, y along its second: the distances
+            # broadcast from (nth, nx, 1) and (nth, 1, ny) columns, the same values as full arrays
+            l_path = self.keepout.signed_distance_xy(self.X[None, :, :1] + sx[:, None, None],
+                                                     self.Y[None, :1, :] + sy[:, None, None])
+            np.minimum(path, l_path.astype(np.float32), out=path)
         plan = {
             'k': (ks + k0) % nth, 'k_next': (ks + k0 + 1) % nth, 'ft': shift - k0,
             'ia': ia + self.pad, 'ib': ib + self.pad,
