@@ -70,6 +70,41 @@ def test_hosts_removed_after_an_exception_inside():
     assert our_namespaces(os.getpid()) == []
 
 
+LATE_ENTRANT = r"""
+import ctypes, os, sys, time
+path = sys.argv[1]
+fd = os.open(path, os.O_RDONLY)          # as `ip netns exec` does, before it enters
+print('ready', flush=True)
+while os.path.exists(path):
+    time.sleep(0.005)
+libc = ctypes.CDLL('libc.so.6', use_errno=True)
+if libc.setns(fd, 0x40000000) != 0:      # CLONE_NEWNET: enter the deleted namespace
+    sys.exit(3)
+print('entered', flush=True)
+time.sleep(60)
+"""
+
+
+@needs_root
+def test_a_process_entering_while_its_host_is_removed_is_killed_too():
+    """`ip netns exec` opens the namespace, then enters it: a process started just before
+    the network closes can enter after its pids were listed (in CI a sleeper outlived the
+    test above so). The close kills such late entrants too."""
+    net = HostNetwork(1).create()
+    try:
+        late = subprocess.Popen([sys.executable, '-c', LATE_ENTRANT, str(netns.NETNS_DIR / net.hosts[0])],
+                                stdout=subprocess.PIPE, text=True)
+        assert late.stdout.readline().strip() == 'ready'
+    finally:
+        net.close()
+    try:
+        assert late.wait(timeout=10) == -signal.SIGKILL
+    finally:
+        if late.poll() is None:
+            late.kill()
+    assert our_namespaces(os.getpid()) == []
+
+
 @needs_root
 def test_stale_namespaces_of_dead_runs_are_removed():
     dead = subprocess.Popen(['true'])

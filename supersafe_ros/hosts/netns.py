@@ -109,10 +109,31 @@ def namespace_pids(name: str) -> list[int]:
     return [int(p) for p in out.split() if p.isdigit()]
 
 
-def delete_namespace(name: str, grace: float = 2.0) -> None:
+def _pids_in_netns(inode: int) -> list[int]:
+    """Processes whose network namespace is the one with this inode (what `ip netns pids`
+    compares, without needing the namespace's name, which is gone after a delete)."""
+    pids = []
+    for entry in os.listdir('/proc'):
+        if entry.isdigit():
+            try:
+                if os.stat(f'/proc/{entry}/ns/net').st_ino == inode:
+                    pids.append(int(entry))
+            except OSError:
+                pass
+    return pids
+
+
+def delete_namespace(name: str, grace: float = 2.0, settle: float = 0.5) -> None:
     """Kill what still runs inside ``name`` (SIGTERM, then SIGKILL), then delete it.
 
-    A namespace stays alive while a process is in it, and its veth with it."""
+    A namespace stays alive while a process is in it, and its veth with it. A process
+    started with ``ip netns exec`` just before may not have entered yet when the pids are
+    listed (it holds the namespace's file open and enters after): for ``settle`` seconds
+    after the delete, late entrants are found by the namespace's inode and killed."""
+    try:
+        inode = (NETNS_DIR / name).stat().st_ino
+    except OSError:
+        inode = None
     pids = namespace_pids(name)
     for sig in (signal.SIGTERM, signal.SIGKILL):
         for pid in pids:
@@ -128,6 +149,19 @@ def delete_namespace(name: str, grace: float = 2.0) -> None:
         if not pids:
             break
     _ip('netns', 'delete', name, check=False)
+    if inode is None:
+        return
+    deadline = time.monotonic() + settle
+    while True:
+        for pid in _pids_in_netns(inode):
+            if pid != os.getpid():
+                try:
+                    os.kill(pid, signal.SIGKILL)
+                except ProcessLookupError:
+                    pass
+        if time.monotonic() >= deadline:
+            break
+        time.sleep(0.05)
 
 
 def remove_stale(alive=_pid_alive) -> list[str]:
