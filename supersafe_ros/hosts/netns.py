@@ -109,14 +109,15 @@ def namespace_pids(name: str) -> list[int]:
     return [int(p) for p in out.split() if p.isdigit()]
 
 
-def _pids_in_netns(inode: int) -> list[int]:
-    """Processes whose network namespace is the one with this inode (what `ip netns pids`
-    compares, without needing the namespace's name, which is gone after a delete)."""
+def _pids_in_netns(ident: tuple) -> list[int]:
+    """Processes whose network namespace is the one with this (device, inode) (what `ip
+    netns pids` compares, without the namespace's name, which is gone after a delete)."""
     pids = []
     for entry in os.listdir('/proc'):
         if entry.isdigit():
             try:
-                if os.stat(f'/proc/{entry}/ns/net').st_ino == inode:
+                st = os.stat(f'/proc/{entry}/ns/net')
+                if (st.st_dev, st.st_ino) == ident:
                     pids.append(int(entry))
             except OSError:
                 pass
@@ -131,7 +132,8 @@ def delete_namespace(name: str, grace: float = 2.0, settle: float = 0.5) -> None
     listed (it holds the namespace's file open and enters after): for ``settle`` seconds
     after the delete, late entrants are found by the namespace's inode and killed."""
     try:
-        inode = (NETNS_DIR / name).stat().st_ino
+        st = (NETNS_DIR / name).stat()
+        inode = (st.st_dev, st.st_ino)
     except OSError:
         inode = None
     pids = namespace_pids(name)
