@@ -187,7 +187,10 @@ def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
                               **({'store_path': str(learner_store)} if learner_store else {})},
             coarse)
     if with_supervisor:
-        add('supervisor', None, {**sim, 'robots': robots, 'seed': seed * 1000 + 999}, coarse)
+        # its first step waits until the world (and the learner) read its /interventions:
+        # a reader discovered late (seconds, across hosts) would miss the first ones
+        add('supervisor', None, {**sim, 'robots': robots, 'seed': seed * 1000 + 999,
+                                 'interventions_readers': 1 + int(with_learner)}, coarse)
     if console_port is not None:
         add('supervisor_console', None, {**sim, 'robots': robots, 'port': int(console_port)}, coarse)
     # the clock starts sim time only once the whole graph is up (the supervisor and the

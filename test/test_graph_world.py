@@ -430,3 +430,28 @@ def test_supervisor_mu_and_w_max_change_at_run_time(ros_context):
         spin.shutdown()
         sup.destroy_node()
         driver.destroy_node()
+
+
+def test_supervisor_is_ready_for_the_clock_only_when_its_interventions_are_read(ros_context):
+    """In a team the supervisor's first step_done (0: ready) waits for the world and the
+    learner to read /interventions: a learner discovered seconds late (three hosts in CI)
+    missed the first intervention of a game."""
+    sup = SupervisorNode(context=ros_context, cli_args=PRIVATE_ARGS, parameter_overrides=params(
+        robots=['robot_0'], w_max=0.5, grid_nxy=41, grid_ntheta=24, interventions_readers=2))
+    driver = Node('supervisor_ready_driver', context=ros_context)
+    pose = driver.create_publisher(PoseStamped, PRIVATE['/robot_0/pose'], rosmsg.QOS_EVERY_SAMPLE)
+    spin = Spinner(ros_context, sup, driver)
+    readers = []
+    try:
+        spin.until(lambda: pose.get_subscription_count() > 0, 10.0, 'the pose topic to match')
+        for _ in range(2):
+            spin.spin_for(0.3)             # six readiness checks: not ready with too few readers
+            assert sup.acks.sent == -1
+            readers.append(driver.create_subscription(PoseStamped, PRIVATE['/interventions'],
+                                                      lambda m: None, rosmsg.QOS_EVENTS))
+        spin.until(lambda: sup.acks.sent == 0, 10.0, 'ready with both readers')
+        assert sup.intervention_pub.get_subscription_count() == 2
+    finally:
+        spin.shutdown()
+        sup.destroy_node()
+        driver.destroy_node()

@@ -162,11 +162,12 @@ class StepAcknowledger:
     robot have been processed (see sim_clock_node's ``observers``).
 
     Before that it announces readiness with 0 once every subscription passed to
-    ``watch`` has a matched publisher, so the clock does not step while a robot's
-    first poses could still miss this node."""
+    ``watch`` has a matched publisher (and ``also_ready()``, if given, is true), so the
+    clock does not step while a robot's first poses could still miss this node."""
 
-    def __init__(self, node, robots):
+    def __init__(self, node, robots, also_ready=None):
         from rclpy.clock import Clock as RosClock, ClockType
+        self._also_ready = also_ready        # a further condition of readiness (callable)
         from rosgraph_msgs.msg import Clock
         from ..ros_io import rosmsg
         self._clock_type = Clock
@@ -181,7 +182,8 @@ class StepAcknowledger:
         self.watched.extend(subscriptions)
 
     def _check_ready(self):
-        if all(s.get_publisher_count() > 0 for s in self.watched):
+        if all(s.get_publisher_count() > 0 for s in self.watched) and (
+                self._also_ready is None or self._also_ready()):
             self._ready_timer.cancel()
             if self.sent < 0:
                 self.sent = 0

@@ -15,7 +15,9 @@ per approach (supersafe_ros.sim.watcher).
                              stamp = sim time of the crossing. The world removes that obstacle.
   pub  /supervisor/decisions diagnostic_msgs/DiagnosticStatus  robot, obstacle, V_S, threshold
   pub  /supervisor/step_done rosgraph_msgs/Clock        newest sim time whose poses of every robot
-                             are judged (lockstep observer)
+                             are judged (lockstep observer); its first message (0, ready) waits
+                             for every robot's pose publisher and for ``interventions_readers``
+                             matched readers of /interventions
   sub  /supervisor/reset     diagnostic_msgs/DiagnosticStatus  values seed, and optionally mu, sigma,
                              w_max: forget every encounter and judge afresh with these (the study's
                              kept-alive graph starts each game so; a new w_max loads its V_S from
@@ -76,6 +78,10 @@ class SupervisorNode(Node):
         nxy = ro('grid_nxy', 65, 'V_S grid nodes per axis in x and y', 5, 1001)
         nth = ro('grid_ntheta', 42, 'V_S grid nodes in theta', 4, 720)
         self.robots = [r.strip('/') for r in ro('robots', ['robot_0'], 'robot namespaces to watch')]
+        self.interventions_readers = ro(
+            'interventions_readers', 0, 'ready for the lockstep clock only once /interventions has '
+            'this many matched readers (a team: the world and the learner), so that no intervention '
+            'of the first steps goes to a reader still being discovered', 0, 1000)
 
         self.grid = Grid((-half, -half), (half, half), (nxy, nxy, nth))
         self.vf = None
@@ -88,7 +94,9 @@ class SupervisorNode(Node):
         self.intervention_pub = self.create_publisher(PoseStamped, '/interventions', rosmsg.QOS_EVENTS)
         self.decision_pub = self.create_publisher(DiagnosticStatus, '/supervisor/decisions',
                                                   rosmsg.QOS_LOG)
-        self.acks = StepAcknowledger(self, self.robots)
+        self.acks = StepAcknowledger(
+            self, self.robots,
+            also_ready=lambda: self.intervention_pub.get_subscription_count() >= self.interventions_readers)
         self.create_subscription(MarkerArray, '/obstacle_markers', self.on_markers, rosmsg.QOS_LATCHED)
         for r in self.robots:
             self.acks.watch(self.create_subscription(
