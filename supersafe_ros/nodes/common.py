@@ -167,9 +167,9 @@ class StepAcknowledger:
 
     def __init__(self, node, robots, also_ready=None):
         from rclpy.clock import Clock as RosClock, ClockType
-        self._also_ready = also_ready        # a further condition of readiness (callable)
         from rosgraph_msgs.msg import Clock
         from ..ros_io import rosmsg
+        self._also_ready = also_ready        # a further condition of readiness (callable)
         self._clock_type = Clock
         self.latest = {r: -1 for r in robots}
         self.sent = -1
