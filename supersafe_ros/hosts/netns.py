@@ -124,43 +124,47 @@ def _pids_in_netns(ident: tuple) -> list[int]:
     return pids
 
 
+def _signal_all(pids, sig) -> None:
+    for pid in pids:
+        if pid != os.getpid():
+            try:
+                os.kill(pid, sig)
+            except ProcessLookupError:
+                pass
+
+
 def delete_namespace(name: str, grace: float = 2.0, settle: float = 0.5) -> None:
     """Kill what still runs inside ``name`` (SIGTERM, then SIGKILL), then delete it.
 
     A namespace stays alive while a process is in it, and its veth with it. A process
     started with ``ip netns exec`` just before may not have entered yet when the pids are
     listed (it holds the namespace's file open and enters after): for ``settle`` seconds
-    after the delete, late entrants are found by the namespace's inode and killed."""
+    after the delete, late entrants are found by the namespace's identity and killed.
+    Processes are listed by that identity throughout (as `ip netns pids` does, without a
+    process per poll); by name only if the namespace's file cannot be read."""
     try:
         st = (NETNS_DIR / name).stat()
-        inode = (st.st_dev, st.st_ino)
+        ident = (st.st_dev, st.st_ino)
     except OSError:
-        inode = None
-    pids = namespace_pids(name)
+        ident = None
+    inside = (lambda: _pids_in_netns(ident)) if ident is not None else (lambda: namespace_pids(name))
+    pids = inside()
     for sig in (signal.SIGTERM, signal.SIGKILL):
-        for pid in pids:
-            try:
-                os.kill(pid, sig)
-            except ProcessLookupError:
-                pass
+        _signal_all(pids, sig)
         deadline = time.monotonic() + grace
         while pids and time.monotonic() < deadline:
-            pids = [p for p in pids if _pid_alive(p) and p in namespace_pids(name)]
+            still = set(inside())
+            pids = [p for p in pids if _pid_alive(p) and p in still]
             if pids:
                 time.sleep(0.05)
         if not pids:
             break
     _ip('netns', 'delete', name, check=False)
-    if inode is None:
+    if ident is None:
         return
     deadline = time.monotonic() + settle
     while True:
-        for pid in _pids_in_netns(inode):
-            if pid != os.getpid():
-                try:
-                    os.kill(pid, signal.SIGKILL)
-                except ProcessLookupError:
-                    pass
+        _signal_all(_pids_in_netns(ident), signal.SIGKILL)
         if time.monotonic() >= deadline:
             break
         time.sleep(0.05)
