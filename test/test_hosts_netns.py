@@ -71,15 +71,14 @@ def test_hosts_removed_after_an_exception_inside():
 
 
 LATE_ENTRANT = r"""
-import ctypes, os, sys, time
+import os, sys, time
+from supersafe_ros.hosts.netns import _setns
 path = sys.argv[1]
 fd = os.open(path, os.O_RDONLY)          # as `ip netns exec` does, before it enters
 print('ready', flush=True)
 while os.path.exists(path):
     time.sleep(0.005)
-libc = ctypes.CDLL('libc.so.6', use_errno=True)
-if libc.setns(fd, 0x40000000) != 0:      # CLONE_NEWNET: enter the deleted namespace
-    sys.exit(3)
+_setns(fd)                               # enter the deleted namespace
 print('entered', flush=True)
 time.sleep(60)
 """
