@@ -20,9 +20,9 @@ a scene:
   E. once the robot is past the obstacle (x > x_end) and the supervisor has judged
      that pose (an intervention on those last poses still counts).
 
-The conductor is also the robot's controller: it answers every pose with a zero Twist
-on ``robot_0/cmd_vel`` (u = 0; the lockstep robot acknowledges its step when a command
-arrives). The requests use reliable transient-local publishers (compatible with
+The conductor is also the robot's controller: it answers the newest pose with a zero
+Twist on ``robot_0/cmd_vel`` (u = 0; the lockstep robot acknowledges its step when a
+command arrives, so from the first reply on the robot steps only when answered). The requests use reliable transient-local publishers (compatible with
 volatile and transient-local readers).
 """
 from __future__ import annotations
@@ -84,7 +84,15 @@ class Phase2Conductor:
         self.pose_pub = self.node.create_publisher(PoseWithCovarianceStamped, f'/{ROBOT}/initialpose',
                                                    request_qos)
         self.cmd_pub = self.node.create_publisher(Twist, f'/{ROBOT}/cmd_vel', rosmsg.QOS_STREAM)
-        self.node.create_subscription(PoseStamped, f'/{ROBOT}/pose', self.on_pose, rosmsg.QOS_EVERY_SAMPLE)
+        # only the newest pose: each reply acknowledges the robot's current lockstep step,
+        # so replies to a backlog of old poses (a conductor slowed by a loaded machine
+        # while sim time ran free before the first command) would let the robot drive
+        # on unseen, past the scene's checkpoints. In step the robot waits for every
+        # reply, so no pose of a scene is dropped.
+        newest_only = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
+                                 reliability=ReliabilityPolicy.RELIABLE,
+                                 durability=DurabilityPolicy.VOLATILE)
+        self.node.create_subscription(PoseStamped, f'/{ROBOT}/pose', self.on_pose, newest_only)
         self.node.create_subscription(PoseStamped, '/interventions', self.on_intervention,
                                       rosmsg.QOS_EVENTS)
         self.node.create_subscription(MarkerArray, '/obstacle_markers', self.on_markers,
@@ -134,6 +142,13 @@ class Phase2Conductor:
         return (target_x - self.step_length - POSE_TOL <= x <= target_x + POSE_TOL
                 and abs(y - self.offsets[self.scene_index]) < POSE_TOL)
 
+    def _parked(self, x, y):
+        """The robot is on the scene's line, well behind the start: teleported. Any pose
+        there counts (the robot drives on, and the first poses after the first reply may
+        be dropped: the newest-only subscription)."""
+        return (x <= self.x0 - 0.5 * LEAD_IN
+                and abs(y - self.offsets[self.scene_index]) < POSE_TOL)
+
     # -- callbacks ----------------------------------------------------------------------
     def on_pose(self, msg):
         x, y = msg.pose.position.x, msg.pose.position.y
@@ -150,7 +165,7 @@ class Phase2Conductor:
                         self.settle_until = time.monotonic() + SETTLE_S
                     elif time.monotonic() >= self.settle_until:
                         self._start_scene(0)
-            elif self.stage == 'A' and self._at(x, y, self.x0 - LEAD_IN):
+            elif self.stage == 'A' and self._parked(x, y):
                 self.stage = 'A2'
                 self.wait_until = t
             elif self.stage == 'A2' and self.judged >= self.wait_until - 1e-9:
