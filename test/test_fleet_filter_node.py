@@ -111,6 +111,37 @@ def test_per_robot_topics_are_a_drop_in_with_one_step_per_tick(setup, monkeypatc
     assert calls and set(calls) == {3}
 
 
+def test_per_robot_bad_input_is_rejected_with_the_reason(setup):
+    """Per-robot topics are taken serialized and read by ros_io.cdr: a bad pose (wrong frame,
+    NaN) fails that robot safe with the validator's reason, a bad command keeps the last one."""
+    node, d, spin = setup
+    r = 'robot_2'
+    d.det[r].publish(rosmsg.xy_to_posearray([OBSTACLE]))
+    d.cmd[r].publish(rosmsg.turn_rate_to_twist(0.25, 3.0))
+    d.pose[r].publish(rosmsg.state_to_pose(FAR))
+    spin.until(lambda: d.newest(r).get('action') == 'pass', 10.0, f'{r} passing')
+    assert float(d.newest(r)['cmd_angular_z']) == pytest.approx(0.25)
+    nan_cmd = Twist()
+    nan_cmd.angular.z = float('nan')
+    d.cmd[r].publish(nan_cmd)
+    spin.until(lambda: d.rosout.has('fleet_safety_filter', 'cmd_vel_nav rejected', 'angular.z is not finite'), 10.0,
+               'the bad command logged')
+    d.pose[r].publish(rosmsg.state_to_pose(FAR))
+    spin.until(lambda: d.newest(r).get('action') == 'pass' and d.out[r], 10.0, f'{r} passing again')
+    assert float(d.newest(r)['cmd_angular_z']) == pytest.approx(0.25)    # the previous command
+    odom = rosmsg.state_to_pose(FAR, frame='odom')
+    d.pose[r].publish(odom)
+    spin.until(lambda: d.newest(r).get('action') == 'fail_safe', 10.0, f'{r} failing safe')
+    assert "pose frame is 'odom', expected 'map'" in d.newest(r)['reason']
+    bad = rosmsg.state_to_pose(FAR)
+    bad.pose.position.y = float('nan')
+    d.pose[r].publish(rosmsg.state_to_pose(FAR))
+    spin.until(lambda: d.newest(r).get('action') == 'pass', 10.0, f'{r} back')
+    d.pose[r].publish(bad)
+    spin.until(lambda: d.newest(r).get('action') == 'fail_safe', 10.0, f'{r} failing safe on NaN')
+    assert 'pose position is not finite' in d.newest(r)['reason']
+
+
 def fleet_poses(states, frame='map'):
     msg = PoseArray()
     msg.header.frame_id = frame

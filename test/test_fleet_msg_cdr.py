@@ -71,3 +71,106 @@ def test_refilled_state_status_equals_a_new_one():
         a, b = (deserialize_message(serialize_message(m), DiagnosticStatus) for m in (status, fresh))
         assert (a.level, a.name, a.message, a.hardware_id) == (b.level, b.name, b.message, b.hardware_id)
         assert [(kv.key, kv.value) for kv in a.values] == [(kv.key, kv.value) for kv in b.values]
+
+
+# -- the per-robot topics, taken serialized (ros_io.cdr) ------------------------------------------
+FRAMES = ['map', '', 'm', 'mapp', 'map7chr', 'a_longer_frame_name', 'kart\u00e9']
+
+
+def _same_outcome(read, msg, view):
+    """``read`` gives the same value (bit for bit) or the same MessageError for the message and
+    for the view of its serialized bytes."""
+    try:
+        want = read(msg)
+    except MessageError as exc:
+        with pytest.raises(MessageError) as got:
+            read(view)
+        assert str(got.value) == str(exc)
+        return 'rejected'
+    have = read(view)
+    assert np.asarray(have, dtype=float).tobytes() == np.asarray(want, dtype=float).tobytes()
+    return 'read'
+
+
+def _odd_floats(rng, k):
+    """k floats, some NaN, inf, zero or huge."""
+    v = rng.normal(size=k) * rng.choice([1.0, 1e-3, 1e3, 1e300])
+    for i in range(k):
+        r = rng.random()
+        v[i] = float('nan') if r < 0.05 else float('-inf') if r < 0.1 else 0.0 if r < 0.2 else v[i]
+    return [float(x) for x in v]
+
+
+def test_pose_stamped_view_reads_as_the_message():
+    from geometry_msgs.msg import PoseStamped
+    from supersafe_ros.ros_io import cdr
+    rng = np.random.default_rng(11)
+    outcomes = set()
+    for trial in range(400):
+        msg = PoseStamped()
+        msg.header.frame_id = FRAMES[trial % len(FRAMES)]
+        msg.header.stamp.sec, msg.header.stamp.nanosec = int(rng.integers(-2**31, 2**31)), int(rng.integers(0, 10**9))
+        p, q = msg.pose.position, msg.pose.orientation
+        p.x, p.y, p.z, q.x, q.y, q.z, q.w = _odd_floats(rng, 7)
+        if trial % 4 == 0:
+            q.x = q.y = q.z = q.w = 0.0
+        view = cdr.pose_stamped(serialize_message(msg))
+        assert (view.header.stamp.sec, view.header.stamp.nanosec) == (msg.header.stamp.sec, msg.header.stamp.nanosec)
+        for frame in ('map', None):
+            outcomes.add(_same_outcome(lambda m: rosmsg.pose_to_state(m, frame), msg, view))
+    assert outcomes == {'read', 'rejected'}
+
+
+def test_pose_array_and_twist_views_read_as_the_messages():
+    from geometry_msgs.msg import Twist
+    from supersafe_ros.ros_io import cdr
+    rng = np.random.default_rng(12)
+    outcomes = set()
+    for trial in range(200):
+        n = int(rng.integers(0, 6))
+        msg = rosmsg.xy_to_posearray(rng.uniform(-50, 50, (n, 2)))
+        msg.header.frame_id = FRAMES[trial % len(FRAMES)]
+        for pose in msg.poses:
+            pose.position.x, pose.position.y, pose.position.z = _odd_floats(rng, 3)
+        view = cdr.pose_array(serialize_message(msg))
+        assert len(view.poses) == n
+        for frame in ('map', None):
+            outcomes.add(_same_outcome(lambda m: rosmsg.posearray_to_xy(m, frame), msg, view))
+        cmd = Twist()
+        cmd.linear.x, cmd.linear.y, cmd.linear.z, cmd.angular.x, cmd.angular.y, cmd.angular.z = _odd_floats(rng, 6)
+        outcomes.add(_same_outcome(rosmsg.twist_turn_rate, cmd, cdr.twist(serialize_message(cmd))))
+    assert outcomes == {'read', 'rejected'}
+
+
+def test_twist_bytes_deserialize_to_the_twist():
+    from geometry_msgs.msg import Twist
+    from supersafe_ros.ros_io import cdr
+    for lin, ang in ((3.0, -1.0), (0.0, 0.0), (-0.0, 1e-300), (2.5, float('inf'))):
+        data = cdr.twist_bytes(lin, ang)
+        msg = deserialize_message(data, Twist)
+        assert (msg.linear.x, msg.angular.z) == (lin, ang)
+        assert (msg.linear.y, msg.linear.z, msg.angular.x, msg.angular.y) == (0.0,) * 4
+        ref = Twist()
+        ref.linear.x, ref.angular.z = lin, ang
+        assert data == serialize_message(ref)
+
+
+def test_views_reject_truncated_bytes_and_read_other_encodings():
+    import struct
+    from geometry_msgs.msg import PoseStamped
+    from supersafe_ros.ros_io import cdr
+    msg = rosmsg.state_to_pose((1.0, 2.0, 0.5))
+    data = serialize_message(msg)
+    for cut in (8, 20, len(data) - 8):
+        with pytest.raises(MessageError, match='not a serialized'):
+            cdr.pose_stamped(data[:cut])
+    arr = serialize_message(rosmsg.xy_to_posearray([(1.0, 2.0), (3.0, 4.0)]))
+    with pytest.raises(MessageError, match='not a serialized'):
+        cdr.pose_array(arr[:-8])
+    with pytest.raises(MessageError, match='not a serialized'):
+        cdr.twist(cdr.twist_bytes(1.0, 2.0)[:-1])
+    # big-endian CDR (encapsulation 00 00): handed to rclpy
+    big = b'\x00\x00\x00\x00' + struct.pack('>6d', 3.0, 0.0, 0.0, 0.0, 0.0, -0.5)
+    assert rosmsg.twist_turn_rate(cdr.twist(big)) == -0.5
+    assert isinstance(cdr.pose_stamped(data), cdr.PoseStamped)
+    assert not isinstance(cdr.pose_stamped(data), PoseStamped)

@@ -23,8 +23,10 @@ Every decision of every robot is made in ONE vectorised ``filter.core.step_many`
 call per tick. Ticks: a steady-clock timer at ``rate``, plus every ``fleet/poses``
 message (the batched reply). Per-robot topics are not taken through the executor one
 message at a time: their subscriptions belong to a helper node that is never spun,
-and each tick drains them (newest sample of each), so the cost per robot is a few
-takes and one publish, not a callback per message. A per-robot decision therefore
+and each tick drains them serialized and decodes only the newest sample of each
+(``ros_io.cdr``: light views read by the same validators), and each robot's cmd_vel is
+published serialized, so the cost per robot is a few takes and one publish, not a
+callback and a message object per sample. A per-robot decision therefore
 waits for the next tick (at most 1/rate s).
 
 Bad batched input (wrong frame or size, NaN rows) is rejected with a logged reason:
@@ -45,7 +47,7 @@ from geometry_msgs.msg import PoseArray, PoseStamped, Twist
 from std_msgs.msg import Float64MultiArray
 
 from ..filter.core import FAIL_SAFE, step_many, update_detections_all, update_poses
-from ..ros_io import fleetmsg, rosmsg
+from ..ros_io import cdr, fleetmsg, rosmsg
 from .common import declare, run_node
 from .filter_wiring import FilterWiring, StateThrottle
 
@@ -73,11 +75,12 @@ class _RobotTopics:
 
 
 def take_newest(sub):
-    """The newest message waiting on ``sub`` (None if none), the older ones dropped."""
+    """The newest sample waiting on ``sub``, serialized (None if none), the older ones dropped
+    undecoded (the tick decodes the newest with ``ros_io.cdr``)."""
     newest = None
     handle, msg_type = sub.handle, sub.msg_type
     while True:
-        got = handle.take_message(msg_type, False)
+        got = handle.take_message(msg_type, True)
         if got is None:
             return newest
         newest = got[0]
@@ -142,25 +145,26 @@ class FleetSafetyFilterNode(Node):
         w = self.wiring
         frame = w.frame
         for f, topics in zip(w.filters, self.topics):
-            msg = take_newest(topics.pose)
-            if msg is not None:
+            data = take_newest(topics.pose)
+            if data is not None:
                 try:
+                    msg = cdr.pose_stamped(data)
                     f.update_pose(rosmsg.pose_to_state(msg, frame), t, stamp=w.stamp(msg.header.stamp, t))
                 except ValueError as exc:
                     f.reject_pose(str(exc), t)
                     w.complain(f'pose {f.name}', f'{f.name}: pose rejected: {exc}; failing safe', level='error')
-            msg = take_newest(topics.detections)
-            if msg is not None:
+            data = take_newest(topics.detections)
+            if data is not None:
                 try:
-                    f.update_detections(rosmsg.posearray_to_xy(msg, frame), t)
+                    f.update_detections(rosmsg.posearray_to_xy(cdr.pose_array(data), frame), t)
                 except ValueError as exc:
                     f.reject_detections(str(exc), t)
                     w.complain(f'det {f.name}', f'{f.name}: detections rejected: {exc}; failing safe',
                                level='error')
-            msg = take_newest(topics.command)
-            if msg is not None:
+            data = take_newest(topics.command)
+            if data is not None:
                 try:
-                    f.update_command(rosmsg.twist_turn_rate(msg), t)
+                    f.update_command(rosmsg.twist_turn_rate(cdr.twist(data)), t)
                 except ValueError as exc:
                     w.complain(f'cmd {f.name}', f'{f.name}: cmd_vel_nav rejected: {exc}; keeping the '
                                f'previous command')
@@ -240,10 +244,7 @@ class FleetSafetyFilterNode(Node):
                if th.due(now, o.action, update, period)]
         if self.per_robot:
             for topics, o in zip(self.topics, outs):
-                twist = Twist()
-                twist.linear.x = o.linear
-                twist.angular.z = o.omega
-                topics.cmd_pub.publish(twist)
+                topics.cmd_pub.publish(cdr.twist_bytes(o.linear, o.omega))   # serialized: no Twist built
             for i in due:
                 self.topics[i].state_pub.publish(w.state_message(self.namespaces[i], outs[i]))
         if self.batched:

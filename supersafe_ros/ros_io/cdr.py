@@ -1,0 +1,163 @@
+"""A few standard messages read from and written to their serialized (CDR) bytes.
+
+rclpy builds a Python object per nested message when it deserializes (a PoseStamped is
+six objects, ~15 us; a fleet node of N robots takes up to three messages per robot per
+tick). The fleet node's per-robot topics are taken raw instead, and only the newest
+sample of each is decoded, into light views with the message's attribute names
+(``header.stamp.sec``, ``pose.position.x``, ``angular.z``, ...), so the validators of
+``rosmsg`` read them exactly as they read the messages (same values bit for bit, same
+errors). ``twist_bytes`` serializes a Twist.
+
+Layout (little-endian CDR, ``encapsulation`` = 00 01 00 00; offsets count from the end
+of those 4 bytes, each primitive aligned to its size): Header = int32 sec, uint32
+nanosec, string frame_id (uint32 length with its NUL, the bytes); Pose = 7 float64
+[position x y z, orientation x y z w]; PoseArray = Header, uint32 count, count Poses;
+Twist = 6 float64 [linear x y z, angular x y z]. Any other encapsulation (big-endian,
+XCDR2) is deserialized by rclpy.
+"""
+from __future__ import annotations
+
+import struct
+
+from rclpy.serialization import deserialize_message
+
+from .rosmsg import MessageError
+
+_LE = b'\x00\x01'
+_STAMP_LEN = struct.Struct('<iII')
+_COUNT = struct.Struct('<I')
+_POSE = struct.Struct('<7d')
+_TWIST = struct.Struct('<6d')
+ENCAPSULATION = b'\x00\x01\x00\x00'
+
+
+class Stamp:
+    __slots__ = ('sec', 'nanosec')
+
+    def __init__(self, sec, nanosec):
+        self.sec, self.nanosec = sec, nanosec
+
+
+class Header:
+    __slots__ = ('stamp', 'frame_id')
+
+    def __init__(self, stamp, frame_id):
+        self.stamp, self.frame_id = stamp, frame_id
+
+
+class Vector:
+    __slots__ = ('x', 'y', 'z')
+
+    def __init__(self, x, y, z):
+        self.x, self.y, self.z = x, y, z
+
+
+class Quaternion:
+    __slots__ = ('x', 'y', 'z', 'w')
+
+    def __init__(self, x, y, z, w):
+        self.x, self.y, self.z, self.w = x, y, z, w
+
+
+class Pose:
+    __slots__ = ('position', 'orientation')
+
+    def __init__(self, v):
+        self.position = Vector(v[0], v[1], v[2])
+        self.orientation = Quaternion(v[3], v[4], v[5], v[6])
+
+
+class PoseStamped:
+    __slots__ = ('header', 'pose')
+
+    def __init__(self, header, pose):
+        self.header, self.pose = header, pose
+
+
+class PoseArray:
+    __slots__ = ('header', 'poses')
+
+    def __init__(self, header, poses):
+        self.header, self.poses = header, poses
+
+
+class Twist:
+    __slots__ = ('linear', 'angular')
+
+    def __init__(self, v):
+        self.linear = Vector(v[0], v[1], v[2])
+        self.angular = Vector(v[3], v[4], v[5])
+
+
+def _body(data):
+    """The CDR body after a little-endian encapsulation header, or None (another encoding)."""
+    buf = memoryview(data)
+    if len(buf) >= 4 and bytes(buf[:2]) == _LE:
+        return buf[4:]
+    return None
+
+
+def _header(body, what):
+    """(Header, offset after it)."""
+    try:
+        sec, nanosec, length = _STAMP_LEN.unpack_from(body, 0)
+        if 12 + length > len(body):
+            raise ValueError('truncated frame_id')
+        frame_id = bytes(body[12:12 + max(0, length - 1)]).decode('utf-8')
+    except (struct.error, ValueError) as exc:
+        raise MessageError(f'{what} is not a serialized message of its type ({exc})') from None
+    return Header(Stamp(sec, nanosec), frame_id), 12 + length
+
+
+def _align(offset, size):
+    return (offset + size - 1) & ~(size - 1)
+
+
+def pose_stamped(data):
+    """A PoseStamped view of serialized bytes (MessageError if they are not one)."""
+    body = _body(data)
+    if body is None:
+        from geometry_msgs.msg import PoseStamped as Msg
+        return deserialize_message(bytes(data), Msg)
+    header, off = _header(body, 'pose')
+    try:
+        values = _POSE.unpack_from(body, _align(off, 8))
+    except struct.error as exc:
+        raise MessageError(f'pose is not a serialized PoseStamped ({exc})') from None
+    return PoseStamped(header, Pose(values))
+
+
+def pose_array(data):
+    """A PoseArray view of serialized bytes (MessageError if they are not one)."""
+    body = _body(data)
+    if body is None:
+        from geometry_msgs.msg import PoseArray as Msg
+        return deserialize_message(bytes(data), Msg)
+    header, off = _header(body, 'pose array')
+    try:
+        off = _align(off, 4)
+        (count,) = _COUNT.unpack_from(body, off)
+        off = _align(off + 4, 8)         # (no padding is written when count is 0)
+        if count and len(body) < off + _POSE.size * count:
+            raise ValueError(f'truncated: {count} poses')
+        poses = [Pose(v) for v in _POSE.iter_unpack(body[off:off + _POSE.size * count])]
+    except (struct.error, ValueError) as exc:
+        raise MessageError(f'pose array is not a serialized PoseArray ({exc})') from None
+    return PoseArray(header, poses)
+
+
+def twist(data):
+    """A Twist view of serialized bytes (MessageError if they are not one)."""
+    body = _body(data)
+    if body is None:
+        from geometry_msgs.msg import Twist as Msg
+        return deserialize_message(bytes(data), Msg)
+    try:
+        return Twist(_TWIST.unpack_from(body, 0))
+    except struct.error as exc:
+        raise MessageError(f'command is not a serialized Twist ({exc})') from None
+
+
+def twist_bytes(linear_x: float, angular_z: float) -> bytes:
+    """A serialized Twist with linear.x and angular.z (the rest 0), for ``publish``."""
+    return ENCAPSULATION + _TWIST.pack(linear_x, 0.0, 0.0, 0.0, 0.0, angular_z)
