@@ -719,6 +719,26 @@ class _ClusterFrames:
                                         if groups else np.zeros(0)])
 
 
+_FRAMES_BY_CONTENT: dict = {}      # (link, resolution, shape, bytes) -> _ClusterFrames
+_FRAMES_KEPT = 4096
+
+
+def _cluster_frames(det, store) -> _ClusterFrames:
+    """The cluster frames of a detections array, shared by content: robots sent equal
+    detections in separate messages (per-robot topics) compute them once. Bounded: the
+    oldest entries go first."""
+    st = store.settings
+    key = (st.link_distance, st.key_resolution, det.shape, det.tobytes())
+    got = _FRAMES_BY_CONTENT.get(key)
+    if got is None:
+        if len(_FRAMES_BY_CONTENT) >= _FRAMES_KEPT:
+            for old in list(_FRAMES_BY_CONTENT)[:_FRAMES_KEPT // 4]:
+                del _FRAMES_BY_CONTENT[old]
+        got = _FRAMES_BY_CONTENT[key] = _ClusterFrames(det, store)
+        got.frames.flags.writeable = got.members.flags.writeable = False
+    return got
+
+
 _NONE_I, _NONE_F = np.zeros(0, np.intp), np.zeros(0)
 _NONE_I.flags.writeable = _NONE_F.flags.writeable = False
 _NO_CLUSTERS = dict(robot=_NONE_I, index=_NONE_I, value=_NONE_F, level=_NONE_F, turn=_NONE_F, value_next=_NONE_F,
@@ -760,7 +780,7 @@ def _cluster_rows(filters, use, states, planned, horizon, speed, bang, dets, sta
         if cache is None or cache[0] is not det:
             got = shared.get((id(det), id(store)))
             if got is None:
-                got = shared[(id(det), id(store))] = _ClusterFrames(det, store)
+                got = shared[(id(det), id(store))] = _cluster_frames(det, store)
             cache = f._cluster_cache = (det, got)
         fr = cache[1]
         if fr.n:
