@@ -50,7 +50,8 @@ run_one() {  # name, source path, test files...
   done
 }
 case "$target" in
-  world|all) run_one world supersafe_ros/sim/world.py test/test_sim_core.py test/test_sim_world_rules.py ;;&
+  world|all) run_one world supersafe_ros/sim/world.py test/test_sim_core.py test/test_sim_world_rules.py \
+             test/test_study_efficiency.py ;;&
   law|all) run_one law supersafe_ros/filter/law.py test/test_filter_core.py test/test_reach_io.py ;;&
   core|all) run_one core supersafe_ros/filter/core.py test/test_filter_core.py test/test_filter_core_mutants.py \
              test/test_filter_vectorised.py ;;
