@@ -89,6 +89,19 @@ def test_goal_y_is_random_within_the_field_less_two_metres():
     assert len(set(ys)) == len(ys)
 
 
+def test_robots_draw_their_goals_independently():
+    """Each robot has its own goal stream: two robots do not get the same goals (their
+    trips would run in step), and one robot's draws do not shift another's."""
+    def goals(names, who, k):
+        w = World(WorldConfig(n_obstacles=0), names, seed=5)
+        for n in names:
+            w.update_pose(n, [-17.0, 0.0, 0.0])
+        return [float(w.new_goal(who)[1]) for _ in range(k)]
+    a, b = goals(['a', 'b'], 'a', 5), goals(['a', 'b'], 'b', 5)
+    assert a != b
+    assert goals(['a', 'b', 'c'], 'b', 5) == b    # another robot in the team changes nothing
+
+
 def test_trip_counts_exactly_at_the_goal_line_and_only_once():
     w = bare_world()
     gx = w.config.goal_x

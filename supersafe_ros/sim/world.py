@@ -182,10 +182,8 @@ class World:
         s = np.asarray(state, dtype=float).reshape(3)
         if not np.all(np.isfinite(s)):
             raise ValueError(f'pose of {name} is not finite')
-        if r.position is None:
-            r.position = s
-            if r.goal is None:
-                self.initial_side(name, s[0])
+        if r.position is None and r.goal is None:
+            self.initial_side(name, s[0])
         r.position = s
         events = {'trip': False, 'crashed': []}
         ids, xy = self.obstacle_arrays()
