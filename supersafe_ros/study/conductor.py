@@ -22,8 +22,9 @@ a scene:
 
 The conductor is also the robot's controller: it answers the newest pose with a zero
 Twist on ``robot_0/cmd_vel`` (u = 0; the lockstep robot acknowledges its step when a
-command arrives, so from the first reply on the robot steps only when answered). The requests use reliable transient-local publishers (compatible with
-volatile and transient-local readers).
+command arrives, so from the first reply on the robot steps only when answered). The
+requests use reliable transient-local publishers (compatible with volatile and
+transient-local readers).
 """
 from __future__ import annotations
 
