@@ -769,13 +769,18 @@ def _cluster_rows(filters, use, states, planned, horizon, speed, bang, dets, sta
     solving = np.zeros(len(use), dtype=np.intp)
     entries = {}      # (frames, store) -> rows of the robots that use them, in order
     shared = {}
+    stores = {}       # id(config) -> its default store (robots of a fleet share one config)
     for row, i in enumerate(use):
         f = filters[i]
         cfg = f.config
         det = dets[row]
         if not cfg.clusters or len(det) <= 1:
             continue
-        store = store_arg if store_arg is not None else default_cluster_store(cfg)
+        store = store_arg
+        if store is None:
+            store = stores.get(id(cfg))
+            if store is None:
+                store = stores[id(cfg)] = default_cluster_store(cfg)
         cache = f.__dict__.get('_cluster_cache')
         if cache is None or cache[0] is not det:
             got = shared.get((id(det), id(store)))
