@@ -89,7 +89,7 @@ class Twist:
         self.angular = Vector(v[3], v[4], v[5])
 
 
-def _body(data):
+def body(data):
     """The CDR body after a little-endian encapsulation header, or None (another encoding)."""
     buf = memoryview(data)
     if len(buf) >= 4 and bytes(buf[:2]) == _LE:
@@ -97,15 +97,12 @@ def _body(data):
     return None
 
 
-def _header(body, what):
-    """(Header, offset after it)."""
-    try:
-        sec, nanosec, length = _STAMP_LEN.unpack_from(body, 0)
-        if 12 + length > len(body):
-            raise ValueError('truncated frame_id')
-        frame_id = bytes(body[12:12 + max(0, length - 1)]).decode('utf-8')
-    except (struct.error, ValueError) as exc:
-        raise MessageError(f'{what} is not a serialized message of its type ({exc})') from None
+def _header(body):
+    """(Header, offset after it); struct.error or ValueError if the bytes are not one."""
+    sec, nanosec, length = _STAMP_LEN.unpack_from(body, 0)
+    if 12 + length > len(body):
+        raise ValueError('truncated frame_id')
+    frame_id = bytes(body[12:12 + max(0, length - 1)]).decode('utf-8')
     return Header(Stamp(sec, nanosec), frame_id), 12 + length
 
 
@@ -115,45 +112,51 @@ def _align(offset, size):
 
 def pose_stamped(data):
     """A PoseStamped view of serialized bytes (MessageError if they are not one)."""
-    body = _body(data)
-    if body is None:
+    b = body(data)
+    if b is None:
         from geometry_msgs.msg import PoseStamped as Msg
         return deserialize_message(bytes(data), Msg)
-    header, off = _header(body, 'pose')
     try:
-        values = _POSE.unpack_from(body, _align(off, 8))
-    except struct.error as exc:
+        header, off = _header(b)
+        values = _POSE.unpack_from(b, _align(off, 8))
+    except (struct.error, ValueError) as exc:
         raise MessageError(f'pose is not a serialized PoseStamped ({exc})') from None
     return PoseStamped(header, Pose(values))
 
 
+def pose_array_layout(b, what: str):
+    """(Header, pose count, offset of the first pose's 7 float64) of a PoseArray's CDR body
+    ``b``; MessageError naming ``what`` if the bytes are not one (truncated included)."""
+    try:
+        header, off = _header(b)
+        off = _align(off, 4)
+        (count,) = _COUNT.unpack_from(b, off)
+        off = _align(off + 4, 8)         # (no padding is written when count is 0)
+        if count and len(b) < off + _POSE.size * count:
+            raise ValueError(f'truncated: {count} poses')
+    except (struct.error, ValueError) as exc:
+        raise MessageError(f'{what} is not a serialized PoseArray ({exc})') from None
+    return header, count, off
+
+
 def pose_array(data):
     """A PoseArray view of serialized bytes (MessageError if they are not one)."""
-    body = _body(data)
-    if body is None:
+    b = body(data)
+    if b is None:
         from geometry_msgs.msg import PoseArray as Msg
         return deserialize_message(bytes(data), Msg)
-    header, off = _header(body, 'pose array')
-    try:
-        off = _align(off, 4)
-        (count,) = _COUNT.unpack_from(body, off)
-        off = _align(off + 4, 8)         # (no padding is written when count is 0)
-        if count and len(body) < off + _POSE.size * count:
-            raise ValueError(f'truncated: {count} poses')
-        poses = [Pose(v) for v in _POSE.iter_unpack(body[off:off + _POSE.size * count])]
-    except (struct.error, ValueError) as exc:
-        raise MessageError(f'pose array is not a serialized PoseArray ({exc})') from None
-    return PoseArray(header, poses)
+    header, count, off = pose_array_layout(b, 'pose array')
+    return PoseArray(header, [Pose(v) for v in _POSE.iter_unpack(b[off:off + _POSE.size * count])])
 
 
 def twist(data):
     """A Twist view of serialized bytes (MessageError if they are not one)."""
-    body = _body(data)
-    if body is None:
+    b = body(data)
+    if b is None:
         from geometry_msgs.msg import Twist as Msg
         return deserialize_message(bytes(data), Msg)
     try:
-        return Twist(_TWIST.unpack_from(body, 0))
+        return Twist(_TWIST.unpack_from(b, 0))
     except struct.error as exc:
         raise MessageError(f'command is not a serialized Twist ({exc})') from None
 

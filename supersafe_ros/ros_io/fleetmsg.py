@@ -16,7 +16,6 @@ reported per row (``bad``: a reason per robot, '' if the row is usable).
 from __future__ import annotations
 
 import array
-import struct
 
 import numpy as np
 
@@ -24,6 +23,7 @@ from builtin_interfaces.msg import Time
 from geometry_msgs.msg import PoseArray
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
+from . import cdr
 from .rosmsg import MAP_FRAME, MessageError
 
 COMMAND_COLUMNS = 'linear_x,angular_z'
@@ -46,35 +46,21 @@ def posearray_cdr_to_states(data: bytes, n: int, frame: str | None = MAP_FRAME):
     (a raw subscription's bytes), as ``posearray_to_states`` gives for the message.
 
     rclpy spends ~10 us per pose building Pose objects (10 ms for 1,000 robots, half a
-    50 Hz tick); the poses are read here straight from the CDR buffer instead. Layout
-    (little-endian CDR, offsets after the 4-byte encapsulation header): stamp int32 sec,
-    uint32 nanosec; frame_id uint32 length (with its NUL) and bytes; uint32 count aligned
-    to 4; count x 7 float64 [position x y z, orientation x y z w] aligned to 8. Any other
-    encapsulation is deserialized by rclpy.
+    50 Hz tick); the poses are read here straight from the CDR buffer instead, as one
+    (N, 7) array (layout: ``ros_io.cdr``). Any other encapsulation is deserialized by rclpy.
     """
-    buf = memoryview(data)
-    if len(buf) >= 4 and bytes(buf[:2]) == b'\x00\x01':      # CDR, little endian
-        body = buf[4:]
-        try:
-            sec, nanosec, length = struct.unpack_from('<iII', body, 0)
-            frame_id = bytes(body[12:12 + max(0, length - 1)]).decode('utf-8')
-            off = (12 + length + 3) & ~3
-            (count,) = struct.unpack_from('<I', body, off)
-            off = (off + 4 + 7) & ~7
-            if count and len(body) < off + 56 * count:
-                raise ValueError('truncated')
-        except (struct.error, ValueError) as exc:
-            raise MessageError(f'fleet poses is not a serialized PoseArray ({exc})') from None
-        stamp = Time(sec=sec, nanosec=nanosec)
-        if frame is not None and frame_id != frame:
-            raise MessageError(f"fleet poses frame is '{frame_id}', expected '{frame}'")
+    body = cdr.body(data)
+    if body is not None:
+        header, count, off = cdr.pose_array_layout(body, 'fleet poses')
+        if frame is not None and header.frame_id != frame:
+            raise MessageError(f"fleet poses frame is '{header.frame_id}', expected '{frame}'")
         if count != n:
             raise MessageError(f'fleet poses has {count} poses for {n} robots (order: the robots '
                                f'parameter)')
         poses = (np.frombuffer(body, dtype='<f8', count=7 * count, offset=off).reshape(count, 7) if count
                  else np.zeros((0, 7)))
         states, bad = _planar_states(poses[:, [0, 1, 3, 4, 5, 6]].astype(float), n)
-        return states, bad, stamp
+        return states, bad, Time(sec=header.stamp.sec, nanosec=header.stamp.nanosec)
     from rclpy.serialization import deserialize_message
     msg = deserialize_message(bytes(data), PoseArray)
     states, bad = posearray_to_states(msg, n, frame)
