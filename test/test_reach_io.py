@@ -33,6 +33,21 @@ def test_trilinear_is_exact_for_multilinear_functions_and_wraps_heading():
     assert np.allclose(mid, 0.5 * (f(0, 1, 11) + f(0, 1, 0)))
 
 
+def test_flat_gathers_equal_indexed_gathers_bit_for_bit():
+    # contiguous node values are read through one flat index; any other layout (a view of a
+    # vector field's component) by three index arrays: the two must agree exactly, on and off
+    # the grid (clamped) and across the heading wrap
+    rng = np.random.default_rng(3)
+    field = rng.normal(size=GRID.shape + (3,)).astype(np.float32)
+    strided = field[..., 1]
+    assert not strided.flags.c_contiguous
+    contiguous = np.ascontiguousarray(strided)
+    pts = np.stack([rng.uniform(-6, 6, 2000), rng.uniform(-5, 7, 2000), rng.uniform(-7, 7, 2000)], -1)
+    a, b = GRID.interpolate(contiguous, pts), GRID.interpolate(strided, pts)
+    assert np.array_equal(a, b)
+    assert np.array_equal(GRID.interpolate(field, pts)[:, 1], a)
+
+
 def test_gradient_of_a_linear_function():
     X, Y, TH = GRID.mesh()
     vf = ValueFunction(GRID, 3.0 * X - 2.0 * Y + 0.0 * TH)

@@ -164,7 +164,7 @@ class ClusterValue:
             si = s[inside]
             value[inside] = (lower_bound(self.vf, si, self.lipschitz_theta) if self.lower
                              else self.vf.value(si))
-            grad = self.vf.grid.interpolate(self.vf.node_gradient()[..., 2], si)
+            grad = self.vf.grid.interpolate(self.vf.theta_gradient(), si)
             turn[inside] = np.where(grad >= -self.tie, 1.0, -1.0)
         return value, turn
 
@@ -179,11 +179,13 @@ def lower_bound(vf: ValueFunction, states, lipschitz_theta: float) -> np.ndarray
     ox, oy, ot = wx * dx, wy * dy, wt * dth
     it1 = (it + 1) % g.shape[2]
     best = np.full(len(s), -np.inf)
+    flat, ny, nth = np.ascontiguousarray(vf.values).reshape(-1), g.shape[1], g.shape[2]
     for cx, ddx in ((ix, ox), (ix + 1, dx - ox)):
         for cy, ddy in ((iy, oy), (iy + 1, dy - oy)):
             dp = np.hypot(ddx, ddy)
+            base = (cx * ny + cy) * nth
             for ct, ddt in ((it, ot), (it1, dth - ot)):
-                best = np.maximum(best, vf.values[cx, cy, ct] - dp - lipschitz_theta * ddt)
+                best = np.maximum(best, flat.take(base + ct) - dp - lipschitz_theta * ddt)
     return best
 
 

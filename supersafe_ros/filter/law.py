@@ -46,7 +46,7 @@ def evaluate_pairs(vf: ValueFunction, rel_states):
     if np.any(inside):
         si = s[inside]
         value[inside] = vf.value(si)
-        grad_th = vf.grid.interpolate(vf.node_gradient()[..., 2], si)
+        grad_th = vf.grid.interpolate(vf.theta_gradient(), si)
         turn[inside] = np.where(grad_th >= -tie_tolerance(vf), 1.0, -1.0)
     return value, turn
 

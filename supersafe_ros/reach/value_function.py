@@ -44,6 +44,7 @@ class ValueFunction:
             raise ValueError('value function contains NaN or infinite values')
         self.values = v
         self._grad = None
+        self._grad_theta = None
 
     # -- evaluation -------------------------------------------------------
     @property
@@ -93,6 +94,14 @@ class ValueFunction:
         if self._grad is None:
             self._grad = node_gradient(self.grid, self.values).astype(np.float32)
         return self._grad
+
+    def theta_gradient(self) -> np.ndarray:
+        """dV/dtheta at the nodes (``node_gradient()[..., 2]``), contiguous: the filter
+        interpolates it at every robot-obstacle pair."""
+        got = getattr(self, '_grad_theta', None)
+        if got is None:
+            got = self._grad_theta = np.ascontiguousarray(self.node_gradient()[..., 2])
+        return got
 
     def gradient(self, states) -> np.ndarray:
         """dV/d(x, y, theta) at states (..., 3): trilinear interpolation of the
