@@ -216,3 +216,40 @@ def test_batched_input_updates_equal_the_per_robot_ones(standard, solved_values)
                                                                             list(fb._pose_intervals))
     with pytest.raises(ValueError):
         update_poses(fleets[0], np.full((60, 3), np.nan), t)
+
+
+def test_cluster_instances_left_out_are_off_their_grid_for_every_hold(solved_values):
+    """The batched step leaves out (robot, cluster) instances whose union value is in force but
+    whose grid no hold reaches (``_beyond_grid``): from each such robot, the arcs the law reads
+    (both bangs from now, the planner's hold, both bangs after it) all end off the grid, so the
+    rows left out would have read V = +inf. Robots sampled in a ring around the grid's corners,
+    where the bound is tight, and everywhere else."""
+    from supersafe_ros.filter.core import _beyond_grid, arc_flow
+    rng = np.random.default_rng(5)
+    values = list(solved_values.values())
+    n = 20000
+    val = rng.integers(-1, len(values), n)
+    corner = np.array([max(np.hypot(x, y) for x in (v.vf.grid.lo[0], v.vf.grid.hi[0])
+                           for y in (v.vf.grid.lo[1], v.vf.grid.hi[1])) for v in values])
+    speed, horizon = rng.choice([1.0, 3.0], n), rng.choice([0.02, 0.1, 0.3], n)
+    reach = 2.0 * speed * horizon + 1.0
+    r = np.where(val >= 0, corner[val], 10.0) + reach + rng.uniform(-3, 3, n)
+    a = rng.uniform(-np.pi, np.pi, n)
+    offset = np.stack([r * np.cos(a), r * np.sin(a)], axis=1)
+    far = _beyond_grid(values, val, offset, reach)
+    assert not far[val < 0].any()                  # no value in force: never left out
+    assert 0.3 * n < far.sum() < 0.6 * n           # both sides of the bound were sampled
+    state = np.column_stack([offset, rng.uniform(-np.pi, np.pi, n)])
+    planned, bang = rng.uniform(-1, 1, n), np.ones(n)
+    ahead = arc_flow(state, speed, planned * bang, horizon)
+    ends = [state, ahead]
+    for start in (state, ahead):
+        for w in (bang, -bang):
+            ends.append(arc_flow(start, speed, w, horizon))
+    for j, v in enumerate(values):
+        sel = far & (val == j)
+        for s in ends:   # in any frame rotated about the origin: the grid test is on the radius bound
+            for beta in (0.0, 0.7, 2.0):
+                c, sn = np.cos(beta), np.sin(beta)
+                rot = np.column_stack([c * s[sel, 0] + sn * s[sel, 1], -sn * s[sel, 0] + c * s[sel, 1], s[sel, 2]])
+                assert not v.vf.grid.contains(rot).any()

@@ -870,6 +870,15 @@ def _cluster_rows(filters, use, states, planned, horizon, speed, bang, dets, sta
     val, busy = f_val[frame], f_busy[frame]
     for k, b, bb in first_inst:
         val[k], busy[k] = b, bb
+    # an instance whose union value is in force but whose grid no hold can reach reads V = +inf at
+    # all six states below: its row never acts nor names the smallest V, so it is left out (most of
+    # a wide fleet's instances; requests and solving counts come from the instances not in force)
+    far = _beyond_grid(values, val, states[inst_row, :2] - f_origin[frame],
+                       2.0 * speed[inst_row] * horizon[inst_row] + 1.0)
+    if far.any():
+        near = ~far
+        inst_row, inst_gi, frame, val, busy = inst_row[near], inst_gi[near], frame[near], val[near], busy[near]
+        n_inst = len(inst_row)
     size = f_size[frame]
     member_inst = np.repeat(np.arange(n_inst), size)
     mg = f_mstart[frame][member_inst] + (np.arange(int(size.sum())) - np.repeat(np.cumsum(size) - size, size))
@@ -935,6 +944,18 @@ def _cluster_rows(filters, use, states, planned, horizon, speed, bang, dets, sta
                 value_next=np.where(ok, u_next, f_value[1])[keep], obstacle=nearest[keep],
                 xy=nearest_xy[keep], group=np.arange(n_inst)[keep], members=size[keep], source=source,
                 member_pairs=member_pairs, member_groups=member_inst, n_groups=n_inst, solving=solving)
+
+
+def _beyond_grid(values, val, offset, reach) -> np.ndarray:
+    """Per instance: its union value is in force (``val`` indexes ``values``) and its robot,
+    ``offset`` (k, 2) from the cluster frame's origin, is farther than ``reach`` beyond every
+    corner of that value's grid (frames only rotate about the origin, so a distance bound needs
+    no rotation): every state within ``reach`` of the robot is off the grid."""
+    if not values:
+        return np.zeros(len(val), bool)
+    corner = np.array([max(math.hypot(x, y) for x in (g.lo[0], g.hi[0]) for y in (g.lo[1], g.hi[1]))
+                       for g in (cv.vf.grid for cv in values)] + [math.inf])
+    return np.hypot(offset[:, 0], offset[:, 1]) > corner[val] + reach    # val -1 -> inf: never far
 
 
 def _orbit_values(states, member_xy, member_inst, sel, radius, turning_radius):
