@@ -187,6 +187,21 @@ def test_control_period_median_is_numpys():
             assert repr(_median(d)) == repr(float(np.median(d)))
 
 
+def test_interval_windows_keep_numpys_median_as_they_slide():
+    """The filter's interval windows (the last 16, kept sorted as they slide) give np.median of
+    the last 16 intervals after every new one, with ties and repeats."""
+    from supersafe_ros.filter.core import PERIOD_SAMPLES, _Intervals
+    rng = np.random.default_rng(1)
+    for _ in range(100):
+        window, history = _Intervals(), []
+        for x in rng.choice([0.02, 0.05, 0.1, 1 / 3], 40) + rng.normal(0, 1e-3, 40) * (rng.random() < 0.5):
+            window.append(float(x))
+            history.append(float(x))
+            last = history[-PERIOD_SAMPLES:]
+            assert list(window) == last and window.ordered == sorted(last)
+            assert repr(window.median()) == repr(float(np.median(last)))
+
+
 def test_batched_input_updates_equal_the_per_robot_ones(standard, solved_values):
     """update_poses / update_detections_all (the fleet node's batched messages) leave every
     filter as update_pose / update_detections would, and so decide the same."""

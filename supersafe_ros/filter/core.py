@@ -61,7 +61,9 @@ one as the reference). ``RobotFilter.step`` is the one-robot case of it.
 """
 from __future__ import annotations
 
+from bisect import bisect_left, insort
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 import itertools
 import math
@@ -114,8 +116,10 @@ class FilterConfig:
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0.0):
                 raise ValueError(f'{name} must be finite and >= 0, got {v}')
+            object.__setattr__(self, name, float(v))   # floats in every command (speed=3 goes out as 3.0)
         if not math.isfinite(self.cluster_alpha):
             raise ValueError(f'cluster_alpha must be finite, got {self.cluster_alpha}')
+        object.__setattr__(self, 'cluster_alpha', float(self.cluster_alpha))
 
 
 @dataclass(frozen=True)
@@ -217,8 +221,8 @@ class RobotFilter:
         self.command = _Input()
         self.overriding = False
         self.sent = deque()    # (decision time, turn rate) of the commands sent, oldest first
-        self._pose_intervals = deque(maxlen=PERIOD_SAMPLES)
-        self._command_intervals = deque(maxlen=PERIOD_SAMPLES)
+        self._pose_intervals = _Intervals()
+        self._command_intervals = _Intervals()
         self._period = None    # measured control period, until the next interval arrives
 
     # -- inputs ------------------------------------------------------------------------
@@ -285,7 +289,7 @@ class RobotFilter:
         if self.config.control_period > 0.0:
             return self.config.control_period
         if self._period is None:    # once per new interval, not per step
-            medians = [_median(d) for d in (self._pose_intervals, self._command_intervals) if d]
+            medians = [d.median() for d in (self._pose_intervals, self._command_intervals) if d]
             self._period = max(medians) if medians else 0.0
         return self._period
 
@@ -315,7 +319,7 @@ class RobotFilter:
     def record_sent(self, omega, t) -> None:
         """Remember a command sent at ``t`` (step_many does this for every decision)."""
         self.sent.append((float(t), float(omega)))
-        keep = max(self.config.hold_timeout, self.config.pose_timeout) + 1.0
+        keep = max(self.config.hold_timeout, self.config.pose_timeout) + 1.0   # as _outputs does
         while len(self.sent) > 1 and self.sent[1][0] <= t - keep:
             self.sent.popleft()
 
@@ -383,6 +387,37 @@ def update_detections_all(filters, centres, t) -> None:
         f.detections.accept(c, t)
 
 
+class _Intervals:
+    """The last PERIOD_SAMPLES intervals in arrival order, and the same kept sorted, so that
+    their median (``_median``'s, bit for bit) is a lookup rather than a sort per robot per tick."""
+
+    __slots__ = ('recent', 'ordered')
+
+    def __init__(self):
+        self.recent = deque(maxlen=PERIOD_SAMPLES)
+        self.ordered = []
+
+    def append(self, interval) -> None:
+        if len(self.recent) == PERIOD_SAMPLES:       # the oldest leaves both
+            del self.ordered[bisect_left(self.ordered, self.recent[0])]
+        self.recent.append(interval)
+        insort(self.ordered, interval)
+
+    def median(self) -> float:
+        s = self.ordered
+        k = len(s) // 2
+        return float(s[k]) if len(s) % 2 else float((s[k - 1] + s[k]) / 2.0)
+
+    def __len__(self):
+        return len(self.recent)
+
+    def __iter__(self):
+        return iter(self.recent)
+
+    def __getitem__(self, i):
+        return self.recent[i]
+
+
 def _median(values) -> float:
     """np.median of a few finite floats, bit for bit (the mean of the two middle ones for an even
     count, (a + b) / 2 as numpy computes it), at a tenth of its cost (~2 us for 16 values)."""
@@ -442,11 +477,14 @@ def propagate_poses(filters, use, t):
     return states, ages
 
 
+def _command_fresh(f, t) -> bool:
+    """Whether the planner's command is recent enough to forward."""
+    return f.command.value is not None and t - f.command.t <= f.config.cmd_timeout
+
+
 def _planned_turn(f, t) -> float:
     """The command the filter would forward (a silent planner counts as 0), clipped."""
-    cfg = f.config
-    fresh = f.command.value is not None and t - f.command.t <= cfg.cmd_timeout
-    return _clip(f.command.value, cfg.omega_max) if fresh else 0.0
+    return _clip(f.command.value, f.config.omega_max) if _command_fresh(f, t) else 0.0
 
 
 def _clip(value, bound) -> float:
@@ -518,15 +556,16 @@ def step_many(filters, safe_set: SafeSet, t, clusters=None) -> list:
         use.append(i)
     m = len(use)
     states, ages = propagate_poses(filters, use, t)
-    per = []        # per robot row: lookahead, planned turn, speed, w_max, overriding, clear margin
+    per = []        # per robot row: lookahead, planned turn, speed, w_max, overriding, clear margin, fresh
     dets = []
     for i in use:
         f = filters[i]
         cfg = f.config
-        per.append((f.lookahead(), _planned_turn(f, t), cfg.speed, cfg.omega_max, f.overriding,
-                    cfg.clear_margin))
+        fresh = _command_fresh(f, t)
+        per.append((f.lookahead(), _clip(f.command.value, cfg.omega_max) if fresh else 0.0, cfg.speed,
+                    cfg.omega_max, f.overriding, cfg.clear_margin, fresh))
         dets.append(f.detections.value)
-    per = np.array(per, dtype=float).reshape(-1, 6)
+    per = np.array(per, dtype=float).reshape(-1, 7)
     horizon, planned, speed, bang = per[:, 0].copy(), per[:, 1].copy(), per[:, 2].copy(), per[:, 3].copy()
     counts = np.fromiter(map(len, dets), dtype=np.intp, count=m)
 
@@ -568,8 +607,7 @@ def step_many(filters, safe_set: SafeSet, t, clusters=None) -> list:
     overriding, margin = per[:, 4] != 0.0, per[:, 5].copy()
     k_gov, kind = _govern(tab, overriding, margin, n_pairs + cl['n_groups'], m)
     k_small = _first_min(tab.robot, tab.position, tab.value - tab.level, np.isfinite(tab.value), m)
-    return _outputs(filters, problems, use, safe_set, t, tab, k_gov, kind, k_small, horizon, ages,
-                    cl['solving'])
+    return _outputs(filters, problems, use, safe_set, t, tab, k_gov, kind, k_small, per, ages, cl['solving'])
 
 
 def _govern(tab, overriding, margin, n_groups, m):
@@ -607,88 +645,130 @@ def _govern(tab, overriding, margin, n_groups, m):
 _KINDS = ('', 'enter', 'ahead', 'stay')
 
 
-def _outputs(filters, problems, use, safe_set, t, tab, k_gov, kind, k_small, horizon, ages, solving):
-    """The FilterOutput of every robot (and its record of the command sent)."""
-    alpha = float(safe_set.alpha)
-    source = safe_set.source
+class Decisions(Sequence):
+    """What ``step_many`` decided, one entry per robot filter, in order.
+
+    ``omega``, ``linear`` and ``action`` are lists: the commands to send, all a batched caller
+    needs every tick. ``decisions[i]`` is robot i's ``FilterOutput`` with its reason, built on
+    first access from values fixed at the decision (formatting a thousand reasons costs more
+    than deciding them, and most are never read).
+    """
+
+    __slots__ = ('omega', 'linear', 'action', '_describe', '_built')
+
+    def __init__(self, omega, linear, action, describe):
+        self.omega, self.linear, self.action, self._describe = omega, linear, action, describe
+        self._built = [None] * len(action)
+
+    def __len__(self):
+        return len(self._built)
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[j] for j in range(*i.indices(len(self)))]
+        got = self._built[i]
+        if got is None:
+            got = self._built[i] = self._describe(range(len(self))[i])
+        return got
+
+    def __repr__(self):
+        return f'Decisions({list(self)!r})'
+
+
+def _outputs(filters, problems, use, safe_set, t, tab, k_gov, kind, k_small, per, ages, solving) -> Decisions:
+    """Every robot's command (as arrays), its filter's state (overriding, the command
+    remembered as sent), and a builder of its FilterOutput."""
+    n, m = len(filters), len(use)
+    row_of = np.full(n, -1, dtype=np.intp)
+    row_of[np.asarray(use, dtype=np.intp)] = np.arange(m)
+    horizon, planned, speed, bang, fresh = per[:, 0], per[:, 1], per[:, 2], per[:, 3], per[:, 6] != 0.0
+    failing = np.array([bool(problems[i]) for i in use], dtype=bool)
+    overrides = ~failing & (kind > 0)
+    named = np.where(overrides, k_gov, k_small)      # the constraint each robot's output names
+    avoid = named >= 0
+    turn = tab.turn[np.where(avoid, named, 0)] if len(tab.turn) else np.zeros(m)
+    # fail safe: avoid from the last valid state, or stop-turn; override: the avoid turn; pass: the
+    # planner's command clipped to the robot's bound (0 if silent)
+    omega_row = np.where(overrides | (failing & avoid), bang * turn, np.where(failing, bang, planned))
+    stopped = (failing & ~avoid) | (~failing & ~overrides & ~fresh)
+    linear_row = np.where(stopped, 0.0, speed)
+    code_row = np.where(failing, 2, np.where(overrides, 1, 0))
+    omega, linear, action, overriding = [], [], [], []
+    actions = (PASS, OVERRIDE, FAIL_SAFE)
+    rows = row_of.tolist()
+    omega_row, linear_row, code_row, overrides = (omega_row.tolist(), linear_row.tolist(), code_row.tolist(),
+                                                  overrides.tolist())
+    t = float(t)
+    forget = {}       # id(config) -> the time before which sent commands are forgotten (record_sent's)
+    for f, row in zip(filters, rows):
+        cfg = f.config
+        if row < 0:       # no recent valid state: stop-turn
+            w, v, a, o = cfg.omega_max, 0.0, FAIL_SAFE, False
+        else:
+            w, v, a, o = omega_row[row], linear_row[row], actions[code_row[row]], overrides[row]
+        f.overriding = o  # failing safe clears it: re-enter by the law once inputs are back
+        before = forget.get(id(cfg))
+        if before is None:
+            before = forget[id(cfg)] = t - (max(cfg.hold_timeout, cfg.pose_timeout) + 1.0)
+        sent = f.sent     # f.record_sent(w, t), inline
+        sent.append((t, w))
+        while len(sent) > 1 and sent[1][0] <= before:
+            sent.popleft()
+        omega.append(w)
+        linear.append(v)
+        action.append(a)
+    configs = [f.config for f in filters]      # as at the decision (a parameter change replaces it)
+    alpha, source = float(safe_set.alpha), safe_set.source
     set_omega = safe_set.omega_max
     set_omega = float(set_omega) if set_omega is not None else math.nan
-    row_of = {i: row for row, i in enumerate(use)}
-    # only the rows some robot names are read: gather them, then convert to Python once
-    chosen = np.unique(np.concatenate([k_gov[k_gov >= 0], k_small[k_small >= 0]]))
-    local = np.full(len(tab.robot) + 1, -1, dtype=np.intp)     # local[-1] = -1: none
-    local[chosen] = np.arange(len(chosen))
-    value, level, turn = tab.value[chosen].tolist(), tab.level[chosen].tolist(), tab.turn[chosen].tolist()
-    value_next, obstacle = tab.value_next[chosen].tolist(), tab.obstacle[chosen].tolist()
-    members, sound, xy = tab.members[chosen].tolist(), tab.sound[chosen].tolist(), tab.xy[chosen].tolist()
-    sources = [tab.source[k] for k in chosen.tolist()]
-    k_gov, k_small = local[k_gov].tolist(), local[k_small].tolist()
-    kind = kind.tolist()
-    horizon, ages, solving = horizon.tolist(), ages.tolist(), solving.tolist()
+    fresh, kind, named = fresh.tolist(), kind.tolist(), named.tolist()
 
-    def label(k):
-        if members[k] > 1:
-            return f'a cluster of {members[k]} obstacles ({sources[k]}, nearest {obstacle[k]})'
-        return f'obstacle {obstacle[k]}'
-
-    def describe(k, common):
+    def describe(i) -> FilterOutput:
+        cfg, row = configs[i], rows[i]
+        common = dict(alpha=alpha, source=source, omega_max_set=set_omega,
+                      pose_age=float(ages[row]) if row >= 0 else 0.0,
+                      lookahead=float(horizon[row]) if row >= 0 else 0.0,
+                      clusters_solving=int(solving[row]) if row >= 0 else 0)
+        k = named[row] if row >= 0 else -1
         if k < 0:
             common.update(obstacle_index=-1, obstacle_xy=(math.nan, math.nan), value=math.inf)
+            value = level = math.nan
         else:
-            common.update(obstacle_index=obstacle[k], obstacle_xy=tuple(xy[k]), value=value[k], alpha=level[k])
-            if sound[k]:
-                common['source'] = sources[k]
-
-    out = []
-    for i, f in enumerate(filters):
-        cfg = f.config
-        row = row_of.get(i)
-        common = dict(alpha=alpha, source=source, omega_max_set=set_omega,
-                      pose_age=ages[row] if row is not None else 0.0,
-                      lookahead=horizon[row] if row is not None else 0.0,
-                      clusters_solving=solving[row] if row is not None else 0)
+            value, level = float(tab.value[k]), float(tab.level[k])
+            members, obstacle = int(tab.members[k]), int(tab.obstacle[k])
+            common.update(obstacle_index=obstacle, obstacle_xy=tuple(tab.xy[k].tolist()), value=value,
+                          alpha=level)
+            if tab.sound[k]:
+                common['source'] = tab.source[k]
+            label = (f'a cluster of {members} obstacles ({tab.source[k]}, nearest {obstacle})' if members > 1
+                     else f'obstacle {obstacle}')
+        w, v, a = omega[i], linear[i], action[i]
         problem = problems[i]
         if problem:
-            f.overriding = False   # re-enter by the law once inputs are back
-            k = k_small[row] if row is not None else -1
-            describe(k, common)
             if k >= 0:
-                out.append(FilterOutput(cfg.omega_max * turn[k], cfg.speed, FAIL_SAFE,
-                                        f'{problem}; avoiding {label(k)} from the last '
-                                        f'valid state (V={value[k]:.3g})', **common))
+                why = f'{problem}; avoiding {label} from the last valid state (V={value:.3g})'
             else:
-                why = 'no recent valid state' if row is None else 'no obstacle near the last valid state'
-                out.append(FilterOutput(cfg.omega_max, 0.0, FAIL_SAFE, f'{problem}; {why}: stop-turn', **common))
-            continue
-        how = _KINDS[kind[row]]
-        k = k_gov[row] if how else k_small[row]
-        describe(k, common)
-        if how:
-            f.overriding = True
-            lv = level[k]
+                why = f'{problem}; {"no recent valid state" if row < 0 else "no obstacle near the last valid state"}' \
+                      ': stop-turn'
+        elif a == OVERRIDE:
+            how = _KINDS[kind[row]]
             if how == 'enter':
-                why = f'V={value[k]:.3g} <= alpha={lv:.3g} at {label(k)}'
+                why = f'V={value:.3g} <= alpha={level:.3g} at {label}'
             elif how == 'ahead':
-                why = (f'the planner\'s command would reach V={value_next[k]:.3g} <= alpha={lv:.3g} '
-                       f'within {horizon[row]:.3g} s ({label(k)})')
+                why = (f'the planner\'s command would reach V={float(tab.value_next[k]):.3g} <= alpha={level:.3g} '
+                       f'within {float(horizon[row]):.3g} s ({label})')
             else:
-                why = f'V={value[k]:.3g} <= alpha+margin={lv + cfg.clear_margin:.3g}: not clear yet'
-            out.append(FilterOutput(cfg.omega_max * turn[k], cfg.speed, OVERRIDE, why, **common))
-            continue
-        f.overriding = False
-        if f.command.value is None or t - f.command.t > cfg.cmd_timeout:
-            # Nav2 style: no input, zero twist (a Dubins robot drives straight on;
-            # the filter still guards it against every detected obstacle)
-            out.append(FilterOutput(0.0, 0.0, PASS, 'clear; planner silent: zero command', **common))
+                why = f'V={value:.3g} <= alpha+margin={level + cfg.clear_margin:.3g}: not clear yet'
+        elif not fresh[row]:
+            # Nav2 style: no input, zero twist (a Dubins robot drives straight on; the filter still
+            # guards it against every detected obstacle)
+            why = 'clear; planner silent: zero command'
         else:
-            why = ('clear: no obstacle near' if k < 0 else
-                   f'clear: V={value[k]:.3g} > alpha={level[k]:.3g}')
             # the robot's bound, whatever the planner asked (angular.z = 1e30 goes out as w_max)
-            omega = _clip(f.command.value, cfg.omega_max)
-            out.append(FilterOutput(omega, cfg.speed, PASS, why, **common))
-    for f, o in zip(filters, out):
-        f.record_sent(o.omega, t)
-    return out
+            why = 'clear: no obstacle near' if k < 0 else f'clear: V={value:.3g} > alpha={level:.3g}'
+        return FilterOutput(w, v, a, why, **common)
+
+    return Decisions(omega, linear, action, describe)
 
 
 class _ClusterFrames:

@@ -234,21 +234,20 @@ class FleetSafetyFilterNode(Node):
         t = w.now() if t is None else t
         if self.per_robot:
             self._drain(t)
-        outs = step_many(w.filters, w.safe_set, t)
+        outs = step_many(w.filters, w.safe_set, t)     # commands as lists; outputs built when read
         self.ticks += 1
         self.decisions += 1
-        self.failing_safe = sum(o.action == FAIL_SAFE for o in outs)
+        self.failing_safe = outs.action.count(FAIL_SAFE)
         now = time.monotonic()
         period, update = w.state_period, w.set_update
-        due = [i for i, (th, o) in enumerate(zip(self._throttles, outs))
-               if th.due(now, o.action, update, period)]
+        due = [i for i, (th, a) in enumerate(zip(self._throttles, outs.action)) if th.due(now, a, update, period)]
         if self.per_robot:
-            for topics, o in zip(self.topics, outs):
-                topics.cmd_pub.publish(cdr.twist_bytes(o.linear, o.omega))   # serialized: no Twist built
+            for topics, v, omega in zip(self.topics, outs.linear, outs.omega):
+                topics.cmd_pub.publish(cdr.twist_bytes(v, omega))   # serialized: no Twist built
             for i in due:
                 self.topics[i].state_pub.publish(w.state_message(self.namespaces[i], outs[i]))
         if self.batched:
-            self.fleet_cmd_pub.publish(fleetmsg.commands_to_msg([(o.linear, o.omega) for o in outs]))
+            self.fleet_cmd_pub.publish(fleetmsg.commands_to_msg(np.column_stack([outs.linear, outs.omega])))
             if due:
                 arr = DiagnosticArray()
                 arr.header.stamp = self.get_clock().now().to_msg()
@@ -261,8 +260,8 @@ class FleetSafetyFilterNode(Node):
         """At most one line per kind of change of the robots' fail-safe states per tick (quiet while
         starting): robots whose inputs became valid, robots failing safe, robots back."""
         started, lost, back = [], [], []
-        for i, o in enumerate(outs):
-            failing = o.action == FAIL_SAFE
+        for i, action in enumerate(outs.action):
+            failing = action == FAIL_SAFE
             before = self._failing[i]
             if before is None:
                 if not failing:

@@ -149,13 +149,10 @@ class TeamLoop:
         if self.filtered:
             self._solve_clusters()
             outs = step_many([r.filter for r in self.robots], self.safe_set, t, self.clusters)
+            commands = zip(outs.omega, outs.action)
         else:
-            outs = [None] * len(self.robots)
-        for r, out in zip(self.robots, outs):                    # 6. commands and actions
-            if out is None:
-                omega, action = (r.filter.command.value or 0.0), 'pass'
-            else:
-                omega, action = out.omega, out.action
+            commands = (((r.filter.command.value or 0.0), 'pass') for r in self.robots)
+        for r, (omega, action) in zip(self.robots, commands):   # 6. commands and actions
             r.sim.command(omega, t)
             self.world.set_filter_action(r.name, action)
             self.decisions[action] = self.decisions.get(action, 0) + 1
