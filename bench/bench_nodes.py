@@ -420,7 +420,7 @@ def bench_nodes(args):
 
 
 # -- fleet node ----------------------------------------------------------------------------------
-def serve_fleet(m, batched, one_core):
+def serve_fleet(m, batched, one_core, profile=''):
     """Child: one fleet_safety_filter_node for /bench_0 .. /bench_<m-1>, optionally on one core."""
     import rclpy
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
@@ -443,11 +443,19 @@ def serve_fleet(m, batched, one_core):
         'decisions': ','.join(str(int(v)) for v in node.decisions)})), clock=node.wiring.steady)
     ex = SingleThreadedExecutor()
     ex.add_node(node)
+    profiler = None
+    if profile:
+        import cProfile
+        profiler = cProfile.Profile()
+        profiler.enable()
     try:
         ex.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        if profiler is not None:
+            profiler.disable()
+            profiler.dump_stats(profile)
         node.close()
         rclpy.try_shutdown()
 
@@ -489,7 +497,8 @@ def bench_fleet(args):
           f'feeds each robot pose + command at 50 Hz and detections at 10 Hz for {args.window:.0f} s')
     for m in args.fleet_sizes:
         child = start([os.path.abspath(__file__), '--serve-fleet', str(m)]
-                      + (['--all-cores'] if args.all_cores else []), f'fleet_{m}')
+                      + (['--all-cores'] if args.all_cores else [])
+                      + (['--profile', f'{args.profile}.{m}'] if args.profile else []), f'fleet_{m}')
         d = Driver('bench_fleet')
         try:
             reports = []
@@ -542,7 +551,8 @@ def bench_batched(args):
           f'fleet/poses + fleet/cmd_vel_nav at 50 Hz (fleet/detections at 10 Hz) for {args.window:.0f} s')
     for n in args.batched_sizes:
         child = start([os.path.abspath(__file__), '--serve-fleet', str(n), '--serve-batched']
-                      + (['--all-cores'] if args.all_cores else []), f'batched_{n}')
+                      + (['--all-cores'] if args.all_cores else [])
+                      + (['--profile', f'{args.profile}.{n}'] if args.profile else []), f'batched_{n}')
         d = Driver('bench_batched')
         try:
             reports, replies = [], []
@@ -672,6 +682,8 @@ def main(argv=None):
     parser.add_argument('--fleet-sizes', type=int, nargs='+', default=[50, 100, 150])
     parser.add_argument('--batched-sizes', type=int, nargs='+', default=[500, 1000, 2000])
     parser.add_argument('--all-cores', action='store_true', help='do not pin the fleet node to one core')
+    parser.add_argument('--profile', default='', help='fleet and batched: cProfile the fleet node, stats to '
+                        'PROFILE.<robots> (profiling inflates the figures printed)')
     parser.add_argument('--serve-filters', type=int, default=0, help=argparse.SUPPRESS)
     parser.add_argument('--serve-fleet', type=int, default=0, help=argparse.SUPPRESS)
     parser.add_argument('--serve-batched', action='store_true', help=argparse.SUPPRESS)
@@ -681,7 +693,7 @@ def main(argv=None):
     if args.serve_filters:
         return serve_filters(args.serve_filters)
     if args.serve_fleet:
-        return serve_fleet(args.serve_fleet, args.serve_batched, not args.all_cores)
+        return serve_fleet(args.serve_fleet, args.serve_batched, not args.all_cores, args.profile)
     ensure_local_ros_env()
     os.environ.setdefault('ROS_DOMAIN_ID', str(150 + os.getpid() % 80))
     import rclpy

@@ -203,9 +203,10 @@ def test_interval_windows_keep_numpys_median_as_they_slide():
 
 
 def test_batched_input_updates_equal_the_per_robot_ones(standard, solved_values):
-    """update_poses / update_detections_all (the fleet node's batched messages) leave every
-    filter as update_pose / update_detections would, and so decide the same."""
-    from supersafe_ros.filter.core import update_detections_all, update_poses
+    """update_poses / update_commands / update_detections_all (the fleet node's batched
+    messages) leave every filter as update_pose / update_command / update_detections would, and
+    so decide the same."""
+    from supersafe_ros.filter.core import update_commands, update_detections_all, update_poses
     rng = np.random.default_rng(7)
     fleets = [build_fleet(11, 60)[0] for _ in range(2)]
     stores = [make_store('pending', solved_values) for _ in range(2)]
@@ -219,6 +220,12 @@ def test_batched_input_updates_equal_the_per_robot_ones(standard, solved_values)
             if not why:
                 f.update_pose(s, t, stamp=stamp)
         update_poses(fleets[0], states, t, stamp=stamp, skip=skip)
+        omegas = rng.uniform(-2, 2, 60)
+        silent = ['silent' if rng.random() < 0.2 else '' for _ in range(60)]
+        for f, w, why in zip(fleets[1], omegas, silent):
+            if not why:
+                f.update_command(w, t)
+        update_commands(fleets[0], omegas, t, skip=silent)
         if tick % 2:
             dets = LAYOUT[rng.choice(len(LAYOUT), 6, replace=False)]
             update_detections_all(fleets[0], dets, t)
@@ -229,8 +236,16 @@ def test_batched_input_updates_equal_the_per_robot_ones(standard, solved_values)
             assert record(a, fa) == record(b, fb)
             assert (fa.pose.t, fa.pose.stamp, list(fa._pose_intervals)) == (fb.pose.t, fb.pose.stamp,
                                                                             list(fb._pose_intervals))
+            assert (fa.command.value, fa.command.t, list(fa._command_intervals)) == (
+                fb.command.value, fb.command.t, list(fb._command_intervals))
     with pytest.raises(ValueError):
         update_poses(fleets[0], np.full((60, 3), np.nan), t)
+    before = [f.command.value for f in fleets[0]]
+    with pytest.raises(ValueError):
+        update_commands(fleets[0], np.r_[np.zeros(59), np.inf], t + 1.0)
+    assert [f.command.value for f in fleets[0]] == before     # nobody updated
+    update_commands(fleets[0], np.r_[np.zeros(59), np.inf], t + 1.0, skip=[''] * 59 + ['not finite'])
+    assert fleets[0][-1].command.value == before[-1] and fleets[0][0].command.t == t + 1.0
 
 
 def test_cluster_instances_left_out_are_off_their_grid_for_every_hold(solved_values):

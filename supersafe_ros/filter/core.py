@@ -374,6 +374,26 @@ def update_poses(filters, states, t, stamp=None, skip=None) -> None:
             f._period = None
 
 
+def update_commands(filters, omegas, t, skip=None) -> None:
+    """``filters[i].update_command(omegas[i], t)`` for every robot whose ``skip[i]`` is falsy
+    (the fleet node's batched commands). Raises ValueError before updating anyone if a turn
+    rate to take is not finite."""
+    w = np.asarray(omegas, dtype=float).reshape(len(filters))
+    take = np.ones(len(filters), bool) if skip is None else ~np.array([bool(b) for b in skip], dtype=bool)
+    if not np.all(np.isfinite(w[take])):
+        raise ValueError('planner commands are not finite')
+    t = float(t)
+    for f, omega, ok in zip(filters, w.tolist(), take.tolist()):
+        if not ok:
+            continue
+        command = f.command
+        previous = command.t if command.value is not None else None
+        command.value, command.t, command.rejected, command.stamp = omega, t, '', t
+        if previous is not None and t > previous:
+            f._command_intervals.append(t - previous)
+            f._period = None
+
+
 def update_detections_all(filters, centres, t) -> None:
     """``update_detections(centres, t)`` for every robot, with one array shared by all (the
     fleet node's batched detections; robots that share it share its cluster frames)."""

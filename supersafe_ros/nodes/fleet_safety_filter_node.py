@@ -46,7 +46,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseArray, PoseStamped, Twist
 from std_msgs.msg import Float64MultiArray
 
-from ..filter.core import FAIL_SAFE, step_many, update_detections_all, update_poses
+from ..filter.core import FAIL_SAFE, step_many, update_commands, update_detections_all, update_poses
 from ..ros_io import cdr, fleetmsg, rosmsg
 from .common import declare, run_node
 from .filter_wiring import FilterWiring, StateThrottle
@@ -191,12 +191,11 @@ class FleetSafetyFilterNode(Node):
             w.complain('fleet cmd', f'fleet/cmd_vel_nav rejected: {exc}; keeping the previous commands',
                        level='error')
             return
-        for f, omega, why in zip(w.filters, commands[:, 1].tolist(), bad):
+        for f, why in zip(w.filters, bad):
             if why:
                 w.complain(f'cmd {f.name}', f'{f.name}: fleet/cmd_vel_nav row rejected: {why}; keeping the '
                            f'previous command', level='error')
-                continue
-            f.update_command(omega, t)
+        update_commands(w.filters, commands[:, 1], t, skip=bad)    # the good rows, validated at once
 
     def on_fleet_poses(self, data: bytes):
         """A serialized PoseArray (raw subscription); a PoseArray object is taken too."""
