@@ -426,6 +426,7 @@ def serve_fleet(m, batched, one_core, profile=''):
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
     from rclpy.parameter import Parameter
     from diagnostic_msgs.msg import DiagnosticStatus
+    from supersafe_ros.nodes.common import freeze_startup_objects
     from supersafe_ros.nodes.fleet_safety_filter_node import FleetSafetyFilterNode
     from supersafe_ros.ros_io import rosmsg
     if one_core:
@@ -441,6 +442,7 @@ def serve_fleet(m, batched, one_core, profile=''):
     node.create_timer(0.25, lambda: report.publish(rosmsg.make_diagnostic('decisions', {
         't': time.monotonic_ns(), 'ticks': node.ticks, 'fail_safe': node.failing_safe,
         'decisions': ','.join(str(int(v)) for v in node.decisions)})), clock=node.wiring.steady)
+    freeze_startup_objects()    # as run_node does
     ex = SingleThreadedExecutor()
     ex.add_node(node)
     profiler = None

@@ -1,5 +1,6 @@
 """fleet_safety_filter_node at topic level: per-robot topics (drop-in) and the batched interface."""
 import math
+import time
 
 import numpy as np
 import pytest
@@ -216,6 +217,46 @@ def test_batched_bad_input_is_rejected_with_a_reason_and_fails_the_robots_safe(s
     d.fleet_poses.publish(fleet_poses([FAR, FAR, FAR]))
     spin.until(lambda: d.fleet_out, 5.0, 'a reply')
     assert np.asarray(d.fleet_out[-1].data).reshape(-1, 2)[:, 1] == pytest.approx([0.3, 0.3, 0.3])
+
+
+def test_poses_that_wait_are_superseded_by_the_newest(setup, ros_context, monkeypatch):
+    """Five fleet/poses messages waiting at once (the filter busy): it decides on the newest,
+    once or a few times but fewer than five, counts the rest as superseded and says so; every
+    message is either decided on or superseded."""
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    node, d, spin = setup
+    batched_tick(d, spin, [FAR, FAR, FAR], [0.3, 0.3, 0.3], actions('pass', 'pass', 'pass'), 'all passing')
+    decided = []
+    real = fleet_module.update_poses
+    monkeypatch.setattr(fleet_module, 'update_poses', lambda filters, states, *a, **k: decided.append(
+        np.array(states)) or real(filters, states, *a, **k))
+    # an observer of its own (not spun with the filter) tells when the burst has been delivered
+    observer = Node('fleet_test_observer', context=ros_context)
+    seen = []
+    observer.create_subscription(PoseArray, '/fleet/poses', seen.append, rosmsg.QOS_STREAM)
+    ex = SingleThreadedExecutor(context=ros_context)
+    ex.add_node(observer)
+    try:
+        deadline = time.monotonic() + 10.0
+        while d.fleet_poses.get_subscription_count() < 2 and time.monotonic() < deadline:
+            ex.spin_once(timeout_sec=0.01)
+        before = node.superseded_poses
+        burst = [[(FAR[0] + k, FAR[1], 0.0)] * 3 for k in range(5)]
+        for states in burst:
+            d.fleet_poses.publish(fleet_poses(states))
+        while len(seen) < 5 and time.monotonic() < deadline:
+            ex.spin_once(timeout_sec=0.01)
+        assert len(seen) == 5, 'the burst was not delivered'
+    finally:
+        ex.shutdown()
+        observer.destroy_node()
+    spin.until(lambda: decided and decided[-1][0, 0] == pytest.approx(burst[-1][0][0]), 10.0,
+               'a decision on the newest poses')
+    superseded = node.superseded_poses - before
+    assert len(decided) < 5 and len(decided) + superseded == 5, (len(decided), superseded)
+    assert node.wiring.filters[0].pose.value[0] == pytest.approx(burst[-1][0][0])
+    spin.until(lambda: d.rosout.has('fleet_safety_filter', 'fleet/poses', 'superseded'), 5.0, 'the warning')
 
 
 def test_robots_parameter_is_read_only_and_must_name_distinct_robots(setup, ros_context):

@@ -7,6 +7,7 @@ a clean stop, 1 if the node failed to start.
 """
 from __future__ import annotations
 
+import gc
 import os
 import signal
 import sys
@@ -88,6 +89,13 @@ class StopSignals:
             self.state = 'stopping'
 
 
+def freeze_startup_objects() -> None:
+    """Move what starting made (the node, its value functions, its robots' filters), which
+    lives as long as the process, out of the garbage collector's generations: a collection
+    then scans only what the run allocates (about 1 ms a tick for the 1,000-robot fleet)."""
+    gc.freeze()
+
+
 def run_node(node_class, args=None, executor_class=None) -> int:
     """Run one node until SIGINT/SIGTERM; ``args`` are the process argv (incl. --ros-args).
 
@@ -111,6 +119,7 @@ def run_node(node_class, args=None, executor_class=None) -> int:
     stopping = threading.Event()
     try:
         node = node_class()
+        freeze_startup_objects()
         executor = executor_class() if executor_class else make_executor()
         executor.add_node(node)
         wake = node.create_guard_condition(stopping.set)

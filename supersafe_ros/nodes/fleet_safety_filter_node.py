@@ -77,13 +77,18 @@ class _RobotTopics:
 def take_newest(sub):
     """The newest sample waiting on ``sub``, serialized (None if none), the older ones dropped
     undecoded (the tick decodes the newest with ``ros_io.cdr``)."""
-    newest = None
+    return take_newest_counted(sub)[0]
+
+
+def take_newest_counted(sub):
+    """(the newest sample waiting on ``sub`` or None, how many were waiting)."""
+    newest, count = None, 0
     handle, msg_type = sub.handle, sub.msg_type
     while True:
         got = handle.take_message(msg_type, True)
         if got is None:
-            return newest
-        newest = got[0]
+            return newest, count
+        newest, count = got[0], count + 1
 
 
 class FleetSafetyFilterNode(Node):
@@ -107,6 +112,8 @@ class FleetSafetyFilterNode(Node):
         self.failing_safe = 0
         self.decisions = np.zeros(self.n, dtype=np.int64)
         self._last_batched = -1e18
+        self.poses_sub = None
+        self.superseded_poses = 0
 
         self.io = None
         self.topics = []
@@ -122,7 +129,8 @@ class FleetSafetyFilterNode(Node):
             self.create_subscription(Float64MultiArray, 'fleet/cmd_vel_nav', self.on_fleet_commands,
                                      rosmsg.QOS_STREAM)
             # raw: the poses are read straight from the CDR buffer (fleetmsg.posearray_cdr_to_states)
-            self.create_subscription(PoseArray, 'fleet/poses', self.on_fleet_poses, rosmsg.QOS_STREAM, raw=True)
+            self.poses_sub = self.create_subscription(PoseArray, 'fleet/poses', self.on_fleet_poses,
+                                                      rosmsg.QOS_STREAM, raw=True)
             self.fleet_cmd_pub = self.create_publisher(Float64MultiArray, 'fleet/cmd_vel', rosmsg.QOS_STREAM)
             self.fleet_state_pub = self.create_publisher(DiagnosticArray, 'fleet/safety_filter/state',
                                                          rosmsg.QOS_STREAM)
@@ -198,8 +206,19 @@ class FleetSafetyFilterNode(Node):
         update_commands(w.filters, commands[:, 1], t, skip=bad)    # the good rows, validated at once
 
     def on_fleet_poses(self, data: bytes):
-        """A serialized PoseArray (raw subscription); a PoseArray object is taken too."""
+        """A serialized PoseArray (raw subscription); a PoseArray object is taken too.
+
+        Poses that arrived while the filter was deciding are superseded by the newest one: it
+        decides once, on the newest (deciding on each in turn would answer ever older poses)."""
         w = self.wiring
+        if self.poses_sub is not None:
+            newer, superseded = take_newest_counted(self.poses_sub)
+            if newer is not None:
+                data = newer
+                self.superseded_poses += superseded
+                w.complain('fleet poses behind', f'fleet/poses: {self.superseded_poses} message(s) superseded so '
+                           f'far by newer ones that came while the filter decided (it is slower than the '
+                           f'poses); deciding on the newest')
         t = w.now()
         try:
             if isinstance(data, PoseArray):
@@ -224,8 +243,8 @@ class FleetSafetyFilterNode(Node):
 
     # -- ticks ----------------------------------------------------------------------------------------
     def on_tick(self):
-        if not self.per_robot and time.monotonic() - self._last_batched < self.period * 0.999:
-            return   # the batched poses are ticking
+        if not self.per_robot and time.monotonic() - self._last_batched < self.period * 1.5:
+            return   # the batched poses are ticking (a late one is not a missing one)
         self.decide()
 
     def decide(self, t=None):
