@@ -576,16 +576,17 @@ def step_many(filters, safe_set: SafeSet, t, clusters=None) -> list:
         use.append(i)
     m = len(use)
     states, ages = propagate_poses(filters, use, t)
-    per = []        # per robot row: lookahead, planned turn, speed, w_max, overriding, clear margin, fresh
+    per = []        # per robot row: lookahead, planned turn, speed, w_max, overriding, clear margin, fresh,
+    #                 the clusters' level
     dets = []
     for i in use:
         f = filters[i]
         cfg = f.config
         fresh = _command_fresh(f, t)
         per.append((f.lookahead(), _clip(f.command.value, cfg.omega_max) if fresh else 0.0, cfg.speed,
-                    cfg.omega_max, f.overriding, cfg.clear_margin, fresh))
+                    cfg.omega_max, f.overriding, cfg.clear_margin, fresh, cfg.cluster_alpha))
         dets.append(f.detections.value)
-    per = np.array(per, dtype=float).reshape(-1, 7)
+    per = np.array(per, dtype=float).reshape(-1, 8)
     horizon, planned, speed, bang = per[:, 0].copy(), per[:, 1].copy(), per[:, 2].copy(), per[:, 3].copy()
     counts = np.fromiter(map(len, dets), dtype=np.intp, count=m)
 
@@ -606,7 +607,7 @@ def step_many(filters, safe_set: SafeSet, t, clusters=None) -> list:
                                         speed[pair_robot], bang[pair_robot], turn)
     position = np.arange(n_pairs) - start[pair_robot]
     group = np.arange(n_pairs)          # each obstacle its own group until clustered
-    cl = _cluster_rows(filters, use, states, planned, horizon, speed, bang, dets, start, t, clusters)
+    cl = _cluster_rows(filters, use, states, planned, horizon, speed, bang, per[:, 7], dets, start, t, clusters)
     group[cl['member_pairs']] = n_pairs + cl['member_groups']
     tab = _Table()
     k = len(cl['robot'])
@@ -846,7 +847,8 @@ _NO_CLUSTERS = dict(robot=_NONE_I, index=_NONE_I, value=_NONE_F, level=_NONE_F, 
                     member_pairs=_NONE_I, member_groups=_NONE_I, n_groups=0)
 
 
-def _cluster_rows(filters, use, states, planned, horizon, speed, bang, dets, start, t, store_arg) -> dict:
+def _cluster_rows(filters, use, states, planned, horizon, speed, bang, cluster_alpha, dets, start, t,
+                  store_arg) -> dict:
     """The cluster constraints of every robot, as table columns (see ``_Table``).
 
     A robot with clusters enabled and more than one detection gets, per cluster of its
@@ -870,10 +872,18 @@ def _cluster_rows(filters, use, states, planned, horizon, speed, bang, dets, sta
     entries = {}      # (frames, store) -> rows of the robots that use them, in order
     shared = {}
     stores = {}       # id(config) -> its default store (robots of a fleet share one config)
+    joins = {}        # (id(detections), id(config)) -> the entry its robots join (None: no clusters)
     for row, i in enumerate(use):
         f = filters[i]
-        cfg = f.config
         det = dets[row]
+        key = (id(det), id(f.config))
+        if key in joins:            # robots given one detections array (the batched fleet)
+            entry = joins[key]
+            if entry is not None:
+                entry[2].append(row)
+            continue
+        joins[key] = None
+        cfg = f.config
         if not cfg.clusters or len(det) <= 1:
             continue
         store = store_arg
@@ -893,6 +903,7 @@ def _cluster_rows(filters, use, states, planned, horizon, speed, bang, dets, sta
             if entry is None:
                 entry = entries[(id(fr), id(store))] = (fr, store, [])
             entry[2].append(row)
+            joins[key] = entry
     if not entries:
         return dict(_NO_CLUSTERS, solving=solving)
     entries = list(entries.values())
@@ -990,7 +1001,7 @@ def _cluster_rows(filters, use, states, planned, horizon, speed, bang, dets, sta
     member_pairs = start[inst_row][member_inst] + members     # the members' own rows join the cluster
 
     # holds from the state now: the planner's command, then both bangs from now and from its end
-    rows = np.unique(inst_row)
+    rows = np.flatnonzero(np.bincount(inst_row, minlength=len(use)))     # np.unique's, without a sort
     s0 = states[rows]
     ahead_r = arc_flow(s0, speed[rows], planned[rows], horizon[rows])
     w = bang[rows]
@@ -1037,7 +1048,7 @@ def _cluster_rows(filters, use, states, planned, horizon, speed, bang, dets, sta
             f_value[:, sel] = v
             f_turn[sel] = u[0]
     keep = ok | (f_value[0] > 0.0)
-    level = np.array([filters[i].config.cluster_alpha for i in use], dtype=float)[inst_row]
+    level = cluster_alpha[inst_row]
     source = np.where(ok, 'cluster', 'cluster-fallback')[keep].tolist()
     return dict(robot=inst_row[keep], index=c['gi'][keep], value=np.where(ok, v6[0], f_value[0])[keep],
                 level=np.where(ok, level, 0.0)[keep], turn=np.where(ok, u_turn, f_turn)[keep],
