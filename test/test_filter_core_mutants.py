@@ -160,10 +160,10 @@ def test_value_exactly_at_alpha_overrides(standard):
 
 def test_lookahead_value_exactly_at_alpha_overrides(standard):
     """V after the planner's hold == alpha also overrides (kills ``V_next < level``)."""
-    from supersafe_ros.filter.core import _sampled_control
+    from supersafe_ros.filter.core import _pair_values
     rel = np.array([[RIGHT[0] - OBSTACLE[0], RIGHT[1] - OBSTACLE[1], RIGHT[2]]])
     one = np.ones(1)
-    _, v_next = _sampled_control(standard.vf, rel, 0.9 * one, HOLD * one, 3.0 * one, one, one)
+    _, _, v_next = _pair_values(standard.vf, rel, 0.9 * one, HOLD * one, 3.0 * one, one)
     level = float(v_next[0])
     f = robot(pose=RIGHT, cmd=0.9, lookahead=HOLD, control_period=HOLD)
     out = f.step(SafeSet(standard.vf, level), T)
@@ -233,7 +233,7 @@ def test_the_smallest_value_above_its_own_level_governs_across_levels():
     assert govern([lone_stay, cluster_stay], overriding=True) == (1, 3)
 
 
-# -- the lookahead's reach (_sampled_control) ----------------------------------------------------
+# -- the lookahead's reach (_pair_values) -------------------------------------------------------
 def test_a_long_hold_judges_robots_that_start_off_the_grid(standard):
     """With a 2 s hold at 3 m/s a robot 5 m outside the value's grid (V = +inf now) ends its
     hold on the grid, at V below a high level: the lookahead overrides. Pairs are skipped only
@@ -254,7 +254,7 @@ def test_lookahead_values_on_lopsided_grids_equal_their_definition(lo, hi):
     from the definition with DubinsCar's own flow, for robots all around a grid that is
     neither square nor centred: the shortcut that skips pairs too far to reach the grid must
     skip no pair that reaches it (kills bounds read from the wrong axis)."""
-    from supersafe_ros.filter.core import _sampled_control
+    from supersafe_ros.filter.core import _pair_values
     vf = solve_avoid(Grid(lo, hi, (33, 33, 16)), DubinsCar(3.0, 1.0), Disc(0, 0, 1.8), horizon=2.0)
     rng = np.random.default_rng(11)
     n, hold = 3000, 2.0
@@ -262,7 +262,7 @@ def test_lookahead_values_on_lopsided_grids_equal_their_definition(lo, hi):
                     rng.uniform(-np.pi, np.pi, n)], axis=1)
     u = rng.uniform(-1.0, 1.0, n)
     one = np.ones(n)
-    _, got = _sampled_control(vf, rel, u, hold * one, 3.0 * one, one, np.zeros(n))
+    value, _, got = _pair_values(vf, rel, u, hold * one, 3.0 * one, one)
     car = DubinsCar(3.0, 1.0)
     ahead = car.flow(rel, u, hold)
     best = np.maximum(*(vf.value(car.flow(ahead, w, hold), outside=np.inf) for w in (1.0, -1.0)))
@@ -271,6 +271,7 @@ def test_lookahead_values_on_lopsided_grids_equal_their_definition(lo, hi):
     assert 100 < finite.sum() < n - 100          # both kinds, well mixed
     np.testing.assert_array_equal(np.isfinite(got), finite)
     np.testing.assert_allclose(got[finite], expected[finite], atol=1e-6)
+    np.testing.assert_array_equal(value, vf.value(rel, outside=np.inf))     # the law's V, from the same read
 
 
 @pytest.mark.parametrize('turns', [-5, 5])

@@ -602,9 +602,8 @@ def step_many(filters, safe_set: SafeSet, t, clusters=None) -> list:
         rel[:, 2] = states[pair_robot, 2]
     else:
         centres, rel = np.zeros((0, 2)), np.zeros((0, 3))
-    value, turn = evaluate_pairs(safe_set.vf, rel)
-    turn, value_next = _sampled_control(safe_set.vf, rel, planned[pair_robot], horizon[pair_robot],
-                                        speed[pair_robot], bang[pair_robot], turn)
+    value, turn, value_next = _pair_values(safe_set.vf, rel, planned[pair_robot], horizon[pair_robot],
+                                           speed[pair_robot], bang[pair_robot])
     position = np.arange(n_pairs) - start[pair_robot]
     group = np.arange(n_pairs)          # each obstacle its own group until clustered
     cl = _cluster_rows(filters, use, states, planned, horizon, speed, bang, per[:, 7], dets, start, t, clusters)
@@ -1107,8 +1106,11 @@ def default_cluster_store(cfg: FilterConfig):
     return store
 
 
-def _sampled_control(vf: ValueFunction, rel, omega, horizon, speed, bang, turn):
-    """The avoid turn and the lookahead value of every pair, for commands held over H.
+def _pair_values(vf: ValueFunction, rel, omega, horizon, speed, bang):
+    """V, the avoid turn and the lookahead value of every pair, for commands held over H.
+
+    First the law at the pair's relative state (``law.evaluate_pairs``): V (+inf off the
+    grid) and the unit turn sign(dV/dtheta) (ties left; 0 off the grid).
 
     Per pair: the planner's (clipped) command ``omega``, the hold H (``horizon``, the
     robot's lookahead, >= its control period), the robot's speed and turn bound
@@ -1124,32 +1126,46 @@ def _sampled_control(vf: ValueFunction, rel, omega, horizon, speed, bang, turn):
       acts one hold early rather than one hold late).
 
     A silent planner counts as a zero command (what the filter would forward).
-    Translation invariance: the relative state moves like the robot itself.
-    Returns (unit turn, V after the planner's hold and the best bang's).
+    Translation invariance: the relative state moves like the robot itself. V at the
+    pair's state and at the ends of all its holds is read in one call.
+    Returns (V, unit turn, V after the planner's hold and the best bang's).
     """
-    if len(rel) == 0:
-        return turn, np.zeros(0)
-    if not np.any(horizon > 0):
-        return turn, np.full(len(rel), np.inf)
+    n = len(rel)
+    value, turn, value_next = np.full(n, np.inf), np.zeros(n), np.full(n, np.inf)
+    if n == 0:
+        return value, turn, np.zeros(0)
+    holds = bool(np.any(horizon > 0))
     # pairs too far from the grid for any hold to reach it: every V below is +inf, so the turn
-    # stays and V_next is +inf (two holds move the robot at most 2 speed H; +1 m for round-off)
+    # stays and V_next is +inf (two holds move the robot at most 2 speed H; +1 m for round-off);
+    # without holds, the pairs on the grid
     g = vf.grid
-    reach = 2.0 * speed * horizon + 1.0
+    reach = 2.0 * speed * horizon + 1.0 if holds else 0.0
     near = np.flatnonzero((rel[:, 0] >= g.lo[0] - reach) & (rel[:, 0] <= g.hi[0] + reach)
                           & (rel[:, 1] >= g.lo[1] - reach) & (rel[:, 1] <= g.hi[1] + reach))
-    value_next = np.full(len(rel), np.inf)
-    turn = np.array(turn, dtype=float)
     if len(near) == 0:
-        return turn, value_next
-    rel, omega, horizon, speed, bang = rel[near], omega[near], horizon[near], speed[near], bang[near]
-    ahead = arc_flow(rel, speed, omega, horizon)
-    starts = np.concatenate([rel, rel, ahead, ahead])
-    ends = arc_flow(starts, np.tile(speed, 4), np.concatenate([bang, -bang, bang, -bang]),
-                    np.tile(horizon, 4))
-    v = vf.value(np.concatenate([ends, ahead]), outside=np.inf).reshape(5, len(rel))
-    left, right = v[0], v[1]
+        return value, turn, value_next
+    rel = rel[near]
+    k = len(rel)
+    if holds:
+        omega, horizon, speed, bang = omega[near], horizon[near], speed[near], bang[near]
+        ahead = arc_flow(rel, speed, omega, horizon)
+        starts = np.concatenate([rel, rel, ahead, ahead])
+        ends = arc_flow(starts, np.tile(speed, 4), np.concatenate([bang, -bang, bang, -bang]),
+                        np.tile(horizon, 4))
+        states = np.concatenate([rel, ends, ahead])
+    else:
+        states = rel
+    v = vf.value(states, outside=np.inf).reshape(-1, k)
+    inside = np.isfinite(v[0])              # the law's pairs: on the grid (V is finite there)
+    value[near] = v[0]
+    if np.any(inside):
+        grad_th = g.interpolate(vf.theta_gradient(), rel[inside])
+        turn[near[inside]] = np.where(grad_th >= -tie_tolerance(vf), 1.0, -1.0)
+    if not holds:
+        return value, turn, value_next
+    left, right = v[1], v[2]
     held = np.where(left >= right - tie_tolerance(vf), 1.0, -1.0)
     use = (horizon > 0) & (np.isfinite(left) | np.isfinite(right))
-    value_next[near] = np.where(horizon > 0, np.minimum(v[4], np.maximum(v[2], v[3])), np.inf)
+    value_next[near] = np.where(horizon > 0, np.minimum(v[5], np.maximum(v[3], v[4])), np.inf)
     turn[near] = np.where(use, held, turn[near])
-    return turn, value_next
+    return value, turn, value_next

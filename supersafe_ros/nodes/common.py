@@ -106,6 +106,7 @@ def run_node(node_class, args=None, executor_class=None) -> int:
     """
     ensure_local_ros_env()
     import rclpy
+    import rclpy.executors
     from rclpy.signals import SignalHandlerOptions
 
     from . import stop_requested_while_importing
@@ -122,10 +123,13 @@ def run_node(node_class, args=None, executor_class=None) -> int:
         freeze_startup_objects()
         executor = executor_class() if executor_class else make_executor()
         executor.add_node(node)
-        wake = node.create_guard_condition(stopping.set)
-        if signals is None or signals.spinning(wake.trigger):
+        if isinstance(executor, rclpy.executors.Executor):
+            on_stop, poll = node.create_guard_condition(stopping.set).trigger, None
+        else:   # the EventsExecutor takes no guard conditions: the loop looks for the stop 10 times a second
+            on_stop, poll = stopping.set, 0.1
+        if signals is None or signals.spinning(on_stop):
             while not stopping.is_set() and rclpy.ok():
-                executor.spin_once()
+                executor.spin_once(timeout_sec=poll)
         if signals is not None:
             signals.stopping()
     except KeyboardInterrupt:
