@@ -14,6 +14,8 @@ import time
 
 from supersafe_ros import team
 
+from test_graph_support import ros_context  # noqa: F401  (fixture)
+
 # small value-function grids: start-up is the point, not the numerics
 SMALL = {
     'supervisor': {'grid_nxy': 17, 'grid_ntheta': 8},
@@ -111,3 +113,37 @@ sys.exit(run_node(Node, ['x']))
     proc = subprocess.run([sys.executable, '-c', script], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0, proc.stderr
     assert not built.exists()
+
+
+def test_the_events_executor_spins_a_node_and_stops_it_quietly(tmp_path, ros_context):
+    """SUPERSAFE_EXECUTOR=events (rclpy's experimental EventsExecutor, which takes no guard
+    conditions): the filter's watchdog publishes commands (timers and publishers run), then stops on SIGINT with exit 0
+    and nothing on stderr (it once crashed at start-up on run_node's stop guard condition)."""
+    from geometry_msgs.msg import PoseArray, PoseStamped, Twist
+    from rclpy.node import Node
+    from supersafe_ros.ros_io import rosmsg
+    from test_graph_support import Spinner, matched
+    os.environ['SUPERSAFE_EXECUTOR'] = 'events'
+    try:
+        p = NodeProcess('safety_filter', 'events_robot', tmp_path)
+    finally:
+        del os.environ['SUPERSAFE_EXECUTOR']
+    driver = Node('events_driver', context=ros_context)
+    spin = Spinner(ros_context, driver)
+    try:
+        got = []
+        pose = driver.create_publisher(PoseStamped, '/events_robot/pose', rosmsg.QOS_STREAM)
+        det = driver.create_publisher(PoseArray, '/events_robot/detections', rosmsg.QOS_STREAM)
+        sub = driver.create_subscription(Twist, '/events_robot/cmd_vel', got.append, rosmsg.QOS_STREAM)
+        spin.until(lambda: matched(pose, det, sub) or p.proc.poll() is not None, 60.0, 'the filter to match')
+        assert p.proc.poll() is None, ''.join(p.stderr)
+        det.publish(rosmsg.xy_to_posearray([(50.0, 50.0)]))
+        spin.until(lambda: got or p.proc.poll() is not None, 10.0, 'a command from the filter')
+        assert got, ''.join(p.stderr)
+        p.proc.send_signal(signal.SIGINT)
+        assert p.finish(30) == 0 and ''.join(p.stderr) == ''
+    finally:
+        spin.shutdown()
+        driver.destroy_node()
+        if p.proc.poll() is None:
+            os.killpg(p.proc.pid, signal.SIGKILL)
