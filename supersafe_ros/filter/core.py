@@ -288,10 +288,17 @@ class RobotFilter:
         """
         if self.config.control_period > 0.0:
             return self.config.control_period
-        if self._period is None:    # once per new interval, not per step
-            medians = [d.median() for d in (self._pose_intervals, self._command_intervals) if d]
-            self._period = max(medians) if medians else 0.0
-        return self._period
+        period = self._period
+        if period is None:          # once per new interval, not per step
+            poses, commands = self._pose_intervals, self._command_intervals
+            if poses.recent:
+                period = poses.median()
+                if commands.recent:
+                    period = max(period, commands.median())
+            else:
+                period = commands.median() if commands.recent else 0.0
+            self._period = period
+        return period
 
     def lookahead(self) -> float:
         cfg = self.config
@@ -480,8 +487,13 @@ def propagate_poses(filters, use, t):
         ages[row] = age
         t0 = t - age
         sent = f.sent
+        # segments_since's answer in the two common cases: nothing sent since the pose (one arc),
+        # or one command sent since (a robot deciding on a pose older than its last decision)
         if sent and sent[-1][0] <= t0 and t > t0:
-            plan = ((sent[-1][1], t - t0),)   # nothing sent since the pose: one arc (segments_since's answer)
+            plan = ((sent[-1][1], t - t0),)
+        elif len(sent) > 1 and sent[-2][0] <= t0 < sent[-1][0] < t:
+            ts = sent[-1][0]
+            plan = ((sent[-2][1], ts - t0), (sent[-1][1], t - ts))
         else:
             plan = f.segments_since(t0, t)
         plans.append(plan)
