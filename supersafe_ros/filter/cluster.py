@@ -157,16 +157,25 @@ class ClusterValue:
     def evaluate(self, frame_states):
         """(V lower bound, unit turn) at states in the canonical frame; +inf/0 off the grid."""
         s = np.asarray(frame_states, dtype=float).reshape(-1, 3)
-        value = np.full(len(s), np.inf)
+        value, inside = self._value(s)
         turn = np.zeros(len(s))
+        if np.any(inside):
+            grad = self.vf.grid.interpolate(self.vf.theta_gradient(), s[inside])
+            turn[inside] = np.where(grad >= -self.tie, 1.0, -1.0)
+        return value, turn
+
+    def value(self, frame_states):
+        """V lower bound at states in the canonical frame (``evaluate``'s); +inf off the grid."""
+        return self._value(np.asarray(frame_states, dtype=float).reshape(-1, 3))[0]
+
+    def _value(self, s):
+        value = np.full(len(s), np.inf)
         inside = self.vf.grid.contains(s)
         if np.any(inside):
             si = s[inside]
             value[inside] = (lower_bound(self.vf, si, self.lipschitz_theta) if self.lower
                              else self.vf.value(si))
-            grad = self.vf.grid.interpolate(self.vf.theta_gradient(), si)
-            turn[inside] = np.where(grad >= -self.tie, 1.0, -1.0)
-        return value, turn
+        return value, inside
 
 
 def lower_bound(vf: ValueFunction, states, lipschitz_theta: float) -> np.ndarray:

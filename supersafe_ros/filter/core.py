@@ -1041,7 +1041,7 @@ def _cluster_rows(filters, use, states, planned, horizon, speed, bang, cluster_a
         for j, cv in enumerate(values):
             sel = np.flatnonzero(val[idx] == j)
             if len(sel):
-                v, _ = cv.evaluate(in_frame[:, sel].reshape(-1, 3))
+                v = cv.value(in_frame[:, sel].reshape(-1, 3))
                 v6[:, idx[sel]] = v.reshape(6, len(sel))
                 tie[idx[sel]] = cv.tie
     u_turn = np.where(v6[1] >= v6[2] - tie, 1.0, -1.0)
