@@ -326,8 +326,7 @@ class RobotFilter:
     def record_sent(self, omega, t) -> None:
         """Remember a command sent at ``t`` (step_many does this for every decision)."""
         self.sent.append((float(t), float(omega)))
-        keep = max(self.config.hold_timeout, self.config.pose_timeout) + 1.0   # as _outputs does
-        while len(self.sent) > 1 and self.sent[1][0] <= t - keep:
+        while len(self.sent) > 1 and self.sent[1][0] <= t - _remembered(self.config):
             self.sent.popleft()
 
     def segments_since(self, t0, t1):
@@ -355,6 +354,12 @@ class RobotFilter:
             start, current = ts, omega
         segments.append((current, t1 - start))
         return segments
+
+
+def _remembered(cfg) -> float:
+    """How long commands sent are remembered: propagation reads at most ``hold_timeout`` back,
+    and a pose at most ``pose_timeout`` old (+1 s)."""
+    return max(cfg.hold_timeout, cfg.pose_timeout) + 1.0
 
 
 def update_poses(filters, states, t, stamp=None, skip=None) -> None:
@@ -431,9 +436,7 @@ class _Intervals:
         insort(self.ordered, interval)
 
     def median(self) -> float:
-        s = self.ordered
-        k = len(s) // 2
-        return float(s[k]) if len(s) % 2 else float((s[k - 1] + s[k]) / 2.0)
+        return _median_of_sorted(self.ordered)
 
     def __len__(self):
         return len(self.recent)
@@ -448,7 +451,10 @@ class _Intervals:
 def _median(values) -> float:
     """np.median of a few finite floats, bit for bit (the mean of the two middle ones for an even
     count, (a + b) / 2 as numpy computes it), at a tenth of its cost (~2 us for 16 values)."""
-    s = sorted(values)
+    return _median_of_sorted(sorted(values))
+
+
+def _median_of_sorted(s) -> float:
     k = len(s) // 2
     return float(s[k]) if len(s) % 2 else float((s[k - 1] + s[k]) / 2.0)
 
@@ -741,7 +747,7 @@ def _outputs(filters, problems, use, safe_set, t, tab, k_gov, kind, k_small, per
         f.overriding = o  # failing safe clears it: re-enter by the law once inputs are back
         before = forget.get(id(cfg))
         if before is None:
-            before = forget[id(cfg)] = t - (max(cfg.hold_timeout, cfg.pose_timeout) + 1.0)
+            before = forget[id(cfg)] = t - _remembered(cfg)
         sent = f.sent     # f.record_sent(w, t), inline
         sent.append((t, w))
         while len(sent) > 1 and sent[1][0] <= before:
