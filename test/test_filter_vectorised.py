@@ -78,14 +78,23 @@ def build_fleet(seed, n):
     shared = [LAYOUT.copy(), LAYOUT[[0, 1, 2, 9]].copy(), LAYOUT[[3, 4, 5, 6, 7]].copy(), np.zeros((0, 2))]
     filters = []
     t = 10.0
+    # half the robots have a configuration of their own, half share one of a few (as a fleet node's
+    # robots share one): robots given one configuration and one detections array join their
+    # clusters by one lookup in step_many
+    pool = []
     for i in range(n):
-        cfg = FilterConfig(omega_max=float(rng.choice([1.0, 1.0, 0.5])),
-                           clear_margin=float(rng.choice([0.2, 0.0, 0.5])),
-                           lookahead=float(rng.choice([0.1, 0.0, 0.2])),
-                           control_period=float(rng.choice([0.0, 0.0, 0.05])),
-                           compensate_delay=bool(rng.random() < 0.85),
-                           clusters=bool(rng.random() < 0.8),
-                           cluster_alpha=float(rng.choice([0.0, 0.0, 0.2])))
+        if pool and rng.random() < 0.5:
+            cfg = pool[rng.integers(len(pool))]
+        else:
+            cfg = FilterConfig(omega_max=float(rng.choice([1.0, 1.0, 0.5])),
+                               clear_margin=float(rng.choice([0.2, 0.0, 0.5])),
+                               lookahead=float(rng.choice([0.1, 0.0, 0.2])),
+                               control_period=float(rng.choice([0.0, 0.0, 0.05])),
+                               compensate_delay=bool(rng.random() < 0.85),
+                               clusters=bool(rng.random() < 0.8),
+                               cluster_alpha=float(rng.choice([0.0, 0.0, 0.2])))
+            if len(pool) < 4:
+                pool.append(cfg)
         f = RobotFilter(cfg, name=f'r{i}')
         centre = LAYOUT[rng.integers(len(LAYOUT))]
         if rng.random() < 0.08:      # head on to an obstacle: dV/dtheta is a tie, the turn is left
@@ -149,7 +158,7 @@ def record(o, f):
 def test_vectorised_step_many_decides_as_the_per_robot_reference(standard, solved_values, seed, store_kind,
                                                                   alpha, source):
     safe = SafeSet(standard.vf, alpha, source)
-    fleets = [build_fleet(seed, 240) for _ in range(2)]
+    fleets = [build_fleet(seed, 320) for _ in range(2)]
     stores = [make_store(store_kind, solved_values) for _ in range(2)]
     rngs = [np.random.default_rng(100 + seed) for _ in range(2)]
     seen = {'actions': set(), 'reasons': set(), 'sources': set(), 'solving': 0, 'ties': 0}
@@ -157,6 +166,9 @@ def test_vectorised_step_many_decides_as_the_per_robot_reference(standard, solve
     for tick in range(6):
         new = step_many(fleets[0][0], safe, t, stores[0])
         ref = step_many_reference(fleets[1][0], safe, t, stores[1])
+        # the commands as lists (what the fleet node sends without building the outputs)
+        assert repr((new.omega, new.linear, new.action)) == repr(([o.omega for o in ref], [o.linear for o in ref],
+                                                                  [o.action for o in ref]))
         for i, (a, b, fa, fb) in enumerate(zip(new, ref, fleets[0][0], fleets[1][0])):
             assert record(a, fa) == record(b, fb), f'tick {tick}, robot {i}'
             seen['actions'].add(a.action)
@@ -226,6 +238,11 @@ def test_batched_input_updates_equal_the_per_robot_ones(standard, solved_values)
             if not why:
                 f.update_command(w, t)
         update_commands(fleets[0], omegas, t, skip=silent)
+        if tick == 2:      # the same message again at the same time: no zero interval is measured
+            for f, w, why in zip(fleets[1], omegas, silent):
+                if not why:
+                    f.update_command(w, t)
+            update_commands(fleets[0], omegas, t, skip=silent)
         if tick % 2:
             dets = LAYOUT[rng.choice(len(LAYOUT), 6, replace=False)]
             update_detections_all(fleets[0], dets, t)
@@ -255,8 +272,11 @@ def test_cluster_instances_left_out_are_off_their_grid_for_every_hold(solved_val
     rows left out would have read V = +inf. Robots sampled in a ring around the grid's corners,
     where the bound is tight, and everywhere else."""
     from supersafe_ros.filter.core import _beyond_grid, arc_flow
+    from types import SimpleNamespace
     rng = np.random.default_rng(5)
-    values = list(solved_values.values())
+    # the solved clusters' grids, and lopsided ones (a bound read from the wrong axis shows there)
+    values = list(solved_values.values()) + [SimpleNamespace(vf=SimpleNamespace(grid=Grid(lo, hi, (5, 5, 4))))
+                                             for lo, hi in (((-2.0, -15.0), (20.0, 3.0)), ((-18.0, -1.0), (2.0, 9.0)))]
     n = 20000
     val = rng.integers(-1, len(values), n)
     corner = np.array([max(np.hypot(x, y) for x in (v.vf.grid.lo[0], v.vf.grid.hi[0])
@@ -278,8 +298,56 @@ def test_cluster_instances_left_out_are_off_their_grid_for_every_hold(solved_val
             ends.append(arc_flow(start, speed, w, horizon))
     for j, v in enumerate(values):
         sel = far & (val == j)
+        assert sel.sum() > 100
         for s in ends:   # in any frame rotated about the origin: the grid test is on the radius bound
             for beta in (0.0, 0.7, 2.0):
                 c, sn = np.cos(beta), np.sin(beta)
                 rot = np.column_stack([c * s[sel, 0] + sn * s[sel, 1], -sn * s[sel, 0] + c * s[sel, 1], s[sel, 2]])
                 assert not v.vf.grid.contains(rot).any()
+
+
+def test_decisions_read_as_a_sequence_of_outputs(standard):
+    """step_many's Decisions: outputs by index (negative too) and by slice, built once each,
+    and a repr that shows them."""
+    fleet, t = build_fleet(21, 12)
+    out = step_many(fleet, standard, t, make_store('pending', {}))
+    assert len(out) == 12 and out[-1] is out[11] and out[3] is out[3]
+    assert out[2:5] == [out[2], out[3], out[4]] and out[::-5] == [out[11], out[6], out[1]]
+    assert [o.omega for o in out] == out.omega and [o.action for o in out] == out.action
+    assert repr(out).startswith('Decisions([FilterOutput(') and repr(out).count('FilterOutput(') == 12
+    with pytest.raises(IndexError):
+        out[12]
+
+
+def test_long_holds_around_solved_clusters_decide_as_the_reference(standard, solved_values):
+    """Robots up to 30 m from a cluster whose union value is in force, with 1-2 s holds at 3 m/s
+    (up to 12 m in two holds) and a high cluster level (4 m, so holds that reach the union's
+    grid from outside it make the filter act): the (robot, cluster) instances left out as out
+    of reach (``_beyond_grid``) change no decision (kills a reach that does not grow with
+    speed x hold)."""
+    rng = np.random.default_rng(31)
+    configs = [FilterConfig(lookahead=h, cluster_alpha=4.0) for h in (1.0, 2.0, 2.0)]
+    centroids = [LAYOUT[[0, 1]].mean(axis=0), LAYOUT[[3, 4, 5]].mean(axis=0)]
+    dets = LAYOUT[[0, 1, 3, 4, 5]].copy()          # the row's pair and the cup, both solved
+
+    def fleet():
+        r = np.random.default_rng(32)
+        out = []
+        for i in range(900):
+            c = centroids[i % 2]
+            d, a = r.uniform(3.0, 30.0), r.uniform(-np.pi, np.pi)
+            pose = (c[0] + d * np.cos(a), c[1] + d * np.sin(a), a + np.pi + r.uniform(-0.4, 0.4))
+            f = RobotFilter(configs[i % 3], name=f'r{i}')
+            f.update_pose(pose, 10.0)
+            f.update_detections(dets, 10.0)
+            f.update_command(float(r.uniform(-1, 1)), 10.0)
+            out.append(f)
+        return out
+    stores = [make_store('solved', solved_values) for _ in range(2)]
+    new = step_many(fleet(), standard, 10.0, stores[0])
+    ref = step_many_reference(fleet(), standard, 10.0, stores[1])
+    ahead = 0
+    for i, (a, b) in enumerate(zip(new, ref)):
+        assert repr((a.omega, a.action, a.reason, a.value)) == repr((b.omega, b.action, b.reason, b.value)), i
+        ahead += a.reason.startswith('the planner') and 'cluster' in a.reason
+    assert ahead > 20 and rng is not None

@@ -624,7 +624,7 @@ def step_many(filters, safe_set: SafeSet, t, clusters=None) -> list:
                                            speed[pair_robot], bang[pair_robot])
     position = np.arange(n_pairs) - start[pair_robot]
     group = np.arange(n_pairs)          # each obstacle its own group until clustered
-    cl = _cluster_rows(filters, use, states, planned, horizon, speed, bang, per[:, 7], dets, start, t, clusters)
+    cl = _cluster_rows(filters, use, states, planned, horizon, speed, bang, per[:, 7], dets, start, clusters)
     group[cl['member_pairs']] = n_pairs + cl['member_groups']
     tab = _Table()
     k = len(cl['robot'])
@@ -864,7 +864,7 @@ _NO_CLUSTERS = dict(robot=_NONE_I, index=_NONE_I, value=_NONE_F, level=_NONE_F, 
                     member_pairs=_NONE_I, member_groups=_NONE_I, n_groups=0)
 
 
-def _cluster_rows(filters, use, states, planned, horizon, speed, bang, cluster_alpha, dets, start, t,
+def _cluster_rows(filters, use, states, planned, horizon, speed, bang, cluster_alpha, dets, start,
                   store_arg) -> dict:
     """The cluster constraints of every robot, as table columns (see ``_Table``).
 
