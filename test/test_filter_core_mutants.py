@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from supersafe_ros.filter.core import (FAIL_SAFE, OVERRIDE, PASS, FilterConfig, RobotFilter, SafeSet, arc_flow,
-                                       evaluate_pairs)
+                                       evaluate_pairs, step_many)
 from supersafe_ros.reach.dynamics import DubinsCar
 from supersafe_ros.reach.grid import Grid
 from supersafe_ros.reach.sets import Disc
@@ -558,3 +558,14 @@ def test_the_configuration_rejects_negative_and_infinite_times():
     for bad in (-1.0, math.inf):
         with pytest.raises(ValueError):
             FilterConfig(pose_timeout=bad)
+
+
+def test_the_first_robot_failing_safe_far_from_obstacles_says_no_obstacle_is_near(standard):
+    """A stale pose still within hold_timeout, far from every obstacle: stop-turn, and the
+    reason tells the state was valid but clear, also for the fleet's first robot (kills a
+    row test that takes row 0 for "no recent valid state")."""
+    far = at(OBSTACLE[0] - 30.0, OBSTACLE[1], 0.0)
+    f = robot(pose=far, pose_timeout=0.5, hold_timeout=2.0, detections_timeout=5.0)
+    outs = step_many([f, robot(pose=far)], standard, T + 1.0)
+    assert outs[0].action == FAIL_SAFE and outs[0].linear == 0.0
+    assert outs[0].reason.endswith('no obstacle near the last valid state: stop-turn'), outs[0].reason
