@@ -351,3 +351,38 @@ def test_long_holds_around_solved_clusters_decide_as_the_reference(standard, sol
         assert repr((a.omega, a.action, a.reason, a.value)) == repr((b.omega, b.action, b.reason, b.value)), i
         ahead += a.reason.startswith('the planner') and 'cluster' in a.reason
     assert ahead > 20 and rng is not None
+
+
+def test_robots_just_inside_a_union_grids_corners_decide_as_the_reference(standard, solved_values):
+    """Robots 0.2 m inside each corner of a solved cluster's grid (where the grid reaches
+    farthest from the frame's origin, so a reach bound that is short by a metre leaves their
+    own rows out), with short holds: the same decisions, reasons and values as the reference
+    (kills a reach of 2 speed H - 1 in _cluster_rows)."""
+    from supersafe_ros.filter.cluster import canonical
+    cfg = FilterConfig(lookahead=0.1, control_period=0.1)
+    dets = LAYOUT[[0, 1, 3, 4, 5]].copy()
+
+    def fleet():
+        out = []
+        for members in ([0, 1], [3, 4, 5]):
+            key, origin, angle, _ = canonical(LAYOUT[members], SETTINGS.key_resolution)
+            g = solved_values[key].vf.grid
+            cs, sn = np.cos(angle), np.sin(angle)
+            for fx, fy in ((g.lo[0] + 0.2, g.lo[1] + 0.2), (g.lo[0] + 0.2, g.hi[1] - 0.2),
+                           (g.hi[0] - 0.2, g.lo[1] + 0.2), (g.hi[0] - 0.2, g.hi[1] - 0.2)):
+                for heading in np.linspace(-np.pi, np.pi, 8, endpoint=False):
+                    f = RobotFilter(cfg, name=f'r{len(out)}')
+                    f.update_pose((origin[0] + cs * fx - sn * fy, origin[1] + sn * fx + cs * fy, heading), 10.0)
+                    f.update_detections(dets, 10.0)
+                    f.update_command(0.0, 10.0)
+                    out.append(f)
+        return out
+    stores = [make_store('solved', solved_values) for _ in range(2)]
+    new = step_many(fleet(), standard, 10.0, stores[0])
+    ref = step_many_reference(fleet(), standard, 10.0, stores[1])
+    named = 0
+    for i, (a, b) in enumerate(zip(new, ref)):
+        assert repr((a.omega, a.action, a.reason, a.value, a.source)) == repr((b.omega, b.action, b.reason, b.value,
+                                                                               b.source)), i
+        named += a.source == 'cluster'
+    assert named > 10      # the union's value is the smallest at most of these robots
