@@ -70,7 +70,7 @@ import math
 
 import numpy as np
 
-from .law import evaluate_pairs, tie_tolerance  # noqa: F401  (the law's rule; re-exported)
+from .law import avoid_turn, evaluate_pairs, tie_tolerance  # noqa: F401  (the law's rule; re-exported)
 from ..reach.grid import wrap_angle
 from ..reach.value_function import ValueFunction
 
@@ -1177,8 +1177,7 @@ def _pair_values(vf: ValueFunction, rel, omega, horizon, speed, bang):
     inside = np.isfinite(v[0])              # the law's pairs: on the grid (V is finite there)
     value[near] = v[0]
     if np.any(inside):
-        grad_th = g.interpolate(vf.theta_gradient(), rel[inside])
-        turn[near[inside]] = np.where(grad_th >= -tie_tolerance(vf), 1.0, -1.0)
+        turn[near[inside]] = avoid_turn(vf, rel[inside])
     if not holds:
         return value, turn, value_next
     left, right = v[1], v[2]

@@ -46,9 +46,14 @@ def evaluate_pairs(vf: ValueFunction, rel_states):
     if np.any(inside):
         si = s[inside]
         value[inside] = vf.value(si)
-        grad_th = vf.grid.interpolate(vf.theta_gradient(), si)
-        turn[inside] = np.where(grad_th >= -tie_tolerance(vf), 1.0, -1.0)
+        turn[inside] = avoid_turn(vf, si)
     return value, turn
+
+
+def avoid_turn(vf: ValueFunction, states) -> np.ndarray:
+    """sign(dV/dtheta) at states on the grid (N, 3), ties (within ``tie_tolerance``) left: +1."""
+    grad_th = vf.grid.interpolate(vf.theta_gradient(), states)
+    return np.where(grad_th >= -tie_tolerance(vf), 1.0, -1.0)
 
 
 TIE_RELATIVE = 1e-5   # |dV/dtheta| below this fraction of its largest node value is a tie
