@@ -319,6 +319,26 @@ def test_decisions_read_as_a_sequence_of_outputs(standard):
         out[12]
 
 
+def robot_at(cfg, pose, dets, cmd, t=10.0):
+    f = RobotFilter(cfg)
+    f.update_pose(pose, t)
+    f.update_detections(dets, t)
+    f.update_command(cmd, t)
+    return f
+
+
+def decide_as_the_reference(fleet, standard, solved_values, t=10.0):
+    """step_many and the reference on two fleets from ``fleet()`` with solved cluster stores:
+    the same turn, action, reason, V and source for every robot; the new outputs."""
+    stores = [make_store('solved', solved_values) for _ in range(2)]
+    new = step_many(fleet(), standard, t, stores[0])
+    ref = step_many_reference(fleet(), standard, t, stores[1])
+    for i, (a, b) in enumerate(zip(new, ref)):
+        assert repr((a.omega, a.action, a.reason, a.value, a.source)) == repr((b.omega, b.action, b.reason, b.value,
+                                                                               b.source)), i
+    return new
+
+
 def test_long_holds_around_solved_clusters_decide_as_the_reference(standard, solved_values):
     """Robots up to 30 m from a cluster whose union value is in force, with 1-2 s holds at 3 m/s
     (up to 12 m in two holds) and a high cluster level (4 m, so holds that reach the union's
@@ -337,20 +357,10 @@ def test_long_holds_around_solved_clusters_decide_as_the_reference(standard, sol
             c = centroids[i % 2]
             d, a = r.uniform(3.0, 30.0), r.uniform(-np.pi, np.pi)
             pose = (c[0] + d * np.cos(a), c[1] + d * np.sin(a), a + np.pi + r.uniform(-0.4, 0.4))
-            f = RobotFilter(configs[i % 3], name=f'r{i}')
-            f.update_pose(pose, 10.0)
-            f.update_detections(dets, 10.0)
-            f.update_command(float(r.uniform(-1, 1)), 10.0)
-            out.append(f)
+            out.append(robot_at(configs[i % 3], pose, dets, float(r.uniform(-1, 1))))
         return out
-    stores = [make_store('solved', solved_values) for _ in range(2)]
-    new = step_many(fleet(), standard, 10.0, stores[0])
-    ref = step_many_reference(fleet(), standard, 10.0, stores[1])
-    ahead = 0
-    for i, (a, b) in enumerate(zip(new, ref)):
-        assert repr((a.omega, a.action, a.reason, a.value)) == repr((b.omega, b.action, b.reason, b.value)), i
-        ahead += a.reason.startswith('the planner') and 'cluster' in a.reason
-    assert ahead > 20 and rng is not None
+    outs = decide_as_the_reference(fleet, standard, solved_values)
+    assert sum(o.reason.startswith('the planner') and 'cluster' in o.reason for o in outs) > 20
 
 
 def test_robots_just_inside_a_union_grids_corners_decide_as_the_reference(standard, solved_values):
@@ -371,18 +381,8 @@ def test_robots_just_inside_a_union_grids_corners_decide_as_the_reference(standa
             for fx, fy in ((g.lo[0] + 0.2, g.lo[1] + 0.2), (g.lo[0] + 0.2, g.hi[1] - 0.2),
                            (g.hi[0] - 0.2, g.lo[1] + 0.2), (g.hi[0] - 0.2, g.hi[1] - 0.2)):
                 for heading in np.linspace(-np.pi, np.pi, 8, endpoint=False):
-                    f = RobotFilter(cfg, name=f'r{len(out)}')
-                    f.update_pose((origin[0] + cs * fx - sn * fy, origin[1] + sn * fx + cs * fy, heading), 10.0)
-                    f.update_detections(dets, 10.0)
-                    f.update_command(0.0, 10.0)
-                    out.append(f)
+                    pose = (origin[0] + cs * fx - sn * fy, origin[1] + sn * fx + cs * fy, heading)
+                    out.append(robot_at(cfg, pose, dets, 0.0))
         return out
-    stores = [make_store('solved', solved_values) for _ in range(2)]
-    new = step_many(fleet(), standard, 10.0, stores[0])
-    ref = step_many_reference(fleet(), standard, 10.0, stores[1])
-    named = 0
-    for i, (a, b) in enumerate(zip(new, ref)):
-        assert repr((a.omega, a.action, a.reason, a.value, a.source)) == repr((b.omega, b.action, b.reason, b.value,
-                                                                               b.source)), i
-        named += a.source == 'cluster'
-    assert named > 10      # the union's value is the smallest at most of these robots
+    outs = decide_as_the_reference(fleet, standard, solved_values)
+    assert sum(o.source == 'cluster' for o in outs) > 10      # the union's V is the smallest at most of them

@@ -368,22 +368,14 @@ def update_poses(filters, states, t, stamp=None, skip=None) -> None:
     assignments per robot instead of a call that re-validates one row). Raises ValueError
     before updating anyone if a row to take is not finite or the stamp is not."""
     s = np.asarray(states, dtype=float).reshape(len(filters), 3)
-    take = np.ones(len(filters), bool) if skip is None else ~np.array([bool(b) for b in skip], dtype=bool)
+    take = _taken(filters, skip)
     if not np.all(np.isfinite(s[take])):
         raise ValueError('poses are not finite (x, y, theta)')
     t = float(t)
     stamp = t if stamp is None else float(stamp)
     if not math.isfinite(stamp):
         raise ValueError(f'pose stamp is not finite ({stamp})')
-    for f, row, ok in zip(filters, s, take.tolist()):
-        if not ok:
-            continue
-        pose = f.pose
-        previous = pose.stamp if pose.value is not None else None
-        pose.value, pose.t, pose.rejected, pose.stamp = row, t, '', stamp
-        if previous is not None and stamp > previous:
-            f._pose_intervals.append(stamp - previous)
-            f._period = None
+    _accept_rows(filters, 'pose', s, take, t, stamp)
 
 
 def update_commands(filters, omegas, t, skip=None) -> None:
@@ -391,18 +383,29 @@ def update_commands(filters, omegas, t, skip=None) -> None:
     (the fleet node's batched commands). Raises ValueError before updating anyone if a turn
     rate to take is not finite."""
     w = np.asarray(omegas, dtype=float).reshape(len(filters))
-    take = np.ones(len(filters), bool) if skip is None else ~np.array([bool(b) for b in skip], dtype=bool)
+    take = _taken(filters, skip)
     if not np.all(np.isfinite(w[take])):
         raise ValueError('planner commands are not finite')
     t = float(t)
-    for f, omega, ok in zip(filters, w.tolist(), take.tolist()):
+    _accept_rows(filters, 'command', w.tolist(), take, t, t)
+
+
+def _taken(filters, skip) -> np.ndarray:
+    return np.ones(len(filters), bool) if skip is None else ~np.array([bool(b) for b in skip], dtype=bool)
+
+
+def _accept_rows(filters, name, rows, take, t, stamp) -> None:
+    """Each taken row becomes its filter's newest ``name`` input (pose or command), arrived at
+    ``t`` and describing ``stamp``; the interval since the previous stamp feeds the measured
+    control period (as ``update_pose`` / ``update_command`` do)."""
+    for f, row, ok in zip(filters, rows, take.tolist()):
         if not ok:
             continue
-        command = f.command
-        previous = command.t if command.value is not None else None
-        command.value, command.t, command.rejected, command.stamp = omega, t, '', t
-        if previous is not None and t > previous:
-            f._command_intervals.append(t - previous)
+        inp = f.pose if name == 'pose' else f.command
+        previous = inp.stamp if inp.value is not None else None
+        inp.value, inp.t, inp.rejected, inp.stamp = row, t, '', stamp
+        if previous is not None and stamp > previous:
+            (f._pose_intervals if name == 'pose' else f._command_intervals).append(stamp - previous)
             f._period = None
 
 
