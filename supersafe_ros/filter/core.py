@@ -55,7 +55,9 @@ it: no pose yet, the newest pose was invalid (NaN/inf, wrong frame) or older tha
 value-function interpolation over every robot-obstacle pair); every robot's
 constraints (per obstacle and per cluster) are rows of one table, and the rule that
 picks the governing one is applied with array reductions over it, so the Python left
-per robot is reading its inputs and writing its ``FilterOutput``. It decides exactly
+per robot is reading its inputs and recording its command. The result (``Decisions``)
+holds the commands as lists and builds each robot's ``FilterOutput``, with its reason,
+only when it is read. It decides exactly
 as the robot-by-robot implementation it replaced (test_filter_vectorised.py keeps that
 one as the reference). ``RobotFilter.step`` is the one-robot case of it.
 """
@@ -580,8 +582,8 @@ def step_many(filters, safe_set: SafeSet, t, clusters=None) -> list:
 
     Every robot's constraints (one per detected obstacle, one per cluster) are rows
     of one table; the rule that picks the governing one (``_govern``) is evaluated
-    over the table with array operations, and only the output records are built
-    robot by robot.
+    over the table with array operations. Returns ``Decisions``: the commands as
+    lists, each robot's ``FilterOutput`` built when read.
     """
     n = len(filters)
     problems = [''] * n
