@@ -328,7 +328,8 @@ class RobotFilter:
     def record_sent(self, omega, t) -> None:
         """Remember a command sent at ``t`` (step_many does this for every decision)."""
         self.sent.append((float(t), float(omega)))
-        while len(self.sent) > 1 and self.sent[1][0] <= t - _remembered(self.config):
+        keep = max(self.config.hold_timeout, self.config.pose_timeout) + 1.0
+        while len(self.sent) > 1 and self.sent[1][0] <= t - keep:
             self.sent.popleft()
 
     def segments_since(self, t0, t1):
@@ -356,12 +357,6 @@ class RobotFilter:
             start, current = ts, omega
         segments.append((current, t1 - start))
         return segments
-
-
-def _remembered(cfg) -> float:
-    """How long commands sent are remembered: propagation reads at most ``hold_timeout`` back,
-    and a pose at most ``pose_timeout`` old (+1 s)."""
-    return max(cfg.hold_timeout, cfg.pose_timeout) + 1.0
 
 
 def update_poses(filters, states, t, stamp=None, skip=None) -> None:
@@ -426,7 +421,7 @@ def update_detections_all(filters, centres, t) -> None:
 
 class _Intervals:
     """The last PERIOD_SAMPLES intervals in arrival order, and the same kept sorted, so that
-    their median (``_median``'s, bit for bit) is a lookup rather than a sort per robot per tick."""
+    their median is a lookup rather than a sort per robot per tick."""
 
     __slots__ = ('recent', 'ordered')
 
@@ -453,13 +448,9 @@ class _Intervals:
         return self.recent[i]
 
 
-def _median(values) -> float:
-    """np.median of a few finite floats, bit for bit (the mean of the two middle ones for an even
-    count, (a + b) / 2 as numpy computes it), at a tenth of its cost (~2 us for 16 values)."""
-    return _median_of_sorted(sorted(values))
-
-
 def _median_of_sorted(s) -> float:
+    """np.median of a few sorted finite floats, bit for bit (the mean of the two middle ones for
+    an even count, (a + b) / 2 as numpy computes it), without numpy's cost (~10 us a call)."""
     k = len(s) // 2
     return float(s[k]) if len(s) % 2 else float((s[k - 1] + s[k]) / 2.0)
 
@@ -525,9 +516,12 @@ def _command_fresh(f, t) -> bool:
     return f.command.value is not None and t - f.command.t <= f.config.cmd_timeout
 
 
-def _planned_turn(f, t) -> float:
-    """The command the filter would forward (a silent planner counts as 0), clipped."""
-    return _clip(f.command.value, f.config.omega_max) if _command_fresh(f, t) else 0.0
+def _planned_turn(f, t, fresh=None) -> float:
+    """The command the filter would forward (a silent planner counts as 0), clipped;
+    ``fresh``: ``_command_fresh(f, t)`` if the caller has it."""
+    if fresh is None:
+        fresh = _command_fresh(f, t)
+    return _clip(f.command.value, f.config.omega_max) if fresh else 0.0
 
 
 def _clip(value, bound) -> float:
@@ -606,8 +600,8 @@ def step_many(filters, safe_set: SafeSet, t, clusters=None) -> list:
         f = filters[i]
         cfg = f.config
         fresh = _command_fresh(f, t)
-        per.append((f.lookahead(), _clip(f.command.value, cfg.omega_max) if fresh else 0.0, cfg.speed,
-                    cfg.omega_max, f.overriding, cfg.clear_margin, fresh, cfg.cluster_alpha))
+        per.append((f.lookahead(), _planned_turn(f, t, fresh), cfg.speed, cfg.omega_max, f.overriding,
+                    cfg.clear_margin, fresh, cfg.cluster_alpha))
         dets.append(f.detections.value)
     per = np.array(per, dtype=float).reshape(-1, 8)
     horizon, planned, speed, bang = per[:, 0].copy(), per[:, 1].copy(), per[:, 2].copy(), per[:, 3].copy()
@@ -719,7 +713,7 @@ class Decisions(Sequence):
 
 
 def _outputs(filters, problems, use, safe_set, t, tab, k_gov, kind, k_small, per, ages, solving) -> Decisions:
-    """Every robot's command (as arrays), its filter's state (overriding, the command
+    """Every robot's command (as lists), its filter's state (overriding, the command
     remembered as sent), and a builder of its FilterOutput."""
     n, m = len(filters), len(use)
     row_of = np.full(n, -1, dtype=np.intp)
@@ -736,27 +730,18 @@ def _outputs(filters, problems, use, safe_set, t, tab, k_gov, kind, k_small, per
     stopped = (failing & ~avoid) | (~failing & ~overrides & ~fresh)
     linear_row = np.where(stopped, 0.0, speed)
     code_row = np.where(failing, 2, np.where(overrides, 1, 0))
-    omega, linear, action, overriding = [], [], [], []
+    omega, linear, action = [], [], []
     actions = (PASS, OVERRIDE, FAIL_SAFE)
     rows = row_of.tolist()
     omega_row, linear_row, code_row, overrides = (omega_row.tolist(), linear_row.tolist(), code_row.tolist(),
                                                   overrides.tolist())
-    t = float(t)
-    forget = {}       # id(config) -> the time before which sent commands are forgotten (record_sent's)
     for f, row in zip(filters, rows):
-        cfg = f.config
         if row < 0:       # no recent valid state: stop-turn
-            w, v, a, o = cfg.omega_max, 0.0, FAIL_SAFE, False
+            w, v, a, o = f.config.omega_max, 0.0, FAIL_SAFE, False
         else:
             w, v, a, o = omega_row[row], linear_row[row], actions[code_row[row]], overrides[row]
         f.overriding = o  # failing safe clears it: re-enter by the law once inputs are back
-        before = forget.get(id(cfg))
-        if before is None:
-            before = forget[id(cfg)] = t - _remembered(cfg)
-        sent = f.sent     # f.record_sent(w, t), inline
-        sent.append((t, w))
-        while len(sent) > 1 and sent[1][0] <= before:
-            sent.popleft()
+        f.record_sent(w, t)
         omega.append(w)
         linear.append(v)
         action.append(a)
