@@ -113,21 +113,23 @@ class Grid:
             # gathers from the flat array: one index per node instead of three (same values,
             # same arithmetic, at about 60 % of the cost)
             flat, ny, nth = values.reshape(-1), self.shape[1], self.shape[2]
-            out = 0.0
-            for cx, ax in ((ix, 1.0 - wx), (ix + 1, wx)):
-                for cy, ay in ((iy, 1.0 - wy), (iy + 1, wy)):
-                    axy = ax * ay
-                    base = (cx * ny + cy) * nth
-                    out = out + axy * ((1.0 - wt) * flat.take(base + it) + wt * flat.take(base + it1))
-            return np.asarray(out, dtype=float)
-        if values.ndim > 3:  # vector-valued nodes (e.g. gradients): weights broadcast over them
-            extra = (None,) * (values.ndim - 3)
-            wx, wy, wt = wx[(...,) + extra], wy[(...,) + extra], wt[(...,) + extra]
+
+            def nodes(cx, cy):
+                base = (cx * ny + cy) * nth
+                return flat.take(base + it), flat.take(base + it1)
+        else:
+            if values.ndim > 3:  # vector-valued nodes (e.g. gradients): weights broadcast over them
+                extra = (None,) * (values.ndim - 3)
+                wx, wy, wt = wx[(...,) + extra], wy[(...,) + extra], wt[(...,) + extra]
+
+            def nodes(cx, cy):
+                return values[cx, cy, it], values[cx, cy, it1]
         out = 0.0
         for cx, ax in ((ix, 1.0 - wx), (ix + 1, wx)):
             for cy, ay in ((iy, 1.0 - wy), (iy + 1, wy)):
                 axy = ax * ay
-                out = out + axy * ((1.0 - wt) * values[cx, cy, it] + wt * values[cx, cy, it1])
+                lo, hi = nodes(cx, cy)
+                out = out + axy * ((1.0 - wt) * lo + wt * hi)
         return np.asarray(out, dtype=float)
 
 
