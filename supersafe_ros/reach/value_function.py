@@ -98,10 +98,9 @@ class ValueFunction:
     def theta_gradient(self) -> np.ndarray:
         """dV/dtheta at the nodes (``node_gradient()[..., 2]``), contiguous: the filter
         interpolates it at every robot-obstacle pair."""
-        got = getattr(self, '_grad_theta', None)
-        if got is None:
-            got = self._grad_theta = np.ascontiguousarray(self.node_gradient()[..., 2])
-        return got
+        if self._grad_theta is None:
+            self._grad_theta = np.ascontiguousarray(self.node_gradient()[..., 2])
+        return self._grad_theta
 
     def gradient(self, states) -> np.ndarray:
         """dV/d(x, y, theta) at states (..., 3): trilinear interpolation of the
