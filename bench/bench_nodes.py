@@ -462,6 +462,14 @@ def serve_fleet(m, batched, one_core, profile=''):
         rclpy.try_shutdown()
 
 
+def start_fleet(args, m, batched):
+    """The child serving ``m`` robots on the batched or the per-robot topics."""
+    return start([os.path.abspath(__file__), '--serve-fleet', str(m)] + (['--serve-batched'] if batched else [])
+                 + (['--all-cores'] if args.all_cores else [])
+                 + (['--profile', f'{args.profile}.{m}'] if args.profile else []),
+                 f'{"batched" if batched else "fleet"}_{m}')
+
+
 def _window_rates(reports, t0, t1):
     """Decisions per robot per second between the reports around [t0, t1] (the child's view)."""
     before = [r for r in reports if int(r['t']) <= int(t0 * 1e9)]
@@ -498,9 +506,7 @@ def bench_fleet(args):
     print('[fleet] fleet_safety_filter_node, per-robot topics, one process pinned to one core; the bench '
           f'feeds each robot pose + command at 50 Hz and detections at 10 Hz for {args.window:.0f} s')
     for m in args.fleet_sizes:
-        child = start([os.path.abspath(__file__), '--serve-fleet', str(m)]
-                      + (['--all-cores'] if args.all_cores else [])
-                      + (['--profile', f'{args.profile}.{m}'] if args.profile else []), f'fleet_{m}')
+        child = start_fleet(args, m, batched=False)
         d = Driver('bench_fleet')
         try:
             reports = []
@@ -552,9 +558,7 @@ def bench_batched(args):
     print('[batched] fleet_safety_filter_node, batched topics only, pinned to one core; the bench sends '
           f'fleet/poses + fleet/cmd_vel_nav at 50 Hz (fleet/detections at 10 Hz) for {args.window:.0f} s')
     for n in args.batched_sizes:
-        child = start([os.path.abspath(__file__), '--serve-fleet', str(n), '--serve-batched']
-                      + (['--all-cores'] if args.all_cores else [])
-                      + (['--profile', f'{args.profile}.{n}'] if args.profile else []), f'batched_{n}')
+        child = start_fleet(args, n, batched=True)
         d = Driver('bench_batched')
         try:
             reports, replies = [], []
