@@ -115,7 +115,7 @@ sys.exit(run_node(Node, ['x']))
     assert not built.exists()
 
 
-def test_the_events_executor_spins_a_node_and_stops_it_quietly(tmp_path, ros_context):
+def test_the_events_executor_spins_a_node_and_stops_it_quietly(tmp_path, ros_context, monkeypatch):
     """SUPERSAFE_EXECUTOR=events (rclpy's experimental EventsExecutor, which takes no guard
     conditions): the filter's watchdog publishes commands (timers and publishers run), then stops on SIGINT with exit 0
     and nothing on stderr (it once crashed at start-up on run_node's stop guard condition)."""
@@ -123,11 +123,8 @@ def test_the_events_executor_spins_a_node_and_stops_it_quietly(tmp_path, ros_con
     from rclpy.node import Node
     from supersafe_ros.ros_io import rosmsg
     from test_graph_support import Spinner, matched
-    os.environ['SUPERSAFE_EXECUTOR'] = 'events'
-    try:
-        p = NodeProcess('safety_filter', 'events_robot', tmp_path)
-    finally:
-        del os.environ['SUPERSAFE_EXECUTOR']
+    monkeypatch.setenv('SUPERSAFE_EXECUTOR', 'events')
+    p = NodeProcess('safety_filter', 'events_robot', tmp_path)
     driver = Node('events_driver', context=ros_context)
     spin = Spinner(ros_context, driver)
     try:
