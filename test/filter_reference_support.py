@@ -1,7 +1,9 @@
 """The per-robot implementation of ``filter.core.step_many`` before it was vectorised
 (commit 003abdd), kept verbatim as the reference the vectorised one must equal decision
-for decision (test_filter_vectorised.py). Only the imports differ, and the control
-period is computed from the filter's interval deques here (as it was), not from its cache.
+for decision (test_filter_vectorised.py). Only the imports differ, the control
+period is computed from the filter's interval deques here (as it was), not from its cache,
+and propagate_poses wraps theta when no robot has an arc (as filter.core does since: a
+robot's state must not depend on the other robots' plans).
 """
 from __future__ import annotations
 
@@ -12,6 +14,7 @@ import numpy as np
 from supersafe_ros.filter.core import (FAIL_SAFE, OVERRIDE, PASS, FilterOutput, SafeSet, _clip,
                                        _planned_turn, arc_flow, default_cluster_store)
 from supersafe_ros.filter.law import evaluate_pairs, tie_tolerance
+from supersafe_ros.reach.grid import wrap_angle
 from supersafe_ros.reach.value_function import ValueFunction
 
 
@@ -45,7 +48,8 @@ def propagate_poses(filters, use, t):
         ages[row] = max(0.0, min(t - t0, f.config.hold_timeout))
         plans.append(f.segments_since(t - ages[row], t))
     depth = max((len(p) for p in plans), default=0)
-    if depth == 0:
+    if depth == 0:      # (added later: theta wrapped as a zero-length arc would, see filter.core)
+        states[:, 2] = wrap_angle(states[:, 2])
         return states, ages
     speed = np.array([filters[i].config.speed for i in use])
     for k in range(depth):

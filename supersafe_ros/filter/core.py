@@ -473,7 +473,8 @@ def propagate_poses(filters, use, t):
     The pose is moved from its stamp to ``t`` along the arcs of the commands sent
     (at most ``hold_timeout`` of them: older poses only feed the stop-turn). Every
     row goes through as many arcs as the longest plan (shorter plans padded with
-    zero-length arcs, which only wrap theta), one vectorised ``arc_flow`` per arc.
+    zero-length arcs, which only wrap theta), one vectorised ``arc_flow`` per arc; with
+    no arcs at all, theta is wrapped all the same.
     """
     states = np.array([filters[i].pose.value for i in use], dtype=float).reshape(-1, 3)
     ages = np.zeros(len(use))
@@ -501,7 +502,8 @@ def propagate_poses(filters, use, t):
         plans.append(plan)
         if len(plan) > depth:
             depth = len(plan)
-    if depth == 0:
+    if depth == 0:      # theta wrapped as a zero-length arc wraps it: a robot's state does not
+        states[:, 2] = wrap_angle(states[:, 2])      # depend on the other robots' plans
         return states, ages
     speed = np.array([filters[i].config.speed for i in use])
     for k in range(depth):
