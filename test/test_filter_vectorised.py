@@ -386,3 +386,38 @@ def test_robots_just_inside_a_union_grids_corners_decide_as_the_reference(standa
         return out
     outs = decide_as_the_reference(fleet, standard, solved_values)
     assert sum(o.source == 'cluster' for o in outs) > 10      # the union's V is the smallest at most of them
+
+
+@pytest.mark.parametrize('seed, store_kind, alpha, source', [
+    (15, 'solved', 0.0, 'standard'), (12, 'pending', 0.3, 'learned'), (13, 'inline', -0.2, 'standard')])
+def test_each_robot_decided_alone_decides_as_in_the_fleet(standard, solved_values, seed, store_kind, alpha, source,
+                                                          monkeypatch):
+    """A robot's own filter (step_many of one robot, the Python-scalar path ``_decide_one``)
+    decides as the vectorised fleet path decides that robot: over six closed-loop ticks, the
+    same command, reason, values and state for every robot, with clusters solved, pending and
+    solved at the request."""
+    from supersafe_ros.filter import core
+    alone_calls = []
+    decide_one = core._decide_one
+    monkeypatch.setattr(core, '_decide_one', lambda *a: alone_calls.append(1) or decide_one(*a))
+    safe = SafeSet(standard.vf, alpha, source)
+    fleets = [build_fleet(seed, 160) for _ in range(2)]
+    stores = [make_store(store_kind, solved_values) for _ in range(2)]
+    rngs = [np.random.default_rng(200 + seed) for _ in range(2)]
+    seen = {'kinds': set(), 'sources': set()}
+    t = fleets[0][1]
+    for tick in range(6):
+        alone = [step_many([f], safe, t, stores[0])[0] for f in fleets[0][0]]
+        n_alone = len(alone_calls)
+        fleet = step_many(fleets[1][0], safe, t, stores[1])
+        assert len(alone_calls) == n_alone            # the fleet took the vectorised path
+        for i, (a, b, fa, fb) in enumerate(zip(alone, fleet, fleets[0][0], fleets[1][0])):
+            assert record(a, fa) == record(b, fb), f'tick {tick}, robot {i}'
+            seen['kinds'].add(a.action + ':' + a.reason.split(' ')[0].split('=')[0].rstrip(';:'))
+            seen['sources'].add(a.source)
+        t += 0.02
+        for (filters, _), rng, outs in zip(fleets, rngs, (alone, fleet)):
+            advance(filters, outs, rng, t, 0.02)
+    assert len(alone_calls) > 6 * 160 * 0.6        # most robots had a state to judge alone
+    assert {'pass:clear', 'override:V', 'override:the', 'fail_safe:pose'} <= seen['kinds'], seen
+    assert {'cluster', 'cluster-fallback'} & seen['sources'], seen['sources']

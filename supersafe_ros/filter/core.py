@@ -594,6 +594,8 @@ def step_many(filters, safe_set: SafeSet, t, clusters=None) -> list:
                 continue
         use.append(i)
     m = len(use)
+    if n == 1 and m == 1:
+        return _decide_one(filters[0], problems[0], safe_set, t, clusters)
     states, ages = propagate_poses(filters, use, t)
     per = []        # per robot row: lookahead, planned turn, speed, w_max, overriding, clear margin, fresh,
     #                 the clusters' level
@@ -647,6 +649,86 @@ def step_many(filters, safe_set: SafeSet, t, clusters=None) -> list:
     k_gov, kind = _govern(tab, overriding, margin, n_pairs + cl['n_groups'], m)
     k_small = _first_min(tab.robot, tab.position, tab.value - tab.level, np.isfinite(tab.value), m)
     return _outputs(filters, problems, use, safe_set, t, tab, k_gov, kind, k_small, per, ages, cl['solving'])
+
+
+def _decide_one(f, problem, safe_set, t, clusters) -> Decisions:
+    """``step_many`` for one robot with a state to judge (a robot's own filter node).
+
+    The same values (``_pair_values``, ``_cluster_rows``) and the same rules, with the
+    table's few rows in Python lists instead of arrays: numpy's cost per call is most of
+    one robot's decision, and on the path from pose to cmd_vel every microsecond shows.
+    Same arithmetic, same ties (smallest score, then the first in the robot's list), so
+    the same decisions bit for bit (test_filter_vectorised: each robot decided alone
+    decides as in a fleet).
+    """
+    cfg = f.config
+    states, ages = propagate_poses([f], [0], t)
+    fresh = _command_fresh(f, t)
+    horizon, planned = float(f.lookahead()), _planned_turn(f, t, fresh)
+    speed, bang = float(cfg.speed), float(cfg.omega_max)
+    det = f.detections.value
+    n_pairs = len(det)
+    rel = np.empty((n_pairs, 3))
+    rel[:, 0] = states[0, 0] - det[:, 0]
+    rel[:, 1] = states[0, 1] - det[:, 1]
+    rel[:, 2] = states[0, 2]
+    value, turn, value_next = _pair_values(safe_set.vf, rel, np.full(n_pairs, planned), np.full(n_pairs, horizon),
+                                           np.full(n_pairs, speed), np.full(n_pairs, bang))
+    one = lambda x: np.array([x], dtype=float)      # noqa: E731  (a robot's column)
+    cl = _cluster_rows([f], [0], states, one(planned), one(horizon), one(speed), one(bang), one(cfg.cluster_alpha),
+                       [det], np.zeros(1, np.intp), clusters)
+    alpha = float(safe_set.alpha)
+    group = list(range(n_pairs))
+    for p, g in zip(cl['member_pairs'].tolist(), cl['member_groups'].tolist()):
+        group[p] = n_pairs + g
+    tab = _Table()
+    tab.position = list(range(n_pairs)) + [n_pairs + i for i in cl['index'].tolist()]
+    tab.value = value.tolist() + cl['value'].tolist()
+    tab.level = [alpha] * n_pairs + cl['level'].tolist()
+    tab.turn = turn.tolist() + cl['turn'].tolist()
+    tab.value_next = value_next.tolist() + cl['value_next'].tolist()
+    tab.obstacle = list(range(n_pairs)) + cl['obstacle'].tolist()
+    tab.xy = np.concatenate([det, cl['xy']]) if len(cl['xy']) else det
+    tab.sound = [False] * n_pairs + [True] * len(cl['robot'])
+    tab.group = group + [n_pairs + g for g in cl['group'].tolist()]
+    tab.members = [1] * n_pairs + cl['members'].tolist()
+    tab.source = [safe_set.source] * n_pairs + cl['source']
+
+    # _govern and _first_min for one robot
+    rows = range(len(tab.value))
+    margin = float(cfg.clear_margin)
+    enter = [tab.value[r] <= tab.level[r] for r in rows]
+    ahead = [tab.value_next[r] <= tab.level[r] for r in rows]
+    stay = [f.overriding and tab.value[r] <= tab.level[r] + margin for r in rows]
+    governed = {tab.group[r] for r in rows if tab.sound[r] and (enter[r] or ahead[r] or stay[r])}
+    usable = [tab.sound[r] or tab.group[r] not in governed for r in rows]
+    k_gov, kind = -1, 0
+    for code, flags, values in ((1, enter, tab.value), (2, ahead, tab.value_next), (3, stay, tab.value)):
+        hits = [(values[r] - tab.level[r], tab.position[r], r) for r in rows if usable[r] and flags[r]]
+        if hits:
+            k_gov, kind = min(hits)[2], code
+            break
+    finite = [(tab.value[r] - tab.level[r], tab.position[r], r) for r in rows if math.isfinite(tab.value[r])]
+    k_small = min(finite)[2] if finite else -1
+
+    # _outputs for one robot
+    failing = bool(problem)
+    overrides = not failing and kind > 0
+    named = k_gov if overrides else k_small
+    avoid = named >= 0
+    if overrides or (failing and avoid):
+        w = bang * tab.turn[named]
+    else:
+        w = bang if failing else planned
+    stopped = (failing and not avoid) or (not failing and not overrides and not fresh)
+    v = 0.0 if stopped else speed
+    a = FAIL_SAFE if failing else OVERRIDE if overrides else PASS
+    f.overriding = overrides
+    f.record_sent(w, t)
+    common, solving = _set_fields(safe_set), int(cl['solving'][0])
+    age = float(ages[0])
+    return Decisions([w], [v], [a], lambda i: _explain(problem, cfg, w, v, a, common, tab, named, kind, fresh,
+                                                       horizon, age, solving, False))
 
 
 def _govern(tab, overriding, margin, n_groups, m):
@@ -748,57 +830,67 @@ def _outputs(filters, problems, use, safe_set, t, tab, k_gov, kind, k_small, per
         linear.append(v)
         action.append(a)
     configs = [f.config for f in filters]      # as at the decision (a parameter change replaces it)
-    alpha, source = float(safe_set.alpha), safe_set.source
-    set_omega = safe_set.omega_max
-    set_omega = float(set_omega) if set_omega is not None else math.nan
+    common = _set_fields(safe_set)
     fresh, kind, named = fresh.tolist(), kind.tolist(), named.tolist()
 
     def describe(i) -> FilterOutput:
-        cfg, row = configs[i], rows[i]
-        common = dict(alpha=alpha, source=source, omega_max_set=set_omega,
-                      pose_age=float(ages[row]) if row >= 0 else 0.0,
-                      lookahead=float(horizon[row]) if row >= 0 else 0.0,
-                      clusters_solving=int(solving[row]) if row >= 0 else 0)
-        k = named[row] if row >= 0 else -1
-        if k < 0:
-            common.update(obstacle_index=-1, obstacle_xy=(math.nan, math.nan), value=math.inf)
-            value = level = math.nan
-        else:
-            value, level = float(tab.value[k]), float(tab.level[k])
-            members, obstacle = int(tab.members[k]), int(tab.obstacle[k])
-            common.update(obstacle_index=obstacle, obstacle_xy=tuple(tab.xy[k].tolist()), value=value,
-                          alpha=level)
-            if tab.sound[k]:
-                common['source'] = tab.source[k]
-            label = (f'a cluster of {members} obstacles ({tab.source[k]}, nearest {obstacle})' if members > 1
-                     else f'obstacle {obstacle}')
-        w, v, a = omega[i], linear[i], action[i]
-        problem = problems[i]
-        if problem:
-            if k >= 0:
-                why = f'{problem}; avoiding {label} from the last valid state (V={value:.3g})'
-            else:
-                why = f'{problem}; {"no recent valid state" if row < 0 else "no obstacle near the last valid state"}' \
-                      ': stop-turn'
-        elif a == OVERRIDE:
-            how = _KINDS[kind[row]]
-            if how == 'enter':
-                why = f'V={value:.3g} <= alpha={level:.3g} at {label}'
-            elif how == 'ahead':
-                why = (f'the planner\'s command would reach V={float(tab.value_next[k]):.3g} <= alpha={level:.3g} '
-                       f'within {float(horizon[row]):.3g} s ({label})')
-            else:
-                why = f'V={value:.3g} <= alpha+margin={level + cfg.clear_margin:.3g}: not clear yet'
-        elif not fresh[row]:
-            # Nav2 style: no input, zero twist (a Dubins robot drives straight on; the filter still
-            # guards it against every detected obstacle)
-            why = 'clear; planner silent: zero command'
-        else:
-            # the robot's bound, whatever the planner asked (angular.z = 1e30 goes out as w_max)
-            why = 'clear: no obstacle near' if k < 0 else f'clear: V={value:.3g} > alpha={level:.3g}'
-        return FilterOutput(w, v, a, why, **common)
+        row = rows[i]
+        if row < 0:
+            return _explain(problems[i], configs[i], omega[i], linear[i], action[i], common, None, -1, 0, False,
+                            0.0, 0.0, 0, True)
+        return _explain(problems[i], configs[i], omega[i], linear[i], action[i], common, tab, named[row], kind[row],
+                        fresh[row], float(horizon[row]), float(ages[row]), int(solving[row]), False)
 
     return Decisions(omega, linear, action, describe)
+
+
+def _set_fields(safe_set) -> dict:
+    """The FilterOutput fields every robot's decision takes from the safe set in force."""
+    set_omega = safe_set.omega_max
+    return dict(alpha=float(safe_set.alpha), source=safe_set.source,
+                omega_max_set=float(set_omega) if set_omega is not None else math.nan)
+
+
+def _explain(problem, cfg, w, v, a, set_fields, tab, k, kind, fresh, horizon, age, solving, lost) -> FilterOutput:
+    """One robot's FilterOutput: its command (w, v, a) and why, from the table row ``k`` that it
+    names (-1: none) and how it acted on it (``kind``, see ``_govern``); ``lost``: no recent
+    valid state (stop-turn)."""
+    common = dict(set_fields, pose_age=age, lookahead=horizon, clusters_solving=solving)
+    if k < 0:
+        common.update(obstacle_index=-1, obstacle_xy=(math.nan, math.nan), value=math.inf)
+        value = level = math.nan
+    else:
+        value, level = float(tab.value[k]), float(tab.level[k])
+        members, obstacle = int(tab.members[k]), int(tab.obstacle[k])
+        common.update(obstacle_index=obstacle, obstacle_xy=tuple(float(c) for c in tab.xy[k]), value=value,
+                      alpha=level)
+        if tab.sound[k]:
+            common['source'] = tab.source[k]
+        label = (f'a cluster of {members} obstacles ({tab.source[k]}, nearest {obstacle})' if members > 1
+                 else f'obstacle {obstacle}')
+    if problem:
+        if k >= 0:
+            why = f'{problem}; avoiding {label} from the last valid state (V={value:.3g})'
+        else:
+            why = f'{problem}; {"no recent valid state" if lost else "no obstacle near the last valid state"}' \
+                  ': stop-turn'
+    elif a == OVERRIDE:
+        how = _KINDS[kind]
+        if how == 'enter':
+            why = f'V={value:.3g} <= alpha={level:.3g} at {label}'
+        elif how == 'ahead':
+            why = (f'the planner\'s command would reach V={float(tab.value_next[k]):.3g} <= alpha={level:.3g} '
+                   f'within {horizon:.3g} s ({label})')
+        else:
+            why = f'V={value:.3g} <= alpha+margin={level + cfg.clear_margin:.3g}: not clear yet'
+    elif not fresh:
+        # Nav2 style: no input, zero twist (a Dubins robot drives straight on; the filter still
+        # guards it against every detected obstacle)
+        why = 'clear; planner silent: zero command'
+    else:
+        # the robot's bound, whatever the planner asked (angular.z = 1e30 goes out as w_max)
+        why = 'clear: no obstacle near' if k < 0 else f'clear: V={value:.3g} > alpha={level:.3g}'
+    return FilterOutput(w, v, a, why, **common)
 
 
 class _ClusterFrames:
