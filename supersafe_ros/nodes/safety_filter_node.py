@@ -53,7 +53,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseArray, PoseStamped, Twist
 
 from ..filter.core import FAIL_SAFE
-from ..ros_io import rosmsg
+from ..ros_io import cdr, rosmsg
 from .common import declare, run_node
 from .filter_wiring import VALUE_FUNCTION_TOPIC, FilterWiring, StateThrottle, learned_alpha  # noqa: F401
 from .markers import LevelSetMarkerPublisher
@@ -92,9 +92,11 @@ class SafetyFilterNode(Node):
 
         self.cmd_pub = self.create_publisher(Twist, 'cmd_vel', rosmsg.QOS_STREAM)
         self.state_pub = self.create_publisher(DiagnosticStatus, 'safety_filter/state', rosmsg.QOS_STREAM)
-        self.create_subscription(PoseStamped, 'pose', self.on_pose, rosmsg.QOS_STREAM)
+        # pose and command raw: read straight from their CDR bytes (ros_io.cdr), no message objects
+        # built on the path from pose to cmd_vel
+        self.create_subscription(PoseStamped, 'pose', self.on_pose, rosmsg.QOS_STREAM, raw=True)
         self.create_subscription(PoseArray, 'detections', self.on_detections, rosmsg.QOS_STREAM)
-        self.create_subscription(Twist, 'cmd_vel_nav', self.on_command, rosmsg.QOS_STREAM)
+        self.create_subscription(Twist, 'cmd_vel_nav', self.on_command, rosmsg.QOS_STREAM, raw=True)
         self.timer = None
         self._set_rate(w.rate)
         # RViz: the level set in force around each detected obstacle (computed only while watched)
@@ -126,10 +128,13 @@ class SafetyFilterNode(Node):
         self.timer = self.create_timer(self.period, self.on_watchdog, clock=self.wiring.steady)
 
     # -- inputs -----------------------------------------------------------------------------
-    def on_pose(self, msg: PoseStamped):
+    def on_pose(self, data):
+        """A serialized PoseStamped (raw subscription)."""
         w = self.wiring
         t = w.now()
+        msg = None
         try:
+            msg = cdr.pose_stamped(data)
             self.filter.update_pose(rosmsg.pose_to_state(msg, w.frame), t, stamp=w.stamp(msg.header.stamp, t))
         except ValueError as exc:   # MessageError is a ValueError
             self.filter.reject_pose(str(exc), t)
@@ -137,7 +142,7 @@ class SafetyFilterNode(Node):
         if self.lockstep:
             self._last_pose_arrival = time.monotonic()
             self._held = None
-            if self._clock_passed(msg.header.stamp):
+            if msg is not None and self._clock_passed(msg.header.stamp):
                 return
             self.decide(t, hold=self.cluster_hold_timeout > 0.0)
         elif self.publish_on_pose:
@@ -175,11 +180,12 @@ class SafetyFilterNode(Node):
             self.filter.reject_detections(str(exc), t)
             w.complain('detections', f'detections rejected: {exc}; failing safe', level='error')
 
-    def on_command(self, msg: Twist):
+    def on_command(self, data):
+        """A serialized Twist (raw subscription)."""
         w = self.wiring
         t = w.now()
         try:
-            self.filter.update_command(rosmsg.twist_turn_rate(msg), t)
+            self.filter.update_command(rosmsg.twist_turn_rate(cdr.twist(data)), t)
         except ValueError as exc:
             w.complain('cmd', f'cmd_vel_nav rejected: {exc}; keeping the previous command')
         if not self.lockstep:       # in lockstep the next pose's answer judges it
@@ -223,10 +229,7 @@ class SafetyFilterNode(Node):
             self.get_logger().info(f'step held {time.monotonic() - held_since:.2f} s until the cluster '
                                    'value was in force')
         self._held = None
-        twist = Twist()
-        twist.linear.x = float(out.linear)
-        twist.angular.z = float(out.omega)
-        self.cmd_pub.publish(twist)
+        self.cmd_pub.publish(cdr.twist_bytes(float(out.linear), float(out.omega)))   # serialized: no Twist built
         now = time.monotonic()
         self._last_publish = now
         self.decisions += 1
