@@ -48,6 +48,40 @@ def test_flat_gathers_equal_indexed_gathers_bit_for_bit():
     assert np.array_equal(GRID.interpolate(field, pts)[:, 1], a)
 
 
+
+def test_one_state_in_python_floats_reads_what_numpy_reads_bit_for_bit():
+    """Grid.interpolate_at and ValueFunction.value_at (one state, Python floats; a robot's
+    own filter reads V this way) equal the array versions bit for bit, signed zeros
+    included: on and off the grid (clamped, or ``outside``), across the heading wrap,
+    for a rotationally symmetric value function (read on the two heading nodes) and for
+    one that is not. They rely on numpy's float64 cos and sin being the C library's,
+    checked first so that a platform where they differ says so."""
+    import math
+    rng = np.random.default_rng(4)
+    angles = rng.uniform(-40.0, 40.0, 20000)
+    assert np.array_equal(np.cos(angles), [math.cos(a) for a in angles]), 'numpy cos is not the C library\'s'
+    assert np.array_equal(np.sin(angles), [math.sin(a) for a in angles]), 'numpy sin is not the C library\'s'
+    pts = np.stack([rng.uniform(-6, 6, 3000), rng.uniform(-5, 7, 3000), rng.uniform(-9, 9, 3000)], -1)
+    pts[:40, 2] = -np.pi + np.arange(40) % 12 * (2 * np.pi / 12)        # on heading nodes
+    field = rng.normal(size=GRID.shape).astype(np.float32)
+    field[field > 1.5] = 0.0                                              # ties at zero
+    flat = memoryview(field.reshape(-1))
+    want = GRID.interpolate(field, pts)
+    got = np.array([GRID.interpolate_at(flat, *p) for p in pts.tolist()])
+    assert repr(got.tolist()) == repr(want.tolist())
+    symmetric = load_or_solve(GRID, 3.0, 1.0, 1.0, 1.0)
+    assert symmetric.rotationally_symmetric
+    plain = ValueFunction(GRID, field, {'model': 'dubins'})
+    assert not plain.rotationally_symmetric
+    for vf in (symmetric, plain):
+        for outside in (None, np.inf):
+            want = vf.value(pts, outside=outside)
+            got = np.array([vf.value_at(*p, outside=outside) for p in pts.tolist()])
+            assert repr(got.tolist()) == repr(want.tolist())
+    grad = symmetric.theta_gradient()
+    got = [GRID.interpolate_at(symmetric.flat_theta_gradient(), *p) for p in pts.tolist()]
+    assert repr(got) == repr(GRID.interpolate(grad, pts).tolist())
+
 def test_gradient_of_a_linear_function():
     X, Y, TH = GRID.mesh()
     vf = ValueFunction(GRID, 3.0 * X - 2.0 * Y + 0.0 * TH)

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 import json
+import math
 import os
 import threading
 import zipfile
@@ -45,6 +46,8 @@ class ValueFunction:
         self.values = v
         self._grad = None
         self._grad_theta = None
+        self._flat = None
+        self._flat_grad_theta = None
 
     # -- evaluation -------------------------------------------------------
     @property
@@ -89,6 +92,45 @@ class ValueFunction:
             v = self.grid.interpolate(self.values, rotated)
             out = v if out is None else np.minimum(out, v)
         return out
+
+    def value_at(self, x: float, y: float, theta: float, outside=None) -> float:
+        """``value`` at one finite state, in Python floats: the same operations in the same
+        order (``Grid.interpolate_at``; numpy's float64 cos and sin are the C library's,
+        test_reach_io checks it), so the same value bit for bit. For callers that read V at
+        a handful of states, where numpy's cost per call is most of the time."""
+        g = self.grid
+        if outside is not None and not (g.lo[0] <= x <= g.hi[0] and g.lo[1] <= y <= g.hi[1]):
+            return outside
+        flat = self.flat_values()
+        if not self.rotationally_symmetric:
+            return g.interpolate_at(flat, x, y, theta)
+        dth = g.spacing[2]
+        k0 = float(math.floor((theta + math.pi) / dth))
+        out = None
+        for k in (k0, k0 + 1.0):
+            node = -math.pi + k * dth
+            beta = node - theta
+            c, sn = math.cos(beta), math.sin(beta)
+            v = g.interpolate_at(flat, c * x - sn * y, sn * x + c * y, node)
+            out = v if out is None or not out < v else out     # np.minimum(out, v), signed zeros too
+        return out
+
+    def __getstate__(self):
+        state = dict(self.__dict__)
+        state['_flat'] = state['_flat_grad_theta'] = None    # memoryviews do not pickle; rebuilt on use
+        return state
+
+    def flat_values(self):
+        """The node values as a flat memoryview (C order; items read as Python floats)."""
+        if self._flat is None:
+            self._flat = memoryview(np.ascontiguousarray(self.values).reshape(-1))
+        return self._flat
+
+    def flat_theta_gradient(self):
+        """``theta_gradient()`` as a flat memoryview."""
+        if self._flat_grad_theta is None:
+            self._flat_grad_theta = memoryview(self.theta_gradient().reshape(-1))
+        return self._flat_grad_theta
 
     def node_gradient(self) -> np.ndarray:
         if self._grad is None:
