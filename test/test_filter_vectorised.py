@@ -392,14 +392,20 @@ def test_robots_just_inside_a_union_grids_corners_decide_as_the_reference(standa
     (15, 'solved', 0.0, 'standard'), (12, 'pending', 0.3, 'learned'), (13, 'inline', -0.2, 'standard')])
 def test_each_robot_decided_alone_decides_as_in_the_fleet(standard, solved_values, seed, store_kind, alpha, source,
                                                           monkeypatch):
-    """A robot's own filter (step_many of one robot, the Python-scalar path ``_decide_one``)
-    decides as the vectorised fleet path decides that robot: over six closed-loop ticks, the
-    same command, reason, values and state for every robot, with clusters solved, pending and
-    solved at the request."""
+    """A robot's own filter (step_many of one robot, the Python-scalar path ``_decide_one``,
+    V read in Python floats when few obstacles are near) decides as the vectorised fleet path
+    decides that robot: over six closed-loop ticks, the same command, reason, values and state
+    for every robot, with clusters solved, pending and solved at the request."""
     from supersafe_ros.filter import core
-    alone_calls = []
-    decide_one = core._decide_one
+    alone_calls, python_reads = [], []
+    decide_one, robot_pair_values = core._decide_one, core._robot_pair_values
     monkeypatch.setattr(core, '_decide_one', lambda *a: alone_calls.append(1) or decide_one(*a))
+
+    def pair_values_spy(*a):
+        got = robot_pair_values(*a)
+        python_reads.append(got is not None)
+        return got
+    monkeypatch.setattr(core, '_robot_pair_values', pair_values_spy)
     safe = SafeSet(standard.vf, alpha, source)
     fleets = [build_fleet(seed, 160) for _ in range(2)]
     stores = [make_store(store_kind, solved_values) for _ in range(2)]
@@ -419,5 +425,22 @@ def test_each_robot_decided_alone_decides_as_in_the_fleet(standard, solved_value
         for (filters, _), rng, outs in zip(fleets, rngs, (alone, fleet)):
             advance(filters, outs, rng, t, 0.02)
     assert len(alone_calls) > 6 * 160 * 0.6        # most robots had a state to judge alone
+    # V read in Python floats (few pairs near) and by numpy (more), both compared
+    assert python_reads.count(True) > 100 and python_reads.count(False) > 10, python_reads.count(False)
     assert {'pass:clear', 'override:V', 'override:the', 'fail_safe:pose'} <= seen['kinds'], seen
     assert {'cluster', 'cluster-fallback'} & seen['sources'], seen['sources']
+
+
+def test_one_arc_in_python_floats_is_arc_flows():
+    """core._arc (one state, Python floats) equals arc_flow bit for bit: turning, nearly
+    straight (|omega dt| <= 1e-9), zero-length, and headings far outside [-pi, pi)."""
+    from supersafe_ros.filter.core import _arc, arc_flow
+    rng = np.random.default_rng(5)
+    n = 4000
+    states = np.column_stack([rng.uniform(-9, 9, n), rng.uniform(-9, 9, n), rng.uniform(-12, 12, n)])
+    omega = rng.choice([0.0, 1e-12, -3e-10, 1.0, -1.0, 0.37], n) * rng.choice([1.0, -1.0], n)
+    dt = rng.choice([0.0, 0.02, 0.1, 1.5], n)
+    speed = rng.choice([3.0, 0.5], n)
+    want = arc_flow(states, speed, omega, dt)
+    got = np.array([_arc(*s.tolist(), float(v), float(w), float(h)) for s, v, w, h in zip(states, speed, omega, dt)])
+    assert repr(got.tolist()) == repr(want.tolist())

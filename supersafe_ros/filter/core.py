@@ -73,7 +73,7 @@ import math
 import numpy as np
 
 from .law import avoid_turn, evaluate_pairs, tie_tolerance  # noqa: F401  (the law's rule; re-exported)
-from ..reach.grid import wrap_angle
+from ..reach.grid import TWO_PI, wrap_angle
 from ..reach.value_function import ValueFunction
 
 PERIOD_SAMPLES = 16    # intervals in the median that measures the control period
@@ -668,12 +668,17 @@ def _decide_one(f, problem, safe_set, t, clusters) -> Decisions:
     speed, bang = float(cfg.speed), float(cfg.omega_max)
     det = f.detections.value
     n_pairs = len(det)
-    rel = np.empty((n_pairs, 3))
-    rel[:, 0] = states[0, 0] - det[:, 0]
-    rel[:, 1] = states[0, 1] - det[:, 1]
-    rel[:, 2] = states[0, 2]
-    value, turn, value_next = _pair_values(safe_set.vf, rel, np.full(n_pairs, planned), np.full(n_pairs, horizon),
-                                           np.full(n_pairs, speed), np.full(n_pairs, bang))
+    x, y, th = states[0].tolist()
+    pairs = _robot_pair_values(safe_set.vf, x, y, th, det.tolist(), planned, horizon, speed, bang, FEW_PAIRS)
+    if pairs is None:
+        rel = np.empty((n_pairs, 3))
+        rel[:, 0] = states[0, 0] - det[:, 0]
+        rel[:, 1] = states[0, 1] - det[:, 1]
+        rel[:, 2] = states[0, 2]
+        pairs = [a.tolist() for a in _pair_values(safe_set.vf, rel, np.full(n_pairs, planned),
+                                                  np.full(n_pairs, horizon), np.full(n_pairs, speed),
+                                                  np.full(n_pairs, bang))]
+    value, turn, value_next = pairs
     one = lambda x: np.array([x], dtype=float)      # noqa: E731  (a robot's column)
     cl = _cluster_rows([f], [0], states, one(planned), one(horizon), one(speed), one(bang), one(cfg.cluster_alpha),
                        [det], np.zeros(1, np.intp), clusters)
@@ -683,10 +688,10 @@ def _decide_one(f, problem, safe_set, t, clusters) -> Decisions:
         group[p] = n_pairs + g
     tab = _Table()
     tab.position = list(range(n_pairs)) + [n_pairs + i for i in cl['index'].tolist()]
-    tab.value = value.tolist() + cl['value'].tolist()
+    tab.value = value + cl['value'].tolist()
     tab.level = [alpha] * n_pairs + cl['level'].tolist()
-    tab.turn = turn.tolist() + cl['turn'].tolist()
-    tab.value_next = value_next.tolist() + cl['value_next'].tolist()
+    tab.turn = turn + cl['turn'].tolist()
+    tab.value_next = value_next + cl['value_next'].tolist()
     tab.obstacle = list(range(n_pairs)) + cl['obstacle'].tolist()
     tab.xy = np.concatenate([det, cl['xy']]) if len(cl['xy']) else det
     tab.sound = [False] * n_pairs + [True] * len(cl['robot'])
@@ -1269,4 +1274,61 @@ def _pair_values(vf: ValueFunction, rel, omega, horizon, speed, bang):
     use = (horizon > 0) & (np.isfinite(left) | np.isfinite(right))
     value_next[near] = np.where(horizon > 0, np.minimum(v[5], np.maximum(v[3], v[4])), np.inf)
     turn[near] = np.where(use, held, turn[near])
+    return value, turn, value_next
+
+
+FEW_PAIRS = 3     # a robot decided alone reads V in Python floats up to this many pairs near the grid
+
+
+def _arc(x, y, th, speed, omega, dt):
+    """``arc_flow`` of one state, in Python floats (the same operations, the same bits)."""
+    th1 = th + omega * dt
+    if abs(omega * dt) > 1e-9:
+        ax = (math.sin(th1) - math.sin(th)) / omega
+        ay = (math.cos(th) - math.cos(th1)) / omega
+    else:
+        ax, ay = math.cos(th) * dt, math.sin(th) * dt
+    return x + speed * ax, y + speed * ay, (th1 + math.pi) % TWO_PI - math.pi
+
+
+def _robot_pair_values(vf: ValueFunction, x, y, th, centres, planned, horizon, speed, bang, few):
+    """``_pair_values`` for one robot's pairs (its state x, y, th; ``centres`` a list of
+    (cx, cy); its command, hold, speed and bound), as lists; None if more than ``few``
+    pairs are near the grid (then numpy's evaluation is the cheaper).
+
+    V is read state by state in Python floats (``ValueFunction.value_at``): a robot's own
+    filter has one or two obstacles near, and numpy's cost per call (some 150 calls) is
+    most of its decision. The same operations in the same order, so the same values bit
+    for bit (test_filter_vectorised: each robot decided alone decides as in a fleet).
+    """
+    g = vf.grid
+    inf = math.inf
+    reach = 2.0 * speed * horizon + 1.0 if horizon > 0 else 0.0
+    rel = [(x - cx, y - cy) for cx, cy in centres]
+    near = [j for j, (rx, ry) in enumerate(rel) if g.lo[0] - reach <= rx <= g.hi[0] + reach
+            and g.lo[1] - reach <= ry <= g.hi[1] + reach]
+    if len(near) > few:
+        return None
+    n = len(rel)
+    value, turn, value_next = [inf] * n, [0.0] * n, [inf] * n
+    if not near:
+        return value, turn, value_next
+    tol = tie_tolerance(vf)
+    grad = vf.flat_theta_gradient()
+    for j in near:
+        rx, ry = rel[j]
+        v0 = value[j] = vf.value_at(rx, ry, th, outside=inf)
+        if v0 != inf:       # on the grid: the law's turn, sign(dV/dtheta), ties left
+            turn[j] = 1.0 if g.interpolate_at(grad, rx, ry, th) >= -tol else -1.0
+        if horizon > 0:     # (without a hold: V_next = +inf and the law's turn)
+            left = vf.value_at(*_arc(rx, ry, th, speed, bang, horizon), outside=inf)
+            right = vf.value_at(*_arc(rx, ry, th, speed, -bang, horizon), outside=inf)
+            ax, ay, ath = _arc(rx, ry, th, speed, planned, horizon)
+            end_left = vf.value_at(*_arc(ax, ay, ath, speed, bang, horizon), outside=inf)
+            end_right = vf.value_at(*_arc(ax, ay, ath, speed, -bang, horizon), outside=inf)
+            v_ahead = vf.value_at(ax, ay, ath, outside=inf)
+            better = end_left if end_left > end_right else end_right       # np.maximum
+            value_next[j] = v_ahead if v_ahead < better else better          # np.minimum
+            if left != inf or right != inf:
+                turn[j] = 1.0 if left >= right - tol else -1.0
     return value, turn, value_next
