@@ -444,3 +444,39 @@ def test_one_arc_in_python_floats_is_arc_flows():
     want = arc_flow(states, speed, omega, dt)
     got = np.array([_arc(*s.tolist(), float(v), float(w), float(h)) for s, v, w, h in zip(states, speed, omega, dt)])
     assert repr(got.tolist()) == repr(want.tolist())
+
+
+def test_a_robots_propagated_state_does_not_depend_on_the_other_robots_plans(standard):
+    """Robots whose plans since their pose have 0, 1 and 2 arcs (a pose older than the last
+    command sent), decided alone (their own arcs, in Python floats) and together (shorter
+    plans padded with zero-length arcs, which wrap theta once more): the same decisions and
+    values bit for bit."""
+    cfg = FilterConfig(lookahead=0.1, control_period=0.05)
+
+    def fleet():
+        r = np.random.default_rng(42)
+        out = []
+        for i in range(60):
+            f = RobotFilter(cfg)
+            t = 10.0
+            pose = (r.uniform(-4, 4), r.uniform(-4, 4), r.uniform(-np.pi, np.pi))
+            arcs = i % 3
+            if arcs == 2:       # a command sent after the pose's stamp
+                f.update_pose(pose, t - 0.03, stamp=t - 0.05)
+                f.record_sent(float(r.uniform(-1, 1)), t - 0.06)
+                f.record_sent(float(r.uniform(-1, 1)), t - 0.02)
+            elif arcs == 1:
+                f.update_pose(pose, t - 0.01, stamp=t - 0.02)
+                f.record_sent(float(r.uniform(-1, 1)), t - 0.04)
+            else:
+                f.update_pose(pose, t, stamp=t)
+            f.update_detections(np.array([[0.5, 0.3]]), t)
+            f.update_command(float(r.uniform(-1, 1)), t)
+            out.append(f)
+        return out
+    alone = [step_many([f], standard, 10.0)[0] for f in fleet()]
+    together = fleet()
+    outs = step_many(together, standard, 10.0)
+    for i, (a, b) in enumerate(zip(alone, outs)):
+        assert repr((a.omega, a.action, a.reason, a.value)) == repr((b.omega, b.action, b.reason, b.value)), i
+    assert {o.action for o in outs} == {'pass', 'override'}

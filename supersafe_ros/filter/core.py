@@ -481,24 +481,7 @@ def propagate_poses(filters, use, t):
     plans = []
     depth = 0
     for row, i in enumerate(use):
-        f = filters[i]
-        if not f.config.compensate_delay:
-            plans.append(())
-            continue
-        pose = f.pose
-        age = max(0.0, min(t - min(pose.t, pose.stamp), f.config.hold_timeout))
-        ages[row] = age
-        t0 = t - age
-        sent = f.sent
-        # segments_since's answer in the two common cases: nothing sent since the pose (one arc),
-        # or one command sent since (a robot deciding on a pose older than its last decision)
-        if sent and sent[-1][0] <= t0 and t > t0:
-            plan = ((sent[-1][1], t - t0),)
-        elif len(sent) > 1 and sent[-2][0] <= t0 < sent[-1][0] < t:
-            ts = sent[-1][0]
-            plan = ((sent[-2][1], ts - t0), (sent[-1][1], t - ts))
-        else:
-            plan = f.segments_since(t0, t)
+        ages[row], plan = _plan(filters[i], t)
         plans.append(plan)
         if len(plan) > depth:
             depth = len(plan)
@@ -511,6 +494,25 @@ def propagate_poses(filters, use, t):
         dt = np.array([p[k][1] if k < len(p) else 0.0 for p in plans])
         states = arc_flow(states, speed, omega, dt)
     return states, ages
+
+
+def _plan(f, t):
+    """(pose age, [(turn rate, duration)] held from the pose's stamp to ``t``) of one robot;
+    (0, ()) without delay compensation."""
+    if not f.config.compensate_delay:
+        return 0.0, ()
+    pose = f.pose
+    age = max(0.0, min(t - min(pose.t, pose.stamp), f.config.hold_timeout))
+    t0 = t - age
+    sent = f.sent
+    # segments_since's answer in the two common cases: nothing sent since the pose (one arc),
+    # or one command sent since (a robot deciding on a pose older than its last decision)
+    if sent and sent[-1][0] <= t0 and t > t0:
+        return age, ((sent[-1][1], t - t0),)
+    if len(sent) > 1 and sent[-2][0] <= t0 < sent[-1][0] < t:
+        ts = sent[-1][0]
+        return age, ((sent[-2][1], ts - t0), (sent[-1][1], t - ts))
+    return age, f.segments_since(t0, t)
 
 
 def _command_fresh(f, t) -> bool:
@@ -662,13 +664,18 @@ def _decide_one(f, problem, safe_set, t, clusters) -> Decisions:
     decides as in a fleet).
     """
     cfg = f.config
-    states, ages = propagate_poses([f], [0], t)
+    age, plan = _plan(f, t)
+    x, y, th = f.pose.value.tolist()      # propagate_poses' arcs, in Python floats
+    for omega, dt in plan:
+        x, y, th = _arc(x, y, th, cfg.speed, omega, dt)
+    if not plan:
+        th = (th + math.pi) % TWO_PI - math.pi
+    states = np.array([[x, y, th]])
     fresh = _command_fresh(f, t)
     horizon, planned = float(f.lookahead()), _planned_turn(f, t, fresh)
     speed, bang = float(cfg.speed), float(cfg.omega_max)
     det = f.detections.value
     n_pairs = len(det)
-    x, y, th = states[0].tolist()
     pairs = _robot_pair_values(safe_set.vf, x, y, th, det.tolist(), planned, horizon, speed, bang, FEW_PAIRS)
     if pairs is None:
         rel = np.empty((n_pairs, 3))
@@ -679,7 +686,7 @@ def _decide_one(f, problem, safe_set, t, clusters) -> Decisions:
                                                   np.full(n_pairs, horizon), np.full(n_pairs, speed),
                                                   np.full(n_pairs, bang))]
     value, turn, value_next = pairs
-    one = lambda x: np.array([x], dtype=float)      # noqa: E731  (a robot's column)
+    one = lambda v: np.array([v], dtype=float)      # noqa: E731  (a robot's column)
     cl = _cluster_rows([f], [0], states, one(planned), one(horizon), one(speed), one(bang), one(cfg.cluster_alpha),
                        [det], np.zeros(1, np.intp), clusters)
     alpha = float(safe_set.alpha)
@@ -731,7 +738,6 @@ def _decide_one(f, problem, safe_set, t, clusters) -> Decisions:
     f.overriding = overrides
     f.record_sent(w, t)
     common, solving = _set_fields(safe_set), int(cl['solving'][0])
-    age = float(ages[0])
     return Decisions([w], [v], [a], lambda i: _explain(problem, cfg, w, v, a, common, tab, named, kind, fresh,
                                                        horizon, age, solving, False))
 
