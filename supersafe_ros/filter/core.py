@@ -237,7 +237,7 @@ class RobotFilter:
         stamp to the decision time under the commands it sent.
         """
         s = np.asarray(state, dtype=float).reshape(-1)
-        if s.shape != (3,) or not np.all(np.isfinite(s)):
+        if s.shape != (3,) or not all(map(math.isfinite, s.tolist())):    # (np.isfinite: ~10x the cost)
             reason = f'pose is not a finite (x, y, theta): {s.tolist()}'
             self.pose.reject(reason, t)
             raise ValueError(reason)
