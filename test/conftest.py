@@ -32,3 +32,17 @@ def s3_data() -> Path:
         pytest.skip(f'missing data: the paper\'s S3 files (*_reachset.json, pilot*_interventions.csv) '
                     f'at {S3_DATA}; put the shared/ folder beside the repository')
     return S3_DATA
+
+
+@pytest.fixture(params=['alone', 'beside an idle robot'])
+def decision_path(request, monkeypatch):
+    """Run a test's ``RobotFilter.step`` calls through each path of ``step_many``: a robot alone
+    takes the one-robot path (``_decide_one``, Python scalars); beside a robot with no inputs
+    (left out of the law: it only gets the stop-turn) it takes the vectorised path. Every
+    single-robot expectation then holds for both."""
+    from supersafe_ros.filter.core import RobotFilter, step_many
+    if request.param != 'alone':
+        def step_beside_idle(self, safe_set, t, clusters=None):
+            return step_many([self, RobotFilter(self.config)], safe_set, t, clusters)[0]
+        monkeypatch.setattr(RobotFilter, 'step', step_beside_idle)
+    return request.param

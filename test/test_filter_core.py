@@ -11,6 +11,7 @@ from supersafe_ros.reach.grid import Grid
 from supersafe_ros.reach.sets import Disc
 from supersafe_ros.reach.solver import solve_avoid
 
+pytestmark = pytest.mark.usefixtures('decision_path')   # every test: robot alone, and in a fleet
 OBSTACLE = (10.0, 5.0)   # obstacle centre in map (not at the origin: exercises the relative frame)
 
 

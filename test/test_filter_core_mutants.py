@@ -18,6 +18,7 @@ from supersafe_ros.reach.solver import solve_avoid
 
 from test_filter_core import OBSTACLE, at, robot as _robot  # noqa: F401  (the same helpers)
 
+pytestmark = pytest.mark.usefixtures('decision_path')   # every test: robot alone, and in a fleet
 T = 10.0          # a clock that does not start at 0 (t0 = 0 hides sign errors in time differences)
 
 

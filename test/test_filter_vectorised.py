@@ -389,7 +389,8 @@ def test_robots_just_inside_a_union_grids_corners_decide_as_the_reference(standa
 
 
 @pytest.mark.parametrize('seed, store_kind, alpha, source', [
-    (15, 'solved', 0.0, 'standard'), (12, 'pending', 0.3, 'learned'), (13, 'inline', -0.2, 'standard')])
+    (15, 'solved', 0.0, 'standard'), (12, 'pending', 0.3, 'learned'), (13, 'inline', -0.2, 'standard'),
+    (16, 'solved', 0.5, 'learned'), (17, 'pending', -0.3, 'standard')])
 def test_each_robot_decided_alone_decides_as_in_the_fleet(standard, solved_values, seed, store_kind, alpha, source,
                                                           monkeypatch):
     """A robot's own filter (step_many of one robot, the Python-scalar path ``_decide_one``,
@@ -407,16 +408,20 @@ def test_each_robot_decided_alone_decides_as_in_the_fleet(standard, solved_value
         return got
     monkeypatch.setattr(core, '_robot_pair_values', pair_values_spy)
     safe = SafeSet(standard.vf, alpha, source)
-    fleets = [build_fleet(seed, 160) for _ in range(2)]
+    fleets = [build_fleet(seed, 320) for _ in range(2)]
     stores = [make_store(store_kind, solved_values) for _ in range(2)]
     rngs = [np.random.default_rng(200 + seed) for _ in range(2)]
     seen = {'kinds': set(), 'sources': set()}
     t = fleets[0][1]
     for tick in range(6):
-        alone = [step_many([f], safe, t, stores[0])[0] for f in fleets[0][0]]
+        alone_decisions = [step_many([f], safe, t, stores[0]) for f in fleets[0][0]]
+        alone = [d[0] for d in alone_decisions]
         n_alone = len(alone_calls)
         fleet = step_many(fleets[1][0], safe, t, stores[1])
         assert len(alone_calls) == n_alone            # the fleet took the vectorised path
+        # the command lists too (what the fleet node and the team loop read)
+        assert repr([(d.omega, d.linear, d.action) for d in alone_decisions]) == repr(
+            [([w], [v], [a]) for w, v, a in zip(fleet.omega, fleet.linear, fleet.action)])
         for i, (a, b, fa, fb) in enumerate(zip(alone, fleet, fleets[0][0], fleets[1][0])):
             assert record(a, fa) == record(b, fb), f'tick {tick}, robot {i}'
             seen['kinds'].add(a.action + ':' + a.reason.split(' ')[0].split('=')[0].rstrip(';:'))
@@ -424,7 +429,7 @@ def test_each_robot_decided_alone_decides_as_in_the_fleet(standard, solved_value
         t += 0.02
         for (filters, _), rng, outs in zip(fleets, rngs, (alone, fleet)):
             advance(filters, outs, rng, t, 0.02)
-    assert len(alone_calls) > 6 * 160 * 0.6        # most robots had a state to judge alone
+    assert len(alone_calls) > 6 * 320 * 0.6        # most robots had a state to judge alone
     # V read in Python floats (few pairs near) and by numpy (more), both compared
     assert python_reads.count(True) > 100 and python_reads.count(False) > 10, python_reads.count(False)
     assert {'pass:clear', 'override:V', 'override:the', 'fail_safe:pose'} <= seen['kinds'], seen
@@ -480,3 +485,78 @@ def test_a_robots_propagated_state_does_not_depend_on_the_other_robots_plans(sta
     for i, (a, b) in enumerate(zip(alone, outs)):
         assert repr((a.omega, a.action, a.reason, a.value)) == repr((b.omega, b.action, b.reason, b.value)), i
     assert {o.action for o in outs} == {'pass', 'override'}
+
+
+@pytest.mark.parametrize('kind', ['standard', 'lopsided, not symmetric'])
+def test_one_robots_pair_values_in_python_floats_equal_numpys(standard, kind):
+    """_robot_pair_values (one robot, Python floats) equals _pair_values (numpy) bit for bit:
+    V, the turn (the law's and the held one) and V after the hold, for pairs on, near and off
+    the grid, holds of 0 (the law's turn) to 1.5 s, on the standard set and on a set whose
+    grid is not square and whose V is not rotationally symmetric; None exactly when more
+    than ``few`` pairs are near the grid."""
+    from supersafe_ros.filter.core import _pair_values, _robot_pair_values
+    from supersafe_ros.reach.value_function import ValueFunction
+    vf = standard.vf
+    if kind != 'standard':
+        vf = ValueFunction(Grid((-6.0, -9.0), (12.0, 5.0), vf.grid.shape), vf.values, {'model': 'dubins'})
+        assert not vf.rotationally_symmetric
+    g = vf.grid
+    rng = np.random.default_rng(7)
+    seen = {'none': 0, 'held': 0, 'law': 0, 'off': 0}
+    for trial in range(600):
+        x, y, th = rng.uniform(-14, 14), rng.uniform(-14, 14), rng.uniform(-4, 4)
+        n = int(rng.integers(1, 6))
+        centres = [(x - rng.uniform(g.lo[0] - 4, g.hi[0] + 4), y - rng.uniform(g.lo[1] - 4, g.hi[1] + 4))
+                   for _ in range(n)]
+        planned = float(rng.choice([0.0, -0.4, 1.0]))
+        horizon = float(rng.choice([0.0, 0.0, 0.05, 0.2, 1.5]))
+        speed, bang = float(rng.choice([3.0, 1.0])), float(rng.choice([1.0, 0.5]))
+        few = int(rng.integers(1, 4))
+        got = _robot_pair_values(vf, x, y, th, centres, planned, horizon, speed, bang, few)
+        rel = np.array([(x - cx, y - cy, th) for cx, cy in centres])
+        full = lambda v: np.full(n, v)      # noqa: E731
+        want = [a.tolist() for a in _pair_values(vf, rel, full(planned), full(horizon), full(speed), full(bang))]
+        reach = 2.0 * speed * horizon + 1.0 if horizon > 0 else 0.0
+        near = int(np.sum((rel[:, 0] >= g.lo[0] - reach) & (rel[:, 0] <= g.hi[0] + reach)
+                          & (rel[:, 1] >= g.lo[1] - reach) & (rel[:, 1] <= g.hi[1] + reach)))
+        if near > few:
+            assert got is None
+            seen['none'] += 1
+            continue
+        assert repr(list(got)) == repr(want), trial
+        value, turn, value_next = want
+        seen['held'] += sum(v != math.inf for v in value_next)
+        seen['law'] += sum(v != math.inf and horizon == 0 and u < 0 for v, u in zip(value, turn))
+        seen['off'] += sum(v == math.inf for v in value)
+    assert min(seen.values()) > 20, seen
+
+
+def test_one_robots_governing_rule_in_python_is_the_tables():
+    """_govern_one (one robot, lists) picks what _govern and _first_min pick over the same
+    table: random rows with levels that differ (pairs at alpha, clusters at their own level),
+    sound cluster rows and their members, values off the grid, exact ties, overriding or not."""
+    from supersafe_ros.filter.core import _first_min, _govern, _govern_one, _Table
+    rng = np.random.default_rng(8)
+    kinds = set()
+    for trial in range(3000):
+        n_pairs, n_cl = int(rng.integers(0, 5)), int(rng.integers(0, 3))
+        k = n_pairs + n_cl
+        lists, arrays = _Table(), _Table()
+        value = rng.choice([-0.5, 0.0, 0.1, 0.3, 0.8, math.inf], k) + rng.choice([0.0, 1e-3], k) * rng.random(k)
+        value_next = np.where(rng.random(k) < 0.2, math.inf, value + rng.normal(0.0, 0.3, k))
+        level = np.concatenate([np.full(n_pairs, rng.choice([0.0, 0.3, -0.2])), rng.choice([0.0, 0.2, 0.6], n_cl)])
+        member_of = rng.integers(-1, n_cl, n_pairs) if n_cl else np.full(n_pairs, -1)
+        group = np.concatenate([np.where(member_of >= 0, n_pairs + member_of, np.arange(n_pairs)),
+                                n_pairs + np.arange(n_cl)])
+        columns = dict(robot=np.zeros(k, np.intp), position=np.arange(k), value=value, level=level,
+                       value_next=value_next, sound=np.arange(k) >= n_pairs, group=group)
+        for name, col in columns.items():
+            setattr(arrays, name, col)
+            setattr(lists, name, col.tolist())
+        overriding, margin = bool(rng.random() < 0.5), float(rng.choice([0.0, 0.2]))
+        k_gov, kind = _govern(arrays, np.array([overriding]), np.array([margin]), n_pairs + n_cl, 1)
+        k_small = _first_min(arrays.robot, arrays.position, value - level, np.isfinite(value), 1)
+        got = _govern_one(lists, overriding, margin)
+        assert got == (int(k_gov[0]), int(kind[0]), int(k_small[0])), trial
+        kinds.add(got[1])
+    assert kinds == {0, 1, 2, 3}

@@ -710,22 +710,7 @@ def _decide_one(f, problem, safe_set, t, clusters) -> Decisions:
     tab.members = [1] * n_pairs + cl['members'].tolist()
     tab.source = [safe_set.source] * n_pairs + cl['source']
 
-    # _govern and _first_min for one robot
-    rows = range(len(tab.value))
-    margin = float(cfg.clear_margin)
-    enter = [tab.value[r] <= tab.level[r] for r in rows]
-    ahead = [tab.value_next[r] <= tab.level[r] for r in rows]
-    stay = [f.overriding and tab.value[r] <= tab.level[r] + margin for r in rows]
-    governed = {tab.group[r] for r in rows if tab.sound[r] and (enter[r] or ahead[r] or stay[r])}
-    usable = [tab.sound[r] or tab.group[r] not in governed for r in rows]
-    k_gov, kind = -1, 0
-    for code, flags, values in ((1, enter, tab.value), (2, ahead, tab.value_next), (3, stay, tab.value)):
-        hits = [(values[r] - tab.level[r], tab.position[r], r) for r in rows if usable[r] and flags[r]]
-        if hits:
-            k_gov, kind = min(hits)[2], code
-            break
-    finite = [(tab.value[r] - tab.level[r], tab.position[r], r) for r in rows if math.isfinite(tab.value[r])]
-    k_small = min(finite)[2] if finite else -1
+    k_gov, kind, k_small = _govern_one(tab, f.overriding, float(cfg.clear_margin))
 
     # _outputs for one robot
     failing = bool(problem)
@@ -744,6 +729,27 @@ def _decide_one(f, problem, safe_set, t, clusters) -> Decisions:
     common, solving = _set_fields(safe_set), int(cl['solving'][0])
     return Decisions([w], [v], [a], lambda i: _explain(problem, cfg, w, v, a, common, tab, named, kind, fresh,
                                                        horizon, age, solving, False))
+
+
+def _govern_one(tab, overriding, margin):
+    """``_govern`` and ``_first_min`` for one robot whose table columns are lists: (the row
+    that makes it override and why, or -1 and 0 to pass; the row with the smallest finite
+    V - level, or -1). The same rule: within a cluster its sound row first, then enter,
+    ahead, stay, each by the smallest score and the first in the robot's list on ties."""
+    rows = range(len(tab.value))
+    enter = [tab.value[r] <= tab.level[r] for r in rows]
+    ahead = [tab.value_next[r] <= tab.level[r] for r in rows]
+    stay = [overriding and tab.value[r] <= tab.level[r] + margin for r in rows]
+    governed = {tab.group[r] for r in rows if tab.sound[r] and (enter[r] or ahead[r] or stay[r])}
+    usable = [tab.sound[r] or tab.group[r] not in governed for r in rows]
+    k_gov, kind = -1, 0
+    for code, flags, values in ((1, enter, tab.value), (2, ahead, tab.value_next), (3, stay, tab.value)):
+        hits = [(values[r] - tab.level[r], tab.position[r], r) for r in rows if usable[r] and flags[r]]
+        if hits:
+            k_gov, kind = min(hits)[2], code
+            break
+    finite = [(tab.value[r] - tab.level[r], tab.position[r], r) for r in rows if math.isfinite(tab.value[r])]
+    return k_gov, kind, min(finite)[2] if finite else -1
 
 
 def _govern(tab, overriding, margin, n_groups, m):
