@@ -81,6 +81,8 @@ def test_one_state_in_python_floats_reads_what_numpy_reads_bit_for_bit():
     grad = symmetric.theta_gradient()
     got = [GRID.interpolate_at(symmetric.flat_theta_gradient(), *p) for p in pts.tolist()]
     assert repr(got) == repr(GRID.interpolate(grad, pts).tolist())
+    from supersafe_ros.filter.law import avoid_turn, avoid_turn_at
+    assert [avoid_turn_at(symmetric, *p) for p in pts.tolist()] == avoid_turn(symmetric, pts).tolist()
 
 def test_gradient_of_a_linear_function():
     X, Y, TH = GRID.mesh()
@@ -247,6 +249,8 @@ def test_a_tie_is_judged_relative_to_the_gradients_scale():
     eps = 0.01 * dth / g_next                     # interpolated slope about -0.01 at theta = -eps
     d = filter_law(vf, 1e6, np.array([[-1.0, 0.0, -eps], [-1.0, 0.0, -0.5 * dth]]), omega_max=1.0)
     assert list(d.control) == [1.0, -1.0]         # a real slope still turns its way
+    from supersafe_ros.filter.law import avoid_turn_at
+    assert [avoid_turn_at(vf, -1.0, 0.0, th) for th in (-eps, -0.5 * dth)] == [1.0, -1.0]   # one state at a time
 
 
 def _save_many(path, seed, count):

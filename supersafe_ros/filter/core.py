@@ -76,7 +76,7 @@ import math
 
 import numpy as np
 
-from .law import avoid_turn, evaluate_pairs, tie_tolerance  # noqa: F401  (the law's rule; re-exported)
+from .law import avoid_turn, avoid_turn_at, evaluate_pairs, tie_tolerance  # noqa: F401  (the law's rule; re-exported)
 from ..reach.grid import TWO_PI, wrap_angle
 from ..reach.value_function import ValueFunction
 
@@ -673,7 +673,7 @@ def _decide_one(f, problem, safe_set, t, clusters) -> Decisions:
     for omega, dt in plan:
         x, y, th = _arc(x, y, th, cfg.speed, omega, dt)
     if not plan:
-        th = (th + math.pi) % TWO_PI - math.pi
+        th = _wrap(th)
     states = np.array([[x, y, th]])
     fresh = _command_fresh(f, t)
     horizon, planned = float(f.lookahead()), _planned_turn(f, t, fresh)
@@ -683,9 +683,9 @@ def _decide_one(f, problem, safe_set, t, clusters) -> Decisions:
     pairs = _robot_pair_values(safe_set.vf, x, y, th, det.tolist(), planned, horizon, speed, bang, FEW_PAIRS)
     if pairs is None:
         rel = np.empty((n_pairs, 3))
-        rel[:, 0] = states[0, 0] - det[:, 0]
-        rel[:, 1] = states[0, 1] - det[:, 1]
-        rel[:, 2] = states[0, 2]
+        rel[:, 0] = x - det[:, 0]
+        rel[:, 1] = y - det[:, 1]
+        rel[:, 2] = th
         pairs = [a.tolist() for a in _pair_values(safe_set.vf, rel, np.full(n_pairs, planned),
                                                   np.full(n_pairs, horizon), np.full(n_pairs, speed),
                                                   np.full(n_pairs, bang))]
@@ -1304,7 +1304,12 @@ def _arc(x, y, th, speed, omega, dt):
         ay = (math.cos(th) - math.cos(th1)) / omega
     else:
         ax, ay = math.cos(th) * dt, math.sin(th) * dt
-    return x + speed * ax, y + speed * ay, (th1 + math.pi) % TWO_PI - math.pi
+    return x + speed * ax, y + speed * ay, _wrap(th1)
+
+
+def _wrap(theta):
+    """``wrap_angle`` of one angle, in Python floats (the same operations, the same bits)."""
+    return (theta + math.pi) % TWO_PI - math.pi
 
 
 def _robot_pair_values(vf: ValueFunction, x, y, th, centres, planned, horizon, speed, bang, few):
@@ -1330,12 +1335,11 @@ def _robot_pair_values(vf: ValueFunction, x, y, th, centres, planned, horizon, s
     if not near:
         return value, turn, value_next
     tol = tie_tolerance(vf)
-    grad = vf.flat_theta_gradient()
     for j in near:
         rx, ry = rel[j]
         v0 = value[j] = vf.value_at(rx, ry, th, outside=inf)
-        if v0 != inf:       # on the grid: the law's turn, sign(dV/dtheta), ties left
-            turn[j] = 1.0 if g.interpolate_at(grad, rx, ry, th) >= -tol else -1.0
+        if v0 != inf:       # on the grid: the law's turn
+            turn[j] = avoid_turn_at(vf, rx, ry, th)
         if horizon > 0:     # (without a hold: V_next = +inf and the law's turn)
             left = vf.value_at(*_arc(rx, ry, th, speed, bang, horizon), outside=inf)
             right = vf.value_at(*_arc(rx, ry, th, speed, -bang, horizon), outside=inf)

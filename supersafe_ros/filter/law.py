@@ -56,6 +56,12 @@ def avoid_turn(vf: ValueFunction, states) -> np.ndarray:
     return np.where(grad_th >= -tie_tolerance(vf), 1.0, -1.0)
 
 
+def avoid_turn_at(vf: ValueFunction, x: float, y: float, theta: float) -> float:
+    """``avoid_turn`` at one state on the grid, in Python floats (the same value bit for bit)."""
+    grad_th = vf.grid.interpolate_at(vf.flat_theta_gradient(), x, y, theta)
+    return 1.0 if grad_th >= -tie_tolerance(vf) else -1.0
+
+
 TIE_RELATIVE = 1e-5   # |dV/dtheta| below this fraction of its largest node value is a tie
 
 

@@ -133,7 +133,6 @@ class Grid:
                 out = out + axy * ((1.0 - wt) * lo + wt * hi)
         return np.asarray(out, dtype=float)
 
-
     def interpolate_at(self, flat, x: float, y: float, theta: float) -> float:
         """``interpolate`` at one state, in Python floats: the same operations in the same
         order, so the same value bit for bit, without numpy's cost per call (about 40 calls,
