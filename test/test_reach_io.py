@@ -46,7 +46,13 @@ def test_flat_gathers_equal_indexed_gathers_bit_for_bit():
     a, b = GRID.interpolate(contiguous, pts), GRID.interpolate(strided, pts)
     assert np.array_equal(a, b)
     assert np.array_equal(GRID.interpolate(field, pts)[:, 1], a)
-
+    # signed zeros too (the sum starts from 0.0 in both): all nodes -0.0 read +0.0 everywhere
+    zeros = np.full(GRID.shape, -0.0)
+    a, b = GRID.interpolate(zeros, pts), GRID.interpolate(np.asfortranarray(zeros), pts)
+    assert not np.signbit(a).any() and not np.signbit(b).any()
+    # coordinates given as arrays read what the (..., 3) states read
+    assert np.array_equal(GRID.interpolate_xyt(contiguous, pts[:, 0], pts[:, 1], pts[:, 2]),
+                          GRID.interpolate(contiguous, pts))
 
 
 def test_one_state_in_python_floats_reads_what_numpy_reads_bit_for_bit():

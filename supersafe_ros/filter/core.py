@@ -466,8 +466,9 @@ def arc_flow(states, speed, omega, dt) -> np.ndarray:
     th1 = th + omega * dt
     turning = np.abs(omega * dt) > 1e-9
     safe = np.where(turning, omega, 1.0)
-    ax = np.where(turning, (np.sin(th1) - np.sin(th)) / safe, np.cos(th) * dt)
-    ay = np.where(turning, (np.cos(th) - np.cos(th1)) / safe, np.sin(th) * dt)
+    c0, s0 = np.cos(th), np.sin(th)      # both branches use them: computed once
+    ax = np.where(turning, (np.sin(th1) - s0) / safe, c0 * dt)
+    ay = np.where(turning, (c0 - np.cos(th1)) / safe, s0 * dt)
     return np.stack([x + speed * ax, y + speed * ay, wrap_angle(th1)], axis=1)
 
 

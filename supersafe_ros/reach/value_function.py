@@ -81,15 +81,14 @@ class ValueFunction:
 
     def _value_rotated(self, s) -> np.ndarray:
         dth = self.grid.spacing[2]
-        k0 = np.floor((s[..., 2] + np.pi) / dth)
+        x, y, th = s[..., 0], s[..., 1], s[..., 2]
+        k0 = np.floor((th + np.pi) / dth)
         out = None
         for k in (k0, k0 + 1.0):
             node = -np.pi + k * dth
-            beta = node - s[..., 2]
+            beta = node - th
             c, sn = np.cos(beta), np.sin(beta)
-            rotated = np.stack([c * s[..., 0] - sn * s[..., 1], sn * s[..., 0] + c * s[..., 1], node],
-                               axis=-1)
-            v = self.grid.interpolate(self.values, rotated)
+            v = self.grid.interpolate_xyt(self.values, c * x - sn * y, sn * x + c * y, node)
             out = v if out is None else np.minimum(out, v)
         return out
 
