@@ -201,13 +201,17 @@ def test_control_period_median_is_numpys():
 
 def test_interval_windows_keep_numpys_median_as_they_slide():
     """The filter's interval windows (the last 16, kept sorted as they slide) give np.median of
-    the last 16 intervals after every new one, with ties and repeats."""
+    the last 16 intervals after every new one, with ties and repeats. A window is never changed:
+    the next one is new (robots share windows), and the one before still reads as it did."""
     from supersafe_ros.filter.core import PERIOD_SAMPLES, _Intervals
     rng = np.random.default_rng(1)
     for _ in range(100):
         window, history = _Intervals(), []
+        assert window.median() is None and list(window) == []
         for x in rng.choice([0.02, 0.05, 0.1, 1 / 3], 40) + rng.normal(0, 1e-3, 40) * (rng.random() < 0.5):
-            window.append(float(x))
+            before, seen = window, (list(window), list(window.ordered), window.median())
+            window = window.then(float(x))
+            assert (list(before), before.ordered, before.median()) == seen
             history.append(float(x))
             last = history[-PERIOD_SAMPLES:]
             assert list(window) == last and window.ordered == sorted(last)

@@ -227,9 +227,8 @@ class RobotFilter:
         self.command = _Input()
         self.overriding = False
         self.sent = deque()    # (decision time, turn rate) of the commands sent, oldest first
-        self._pose_intervals = _Intervals()
-        self._command_intervals = _Intervals()
-        self._period = None    # measured control period, until the next interval arrives
+        self._pose_intervals = _NO_INTERVALS      # windows of the last intervals (immutable: robots
+        self._command_intervals = _NO_INTERVALS   # fed by one message share them)
 
     # -- inputs ------------------------------------------------------------------------
     def update_pose(self, state, t, stamp=None) -> None:
@@ -252,8 +251,7 @@ class RobotFilter:
         previous = self.pose.stamp if self.pose.value is not None else None
         self.pose.accept(s, t, stamp)
         if previous is not None and self.pose.stamp > previous:
-            self._pose_intervals.append(self.pose.stamp - previous)
-            self._period = None
+            self._pose_intervals = self._pose_intervals.then(self.pose.stamp - previous)
 
     def reject_pose(self, reason, t) -> None:
         """Record a pose message the caller could not convert (wrong frame, bad quaternion)."""
@@ -283,8 +281,7 @@ class RobotFilter:
         previous = self.command.t if self.command.value is not None else None
         self.command.accept(w, t)
         if previous is not None and t > previous:
-            self._command_intervals.append(t - previous)
-            self._period = None
+            self._command_intervals = self._command_intervals.then(t - previous)
 
     def control_period(self) -> float:
         """The hold time of a command: configured, else measured (0 until measurable).
@@ -294,17 +291,10 @@ class RobotFilter:
         """
         if self.config.control_period > 0.0:
             return self.config.control_period
-        period = self._period
-        if period is None:          # once per new interval, not per step
-            poses, commands = self._pose_intervals, self._command_intervals
-            if poses.recent:
-                period = poses.median()
-                if commands.recent:
-                    period = max(period, commands.median())
-            else:
-                period = commands.median() if commands.recent else 0.0
-            self._period = period
-        return period
+        poses, commands = self._pose_intervals.middle, self._command_intervals.middle   # None: empty
+        if poses is None:
+            return 0.0 if commands is None else commands
+        return poses if commands is None else max(poses, commands)
 
     def lookahead(self) -> float:
         cfg = self.config
@@ -398,7 +388,10 @@ def _taken(filters, skip) -> np.ndarray:
 def _accept_rows(filters, name, rows, take, t, stamp) -> None:
     """Each taken row becomes its filter's newest ``name`` input (pose or command), arrived at
     ``t`` and describing ``stamp``; the interval since the previous stamp feeds the measured
-    control period (as ``update_pose`` / ``update_command`` do)."""
+    control period (as ``update_pose`` / ``update_command`` do). Robots with the same window
+    and the same previous stamp get the same next window, made once."""
+    windows = '_pose_intervals' if name == 'pose' else '_command_intervals'
+    made = {}      # (window before, previous stamp) -> window after
     for f, row, ok in zip(filters, rows, take.tolist()):
         if not ok:
             continue
@@ -406,8 +399,11 @@ def _accept_rows(filters, name, rows, take, t, stamp) -> None:
         previous = inp.stamp if inp.value is not None else None
         inp.value, inp.t, inp.rejected, inp.stamp = row, t, '', stamp
         if previous is not None and stamp > previous:
-            (f._pose_intervals if name == 'pose' else f._command_intervals).append(stamp - previous)
-            f._period = None
+            before = getattr(f, windows)
+            after = made.get((before, previous))
+            if after is None:
+                after = made[(before, previous)] = before.then(stamp - previous)
+            setattr(f, windows, after)
 
 
 def update_detections_all(filters, centres, t) -> None:
@@ -424,23 +420,29 @@ def update_detections_all(filters, centres, t) -> None:
 
 
 class _Intervals:
-    """The last PERIOD_SAMPLES intervals in arrival order, and the same kept sorted, so that
-    their median is a lookup rather than a sort per robot per tick."""
+    """The last PERIOD_SAMPLES intervals in arrival order (``recent``), the same sorted
+    (``ordered``) and their median (``middle``, None if empty), made once: a window is never
+    changed, ``then`` makes the next one, so robots fed by one message share their windows and
+    a fleet's tick makes one window instead of one per robot."""
 
-    __slots__ = ('recent', 'ordered')
+    __slots__ = ('recent', 'ordered', 'middle')
 
-    def __init__(self):
-        self.recent = deque(maxlen=PERIOD_SAMPLES)
-        self.ordered = []
+    def __init__(self, recent=(), ordered=()):
+        self.recent, self.ordered = tuple(recent), list(ordered)
+        self.middle = _median_of_sorted(self.ordered) if self.ordered else None
 
-    def append(self, interval) -> None:
-        if len(self.recent) == PERIOD_SAMPLES:       # the oldest leaves both
-            del self.ordered[bisect_left(self.ordered, self.recent[0])]
-        self.recent.append(interval)
-        insort(self.ordered, interval)
+    def then(self, interval) -> '_Intervals':
+        """The window after one more interval (the oldest leaves when it is full)."""
+        ordered = self.ordered.copy()
+        recent = self.recent
+        if len(recent) == PERIOD_SAMPLES:
+            del ordered[bisect_left(ordered, recent[0])]
+            recent = recent[1:]
+        insort(ordered, interval)
+        return _Intervals(recent + (interval,), ordered)
 
     def median(self) -> float:
-        return _median_of_sorted(self.ordered)
+        return self.middle
 
     def __len__(self):
         return len(self.recent)
@@ -450,6 +452,9 @@ class _Intervals:
 
     def __getitem__(self, i):
         return self.recent[i]
+
+
+_NO_INTERVALS = _Intervals()
 
 
 def _median_of_sorted(s) -> float:
