@@ -564,3 +564,23 @@ def test_one_robots_governing_rule_in_python_is_the_tables():
         assert got == (int(k_gov[0]), int(kind[0]), int(k_small[0])), trial
         kinds.add(got[1])
     assert kinds == {0, 1, 2, 3}
+
+
+def test_the_first_minimum_of_each_run_is_first_min_s():
+    """_first_min_of_runs (the nearest member of each cluster instance: runs of member rows, in
+    their cluster's order) picks what _first_min picks by position: the smallest score, the
+    first on exact ties, runs of one row and one run alone included."""
+    from supersafe_ros.filter.core import _first_min, _first_min_of_runs
+    rng = np.random.default_rng(12)
+    assert len(_first_min_of_runs(np.zeros(0), np.zeros(0, np.intp), np.zeros(0, np.intp))) == 0
+    ties = 0
+    for trial in range(2000):
+        size = rng.integers(1, 5, int(rng.integers(1, 7)))
+        run = np.repeat(np.arange(len(size)), size)
+        position = np.concatenate([np.arange(k) for k in size])
+        score = rng.choice([0.0, 0.5, 1.0, 2.5], len(run)) + rng.choice([0.0, 0.25], len(run))
+        want = _first_min(run, position, score, np.ones(len(run), bool), len(size))
+        got = _first_min_of_runs(score, run, np.cumsum(size) - size)
+        assert np.array_equal(got, want), trial
+        ties += sum(int(np.sum(score[run == r] == score[want[r]]) > 1) for r in range(len(size)))
+    assert ties > 500

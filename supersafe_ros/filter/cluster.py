@@ -182,19 +182,21 @@ def lower_bound(vf: ValueFunction, states, lipschitz_theta: float) -> np.ndarray
     """max over the cell's 8 nodes of V(node) - |dp| - L_theta |dtheta| (see the module doc)."""
     g = vf.grid
     ix, iy, it, wx, wy, wt = g._cell(states)
-    s = np.asarray(states, dtype=float)
     dx, dy, dth = g.spacing
     # offsets to the corners, from the clamped cell coordinates (states outside were excluded)
     ox, oy, ot = wx * dx, wy * dy, wt * dth
     it1 = (it + 1) % g.shape[2]
-    best = np.full(len(s), -np.inf)
     flat, ny, nth = np.ascontiguousarray(vf.values).reshape(-1), g.shape[1], g.shape[2]
-    for cx, ddx in ((ix, ox), (ix + 1, dx - ox)):
-        for cy, ddy in ((iy, oy), (iy + 1, dy - oy)):
-            dp = np.hypot(ddx, ddy)
-            base = (cx * ny + cy) * nth
-            for ct, ddt in ((it, ot), (it1, dth - ot)):
-                best = np.maximum(best, flat.take(base + ct) - dp - lipschitz_theta * ddt)
+    first = (ix * ny + iy) * nth      # the cell's corners are fixed offsets from its first node
+    dx1, dy1 = dx - ox, dy - oy
+    heading = ((it, lipschitz_theta * ot), (it1, lipschitz_theta * (dth - ot)))
+    best = None
+    for offset, ddx, ddy in ((0, ox, oy), (nth, ox, dy1), (ny * nth, dx1, oy), (ny * nth + nth, dx1, dy1)):
+        dp = np.hypot(ddx, ddy)
+        base = first + offset
+        for ct, slack in heading:
+            bound = flat.take(base + ct) - dp - slack
+            best = bound if best is None else np.maximum(best, bound)
     return best
 
 

@@ -486,24 +486,26 @@ def propagate_poses(filters, use, t):
     zero-length arcs, which only wrap theta), one vectorised ``arc_flow`` per arc; with
     no arcs at all, theta is wrapped all the same.
     """
+    planned = [_plan(filters[i], t) for i in use]
     states = np.array([filters[i].pose.value for i in use], dtype=float).reshape(-1, 3)
-    ages = np.zeros(len(use))
-    plans = []
-    depth = 0
-    for row, i in enumerate(use):
-        ages[row], plan = _plan(filters[i], t)
-        plans.append(plan)
-        if len(plan) > depth:
-            depth = len(plan)
-    if depth == 0:      # theta wrapped as a zero-length arc wraps it: a robot's state does not
-        states[:, 2] = wrap_angle(states[:, 2])      # depend on the other robots' plans
-        return states, ages
-    speed = np.array([filters[i].config.speed for i in use])
+    speed = np.array([filters[i].config.speed for i in use], dtype=float)
+    return _follow(states, [p for _, p in planned], speed), np.array([a for a, _ in planned], dtype=float)
+
+
+def _follow(states, plans, speed) -> np.ndarray:
+    """``states`` (N, 3) moved along their robots' ``plans`` (``_plan``'s arcs) at ``speed``
+    (N,): as many ``arc_flow`` calls as the longest plan has arcs (shorter plans padded with
+    zero-length arcs, which only wrap theta); with no arcs at all, theta wrapped all the same
+    (a robot's state does not depend on the other robots' plans)."""
+    depth = max(map(len, plans), default=0)
+    if depth == 0:
+        states[:, 2] = wrap_angle(states[:, 2])
+        return states
     for k in range(depth):
         omega = np.array([p[k][0] if k < len(p) else 0.0 for p in plans])
         dt = np.array([p[k][1] if k < len(p) else 0.0 for p in plans])
         states = arc_flow(states, speed, omega, dt)
-    return states, ages
+    return states
 
 
 def _plan(f, t):
@@ -554,6 +556,16 @@ def _first_min(segment, position, score, mask, n) -> np.ndarray:
         first = np.flatnonzero(np.concatenate(([True], seg[1:] != seg[:-1])))
         out[seg[first]] = order[first]
     return out
+
+
+def _first_min_of_runs(score, run, starts) -> np.ndarray:
+    """Per run of equal ``run`` labels 0..k-1 (consecutive, each non-empty, beginning at
+    ``starts``): the index of its smallest ``score``, the first on ties (``_first_min`` over
+    rows in run order, without its sort); ``score`` has no NaN."""
+    if len(starts) == 0:
+        return np.zeros(0, dtype=np.intp)
+    at = np.flatnonzero(score == np.minimum.reduceat(score, starts)[run])
+    return at[np.concatenate(([True], run[at[1:]] != run[at[:-1]]))]
 
 
 def _py_max(a, b):
@@ -608,18 +620,22 @@ def step_many(filters, safe_set: SafeSet, t, clusters=None) -> list:
     m = len(use)
     if n == 1 and m == 1:
         return _decide_one(filters[0], problems[0], safe_set, t, clusters)
-    states, ages = propagate_poses(filters, use, t)
     per = []        # per robot row: lookahead, planned turn, speed, w_max, overriding, clear margin, fresh,
-    #                 the clusters' level
-    dets = []
+    #                 the clusters' level, pose age
+    poses, plans, dets = [], [], []      # (propagate_poses, in the same pass)
     for i in use:
         f = filters[i]
         cfg = f.config
+        age, plan = _plan(f, t)
         fresh = _command_fresh(f, t)
         per.append((f.lookahead(), _planned_turn(f, t, fresh), cfg.speed, cfg.omega_max, f.overriding,
-                    cfg.clear_margin, fresh, cfg.cluster_alpha))
+                    cfg.clear_margin, fresh, cfg.cluster_alpha, age))
+        poses.append(f.pose.value)
+        plans.append(plan)
         dets.append(f.detections.value)
-    per = np.array(per, dtype=float).reshape(-1, 8)
+    per = np.array(per, dtype=float).reshape(-1, 9)
+    states = _follow(np.array(poses, dtype=float).reshape(-1, 3), plans, per[:, 2].copy())
+    ages = per[:, 8]
     horizon, planned, speed, bang = per[:, 0].copy(), per[:, 1].copy(), per[:, 2].copy(), per[:, 3].copy()
     counts = np.fromiter(map(len, dets), dtype=np.intp, count=m)
 
@@ -941,11 +957,10 @@ class _ClusterFrames:
             cs.append(math.cos(a))      # as cluster.to_frame computes them
             sn.append(math.sin(a))
         size = [len(g) for g in groups]
-        # per cluster: origin x, y, angle, cos, sin, members; per member: index, x, y, position
+        # per cluster: origin x, y, angle, cos, sin, members; per member (in its cluster's order): index, x, y
         self.frames = np.column_stack([np.array(origin, dtype=float).reshape(-1, 2), angle, cs, sn, size])
         member = np.concatenate(groups) if groups else np.zeros(0, np.intp)
-        self.members = np.column_stack([member, det[member], np.concatenate([np.arange(k) for k in size])
-                                        if groups else np.zeros(0)])
+        self.members = np.column_stack([member, det[member]])
 
 
 _FRAMES_BY_CONTENT: dict = {}      # (link, resolution, shape, bytes) -> _ClusterFrames
@@ -1001,17 +1016,23 @@ def _cluster_rows(filters, use, states, planned, horizon, speed, bang, cluster_a
     shared = {}
     stores = {}       # id(config) -> its default store (robots of a fleet share one config)
     joins = {}        # (id(detections), id(config)) -> the entry its robots join (None: no clusters)
+    last_det = last_cfg = last_entry = None      # the previous robot's (a batched fleet: all the same)
     for row, i in enumerate(use):
         f = filters[i]
         det = dets[row]
-        key = (id(det), id(f.config))
+        cfg = f.config
+        if det is last_det and cfg is last_cfg:
+            if last_entry is not None:
+                last_entry[2].append(row)
+            continue
+        last_det, last_cfg, last_entry = det, cfg, None
+        key = (id(det), id(cfg))
         if key in joins:            # robots given one detections array (the batched fleet)
-            entry = joins[key]
+            last_entry = entry = joins[key]
             if entry is not None:
                 entry[2].append(row)
             continue
         joins[key] = None
-        cfg = f.config
         if not cfg.clusters or len(det) <= 1:
             continue
         store = store_arg
@@ -1031,7 +1052,7 @@ def _cluster_rows(filters, use, states, planned, horizon, speed, bang, cluster_a
             if entry is None:
                 entry = entries[(id(fr), id(store))] = (fr, store, [])
             entry[2].append(row)
-            joins[key] = entry
+            joins[key] = last_entry = entry
     if not entries:
         return dict(_NO_CLUSTERS, solving=solving)
     entries = list(entries.values())
@@ -1093,7 +1114,7 @@ def _cluster_rows(filters, use, states, planned, horizon, speed, bang, cluster_a
             stores.append(store)
     f_store = np.repeat(np.array([store_index[id(st)] for _, st, _ in entries], dtype=np.intp), n_frames)
     member_table = np.concatenate([fr.members for fr, _, _ in entries])
-    m_member, m_xy, m_pos = member_table[:, 0].astype(np.intp), member_table[:, 1:3], member_table[:, 3]
+    m_member, m_xy = member_table[:, 0].astype(np.intp), member_table[:, 1:3]
     f_mstart = np.cumsum(f_size) - f_size
 
     # one instance per (robot, cluster): entry by entry, robot-major within an entry
@@ -1124,7 +1145,7 @@ def _cluster_rows(filters, use, states, planned, horizon, speed, bang, cluster_a
     members = m_member[mg]
     c = {'gi': inst_gi, 'origin': f_origin[frame], 'angle': f_angle[frame], 'cos': f_cos[frame],
          'sin': f_sin[frame], 'store': f_store[frame], 'busy': busy, 'val': val}
-    m_ = {'xy': m_xy[mg], 'pos': m_pos[mg]}
+    m_ = {'xy': m_xy[mg]}
     np.add.at(solving, inst_row, c['busy'].astype(np.intp))
     member_pairs = start[inst_row][member_inst] + members     # the members' own rows join the cluster
 
@@ -1139,9 +1160,10 @@ def _cluster_rows(filters, use, states, planned, horizon, speed, bang, cluster_a
     nr = len(rows)
     state, ahead = s0[where], ahead_r[where]
 
-    # the member nearest to the robot (the first on ties) names the cluster
+    # the member nearest to the robot (the first on ties) names the cluster: an instance's members
+    # are one run of member_inst, in their cluster's order
     d = np.hypot(*(m_['xy'] - states[inst_row[member_inst], :2]).T)
-    nearest_m = _first_min(member_inst, m_['pos'], d, np.ones(len(d), bool), n_inst)
+    nearest_m = _first_min_of_runs(d, member_inst, np.cumsum(size) - size)
     nearest, nearest_xy = members[nearest_m], m_['xy'][nearest_m]
 
     val = c['val']
