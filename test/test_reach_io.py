@@ -90,6 +90,33 @@ def test_one_state_in_python_floats_reads_what_numpy_reads_bit_for_bit():
     from supersafe_ros.filter.law import avoid_turn, avoid_turn_at
     assert [avoid_turn_at(symmetric, *p) for p in pts.tolist()] == avoid_turn(symmetric, pts).tolist()
 
+
+def test_a_heading_layer_is_read_bilinearly_on_its_own_nodes():
+    """Grid.interpolate_layer (a rotationally symmetric set's reads, rotated onto heading nodes)
+    reads layer k alone: exact for functions bilinear in (x, y), whatever the other layers
+    hold; layers wrap modulo nth; it is the trilinear read at the node's heading to round-off;
+    and interpolate_layer_at reads the same bits in Python floats."""
+    rng = np.random.default_rng(6)
+    X, Y, TH = GRID.mesh()
+    k_index = np.arange(12)[None, None, :] * np.ones_like(X)
+    values = 1.0 + 2.0 * X - 0.5 * Y + 0.25 * X * Y + 10.0 * k_index ** 2      # layers far apart
+    x, y = rng.uniform(-4, 4, 500), rng.uniform(-3, 5, 500)
+    layer = rng.integers(-30, 30, 500)
+    want = 1.0 + 2.0 * x - 0.5 * y + 0.25 * x * y + 10.0 * (layer % 12) ** 2
+    got = GRID.interpolate_layer(values, x, y, layer)
+    assert np.allclose(got, want, rtol=0.0, atol=1e-9)
+    nodes = -np.pi + (layer % 12) * GRID.spacing[2]
+    assert np.allclose(got, GRID.interpolate(values, np.stack([x, y, nodes], -1)), rtol=1e-12, atol=1e-9)
+    field = rng.normal(size=GRID.shape).astype(np.float32)
+    field[field > 1.5] = -0.0
+    xs, ys = rng.uniform(-6, 6, 2000), rng.uniform(-5, 7, 2000)     # off the grid too (clamped)
+    layers = rng.integers(-30, 30, 2000)
+    flat = memoryview(field.reshape(-1))
+    want = GRID.interpolate_layer(field, xs, ys, layers)
+    got = [GRID.interpolate_layer_at(flat, a, b, int(k)) for a, b, k in zip(xs.tolist(), ys.tolist(), layers)]
+    assert repr(got) == repr(want.tolist())
+
+
 def test_gradient_of_a_linear_function():
     X, Y, TH = GRID.mesh()
     vf = ValueFunction(GRID, 3.0 * X - 2.0 * Y + 0.0 * TH)

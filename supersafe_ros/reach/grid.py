@@ -97,15 +97,21 @@ class Grid:
 
     def _cell_of(self, x, y, theta):
         """``_cell`` of states given as their coordinate arrays."""
-        nx, ny, nth = self.shape
-        dx, dy, dth = self.spacing
+        nth = self.shape[2]
+        ix, iy, wx, wy = self._xy_cell(x, y)
+        ft = ((theta + np.pi) / self.spacing[2]) % nth
+        it = np.minimum(ft.astype(np.intp), nth - 1)
+        return ix, iy, it, wx, wy, ft - it
+
+    def _xy_cell(self, x, y):
+        """Lower corner indices and offsets in (x, y), clamped to the rectangle."""
+        nx, ny, _ = self.shape
+        dx, dy, _ = self.spacing
         fx = np.clip((x - self.lo[0]) / dx, 0.0, nx - 1)
         fy = np.clip((y - self.lo[1]) / dy, 0.0, ny - 1)
-        ft = ((theta + np.pi) / dth) % nth
         ix = np.minimum(fx.astype(np.intp), nx - 2)
         iy = np.minimum(fy.astype(np.intp), ny - 2)
-        it = np.minimum(ft.astype(np.intp), nth - 1)
-        return ix, iy, it, fx - ix, fy - iy, ft - it
+        return ix, iy, fx - ix, fy - iy
 
     def interpolate(self, values, states) -> np.ndarray:
         """Trilinear interpolation of node ``values`` at ``states`` (..., 3)."""
@@ -146,6 +152,38 @@ class Grid:
             term = (ax * ay) * (wt0 * flat.take(node) + wt * flat.take(node + step))
             out = term + 0.0 if out is None else out + term       # 0.0 + term first, as the sum from 0.0
         return np.asarray(out, dtype=float)
+
+    def interpolate_layer(self, values, x, y, layer) -> np.ndarray:
+        """Bilinear interpolation in (x, y) of node ``values`` (nx, ny, nth) on the heading
+        layers ``layer`` (integers, taken modulo nth): V at heading nodes themselves, no
+        weight on a neighbouring layer (a rotationally symmetric value function is read on
+        nodes, see ``ValueFunction.value``). x and y are clamped to the rectangle."""
+        ny, nth = self.shape[1], self.shape[2]
+        ix, iy, wx, wy = self._xy_cell(x, y)
+        flat = np.ascontiguousarray(values).reshape(-1)
+        first = (ix * ny + iy) * nth + np.remainder(layer, nth)
+        wx0, wy0 = 1.0 - wx, 1.0 - wy
+        out = None
+        for offset, ax, ay in ((0, wx0, wy0), (nth, wx0, wy), (ny * nth, wx, wy0), (ny * nth + nth, wx, wy)):
+            term = (ax * ay) * flat.take(first + offset if offset else first)
+            out = term + 0.0 if out is None else out + term       # 0.0 + term first, as from 0.0
+        return np.asarray(out, dtype=float)
+
+    def interpolate_layer_at(self, flat, x: float, y: float, layer: int) -> float:
+        """``interpolate_layer`` at one state, in Python floats (the same operations in the
+        same order, so the same value bit for bit; ``flat`` as for ``interpolate_at``)."""
+        nx, ny, nth = self.shape
+        dx, dy, _ = self.spacing
+        fx = min(max((x - self.lo[0]) / dx, 0.0), float(nx - 1))      # np.clip
+        fy = min(max((y - self.lo[1]) / dy, 0.0), float(ny - 1))
+        ix, iy = min(int(fx), nx - 2), min(int(fy), ny - 2)
+        wx, wy = fx - ix, fy - iy
+        first = (ix * ny + iy) * nth + layer % nth
+        out = 0.0
+        for offset, ax, ay in ((0, 1.0 - wx, 1.0 - wy), (nth, 1.0 - wx, wy), (ny * nth, wx, 1.0 - wy),
+                               (ny * nth + nth, wx, wy)):
+            out = out + (ax * ay) * flat[first + offset]
+        return out
 
     def interpolate_at(self, flat, x: float, y: float, theta: float) -> float:
         """``interpolate`` at one state, in Python floats: the same operations in the same

@@ -66,7 +66,8 @@ class ValueFunction:
         that linear interpolation between nodes 2 pi / nth apart overestimates by up
         to |dV/dtheta| dtheta / 2 (0.2 on the paper's grid), which is exactly where a
         filter must not act late. The state is rotated about the obstacle onto each
-        of the two neighbouring heading nodes and interpolated in (x, y) there; both
+        of the two neighbouring heading nodes and interpolated in (x, y) there (on the
+        node's own layer, ``Grid.interpolate_layer``); both
         are estimates of the same V, and the interpolation of a convex kink only
         overestimates, so the smaller one is kept.
         """
@@ -88,7 +89,7 @@ class ValueFunction:
             node = -np.pi + k * dth
             beta = node - th
             c, sn = np.cos(beta), np.sin(beta)
-            v = self.grid.interpolate_xyt(self.values, c * x - sn * y, sn * x + c * y, node)
+            v = self.grid.interpolate_layer(self.values, c * x - sn * y, sn * x + c * y, k.astype(np.intp))
             out = v if out is None else np.minimum(out, v)
         return out
 
@@ -110,7 +111,7 @@ class ValueFunction:
             node = -math.pi + k * dth
             beta = node - theta
             c, sn = math.cos(beta), math.sin(beta)
-            v = g.interpolate_at(flat, c * x - sn * y, sn * x + c * y, node)
+            v = g.interpolate_layer_at(flat, c * x - sn * y, sn * x + c * y, int(k))
             out = v if out is None or not out < v else out     # np.minimum(out, v), signed zeros too
         return out
 
