@@ -651,8 +651,8 @@ def step_many(filters, safe_set: SafeSet, t, clusters=None) -> list:
         rel[:, 2] = states[pair_robot, 2]
     else:
         centres, rel = np.zeros((0, 2)), np.zeros((0, 3))
-    value, turn, value_next = _pair_values(safe_set.vf, rel, planned[pair_robot], horizon[pair_robot],
-                                           speed[pair_robot], bang[pair_robot])
+    value, value_next = _pair_reads(safe_set.vf, rel, planned[pair_robot], horizon[pair_robot], speed[pair_robot],
+                                    bang[pair_robot])
     position = np.arange(n_pairs) - start[pair_robot]
     group = np.arange(n_pairs)          # each obstacle its own group until clustered
     cl = _cluster_rows(filters, use, states, planned, horizon, speed, bang, per[:, 7], dets, start, clusters)
@@ -664,7 +664,6 @@ def step_many(filters, safe_set: SafeSet, t, clusters=None) -> list:
     tab.position = cat(position, counts[cl['robot']] + cl['index'])
     tab.value = cat(value, cl['value'])
     tab.level = cat(np.full(n_pairs, float(safe_set.alpha)), cl['level'])
-    tab.turn = cat(turn, cl['turn'])
     tab.value_next = cat(value_next, cl['value_next'])
     tab.obstacle = cat(position, cl['obstacle'])
     tab.xy = cat(centres, cl['xy'])
@@ -676,6 +675,16 @@ def step_many(filters, safe_set: SafeSet, t, clusters=None) -> list:
     overriding, margin = per[:, 4] != 0.0, per[:, 5].copy()
     k_gov, kind = _govern(tab, overriding, margin, n_pairs + cl['n_groups'], m)
     k_small = _first_min(tab.robot, tab.position, tab.value - tab.level, np.isfinite(tab.value), m)
+    # the avoid turns of the rows the robots name (the governing one, or the smallest V): no other
+    # row's turn is ever used
+    named = np.zeros(len(tab.value), bool)
+    named[k_gov[k_gov >= 0]] = named[k_small[k_small >= 0]] = True
+    rows = np.flatnonzero(named)
+    tab.turn = np.zeros(len(tab.value))
+    p, q = rows[rows < n_pairs], rows[rows >= n_pairs]
+    r = pair_robot[p]
+    tab.turn[p] = _pair_turns(safe_set.vf, rel[p], value[p], horizon[r], speed[r], bang[r])
+    tab.turn[q] = cl['turns_of'](q - n_pairs)
     return _outputs(filters, problems, use, safe_set, t, tab, k_gov, kind, k_small, per, ages, cl['solving'])
 
 
@@ -723,7 +732,7 @@ def _decide_one(f, problem, safe_set, t, clusters) -> Decisions:
     tab.position = list(range(n_pairs)) + [n_pairs + i for i in cl['index'].tolist()]
     tab.value = value + cl['value'].tolist()
     tab.level = [alpha] * n_pairs + cl['level'].tolist()
-    tab.turn = turn + cl['turn'].tolist()
+    tab.turn = turn + [None] * len(cl['robot'])      # cluster rows' turns: read when named
     tab.value_next = value_next + cl['value_next'].tolist()
     tab.obstacle = list(range(n_pairs)) + cl['obstacle'].tolist()
     tab.xy = np.concatenate([det, cl['xy']]) if len(cl['xy']) else det
@@ -733,6 +742,9 @@ def _decide_one(f, problem, safe_set, t, clusters) -> Decisions:
     tab.source = [safe_set.source] * n_pairs + cl['source']
 
     k_gov, kind, k_small = _govern_one(tab, f.overriding, float(cfg.clear_margin))
+    for k in {k_gov, k_small}:
+        if k >= n_pairs:
+            tab.turn[k] = float(cl['turns_of']([k - n_pairs])[0])
 
     # _outputs for one robot
     failing = bool(problem)
@@ -985,7 +997,8 @@ def _cluster_frames(det, store) -> _ClusterFrames:
 
 _NONE_I, _NONE_F = np.zeros(0, np.intp), np.zeros(0)
 _NONE_I.flags.writeable = _NONE_F.flags.writeable = False
-_NO_CLUSTERS = dict(robot=_NONE_I, index=_NONE_I, value=_NONE_F, level=_NONE_F, turn=_NONE_F, value_next=_NONE_F,
+_NO_CLUSTERS = dict(robot=_NONE_I, index=_NONE_I, value=_NONE_F, level=_NONE_F,
+                    turns_of=lambda r: np.zeros(len(r)), value_next=_NONE_F,
                     obstacle=_NONE_I, xy=_NONE_F.reshape(0, 2), group=_NONE_I, members=_NONE_I, source=[],
                     member_pairs=_NONE_I, member_groups=_NONE_I, n_groups=0)
 
@@ -1149,13 +1162,14 @@ def _cluster_rows(filters, use, states, planned, horizon, speed, bang, cluster_a
     np.add.at(solving, inst_row, c['busy'].astype(np.intp))
     member_pairs = start[inst_row][member_inst] + members     # the members' own rows join the cluster
 
-    # holds from the state now: the planner's command, then both bangs from now and from its end
+    # holds from the state now: the planner's command, then both bangs from its end (the bangs
+    # from the state now give the avoid turn, read only for the rows a robot names: turns_of)
     rows = np.flatnonzero(np.bincount(inst_row, minlength=len(use)))     # np.unique's, without a sort
     s0 = states[rows]
     ahead_r = arc_flow(s0, speed[rows], planned[rows], horizon[rows])
     w = bang[rows]
-    pts = arc_flow(np.concatenate([s0, s0, ahead_r, ahead_r]), np.tile(speed[rows], 4),
-                   np.concatenate([w, -w, w, -w]), np.tile(horizon[rows], 4))
+    pts = arc_flow(np.concatenate([ahead_r, ahead_r]), np.tile(speed[rows], 2), np.concatenate([w, -w]),
+                   np.tile(horizon[rows], 2))
     where = np.searchsorted(rows, inst_row)
     nr = len(rows)
     state, ahead = s0[where], ahead_r[where]
@@ -1168,23 +1182,28 @@ def _cluster_rows(filters, use, states, planned, horizon, speed, bang, cluster_a
 
     val = c['val']
     ok = val >= 0
-    v6 = np.full((6, n_inst), np.inf)
-    tie = np.zeros(n_inst)
-    if np.any(ok):
-        idx = np.flatnonzero(ok)
-        w_ = where[idx]
-        s = np.stack([state[idx], pts[w_], pts[nr + w_], pts[2 * nr + w_], pts[3 * nr + w_], ahead[idx]])
+
+    def union_values(idx, s):
+        """V of the union values in force at instances ``idx``, at their states ``s`` (k, len(idx),
+        3) in the map frame (+inf off the grid), and each instance's tie tolerance."""
+        v = np.full(s.shape[:2], np.inf)
+        tie = np.zeros(len(idx))
         origin, angle, cs, sn = c['origin'][idx], c['angle'][idx], c['cos'][idx], c['sin'][idx]
         dx, dy = s[..., 0] - origin[:, 0], s[..., 1] - origin[:, 1]      # cluster.to_frame
         in_frame = np.stack([cs * dx + sn * dy, -sn * dx + cs * dy, s[..., 2] - angle], axis=-1)
         for j, cv in enumerate(values):
             sel = np.flatnonzero(val[idx] == j)
             if len(sel):
-                v = cv.value(in_frame[:, sel].reshape(-1, 3))
-                v6[:, idx[sel]] = v.reshape(6, len(sel))
-                tie[idx[sel]] = cv.tie
-    u_turn = np.where(v6[1] >= v6[2] - tie, 1.0, -1.0)
-    u_next = _py_min(v6[5], _py_max(v6[3], v6[4]))
+                v[:, sel] = cv.value(in_frame[:, sel].reshape(-1, 3)).reshape(len(s), len(sel))
+                tie[sel] = cv.tie
+        return v, tie
+
+    v4 = np.full((4, n_inst), np.inf)
+    if np.any(ok):
+        idx = np.flatnonzero(ok)
+        w_ = where[idx]
+        v4[:, idx] = union_values(idx, np.stack([state[idx], pts[w_], pts[nr + w_], ahead[idx]]))[0]
+    u_next = _py_min(v4[3], _py_max(v4[1], v4[2]))
 
     # the loiter fallback where no union value is in force
     f_value = np.full((2, n_inst), -np.inf)
@@ -1198,10 +1217,27 @@ def _cluster_rows(filters, use, states, planned, horizon, speed, bang, cluster_a
             f_value[:, sel] = v
             f_turn[sel] = u[0]
     keep = ok | (f_value[0] > 0.0)
+    kept = np.flatnonzero(keep)
+
+    def turns_of(r) -> np.ndarray:
+        """The unit avoid turn of the returned rows ``r``: with a union value in force, the bang
+        (+-w_max) whose hold from the state now ends at the larger V (ties left, within the
+        value's tie tolerance); with the fallback, its loiter circle's turn."""
+        i = kept[np.asarray(r, dtype=np.intp)]
+        out = f_turn[i]
+        u = i[ok[i]]
+        if len(u):
+            s, b, h = state[u], bang[inst_row[u]], horizon[inst_row[u]]
+            ends = arc_flow(np.concatenate([s, s]), np.tile(speed[inst_row[u]], 2), np.concatenate([b, -b]),
+                            np.tile(h, 2)).reshape(2, len(u), 3)
+            (left, right), tie = union_values(u, ends)
+            out[ok[i]] = np.where(left >= right - tie, 1.0, -1.0)
+        return out
+
     level = cluster_alpha[inst_row]
     source = np.where(ok, 'cluster', 'cluster-fallback')[keep].tolist()
-    return dict(robot=inst_row[keep], index=c['gi'][keep], value=np.where(ok, v6[0], f_value[0])[keep],
-                level=np.where(ok, level, 0.0)[keep], turn=np.where(ok, u_turn, f_turn)[keep],
+    return dict(robot=inst_row[keep], index=c['gi'][keep], value=np.where(ok, v4[0], f_value[0])[keep],
+                level=np.where(ok, level, 0.0)[keep], turns_of=turns_of,
                 value_next=np.where(ok, u_next, f_value[1])[keep], obstacle=nearest[keep],
                 xy=nearest_xy[keep], group=np.arange(n_inst)[keep], members=size[keep], source=source,
                 member_pairs=member_pairs, member_groups=member_inst, n_groups=n_inst, solving=solving)
@@ -1277,48 +1313,66 @@ def _pair_values(vf: ValueFunction, rel, omega, horizon, speed, bang):
       acts one hold early rather than one hold late).
 
     A silent planner counts as a zero command (what the filter would forward).
-    Translation invariance: the relative state moves like the robot itself. V at the
-    pair's state and at the ends of all its holds is read in one call.
+    Translation invariance: the relative state moves like the robot itself.
+    ``_pair_reads`` reads V and V next of every pair in one call, ``_pair_turns`` the turns
+    (the fleet path reads turns only for the rows its robots name).
     Returns (V, unit turn, V after the planner's hold and the best bang's).
     """
+    value, value_next = _pair_reads(vf, rel, omega, horizon, speed, bang)
+    return value, _pair_turns(vf, rel, value, horizon, speed, bang), value_next
+
+
+def _pair_reads(vf: ValueFunction, rel, omega, horizon, speed, bang):
+    """(V, V next) of ``_pair_values``: V at the pair's state and where the planner's hold and
+    both bangs after it end, in one read."""
     n = len(rel)
-    value, turn, value_next = np.full(n, np.inf), np.zeros(n), np.full(n, np.inf)
+    value, value_next = np.full(n, np.inf), np.full(n, np.inf)
     if n == 0:
-        return value, turn, np.zeros(0)
+        return value, value_next
     holds = bool(np.any(horizon > 0))
     # pairs too far from the grid for any hold to reach it: every V below is +inf, so the turn
-    # stays and V_next is +inf (two holds move the robot at most 2 speed H; +1 m for round-off);
+    # stays 0 and V_next is +inf (two holds move the robot at most 2 speed H; +1 m for round-off);
     # without holds, the pairs on the grid
     g = vf.grid
     reach = 2.0 * speed * horizon + 1.0 if holds else 0.0
     near = np.flatnonzero((rel[:, 0] >= g.lo[0] - reach) & (rel[:, 0] <= g.hi[0] + reach)
                           & (rel[:, 1] >= g.lo[1] - reach) & (rel[:, 1] <= g.hi[1] + reach))
     if len(near) == 0:
-        return value, turn, value_next
+        return value, value_next
     rel = rel[near]
     k = len(rel)
     if holds:
         omega, horizon, speed, bang = omega[near], horizon[near], speed[near], bang[near]
         ahead = arc_flow(rel, speed, omega, horizon)
-        starts = np.concatenate([rel, rel, ahead, ahead])
-        ends = arc_flow(starts, np.tile(speed, 4), np.concatenate([bang, -bang, bang, -bang]),
-                        np.tile(horizon, 4))
+        ends = arc_flow(np.concatenate([ahead, ahead]), np.tile(speed, 2), np.concatenate([bang, -bang]),
+                        np.tile(horizon, 2))
         states = np.concatenate([rel, ends, ahead])
     else:
         states = rel
     v = vf.value(states, outside=np.inf).reshape(-1, k)
-    inside = np.isfinite(v[0])              # the law's pairs: on the grid (V is finite there)
     value[near] = v[0]
+    if holds:
+        value_next[near] = np.where(horizon > 0, np.minimum(v[3], np.maximum(v[1], v[2])), np.inf)
+    return value, value_next
+
+
+def _pair_turns(vf: ValueFunction, rel, value, horizon, speed, bang):
+    """The unit avoid turns of ``_pair_values`` for pairs at ``rel`` with V ``value``: the
+    law's sign(dV/dtheta) where V is finite (on the grid), else 0; with a hold, the bang whose
+    hold ends at the larger V (ties left) wherever either end is on the grid."""
+    turn = np.zeros(len(rel))
+    inside = np.isfinite(value)
     if np.any(inside):
-        turn[near[inside]] = avoid_turn(vf, rel[inside])
-    if not holds:
-        return value, turn, value_next
-    left, right = v[1], v[2]
-    held = np.where(left >= right - tie_tolerance(vf), 1.0, -1.0)
-    use = (horizon > 0) & (np.isfinite(left) | np.isfinite(right))
-    value_next[near] = np.where(horizon > 0, np.minimum(v[5], np.maximum(v[3], v[4])), np.inf)
-    turn[near] = np.where(use, held, turn[near])
-    return value, turn, value_next
+        turn[inside] = avoid_turn(vf, rel[inside])
+    held = np.flatnonzero(horizon > 0)
+    if len(held):
+        r, b = rel[held], bang[held]
+        ends = arc_flow(np.concatenate([r, r]), np.tile(speed[held], 2), np.concatenate([b, -b]),
+                        np.tile(horizon[held], 2))
+        left, right = vf.value(ends, outside=np.inf).reshape(2, len(held))
+        use = np.isfinite(left) | np.isfinite(right)
+        turn[held] = np.where(use, np.where(left >= right - tie_tolerance(vf), 1.0, -1.0), turn[held])
+    return turn
 
 
 FEW_PAIRS = 3     # a robot decided alone reads V in Python floats up to this many pairs near the grid
