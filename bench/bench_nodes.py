@@ -27,6 +27,7 @@ processes of the machine.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import subprocess
 import sys
@@ -430,7 +431,7 @@ def serve_fleet(m, batched, one_core, profile=''):
     from supersafe_ros.nodes.fleet_safety_filter_node import FleetSafetyFilterNode
     from supersafe_ros.ros_io import rosmsg
     if one_core:
-        os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[-1]})
+        os.sched_setaffinity(0, {node_core()})
     ensure_local_ros_env()
     rclpy.init()
     node = FleetSafetyFilterNode(parameter_overrides=[
@@ -460,6 +461,34 @@ def serve_fleet(m, batched, one_core, profile=''):
             profiler.dump_stats(profile)
         node.close()
         rclpy.try_shutdown()
+
+
+# the cores the bench may use, as the first bench process found them (children inherit the list)
+CORES = [int(c) for c in os.environ.get('SUPERSAFE_BENCH_CORES', '').split(',') if c] or sorted(os.sched_getaffinity(0))
+os.environ['SUPERSAFE_BENCH_CORES'] = ','.join(map(str, CORES))
+
+
+def node_core():
+    """The core a pinned fleet child runs on (the last one)."""
+    return CORES[-1]
+
+
+@contextlib.contextmanager
+def driver_off_node_core(args):
+    """While a section runs, this process (the driver) stays off the core of the pinned fleet
+    child, so that the child has its core to itself: the driver's own work (serializing a
+    thousand poses 50 times a second) had sometimes run there and counted as the child's
+    slowness. Yields a description for the section's header."""
+    before = os.sched_getaffinity(0)
+    others = set(CORES) - {node_core()}
+    if args.all_cores or not others:
+        yield 'the bench driver on any core'
+        return
+    os.sched_setaffinity(0, others)
+    try:
+        yield f'the bench driver on core(s) {sorted(others)}, the child alone on core {node_core()}'
+    finally:
+        os.sched_setaffinity(0, before)
 
 
 def start_fleet(args, m, batched):
@@ -500,11 +529,17 @@ def _capacity(tag, m, cpu, ticks):
 
 
 def bench_fleet(args):
+    with driver_off_node_core(args) as where:
+        _bench_fleet(args, where)
+
+
+def _bench_fleet(args, where):
     from diagnostic_msgs.msg import DiagnosticStatus
     from geometry_msgs.msg import PoseArray, PoseStamped, Twist
     from supersafe_ros.ros_io import rosmsg
     print('[fleet] fleet_safety_filter_node, per-robot topics, one process pinned to one core; the bench '
-          f'feeds each robot pose + command at 50 Hz and detections at 10 Hz for {args.window:.0f} s')
+          f'feeds each robot pose + command at 50 Hz and detections at 10 Hz for {args.window:.0f} s; '
+          f'{where}')
     for m in args.fleet_sizes:
         child = start_fleet(args, m, batched=False)
         d = Driver('bench_fleet')
@@ -551,12 +586,18 @@ def bench_fleet(args):
 
 
 def bench_batched(args):
+    with driver_off_node_core(args) as where:
+        _bench_batched(args, where)
+
+
+def _bench_batched(args, where):
     from diagnostic_msgs.msg import DiagnosticStatus
     from geometry_msgs.msg import PoseArray
     from std_msgs.msg import Float64MultiArray
     from supersafe_ros.ros_io import fleetmsg, rosmsg
     print('[batched] fleet_safety_filter_node, batched topics only, pinned to one core; the bench sends '
-          f'fleet/poses + fleet/cmd_vel_nav at 50 Hz (fleet/detections at 10 Hz) for {args.window:.0f} s')
+          f'fleet/poses + fleet/cmd_vel_nav at 50 Hz (fleet/detections at 10 Hz) for {args.window:.0f} s; '
+          f'{where}')
     for n in args.batched_sizes:
         child = start_fleet(args, n, batched=True)
         d = Driver('bench_batched')

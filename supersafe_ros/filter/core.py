@@ -581,13 +581,14 @@ class _Table:
     """Every constraint of every robot, one row each (pairs first, then clusters).
 
     Columns: the robot (row in ``use``), its position in the robot's list (ties go to
-    the first), V, level, unit avoid turn, V after the planner's hold, the obstacle
+    the first), V, level, the unit avoid turn (``turns_of(rows)``, read only for the rows
+    robots avoid by; ``turn``, a list, on the one-robot path), V after the planner's hold, the obstacle
     it names (index in the robot's detections) and its centre, whether it is sound for
     its layout (a cluster's union value or the loiter fallback), its group (a lone
     obstacle, or the cluster its members belong to), members and source (labels).
     """
 
-    __slots__ = ('robot', 'position', 'value', 'level', 'turn', 'value_next', 'obstacle', 'xy',
+    __slots__ = ('robot', 'position', 'value', 'level', 'turn', 'turns_of', 'value_next', 'obstacle', 'xy',
                  'sound', 'group', 'members', 'source')
 
 
@@ -675,16 +676,18 @@ def step_many(filters, safe_set: SafeSet, t, clusters=None) -> list:
     overriding, margin = per[:, 4] != 0.0, per[:, 5].copy()
     k_gov, kind = _govern(tab, overriding, margin, n_pairs + cl['n_groups'], m)
     k_small = _first_min(tab.robot, tab.position, tab.value - tab.level, np.isfinite(tab.value), m)
-    # the avoid turns of the rows the robots name (the governing one, or the smallest V): no other
-    # row's turn is ever used
-    named = np.zeros(len(tab.value), bool)
-    named[k_gov[k_gov >= 0]] = named[k_small[k_small >= 0]] = True
-    rows = np.flatnonzero(named)
-    tab.turn = np.zeros(len(tab.value))
-    p, q = rows[rows < n_pairs], rows[rows >= n_pairs]
-    r = pair_robot[p]
-    tab.turn[p] = _pair_turns(safe_set.vf, rel[p], value[p], horizon[r], speed[r], bang[r])
-    tab.turn[q] = cl['turns_of'](q - n_pairs)
+
+    def turns_of(rows) -> np.ndarray:
+        """The unit avoid turns of table ``rows`` (read only for the rows robots avoid by)."""
+        out = np.zeros(len(rows))
+        pair = rows < n_pairs
+        p = rows[pair]
+        r = pair_robot[p]
+        out[pair] = _pair_turns(safe_set.vf, rel[p], value[p], horizon[r], speed[r], bang[r])
+        out[~pair] = cl['turns_of'](rows[~pair] - n_pairs)
+        return out
+
+    tab.turns_of = turns_of
     return _outputs(filters, problems, use, safe_set, t, tab, k_gov, kind, k_small, per, ages, cl['solving'])
 
 
@@ -732,7 +735,7 @@ def _decide_one(f, problem, safe_set, t, clusters) -> Decisions:
     tab.position = list(range(n_pairs)) + [n_pairs + i for i in cl['index'].tolist()]
     tab.value = value + cl['value'].tolist()
     tab.level = [alpha] * n_pairs + cl['level'].tolist()
-    tab.turn = turn + [None] * len(cl['robot'])      # cluster rows' turns: read when named
+    tab.turn = turn        # the pairs' (a cluster row's turn is read if the robot avoids by it)
     tab.value_next = value_next + cl['value_next'].tolist()
     tab.obstacle = list(range(n_pairs)) + cl['obstacle'].tolist()
     tab.xy = np.concatenate([det, cl['xy']]) if len(cl['xy']) else det
@@ -742,9 +745,6 @@ def _decide_one(f, problem, safe_set, t, clusters) -> Decisions:
     tab.source = [safe_set.source] * n_pairs + cl['source']
 
     k_gov, kind, k_small = _govern_one(tab, f.overriding, float(cfg.clear_margin))
-    for k in {k_gov, k_small}:
-        if k >= n_pairs:
-            tab.turn[k] = float(cl['turns_of']([k - n_pairs])[0])
 
     # _outputs for one robot
     failing = bool(problem)
@@ -752,7 +752,7 @@ def _decide_one(f, problem, safe_set, t, clusters) -> Decisions:
     named = k_gov if overrides else k_small
     avoid = named >= 0
     if overrides or (failing and avoid):
-        w = bang * tab.turn[named]
+        w = bang * (tab.turn[named] if named < n_pairs else float(cl['turns_of']([named - n_pairs])[0]))
     else:
         w = bang if failing else planned
     stopped = (failing and not avoid) or (not failing and not overrides and not fresh)
@@ -819,6 +819,7 @@ def _govern(tab, overriding, margin, n_groups, m):
 
 
 _KINDS = ('', 'enter', 'ahead', 'stay')
+_ACTIONS = np.array([PASS, OVERRIDE, FAIL_SAFE], dtype=object)     # by code: 0 pass, 1 override, 2 fail safe
 
 
 class Decisions(Sequence):
@@ -862,28 +863,28 @@ def _outputs(filters, problems, use, safe_set, t, tab, k_gov, kind, k_small, per
     overrides = ~failing & (kind > 0)
     named = np.where(overrides, k_gov, k_small)      # the constraint each robot's output names
     avoid = named >= 0
-    turn = tab.turn[np.where(avoid, named, 0)] if len(tab.turn) else np.zeros(m)
     # fail safe: avoid from the last valid state, or stop-turn; override: the avoid turn; pass: the
-    # planner's command clipped to the robot's bound (0 if silent)
-    omega_row = np.where(overrides | (failing & avoid), bang * turn, np.where(failing, bang, planned))
+    # planner's command clipped to the robot's bound (0 if silent). Turns are read for the robots
+    # that avoid, only.
+    avoiding = overrides | (failing & avoid)
+    turn = np.zeros(m)
+    turn[avoiding] = tab.turns_of(named[avoiding])
+    omega_row = np.where(avoiding, bang * turn, np.where(failing, bang, planned))
     stopped = (failing & ~avoid) | (~failing & ~overrides & ~fresh)
     linear_row = np.where(stopped, 0.0, speed)
     code_row = np.where(failing, 2, np.where(overrides, 1, 0))
-    omega, linear, action = [], [], []
-    actions = (PASS, OVERRIDE, FAIL_SAFE)
-    rows = row_of.tolist()
-    omega_row, linear_row, code_row, overrides = (omega_row.tolist(), linear_row.tolist(), code_row.tolist(),
-                                                  overrides.tolist())
-    for f, row in zip(filters, rows):
-        if row < 0:       # no recent valid state: stop-turn
-            w, v, a, o = f.config.omega_max, 0.0, FAIL_SAFE, False
-        else:
-            w, v, a, o = omega_row[row], linear_row[row], actions[code_row[row]], overrides[row]
+    # per robot (rows of ``use`` in place; a robot with no recent valid state: stop-turn)
+    omega, linear, code, over = np.empty(n), np.zeros(n), np.full(n, 2), np.zeros(n, bool)
+    at = np.asarray(use, dtype=np.intp)
+    omega[at], linear[at], code[at], over[at] = omega_row, linear_row, code_row, overrides
+    for i in np.flatnonzero(row_of < 0).tolist():
+        omega[i] = filters[i].config.omega_max
+    omega, linear, over = omega.tolist(), linear.tolist(), over.tolist()
+    action = _ACTIONS[code].tolist()
+    for f, w, o in zip(filters, omega, over):
         f.overriding = o  # failing safe clears it: re-enter by the law once inputs are back
         f.record_sent(w, t)
-        omega.append(w)
-        linear.append(v)
-        action.append(a)
+    rows = row_of.tolist()
     configs = [f.config for f in filters]      # as at the decision (a parameter change replaces it)
     common = _set_fields(safe_set)
     fresh, kind, named = fresh.tolist(), kind.tolist(), named.tolist()
