@@ -1023,7 +1023,8 @@ def _cluster_rows(filters, use, states, planned, horizon, speed, bang, cluster_a
 
     Either way the cluster's members' own rows join the cluster's group. All (robot,
     cluster) instances are evaluated together: one arc_flow for the holds, one value
-    read per distinct cluster value, one fallback evaluation per store.
+    read per distinct cluster value, one fallback evaluation per store. The rows' turns
+    are read on demand (``turns_of``, for the rows robots avoid by).
     """
     solving = np.zeros(len(use), dtype=np.intp)
     entries = {}      # (frames, store) -> rows of the robots that use them, in order
