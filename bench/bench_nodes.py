@@ -421,8 +421,8 @@ def bench_nodes(args):
 
 
 # -- fleet node ----------------------------------------------------------------------------------
-def serve_fleet(m, batched, one_core, profile=''):
-    """Child: one fleet_safety_filter_node for /bench_0 .. /bench_<m-1>, optionally on one core."""
+def serve_fleet(m, batched, core, profile=''):
+    """Child: one fleet_safety_filter_node for /bench_0 .. /bench_<m-1>, on ``core`` if not None."""
     import rclpy
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
     from rclpy.parameter import Parameter
@@ -430,8 +430,8 @@ def serve_fleet(m, batched, one_core, profile=''):
     from supersafe_ros.nodes.common import freeze_startup_objects
     from supersafe_ros.nodes.fleet_safety_filter_node import FleetSafetyFilterNode
     from supersafe_ros.ros_io import rosmsg
-    if one_core:
-        os.sched_setaffinity(0, {node_core()})
+    if core is not None:
+        _pin_threads({core})     # the threads so far (numpy's); later ones inherit it
     ensure_local_ros_env()
     rclpy.init()
     node = FleetSafetyFilterNode(parameter_overrides=[
@@ -463,38 +463,51 @@ def serve_fleet(m, batched, one_core, profile=''):
         rclpy.try_shutdown()
 
 
-# the cores the bench may use, as the first bench process found them (children inherit the list)
-CORES = [int(c) for c in os.environ.get('SUPERSAFE_BENCH_CORES', '').split(',') if c] or sorted(os.sched_getaffinity(0))
-os.environ['SUPERSAFE_BENCH_CORES'] = ','.join(map(str, CORES))
+CORES = sorted(os.sched_getaffinity(0))     # the cores this process was given, before any pinning
 
 
 def node_core():
-    """The core a pinned fleet child runs on (the last one)."""
+    """The core a pinned fleet child runs on (the last one given to the driver)."""
     return CORES[-1]
+
+
+def _pin_threads(cores, previous=None):
+    """Every thread of this process onto ``cores`` (``sched_setaffinity(0, ...)`` moves only
+    the calling thread; DDS and rclpy threads run beside it); with ``previous`` (what an
+    earlier call returned), each thread back where it was (new threads onto ``cores``).
+    Returns each thread's affinity before."""
+    before = {}
+    for name in os.listdir('/proc/self/task'):
+        tid = int(name)
+        try:
+            before[tid] = os.sched_getaffinity(tid)
+            os.sched_setaffinity(tid, previous.get(tid, cores) if previous is not None else cores)
+        except OSError:     # the thread ended meanwhile
+            pass
+    return before
 
 
 @contextlib.contextmanager
 def driver_off_node_core(args):
-    """While a section runs, this process (the driver) stays off the core of the pinned fleet
-    child, so that the child has its core to itself: the driver's own work (serializing a
-    thousand poses 50 times a second) had sometimes run there and counted as the child's
-    slowness. Yields a description for the section's header."""
-    before = os.sched_getaffinity(0)
+    """While a section runs, this process (the driver, all its threads) stays off the core of
+    the pinned fleet child, so that the child has its core to itself: the driver's own work
+    (serializing a thousand poses 50 times a second) had sometimes run there and counted as
+    the child's slowness. Yields a description for the section's header."""
     others = set(CORES) - {node_core()}
     if args.all_cores or not others:
         yield 'the bench driver on any core'
         return
-    os.sched_setaffinity(0, others)
+    before = _pin_threads(others)
     try:
         yield f'the bench driver on core(s) {sorted(others)}, the child alone on core {node_core()}'
     finally:
-        os.sched_setaffinity(0, before)
+        _pin_threads(set(CORES), before)
 
 
 def start_fleet(args, m, batched):
     """The child serving ``m`` robots on the batched or the per-robot topics."""
     return start([os.path.abspath(__file__), '--serve-fleet', str(m)] + (['--serve-batched'] if batched else [])
-                 + (['--all-cores'] if args.all_cores else [])
+                 + ([] if args.all_cores else ['--serve-core', str(node_core())])
                  + (['--profile', f'{args.profile}.{m}'] if args.profile else []),
                  f'{"batched" if batched else "fleet"}_{m}')
 
@@ -734,13 +747,14 @@ def main(argv=None):
     parser.add_argument('--serve-filters', type=int, default=0, help=argparse.SUPPRESS)
     parser.add_argument('--serve-fleet', type=int, default=0, help=argparse.SUPPRESS)
     parser.add_argument('--serve-batched', action='store_true', help=argparse.SUPPRESS)
+    parser.add_argument('--serve-core', type=int, default=None, help=argparse.SUPPRESS)
     args, _ = parser.parse_known_args(argv)
     if args.serve_vf_echo:
         return serve_vf_echo()
     if args.serve_filters:
         return serve_filters(args.serve_filters)
     if args.serve_fleet:
-        return serve_fleet(args.serve_fleet, args.serve_batched, not args.all_cores, args.profile)
+        return serve_fleet(args.serve_fleet, args.serve_batched, args.serve_core, args.profile)
     ensure_local_ros_env()
     os.environ.setdefault('ROS_DOMAIN_ID', str(150 + os.getpid() % 80))
     import rclpy

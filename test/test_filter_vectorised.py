@@ -211,10 +211,10 @@ def test_interval_windows_keep_numpys_median_as_they_slide():
         for x in rng.choice([0.02, 0.05, 0.1, 1 / 3], 40) + rng.normal(0, 1e-3, 40) * (rng.random() < 0.5):
             before, seen = window, (list(window), list(window.ordered), window.median())
             window = window.then(float(x))
-            assert (list(before), before.ordered, before.median()) == seen
+            assert (list(before), list(before.ordered), before.median()) == seen
             history.append(float(x))
             last = history[-PERIOD_SAMPLES:]
-            assert list(window) == last and window.ordered == sorted(last)
+            assert list(window) == last and list(window.ordered) == sorted(last)
             assert repr(window.median()) == repr(float(np.median(last)))
 
 
@@ -584,3 +584,14 @@ def test_the_first_minimum_of_each_run_is_first_min_s():
         assert np.array_equal(got, want), trial
         ties += sum(int(np.sum(score[run == r] == score[want[r]]) > 1) for r in range(len(size)))
     assert ties > 500
+
+
+def test_the_better_bang_turns_left_on_ties_within_the_tolerance():
+    """_better_bang (the held avoid turn of pairs and of cluster union values): left (+1) when
+    V after the left turn is at least V after the right one less the tie tolerance, else right."""
+    from supersafe_ros.filter.core import _better_bang
+    left = np.array([1.0, 1.0, 1.0, 0.5, -np.inf, np.inf])
+    right = np.array([1.0, 1.05, 1.2, 0.4, 0.0, np.inf])
+    assert _better_bang(left, right, 0.1).tolist() == [1.0, 1.0, -1.0, 1.0, -1.0, 1.0]
+    assert _better_bang(left, right, np.array([0.0, 0.0, 0.3, 0.0, 0.0, 0.0])).tolist() == [
+        1.0, -1.0, 1.0, 1.0, -1.0, 1.0]

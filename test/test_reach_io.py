@@ -50,9 +50,6 @@ def test_flat_gathers_equal_indexed_gathers_bit_for_bit():
     zeros = np.full(GRID.shape, -0.0)
     a, b = GRID.interpolate(zeros, pts), GRID.interpolate(np.asfortranarray(zeros), pts)
     assert not np.signbit(a).any() and not np.signbit(b).any()
-    # coordinates given as arrays read what the (..., 3) states read
-    assert np.array_equal(GRID.interpolate_xyt(contiguous, pts[:, 0], pts[:, 1], pts[:, 2]),
-                          GRID.interpolate(contiguous, pts))
 
 
 def test_one_state_in_python_floats_reads_what_numpy_reads_bit_for_bit():
@@ -99,14 +96,17 @@ def test_a_heading_layer_is_read_bilinearly_on_its_own_nodes():
     rng = np.random.default_rng(6)
     X, Y, TH = GRID.mesh()
     k_index = np.arange(12)[None, None, :] * np.ones_like(X)
-    values = 1.0 + 2.0 * X - 0.5 * Y + 0.25 * X * Y + 10.0 * k_index ** 2      # layers far apart
+    # odd layers 1e12 above the even ones: a trilinear read at an even node's heading, with its
+    # round-off weight on a neighbouring layer, misses by far more than 1e-9 at some states
+    values = 1.0 + 2.0 * X - 0.5 * Y + 0.25 * X * Y + 1e12 * (k_index % 2)
     x, y = rng.uniform(-4, 4, 500), rng.uniform(-3, 5, 500)
-    layer = rng.integers(-30, 30, 500)
-    want = 1.0 + 2.0 * x - 0.5 * y + 0.25 * x * y + 10.0 * (layer % 12) ** 2
+    layer = 2 * rng.integers(-15, 15, 500)
+    want = 1.0 + 2.0 * x - 0.5 * y + 0.25 * x * y
     got = GRID.interpolate_layer(values, x, y, layer)
     assert np.allclose(got, want, rtol=0.0, atol=1e-9)
     nodes = -np.pi + (layer % 12) * GRID.spacing[2]
-    assert np.allclose(got, GRID.interpolate(values, np.stack([x, y, nodes], -1)), rtol=1e-12, atol=1e-9)
+    off = np.abs(GRID.interpolate(values, np.stack([x, y, nodes], -1)) - want)
+    assert np.all(off < 1e-2) and np.sum(off > 1e-9) > 20
     field = rng.normal(size=GRID.shape).astype(np.float32)
     field[field > 1.5] = -0.0
     xs, ys = rng.uniform(-6, 6, 2000), rng.uniform(-5, 7, 2000)     # off the grid too (clamped)

@@ -391,7 +391,7 @@ def _accept_rows(filters, name, rows, take, t, stamp) -> None:
     control period (as ``update_pose`` / ``update_command`` do). Robots with the same window
     and the same previous stamp get the same next window, made once."""
     windows = '_pose_intervals' if name == 'pose' else '_command_intervals'
-    made = {}      # (window before, previous stamp) -> window after
+    made = {}      # (window before, previous stamp) -> window after (kept alive here: ids stay unique)
     for f, row, ok in zip(filters, rows, take.tolist()):
         if not ok:
             continue
@@ -428,12 +428,12 @@ class _Intervals:
     __slots__ = ('recent', 'ordered', 'middle')
 
     def __init__(self, recent=(), ordered=()):
-        self.recent, self.ordered = tuple(recent), list(ordered)
+        self.recent, self.ordered = tuple(recent), tuple(ordered)
         self.middle = _median_of_sorted(self.ordered) if self.ordered else None
 
     def then(self, interval) -> '_Intervals':
         """The window after one more interval (the oldest leaves when it is full)."""
-        ordered = self.ordered.copy()
+        ordered = list(self.ordered)
         recent = self.recent
         if len(recent) == PERIOD_SAMPLES:
             del ordered[bisect_left(ordered, recent[0])]
@@ -477,6 +477,19 @@ def arc_flow(states, speed, omega, dt) -> np.ndarray:
     return np.stack([x + speed * ax, y + speed * ay, wrap_angle(th1)], axis=1)
 
 
+def _bang_ends(states, speed, bang, hold) -> np.ndarray:
+    """Where holding +bang, then -bang, for ``hold`` from ``states`` (k, 3) ends: (2k, 3), the
+    left turns' ends first."""
+    return arc_flow(np.concatenate([states, states]), np.tile(speed, 2), np.concatenate([bang, -bang]),
+                    np.tile(hold, 2))
+
+
+def _better_bang(left, right, tie) -> np.ndarray:
+    """The unit turn whose hold ends at the larger V: left (+1) unless V after the right turn
+    is larger by more than ``tie`` (the value's tie tolerance: ties turn left)."""
+    return np.where(left >= right - tie, 1.0, -1.0)
+
+
 def propagate_poses(filters, use, t):
     """Each robot's state at ``t`` (rows in the order of ``use``) and the pose ages.
 
@@ -484,7 +497,8 @@ def propagate_poses(filters, use, t):
     (at most ``hold_timeout`` of them: older poses only feed the stop-turn). Every
     row goes through as many arcs as the longest plan (shorter plans padded with
     zero-length arcs, which only wrap theta), one vectorised ``arc_flow`` per arc; with
-    no arcs at all, theta is wrapped all the same.
+    no arcs at all, theta is wrapped all the same. (``step_many`` does the same with
+    ``_plan`` and ``_follow`` in the pass that gathers each robot's inputs.)
     """
     planned = [_plan(filters[i], t) for i in use]
     states = np.array([filters[i].pose.value for i in use], dtype=float).reshape(-1, 3)
@@ -581,14 +595,14 @@ class _Table:
     """Every constraint of every robot, one row each (pairs first, then clusters).
 
     Columns: the robot (row in ``use``), its position in the robot's list (ties go to
-    the first), V, level, the unit avoid turn (``turns_of(rows)``, read only for the rows
-    robots avoid by; ``turn``, a list, on the one-robot path), V after the planner's hold, the obstacle
+    the first), V, level, the unit avoid turns (``turns_of(rows)``: read only for the rows
+    robots avoid by), V after the planner's hold, the obstacle
     it names (index in the robot's detections) and its centre, whether it is sound for
     its layout (a cluster's union value or the loiter fallback), its group (a lone
     obstacle, or the cluster its members belong to), members and source (labels).
     """
 
-    __slots__ = ('robot', 'position', 'value', 'level', 'turn', 'turns_of', 'value_next', 'obstacle', 'xy',
+    __slots__ = ('robot', 'position', 'value', 'level', 'turns_of', 'value_next', 'obstacle', 'xy',
                  'sound', 'group', 'members', 'source')
 
 
@@ -735,7 +749,6 @@ def _decide_one(f, problem, safe_set, t, clusters) -> Decisions:
     tab.position = list(range(n_pairs)) + [n_pairs + i for i in cl['index'].tolist()]
     tab.value = value + cl['value'].tolist()
     tab.level = [alpha] * n_pairs + cl['level'].tolist()
-    tab.turn = turn        # the pairs' (a cluster row's turn is read if the robot avoids by it)
     tab.value_next = value_next + cl['value_next'].tolist()
     tab.obstacle = list(range(n_pairs)) + cl['obstacle'].tolist()
     tab.xy = np.concatenate([det, cl['xy']]) if len(cl['xy']) else det
@@ -751,8 +764,8 @@ def _decide_one(f, problem, safe_set, t, clusters) -> Decisions:
     overrides = not failing and kind > 0
     named = k_gov if overrides else k_small
     avoid = named >= 0
-    if overrides or (failing and avoid):
-        w = bang * (tab.turn[named] if named < n_pairs else float(cl['turns_of']([named - n_pairs])[0]))
+    if overrides or (failing and avoid):      # the pairs' turns are read; a cluster row's on demand
+        w = bang * (turn[named] if named < n_pairs else float(cl['turns_of']([named - n_pairs])[0]))
     else:
         w = bang if failing else planned
     stopped = (failing and not avoid) or (not failing and not overrides and not fresh)
@@ -1170,14 +1183,13 @@ def _cluster_rows(filters, use, states, planned, horizon, speed, bang, cluster_a
     s0 = states[rows]
     ahead_r = arc_flow(s0, speed[rows], planned[rows], horizon[rows])
     w = bang[rows]
-    pts = arc_flow(np.concatenate([ahead_r, ahead_r]), np.tile(speed[rows], 2), np.concatenate([w, -w]),
-                   np.tile(horizon[rows], 2))
+    pts = _bang_ends(ahead_r, speed[rows], w, horizon[rows])
     where = np.searchsorted(rows, inst_row)
     nr = len(rows)
     state, ahead = s0[where], ahead_r[where]
 
     # the member nearest to the robot (the first on ties) names the cluster: an instance's members
-    # are one run of member_inst, in their cluster's order
+    # are one run of member_inst, in their cluster's order (distances are finite: states are)
     d = np.hypot(*(m_['xy'] - states[inst_row[member_inst], :2]).T)
     nearest_m = _first_min_of_runs(d, member_inst, np.cumsum(size) - size)
     nearest, nearest_xy = members[nearest_m], m_['xy'][nearest_m]
@@ -1229,11 +1241,10 @@ def _cluster_rows(filters, use, states, planned, horizon, speed, bang, cluster_a
         out = f_turn[i]
         u = i[ok[i]]
         if len(u):
-            s, b, h = state[u], bang[inst_row[u]], horizon[inst_row[u]]
-            ends = arc_flow(np.concatenate([s, s]), np.tile(speed[inst_row[u]], 2), np.concatenate([b, -b]),
-                            np.tile(h, 2)).reshape(2, len(u), 3)
+            robot = inst_row[u]
+            ends = _bang_ends(state[u], speed[robot], bang[robot], horizon[robot]).reshape(2, len(u), 3)
             (left, right), tie = union_values(u, ends)
-            out[ok[i]] = np.where(left >= right - tie, 1.0, -1.0)
+            out[ok[i]] = _better_bang(left, right, tie)
         return out
 
     level = cluster_alpha[inst_row]
@@ -1332,9 +1343,9 @@ def _pair_reads(vf: ValueFunction, rel, omega, horizon, speed, bang):
     if n == 0:
         return value, value_next
     holds = bool(np.any(horizon > 0))
-    # pairs too far from the grid for any hold to reach it: every V below is +inf, so the turn
-    # stays 0 and V_next is +inf (two holds move the robot at most 2 speed H; +1 m for round-off);
-    # without holds, the pairs on the grid
+    # pairs too far from the grid for any hold to reach it: every V below is +inf, so V and V_next
+    # stay +inf (two holds move the robot at most 2 speed H; +1 m for round-off); without holds,
+    # the pairs on the grid
     g = vf.grid
     reach = 2.0 * speed * horizon + 1.0 if holds else 0.0
     near = np.flatnonzero((rel[:, 0] >= g.lo[0] - reach) & (rel[:, 0] <= g.hi[0] + reach)
@@ -1346,9 +1357,7 @@ def _pair_reads(vf: ValueFunction, rel, omega, horizon, speed, bang):
     if holds:
         omega, horizon, speed, bang = omega[near], horizon[near], speed[near], bang[near]
         ahead = arc_flow(rel, speed, omega, horizon)
-        ends = arc_flow(np.concatenate([ahead, ahead]), np.tile(speed, 2), np.concatenate([bang, -bang]),
-                        np.tile(horizon, 2))
-        states = np.concatenate([rel, ends, ahead])
+        states = np.concatenate([rel, _bang_ends(ahead, speed, bang, horizon), ahead])
     else:
         states = rel
     v = vf.value(states, outside=np.inf).reshape(-1, k)
@@ -1361,19 +1370,18 @@ def _pair_reads(vf: ValueFunction, rel, omega, horizon, speed, bang):
 def _pair_turns(vf: ValueFunction, rel, value, horizon, speed, bang):
     """The unit avoid turns of ``_pair_values`` for pairs at ``rel`` with V ``value``: the
     law's sign(dV/dtheta) where V is finite (on the grid), else 0; with a hold, the bang whose
-    hold ends at the larger V (ties left) wherever either end is on the grid."""
+    hold ends at the larger V (ties left) wherever either end is on the grid. (A pair
+    ``_pair_reads`` left out as beyond any hold's reach has both ends off the grid: 0.)"""
     turn = np.zeros(len(rel))
     inside = np.isfinite(value)
     if np.any(inside):
         turn[inside] = avoid_turn(vf, rel[inside])
     held = np.flatnonzero(horizon > 0)
     if len(held):
-        r, b = rel[held], bang[held]
-        ends = arc_flow(np.concatenate([r, r]), np.tile(speed[held], 2), np.concatenate([b, -b]),
-                        np.tile(horizon[held], 2))
+        ends = _bang_ends(rel[held], speed[held], bang[held], horizon[held])
         left, right = vf.value(ends, outside=np.inf).reshape(2, len(held))
         use = np.isfinite(left) | np.isfinite(right)
-        turn[held] = np.where(use, np.where(left >= right - tie_tolerance(vf), 1.0, -1.0), turn[held])
+        turn[held] = np.where(use, _better_bang(left, right, tie_tolerance(vf)), turn[held])
     return turn
 
 

@@ -115,16 +115,10 @@ class Grid:
 
     def interpolate(self, values, states) -> np.ndarray:
         """Trilinear interpolation of node ``values`` at ``states`` (..., 3)."""
-        s = np.asarray(states, dtype=float)
-        return self.interpolate_xyt(values, s[..., 0], s[..., 1], s[..., 2])
-
-    def interpolate_xyt(self, values, x, y, theta) -> np.ndarray:
-        """``interpolate`` at states given as their coordinate arrays (no (..., 3) array built
-        for states computed by coordinate, as the rotated reads of a value function are)."""
         values = np.asarray(values)
         if values.shape[:3] != self.shape:
             raise ValueError(f'values of shape {values.shape} do not match grid {self.shape}')
-        ix, iy, it, wx, wy, wt = self._cell_of(x, y, theta)
+        ix, iy, it, wx, wy, wt = self._cell(states)
         if values.ndim == 3 and values.flags.c_contiguous:
             return self._interpolate_flat(values.reshape(-1), ix, iy, it, wx, wy, wt)
         it1 = (it + 1) % self.shape[2]
