@@ -490,22 +490,6 @@ def _better_bang(left, right, tie) -> np.ndarray:
     return np.where(left >= right - tie, 1.0, -1.0)
 
 
-def propagate_poses(filters, use, t):
-    """Each robot's state at ``t`` (rows in the order of ``use``) and the pose ages.
-
-    The pose is moved from its stamp to ``t`` along the arcs of the commands sent
-    (at most ``hold_timeout`` of them: older poses only feed the stop-turn). Every
-    row goes through as many arcs as the longest plan (shorter plans padded with
-    zero-length arcs, which only wrap theta), one vectorised ``arc_flow`` per arc; with
-    no arcs at all, theta is wrapped all the same. (``step_many`` does the same with
-    ``_plan`` and ``_follow`` in the pass that gathers each robot's inputs.)
-    """
-    planned = [_plan(filters[i], t) for i in use]
-    states = np.array([filters[i].pose.value for i in use], dtype=float).reshape(-1, 3)
-    speed = np.array([filters[i].config.speed for i in use], dtype=float)
-    return _follow(states, [p for _, p in planned], speed), np.array([a for a, _ in planned], dtype=float)
-
-
 def _follow(states, plans, speed) -> np.ndarray:
     """``states`` (N, 3) moved along their robots' ``plans`` (``_plan``'s arcs) at ``speed``
     (N,): as many ``arc_flow`` calls as the longest plan has arcs (shorter plans padded with
@@ -637,7 +621,7 @@ def step_many(filters, safe_set: SafeSet, t, clusters=None) -> list:
         return _decide_one(filters[0], problems[0], safe_set, t, clusters)
     per = []        # per robot row: lookahead, planned turn, speed, w_max, overriding, clear margin, fresh,
     #                 the clusters' level, pose age
-    poses, plans, dets = [], [], []      # (propagate_poses, in the same pass)
+    poses, plans, dets = [], [], []      # each robot's pose is moved along its plan (_follow)
     for i in use:
         f = filters[i]
         cfg = f.config
@@ -717,7 +701,7 @@ def _decide_one(f, problem, safe_set, t, clusters) -> Decisions:
     """
     cfg = f.config
     age, plan = _plan(f, t)
-    x, y, th = f.pose.value.tolist()      # propagate_poses' arcs, in Python floats
+    x, y, th = f.pose.value.tolist()      # _follow's arcs, in Python floats
     for omega, dt in plan:
         x, y, th = _arc(x, y, th, cfg.speed, omega, dt)
     if not plan:
