@@ -207,15 +207,15 @@ def test_interval_windows_keep_numpys_median_as_they_slide():
     rng = np.random.default_rng(1)
     for _ in range(100):
         window, history = _Intervals(), []
-        assert window.median() is None and list(window) == []
+        assert window.middle is None and list(window) == []
         for x in rng.choice([0.02, 0.05, 0.1, 1 / 3], 40) + rng.normal(0, 1e-3, 40) * (rng.random() < 0.5):
-            before, seen = window, (list(window), list(window.ordered), window.median())
+            before, seen = window, (list(window), list(window.ordered), window.middle)
             window = window.then(float(x))
-            assert (list(before), list(before.ordered), before.median()) == seen
+            assert (list(before), list(before.ordered), before.middle) == seen
             history.append(float(x))
             last = history[-PERIOD_SAMPLES:]
             assert list(window) == last and list(window.ordered) == sorted(last)
-            assert repr(window.median()) == repr(float(np.median(last)))
+            assert repr(window.middle) == repr(float(np.median(last)))
 
 
 def test_batched_input_updates_equal_the_per_robot_ones(standard, solved_values):

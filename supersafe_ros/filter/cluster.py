@@ -188,10 +188,9 @@ def lower_bound(vf: ValueFunction, states, lipschitz_theta: float) -> np.ndarray
     it1 = (it + 1) % g.shape[2]
     flat, ny, nth = np.ascontiguousarray(vf.values).reshape(-1), g.shape[1], g.shape[2]
     first = (ix * ny + iy) * nth      # the cell's corners are fixed offsets from its first node
-    dx1, dy1 = dx - ox, dy - oy
     heading = ((it, lipschitz_theta * ot), (it1, lipschitz_theta * (dth - ot)))
     best = None
-    for offset, ddx, ddy in ((0, ox, oy), (nth, ox, dy1), (ny * nth, dx1, oy), (ny * nth + nth, dx1, dy1)):
+    for offset, ddx, ddy in g._corners(ox, dx - ox, oy, dy - oy):
         dp = np.hypot(ddx, ddy)
         base = first + offset
         for ct, slack in heading:

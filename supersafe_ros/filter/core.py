@@ -441,9 +441,6 @@ class _Intervals:
         insort(ordered, interval)
         return _Intervals(recent + (interval,), ordered)
 
-    def median(self) -> float:
-        return self.middle
-
     def __len__(self):
         return len(self.recent)
 

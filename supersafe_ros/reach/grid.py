@@ -93,13 +93,9 @@ class Grid:
         x and y are clamped to the rectangle; theta wraps.
         """
         s = np.asarray(states, dtype=float)
-        return self._cell_of(s[..., 0], s[..., 1], s[..., 2])
-
-    def _cell_of(self, x, y, theta):
-        """``_cell`` of states given as their coordinate arrays."""
         nth = self.shape[2]
-        ix, iy, wx, wy = self._xy_cell(x, y)
-        ft = ((theta + np.pi) / self.spacing[2]) % nth
+        ix, iy, wx, wy = self._xy_cell(s[..., 0], s[..., 1])
+        ft = ((s[..., 2] + np.pi) / self.spacing[2]) % nth
         it = np.minimum(ft.astype(np.intp), nth - 1)
         return ix, iy, it, wx, wy, ft - it
 
@@ -112,6 +108,22 @@ class Grid:
         ix = np.minimum(fx.astype(np.intp), nx - 2)
         iy = np.minimum(fy.astype(np.intp), ny - 2)
         return ix, iy, fx - ix, fy - iy
+
+    def _xy_cell_at(self, x: float, y: float):
+        """``_xy_cell`` of one state, in Python floats (the same operations, the same bits)."""
+        nx, ny, _ = self.shape
+        dx, dy, _ = self.spacing
+        fx = min(max((x - self.lo[0]) / dx, 0.0), float(nx - 1))      # np.clip
+        fy = min(max((y - self.lo[1]) / dy, 0.0), float(ny - 1))
+        ix, iy = min(int(fx), nx - 2), min(int(fy), ny - 2)
+        return ix, iy, fx - ix, fy - iy
+
+    def _corners(self, x_near, x_far, y_near, y_far):
+        """The cell's four (x, y) corners in summation order: (offset of the node from the
+        cell's first one in C-ordered values, its x part, its y part), the parts given for
+        the near (lower) and far corner on each axis (weights, or distances)."""
+        ny, nth = self.shape[1], self.shape[2]
+        return ((0, x_near, y_near), (nth, x_near, y_far), (ny * nth, x_far, y_near), (ny * nth + nth, x_far, y_far))
 
     def interpolate(self, values, states) -> np.ndarray:
         """Trilinear interpolation of node ``values`` at ``states`` (..., 3)."""
@@ -139,9 +151,9 @@ class Grid:
         ny, nth = self.shape[1], self.shape[2]
         first = (ix * ny + iy) * nth + it
         step = np.where(it == nth - 1, 1 - nth, 1)      # to the next heading node, periodic
-        wx0, wy0, wt0 = 1.0 - wx, 1.0 - wy, 1.0 - wt
+        wt0 = 1.0 - wt
         out = None
-        for offset, ax, ay in ((0, wx0, wy0), (nth, wx0, wy), (ny * nth, wx, wy0), (ny * nth + nth, wx, wy)):
+        for offset, ax, ay in self._corners(1.0 - wx, wx, 1.0 - wy, wy):
             node = first + offset if offset else first
             term = (ax * ay) * (wt0 * flat.take(node) + wt * flat.take(node + step))
             out = term + 0.0 if out is None else out + term       # 0.0 + term first, as the sum from 0.0
@@ -156,9 +168,8 @@ class Grid:
         ix, iy, wx, wy = self._xy_cell(x, y)
         flat = np.ascontiguousarray(values).reshape(-1)
         first = (ix * ny + iy) * nth + np.remainder(layer, nth)
-        wx0, wy0 = 1.0 - wx, 1.0 - wy
         out = None
-        for offset, ax, ay in ((0, wx0, wy0), (nth, wx0, wy), (ny * nth, wx, wy0), (ny * nth + nth, wx, wy)):
+        for offset, ax, ay in self._corners(1.0 - wx, wx, 1.0 - wy, wy):
             term = (ax * ay) * flat.take(first + offset if offset else first)
             out = term + 0.0 if out is None else out + term       # 0.0 + term first, as from 0.0
         return np.asarray(out, dtype=float)
@@ -166,16 +177,11 @@ class Grid:
     def interpolate_layer_at(self, flat, x: float, y: float, layer: int) -> float:
         """``interpolate_layer`` at one state, in Python floats (the same operations in the
         same order, so the same value bit for bit; ``flat`` as for ``interpolate_at``)."""
-        nx, ny, nth = self.shape
-        dx, dy, _ = self.spacing
-        fx = min(max((x - self.lo[0]) / dx, 0.0), float(nx - 1))      # np.clip
-        fy = min(max((y - self.lo[1]) / dy, 0.0), float(ny - 1))
-        ix, iy = min(int(fx), nx - 2), min(int(fy), ny - 2)
-        wx, wy = fx - ix, fy - iy
+        ny, nth = self.shape[1], self.shape[2]
+        ix, iy, wx, wy = self._xy_cell_at(x, y)
         first = (ix * ny + iy) * nth + layer % nth
         out = 0.0
-        for offset, ax, ay in ((0, 1.0 - wx, 1.0 - wy), (nth, 1.0 - wx, wy), (ny * nth, wx, 1.0 - wy),
-                               (ny * nth + nth, wx, wy)):
+        for offset, ax, ay in self._corners(1.0 - wx, wx, 1.0 - wy, wy):
             out = out + (ax * ay) * flat[first + offset]
         return out
 
@@ -185,20 +191,17 @@ class Grid:
         most of the time for a handful of states). ``flat``: the node values as a flat
         sequence in C order (e.g. a memoryview of the contiguous array, see
         ``ValueFunction.flat_values``); ``x``, ``y``, ``theta`` finite."""
-        nx, ny, nth = self.shape
-        dx, dy, dth = self.spacing
-        fx = min(max((x - self.lo[0]) / dx, 0.0), float(nx - 1))      # np.clip
-        fy = min(max((y - self.lo[1]) / dy, 0.0), float(ny - 1))
-        ft = ((theta + math.pi) / dth) % nth
-        ix, iy, it = min(int(fx), nx - 2), min(int(fy), ny - 2), min(int(ft), nth - 1)
-        wx, wy, wt = fx - ix, fy - iy, ft - it
+        ny, nth = self.shape[1], self.shape[2]
+        ix, iy, wx, wy = self._xy_cell_at(x, y)
+        ft = ((theta + math.pi) / self.spacing[2]) % nth
+        it = min(int(ft), nth - 1)
+        wt = ft - it
         it1 = (it + 1) % nth
+        first = (ix * ny + iy) * nth
         out = 0.0
-        for cx, ax in ((ix, 1.0 - wx), (ix + 1, wx)):
-            for cy, ay in ((iy, 1.0 - wy), (iy + 1, wy)):
-                axy = ax * ay
-                base = (cx * ny + cy) * nth
-                out = out + axy * ((1.0 - wt) * flat[base + it] + wt * flat[base + it1])
+        for offset, ax, ay in self._corners(1.0 - wx, wx, 1.0 - wy, wy):
+            base = first + offset
+            out = out + (ax * ay) * ((1.0 - wt) * flat[base + it] + wt * flat[base + it1])
         return out
 
 
