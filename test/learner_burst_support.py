@@ -37,6 +37,14 @@ def state_of(i):
     return (-6.0 + (i % 97) * 0.1, -2.0 + (i % 41) * 0.1, 0.0)
 
 
+def newest_is(msg, published):
+    """Whether a value-function message is the learner's last published fit, by its
+    (library index, alpha) key (``LearnerNode.published``)."""
+    from supersafe_ros.ros_io.vfmsg import msg_metadata
+    meta = msg_metadata(msg)
+    return published is not None and (meta.get('index'), meta.get('alpha')) == tuple(published)
+
+
 def publisher_cmd(n, first_obstacle=1000, stamp0=1000.0):
     return [sys.executable, __file__, str(n), str(first_obstacle), repr(stamp0)]
 
@@ -70,8 +78,10 @@ def run_burst(ctx, store, n, burners=2, extra_params=(), timeout=300.0):
         spin.until(lambda: fits and fits[-1][1].get('interventions') == str(n), timeout,
                    f'/safe_set/fit counting all {n}')
         t_counted = fits[-1][0]
-        published = int(fits[-1][1]['published'])
-        spin.until(lambda: len(vfs) >= published, 60.0, f'the {published} value functions sent')
+        # the newest value function sent arrives (latched, keep-last 1: a reader that falls behind
+        # may skip one sent before it, so the count of those received is not the count sent)
+        spin.until(lambda: vfs and newest_is(vfs[-1], node.published), 60.0,
+                   f'the last of the {fits[-1][1]["published"]} value functions sent')
         with open('/proc/loadavg') as f:
             load_after = f.read().split()[0]
         out, _ = pub.communicate(timeout=120)
