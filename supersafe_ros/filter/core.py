@@ -54,8 +54,9 @@ it: no pose yet, the newest pose was invalid (NaN/inf, wrong frame) or older tha
 ``step_many`` evaluates many robots with one vectorised call of the law (one
 value-function interpolation over every robot-obstacle pair); every robot's
 constraints (per obstacle and per cluster) are rows of one table, and the rule that
-picks the governing one is applied with array reductions over it, so the Python left
-per robot is reading its inputs and recording its command. The result (``Decisions``)
+picks the governing one is applied with array reductions over it. The robots' inputs are
+read into columns once (``_gather``: their age, plans, lookahead and planner's command as
+arrays), so the Python left per robot is a few attribute reads and recording its command. The result (``Decisions``)
 holds the commands as lists and builds each robot's ``FilterOutput``, with its reason,
 only when it is read. It decides exactly
 as the robot-by-robot implementation it replaced (test_filter_vectorised.py keeps that
@@ -73,6 +74,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 import itertools
 import math
+from operator import attrgetter, is_not
 
 import numpy as np
 
@@ -487,20 +489,144 @@ def _better_bang(left, right, tie) -> np.ndarray:
     return np.where(left >= right - tie, 1.0, -1.0)
 
 
-def _follow(states, plans, speed) -> np.ndarray:
-    """``states`` (N, 3) moved along their robots' ``plans`` (``_plan``'s arcs) at ``speed``
-    (N,): as many ``arc_flow`` calls as the longest plan has arcs (shorter plans padded with
+def _follow(states, omegas, dts, speed) -> np.ndarray:
+    """``states`` (N, 3) moved along their robots' plans at ``speed`` (N,): arc k of robot i
+    holds ``omegas[k, i]`` for ``dts[k, i]`` (``_gather``'s arcs; shorter plans padded with
     zero-length arcs, which only wrap theta); with no arcs at all, theta wrapped all the same
     (a robot's state does not depend on the other robots' plans)."""
-    depth = max(map(len, plans), default=0)
-    if depth == 0:
+    if len(omegas) == 0:
         states[:, 2] = wrap_angle(states[:, 2])
         return states
-    for k in range(depth):
-        omega = np.array([p[k][0] if k < len(p) else 0.0 for p in plans])
-        dt = np.array([p[k][1] if k < len(p) else 0.0 for p in plans])
+    for omega, dt in zip(omegas, dts):
         states = arc_flow(states, speed, omega, dt)
     return states
+
+
+class _Robots:
+    """The inputs of a fleet's robots as columns (``_gather``): for all N robots, their
+    configurations, problems ('' if judged), turn bound and history kept; for the M robots
+    whose (last valid) state enters the law (``use``, their rows), everything the law needs."""
+
+    __slots__ = ('filters', 'use', 'problems', 'all_configs', 'all_bang', 'all_keep', 'configs', 'failing',
+                 'poses', 'omega_arcs', 'dt_arcs', 'age', 'dets', 'horizon', 'planned', 'speed', 'bang',
+                 'overriding', 'margin', 'fresh', 'cluster_alpha')
+
+
+_NEVER = (math.inf, 0.0)      # the (time, turn) a robot with no such command sent shows: no arc starts then
+_VALUE, _T, _STAMP, _REJECTED = (attrgetter(a) for a in ('value', 't', 'stamp', 'rejected'))
+
+
+def _judged(f, t):
+    """(why ``f`` cannot be judged now, '' if it can; whether its (last valid) state enters
+    the law: judged, or failing safe with a pose and detections younger than hold_timeout)."""
+    cfg, pose, det = f.config, f.pose, f.detections
+    if (pose.rejected or det.rejected or pose.value is None or det.value is None
+            or t - pose.t > cfg.pose_timeout or t - det.t > cfg.detections_timeout):
+        return f.problem(t), (pose.value is not None and det.value is not None
+                              and t - pose.t <= cfg.hold_timeout and t - det.t <= cfg.hold_timeout)
+    return '', True
+
+
+def _config_columns(configs, names):
+    """Per robot, the configuration fields ``names`` as float columns (robots share a few
+    configurations: each field is read once per distinct one)."""
+    if configs and configs.count(configs[0]) == len(configs):      # equal configurations: equal fields
+        c = configs[0]
+        return [np.full(len(configs), float(getattr(c, a))) for a in names]
+    distinct = {id(c): c for c in configs}
+    index = {k: i for i, k in enumerate(distinct)}
+    row = np.fromiter((index[id(c)] for c in configs), dtype=np.intp, count=len(configs))
+    return [np.array([float(getattr(c, a)) for c in distinct.values()])[row] for a in names]
+
+
+def _gather(filters, t) -> _Robots:
+    """The fleet's inputs as columns, with ``_judged``, ``_plan``, ``_command_fresh``,
+    ``RobotFilter.lookahead`` and ``_planned_turn`` evaluated over them: the same comparisons
+    and the same arithmetic (Python's min and max as ``_py_min``/``_py_max``), so the same
+    values bit for bit; a robot whose plan is neither of ``_plan``'s two common cases gets
+    ``segments_since`` (a pose older than two commands sent)."""
+    rb = _Robots()
+    n = len(filters)
+    configs = [f.config for f in filters]
+    (pose_timeout, det_timeout, hold, bang_all, compensate, cmd_timeout, look, period, speed, margin,
+     cluster_alpha) = _config_columns(configs, ('pose_timeout', 'detections_timeout', 'hold_timeout', 'omega_max',
+                                                'compensate_delay', 'cmd_timeout', 'lookahead', 'control_period',
+                                                'speed', 'clear_margin', 'cluster_alpha'))
+    rb.all_configs, rb.all_bang, rb.all_keep = configs, bang_all, _py_max(hold, pose_timeout) + 1.0
+    poses, dets = [f.pose for f in filters], [f.detections for f in filters]
+    pose_t = np.fromiter(map(_T, poses), dtype=float, count=n)
+    det_t = np.fromiter(map(_T, dets), dtype=float, count=n)
+    pose_values, det_values = list(map(_VALUE, poses)), list(map(_VALUE, dets))
+    has = (np.fromiter(map(is_not, pose_values, itertools.repeat(None)), dtype=bool, count=n)
+           & np.fromiter(map(is_not, det_values, itertools.repeat(None)), dtype=bool, count=n))
+    clean = np.ones(n, bool)
+    for inputs in (poses, dets):
+        if any(map(_REJECTED, inputs)):
+            clean &= ~np.fromiter(map(bool, map(_REJECTED, inputs)), dtype=bool, count=n)
+    judged = has & clean & ~(t - pose_t > pose_timeout) & ~(t - det_t > det_timeout)
+    rb.problems = [''] * n
+    for i in np.flatnonzero(~judged).tolist():
+        rb.problems[i] = filters[i].problem(t)
+    use = np.flatnonzero(judged | (has & (t - pose_t <= hold) & (t - det_t <= hold)))
+    rb.use, m = use, len(use)
+    if m < n:
+        filters, configs, poses, pose_values, det_values = (
+            [x[i] for i in use.tolist()] for x in (filters, configs, poses, pose_values, det_values))
+        pose_t = pose_t[use]
+        (hold, compensate, cmd_timeout, look, period, speed, bang, margin, cluster_alpha) = (
+            c[use] for c in (hold, compensate, cmd_timeout, look, period, speed, bang_all, margin, cluster_alpha))
+    else:
+        bang = bang_all
+    rb.filters, rb.configs, rb.failing = filters, configs, ~judged[use]
+    rb.speed, rb.bang, rb.margin, rb.cluster_alpha = speed, bang, margin, cluster_alpha
+    rb.dets = det_values
+    rb.poses = np.array(pose_values, dtype=float).reshape(m, 3)
+    rb.overriding = np.fromiter((f.overriding for f in filters), dtype=bool, count=m)
+    compensate = compensate != 0.0
+
+    # _plan: the pose's age, and the arcs held since its stamp
+    stamp = np.fromiter(map(_STAMP, poses), dtype=float, count=m)
+    age = t - np.where(stamp < pose_t, stamp, pose_t)
+    age = np.where(compensate, _py_max(0.0, _py_min(age, hold)), 0.0)
+    rb.age = age
+    t0 = t - age
+    sents = [f.sent for f in filters]
+    last = np.fromiter(itertools.chain.from_iterable(s[-1] if s else _NEVER for s in sents), dtype=float,
+                       count=2 * m).reshape(m, 2)
+    prev = np.fromiter(itertools.chain.from_iterable(s[-2] if len(s) > 1 else _NEVER for s in sents),
+                       dtype=float, count=2 * m).reshape(m, 2)
+    moving = compensate & (t > t0)
+    one = moving & (last[:, 0] <= t0)                        # nothing sent since the pose: one arc
+    two = moving & ~one & (prev[:, 0] <= t0) & (t0 < last[:, 0]) & (last[:, 0] < t)   # one command since
+    rest = np.flatnonzero(moving & ~one & ~two).tolist()
+    plans = [filters[i].segments_since(float(t0[i]), t) for i in rest]
+    depth = max([len(p) for p in plans] + [2 if two.any() else 1 if one.any() else 0])
+    omegas, dts = np.zeros((depth, m)), np.zeros((depth, m))
+    if depth:
+        omegas[0, one], dts[0, one] = last[one, 1], t - t0[one]
+        omegas[0, two], dts[0, two] = prev[two, 1], last[two, 0] - t0[two]
+    if depth > 1:
+        omegas[1, two], dts[1, two] = last[two, 1], t - last[two, 0]
+    for i, plan in zip(rest, plans):
+        for k, (w, d) in enumerate(plan):
+            omegas[k, i], dts[k, i] = w, d
+    rb.omega_arcs, rb.dt_arcs = omegas, dts
+
+    # _command_fresh, _planned_turn (clipped as _clip) and the lookahead
+    commands = [f.command for f in filters]
+    value = list(map(_VALUE, commands))
+    rb.fresh = fresh = (np.fromiter(map(is_not, value, itertools.repeat(None)), dtype=bool, count=m)
+                        & (t - np.fromiter(map(_T, commands), dtype=float, count=m) <= cmd_timeout))
+    value = np.array([0.0 if v is None else v for v in value] if None in value else value, dtype=float)
+    clipped = np.where(value < bang, value, bang)
+    clipped = np.where(clipped > -bang, clipped, -bang)
+    rb.planned = np.where(fresh, clipped, 0.0)
+    # measured period: the larger median of the pose and command intervals (each > 0; none: 0)
+    measured = _py_max(*(np.array([0.0 if w.middle is None else w.middle for w in windows], dtype=float)
+                         for windows in ([f._pose_intervals for f in filters], [f._command_intervals for f in filters])))
+    period = np.where(period > 0.0, period, measured)
+    rb.horizon = np.where(compensate, _py_max(look, period), look)
+    return rb
 
 
 def _plan(f, t):
@@ -580,11 +706,12 @@ class _Table:
     robots avoid by), V after the planner's hold, the obstacle
     it names (index in the robot's detections) and its centre, whether it is sound for
     its layout (a cluster's union value or the loiter fallback), its group (a lone
-    obstacle, or the cluster its members belong to), members and source (labels).
+    obstacle, or the cluster its members belong to), members, and for a cluster row whether it
+    is the loiter fallback (its source 'cluster-fallback', else 'cluster').
     """
 
     __slots__ = ('robot', 'position', 'value', 'level', 'turns_of', 'value_next', 'obstacle', 'xy',
-                 'sound', 'group', 'members', 'source')
+                 'sound', 'group', 'members', 'fallback')
 
 
 def step_many(filters, safe_set: SafeSet, t, clusters=None) -> list:
@@ -596,43 +723,21 @@ def step_many(filters, safe_set: SafeSet, t, clusters=None) -> list:
     for obstacles judged together (None: the process's shared store for the
     robots' configuration; see ``filter.cluster``).
 
-    Every robot's constraints (one per detected obstacle, one per cluster) are rows
-    of one table; the rule that picks the governing one (``_govern``) is evaluated
+    The robots' inputs are gathered into columns once (``_gather``), and every
+    robot's constraints (one per detected obstacle, one per cluster) are rows of
+    one table; the rule that picks the governing one (``_govern``) is evaluated
     over the table with array operations. Returns ``Decisions``: the commands as
     lists, each robot's ``FilterOutput`` built when read.
     """
-    n = len(filters)
-    problems = [''] * n
-    use = []      # robots whose (last valid) state enters the law
-    for i, f in enumerate(filters):
-        cfg, pose, det = f.config, f.pose, f.detections
-        if (pose.rejected or det.rejected or pose.value is None or det.value is None
-                or t - pose.t > cfg.pose_timeout or t - det.t > cfg.detections_timeout):
-            problems[i] = f.problem(t)
-            if not (pose.value is not None and det.value is not None
-                    and t - pose.t <= cfg.hold_timeout and t - det.t <= cfg.hold_timeout):
-                continue
-        use.append(i)
-    m = len(use)
-    if n == 1 and m == 1:
-        return _decide_one(filters[0], problems[0], safe_set, t, clusters)
-    per = []        # per robot row: lookahead, planned turn, speed, w_max, overriding, clear margin, fresh,
-    #                 the clusters' level, pose age
-    poses, plans, dets = [], [], []      # each robot's pose is moved along its plan (_follow)
-    for i in use:
-        f = filters[i]
-        cfg = f.config
-        age, plan = _plan(f, t)
-        fresh = _command_fresh(f, t)
-        per.append((f.lookahead(), _planned_turn(f, t, fresh), cfg.speed, cfg.omega_max, f.overriding,
-                    cfg.clear_margin, fresh, cfg.cluster_alpha, age))
-        poses.append(f.pose.value)
-        plans.append(plan)
-        dets.append(f.detections.value)
-    per = np.array(per, dtype=float).reshape(-1, 9)
-    states = _follow(np.array(poses, dtype=float).reshape(-1, 3), plans, per[:, 2].copy())
-    ages = per[:, 8]
-    horizon, planned, speed, bang = per[:, 0].copy(), per[:, 1].copy(), per[:, 2].copy(), per[:, 3].copy()
+    if len(filters) == 1:
+        f = filters[0]
+        problem, usable = _judged(f, t)
+        if usable:
+            return _decide_one(f, problem, safe_set, t, clusters)
+    rb = _gather(filters, t)
+    m = len(rb.use)
+    states = _follow(rb.poses, rb.omega_arcs, rb.dt_arcs, rb.speed)
+    horizon, planned, speed, bang, dets = rb.horizon, rb.planned, rb.speed, rb.bang, rb.dets
     counts = np.fromiter(map(len, dets), dtype=np.intp, count=m)
 
     # -- one row per (robot, detected obstacle): the safe set in force -------------------------
@@ -651,7 +756,8 @@ def step_many(filters, safe_set: SafeSet, t, clusters=None) -> list:
                                     bang[pair_robot])
     position = np.arange(n_pairs) - start[pair_robot]
     group = np.arange(n_pairs)          # each obstacle its own group until clustered
-    cl = _cluster_rows(filters, use, states, planned, horizon, speed, bang, per[:, 7], dets, start, clusters)
+    cl = _cluster_rows(rb.filters, rb.configs, states, planned, horizon, speed, bang, rb.cluster_alpha, dets, start,
+                       clusters)
     group[cl['member_pairs']] = n_pairs + cl['member_groups']
     tab = _Table()
     k = len(cl['robot'])
@@ -666,10 +772,9 @@ def step_many(filters, safe_set: SafeSet, t, clusters=None) -> list:
     tab.sound = cat(np.zeros(n_pairs, bool), np.ones(k, bool))
     tab.group = cat(group, n_pairs + cl['group'])
     tab.members = cat(np.ones(n_pairs, np.intp), cl['members'])
-    tab.source = [safe_set.source] * n_pairs + cl['source']
+    tab.fallback = cat(np.zeros(n_pairs, bool), cl['fallback'])
 
-    overriding, margin = per[:, 4] != 0.0, per[:, 5].copy()
-    k_gov, kind = _govern(tab, overriding, margin, n_pairs + cl['n_groups'], m)
+    k_gov, kind = _govern(tab, rb.overriding, rb.margin, n_pairs + cl['n_groups'], m)
     k_small = _first_min(tab.robot, tab.position, tab.value - tab.level, np.isfinite(tab.value), m)
 
     def turns_of(rows) -> np.ndarray:
@@ -683,7 +788,7 @@ def step_many(filters, safe_set: SafeSet, t, clusters=None) -> list:
         return out
 
     tab.turns_of = turns_of
-    return _outputs(filters, problems, use, safe_set, t, tab, k_gov, kind, k_small, per, ages, cl['solving'])
+    return _outputs(filters, rb, safe_set, t, tab, k_gov, kind, k_small, cl['solving'])
 
 
 def _decide_one(f, problem, safe_set, t, clusters) -> Decisions:
@@ -720,7 +825,7 @@ def _decide_one(f, problem, safe_set, t, clusters) -> Decisions:
                                                   np.full(n_pairs, bang))]
     value, turn, value_next = pairs
     one = lambda v: np.array([v], dtype=float)      # noqa: E731  (a robot's column)
-    cl = _cluster_rows([f], [0], states, one(planned), one(horizon), one(speed), one(bang), one(cfg.cluster_alpha),
+    cl = _cluster_rows([f], [cfg], states, one(planned), one(horizon), one(speed), one(bang), one(cfg.cluster_alpha),
                        [det], np.zeros(1, np.intp), clusters)
     alpha = float(safe_set.alpha)
     group = list(range(n_pairs))
@@ -736,7 +841,7 @@ def _decide_one(f, problem, safe_set, t, clusters) -> Decisions:
     tab.sound = [False] * n_pairs + [True] * len(cl['robot'])
     tab.group = group + [n_pairs + g for g in cl['group'].tolist()]
     tab.members = [1] * n_pairs + cl['members'].tolist()
-    tab.source = [safe_set.source] * n_pairs + cl['source']
+    tab.fallback = [False] * n_pairs + cl['fallback'].tolist()
 
     k_gov, kind, k_small = _govern_one(tab, f.overriding, float(cfg.clear_margin))
 
@@ -846,14 +951,15 @@ class Decisions(Sequence):
         return f'Decisions({list(self)!r})'
 
 
-def _outputs(filters, problems, use, safe_set, t, tab, k_gov, kind, k_small, per, ages, solving) -> Decisions:
+def _outputs(filters, rb, safe_set, t, tab, k_gov, kind, k_small, solving) -> Decisions:
     """Every robot's command (as lists), its filter's state (overriding, the command
     remembered as sent), and a builder of its FilterOutput."""
-    n, m = len(filters), len(use)
+    n, use = len(filters), rb.use
+    m = len(use)
     row_of = np.full(n, -1, dtype=np.intp)
-    row_of[np.asarray(use, dtype=np.intp)] = np.arange(m)
-    horizon, planned, speed, bang, fresh = per[:, 0], per[:, 1], per[:, 2], per[:, 3], per[:, 6] != 0.0
-    failing = np.array([bool(problems[i]) for i in use], dtype=bool)
+    row_of[use] = np.arange(m)
+    horizon, planned, speed, bang, fresh = rb.horizon, rb.planned, rb.speed, rb.bang, rb.fresh
+    failing = rb.failing
     overrides = ~failing & (kind > 0)
     named = np.where(overrides, k_gov, k_small)      # the constraint each robot's output names
     avoid = named >= 0
@@ -868,20 +974,15 @@ def _outputs(filters, problems, use, safe_set, t, tab, k_gov, kind, k_small, per
     linear_row = np.where(stopped, 0.0, speed)
     code_row = np.where(failing, 2, np.where(overrides, 1, 0))
     # per robot (rows of ``use`` in place; a robot with no recent valid state: stop-turn)
-    omega, linear, code, over = np.empty(n), np.zeros(n), np.full(n, 2), np.zeros(n, bool)
-    at = np.asarray(use, dtype=np.intp)
-    omega[at], linear[at], code[at], over[at] = omega_row, linear_row, code_row, overrides
-    for i in np.flatnonzero(row_of < 0).tolist():
-        omega[i] = filters[i].config.omega_max
+    omega, linear, code, over = rb.all_bang.copy(), np.zeros(n), np.full(n, 2), np.zeros(n, bool)
+    omega[use], linear[use], code[use], over[use] = omega_row, linear_row, code_row, overrides
     omega, linear, over = omega.tolist(), linear.tolist(), over.tolist()
     action = _ACTIONS[code].tolist()
-    for f, w, o in zip(filters, omega, over):
-        f.overriding = o  # failing safe clears it: re-enter by the law once inputs are back
-        f.record_sent(w, t)
+    _record_all(filters, omega, over, t, rb.all_keep)
     rows = row_of.tolist()
-    configs = [f.config for f in filters]      # as at the decision (a parameter change replaces it)
-    common = _set_fields(safe_set)
-    fresh, kind, named = fresh.tolist(), kind.tolist(), named.tolist()
+    problems, configs = rb.problems, rb.all_configs      # configs as at the decision (a parameter change
+    common = _set_fields(safe_set)                       # replaces a robot's)
+    fresh, kind, named, ages = fresh.tolist(), kind.tolist(), named.tolist(), rb.age
 
     def describe(i) -> FilterOutput:
         row = rows[i]
@@ -892,6 +993,19 @@ def _outputs(filters, problems, use, safe_set, t, tab, k_gov, kind, k_small, per
                         fresh[row], float(horizon[row]), float(ages[row]), int(solving[row]), False)
 
     return Decisions(omega, linear, action, describe)
+
+
+def _record_all(filters, omega, over, t, keep) -> None:
+    """Each robot's ``overriding = over[i]`` and ``record_sent(omega[i], t)``, in one loop (a
+    fleet's tick: the method's call and its configuration lookups cost more than its work);
+    ``keep``: each robot's history kept, as ``record_sent`` computes it."""
+    ts = float(t)
+    for f, w, o, cut in zip(filters, omega, over, (t - keep).tolist()):
+        f.overriding = o  # failing safe clears it: re-enter by the law once inputs are back
+        sent = f.sent
+        sent.append((ts, w))
+        while len(sent) > 1 and sent[1][0] <= cut:
+            sent.popleft()
 
 
 def _set_fields(safe_set) -> dict:
@@ -914,9 +1028,10 @@ def _explain(problem, cfg, w, v, a, set_fields, tab, k, kind, fresh, horizon, ag
         members, obstacle = int(tab.members[k]), int(tab.obstacle[k])
         common.update(obstacle_index=obstacle, obstacle_xy=tuple(float(c) for c in tab.xy[k]), value=value,
                       alpha=level)
+        source = 'cluster-fallback' if tab.fallback[k] else 'cluster'     # a cluster row's
         if tab.sound[k]:
-            common['source'] = tab.source[k]
-        label = (f'a cluster of {members} obstacles ({tab.source[k]}, nearest {obstacle})' if members > 1
+            common['source'] = source
+        label = (f'a cluster of {members} obstacles ({source}, nearest {obstacle})' if members > 1
                  else f'obstacle {obstacle}')
     if problem:
         if k >= 0:
@@ -990,15 +1105,15 @@ def _cluster_frames(det, store) -> _ClusterFrames:
     return got
 
 
-_NONE_I, _NONE_F = np.zeros(0, np.intp), np.zeros(0)
-_NONE_I.flags.writeable = _NONE_F.flags.writeable = False
+_NONE_I, _NONE_F, _NONE_B = np.zeros(0, np.intp), np.zeros(0), np.zeros(0, bool)
+_NONE_I.flags.writeable = _NONE_F.flags.writeable = _NONE_B.flags.writeable = False
 _NO_CLUSTERS = dict(robot=_NONE_I, index=_NONE_I, value=_NONE_F, level=_NONE_F,
                     turns_of=lambda r: np.zeros(len(r)), value_next=_NONE_F,
-                    obstacle=_NONE_I, xy=_NONE_F.reshape(0, 2), group=_NONE_I, members=_NONE_I, source=[],
+                    obstacle=_NONE_I, xy=_NONE_F.reshape(0, 2), group=_NONE_I, members=_NONE_I, fallback=_NONE_B,
                     member_pairs=_NONE_I, member_groups=_NONE_I, n_groups=0)
 
 
-def _cluster_rows(filters, use, states, planned, horizon, speed, bang, cluster_alpha, dets, start,
+def _cluster_rows(filters, configs, states, planned, horizon, speed, bang, cluster_alpha, dets, start,
                   store_arg) -> dict:
     """The cluster constraints of every robot, as table columns (see ``_Table``).
 
@@ -1020,26 +1135,24 @@ def _cluster_rows(filters, use, states, planned, horizon, speed, bang, cluster_a
     read per distinct cluster value, one fallback evaluation per store. The rows' turns
     are read on demand (``turns_of``, for the rows robots avoid by).
     """
-    solving = np.zeros(len(use), dtype=np.intp)
+    m = len(filters)
+    solving = np.zeros(m, dtype=np.intp)
     entries = {}      # (frames, store) -> rows of the robots that use them, in order
     shared = {}
     stores = {}       # id(config) -> its default store (robots of a fleet share one config)
     joins = {}        # (id(detections), id(config)) -> the entry its robots join (None: no clusters)
-    last_det = last_cfg = last_entry = None      # the previous robot's (a batched fleet: all the same)
-    for row, i in enumerate(use):
-        f = filters[i]
-        det = dets[row]
-        cfg = f.config
-        if det is last_det and cfg is last_cfg:
-            if last_entry is not None:
-                last_entry[2].append(row)
-            continue
-        last_det, last_cfg, last_entry = det, cfg, None
+    # runs of robots with the same detections array and configuration (a batched fleet: one run)
+    # join their entry at once
+    ids = np.stack([np.fromiter(map(id, dets), dtype=np.uint64, count=m),
+                    np.fromiter(map(id, configs), dtype=np.uint64, count=m)]) if m else np.zeros((2, 0), np.uint64)
+    starts = np.flatnonzero(np.concatenate(([True], np.any(ids[:, 1:] != ids[:, :-1], axis=0)))).tolist() if m else []
+    for row, end in zip(starts, starts[1:] + [m]):
+        f, det, cfg = filters[row], dets[row], configs[row]
         key = (id(det), id(cfg))
         if key in joins:            # robots given one detections array (the batched fleet)
-            last_entry = entry = joins[key]
+            entry = joins[key]
             if entry is not None:
-                entry[2].append(row)
+                entry[2].extend(range(row, end))
             continue
         joins[key] = None
         if not cfg.clusters or len(det) <= 1:
@@ -1060,8 +1173,8 @@ def _cluster_rows(filters, use, states, planned, horizon, speed, bang, cluster_a
             entry = entries.get((id(fr), id(store)))
             if entry is None:
                 entry = entries[(id(fr), id(store))] = (fr, store, [])
-            entry[2].append(row)
-            joins[key] = last_entry = entry
+            entry[2].extend(range(row, end))
+            joins[key] = entry
     if not entries:
         return dict(_NO_CLUSTERS, solving=solving)
     entries = list(entries.values())
@@ -1160,7 +1273,7 @@ def _cluster_rows(filters, use, states, planned, horizon, speed, bang, cluster_a
 
     # holds from the state now: the planner's command, then both bangs from its end (the bangs
     # from the state now give the avoid turn, read only for the rows a robot names: turns_of)
-    rows = np.flatnonzero(np.bincount(inst_row, minlength=len(use)))     # np.unique's, without a sort
+    rows = np.flatnonzero(np.bincount(inst_row, minlength=m))     # np.unique's, without a sort
     s0 = states[rows]
     ahead_r = arc_flow(s0, speed[rows], planned[rows], horizon[rows])
     w = bang[rows]
@@ -1229,11 +1342,10 @@ def _cluster_rows(filters, use, states, planned, horizon, speed, bang, cluster_a
         return out
 
     level = cluster_alpha[inst_row]
-    source = np.where(ok, 'cluster', 'cluster-fallback')[keep].tolist()
     return dict(robot=inst_row[keep], index=c['gi'][keep], value=np.where(ok, v4[0], f_value[0])[keep],
                 level=np.where(ok, level, 0.0)[keep], turns_of=turns_of,
                 value_next=np.where(ok, u_next, f_value[1])[keep], obstacle=nearest[keep],
-                xy=nearest_xy[keep], group=np.arange(n_inst)[keep], members=size[keep], source=source,
+                xy=nearest_xy[keep], group=np.arange(n_inst)[keep], members=size[keep], fallback=~ok[keep],
                 member_pairs=member_pairs, member_groups=member_inst, n_groups=n_inst, solving=solving)
 
 
