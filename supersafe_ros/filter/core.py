@@ -753,7 +753,7 @@ def step_many(filters, safe_set: SafeSet, t, clusters=None) -> list:
     else:
         centres, rel = np.zeros((0, 2)), np.zeros((0, 3))
     value, value_next = _pair_reads(safe_set.vf, rel, planned[pair_robot], horizon[pair_robot], speed[pair_robot],
-                                    bang[pair_robot])
+                                    bang[pair_robot], float(safe_set.alpha))
     position = np.arange(n_pairs) - start[pair_robot]
     group = np.arange(n_pairs)          # each obstacle its own group until clustered
     cl = _cluster_rows(rb.filters, rb.configs, states, planned, horizon, speed, bang, rb.cluster_alpha, dets, start,
@@ -1428,9 +1428,15 @@ def _pair_values(vf: ValueFunction, rel, omega, horizon, speed, bang):
     return value, _pair_turns(vf, rel, value, horizon, speed, bang), value_next
 
 
-def _pair_reads(vf: ValueFunction, rel, omega, horizon, speed, bang):
+def _pair_reads(vf: ValueFunction, rel, omega, horizon, speed, bang, level=math.inf):
     """(V, V next) of ``_pair_values``: V at the pair's state and where the planner's hold and
-    both bangs after it end, in one read."""
+    both bangs after it end, in one read; V next only where it can be at or below ``level``
+    (the pairs' alpha; +inf: everywhere), else a lower bound above it (so the row never looks
+    ahead: the same decisions).
+
+    The holds end within 2 speed H of the pair's state, so no read there can be below
+    ``vf.radial_minimum`` over that band of radii: a pair whose bound is above the level
+    needs no hold read (most pairs on the grid, away from their obstacle)."""
     n = len(rel)
     value, value_next = np.full(n, np.inf), np.full(n, np.inf)
     if n == 0:
@@ -1447,16 +1453,21 @@ def _pair_reads(vf: ValueFunction, rel, omega, horizon, speed, bang):
         return value, value_next
     rel = rel[near]
     k = len(rel)
-    if holds:
-        omega, horizon, speed, bang = omega[near], horizon[near], speed[near], bang[near]
-        ahead = arc_flow(rel, speed, omega, horizon)
-        states = np.concatenate([rel, _bang_ends(ahead, speed, bang, horizon), ahead])
-    else:
-        states = rel
-    v = vf.value(states, outside=np.inf).reshape(-1, k)
-    value[near] = v[0]
-    if holds:
-        value_next[near] = np.where(horizon > 0, np.minimum(v[3], np.maximum(v[1], v[2])), np.inf)
+    if not holds:
+        value[near] = vf.value(rel, outside=np.inf)
+        return value, value_next
+    horizon, speed = horizon[near], speed[near]
+    radius, travel = np.hypot(rel[:, 0], rel[:, 1]), 2.0 * speed * horizon
+    bound = vf.radial_minimum(radius - travel, radius + travel)
+    held = np.flatnonzero((horizon > 0) & ~(bound > level + 1e-6))      # NaN-safe: read if unsure
+    h = len(held)
+    ahead = arc_flow(rel[held], speed[held], omega[near][held], horizon[held])
+    v = vf.value(np.concatenate([rel, _bang_ends(ahead, speed[held], bang[near][held], horizon[held]), ahead]),
+                 outside=np.inf)
+    value[near] = v[:k]
+    later = np.where(horizon > 0, bound, np.inf)
+    later[held] = np.minimum(v[k + 2 * h:], np.maximum(v[k:k + h], v[k + h:k + 2 * h]))
+    value_next[near] = later
     return value, value_next
 
 

@@ -48,6 +48,7 @@ class ValueFunction:
         self._grad_theta = None
         self._flat = None
         self._flat_grad_theta = None
+        self._radial = None
 
     # -- evaluation -------------------------------------------------------
     @property
@@ -115,9 +116,43 @@ class ValueFunction:
             out = v if out is None or not out < v else out     # np.minimum(out, v), signed zeros too
         return out
 
+    def radial_minimum(self, r_lo, r_hi) -> np.ndarray:
+        """A lower bound of ``value(s)`` over every state s on the grid whose (x, y) lies at a
+        distance in [r_lo, r_hi] from the origin (arrays; +inf where no read can be there).
+
+        Either read of V is a convex combination of node values (trilinear, or bilinear on a
+        heading layer) of the nodes of one (x, y) cell, all within the cell's diagonal h of
+        the point read. A trilinear read is at (x, y) itself. A rotationally symmetric read is
+        at (x, y) rotated about the origin by at most one heading step dth, so at the same
+        radius r, unless the rotation leaves the rectangle (only if r > rho, the radius of the
+        largest disc about the origin inside it): then it is clamped, which moves it no
+        farther than its distance r dth from (x, y), and onto the rectangle's edge (radius >=
+        rho). So every node a read can use has its radius in [f(r_lo) - h, r_hi + h], with
+        f(r) = r up to rho and max(rho, r (1 - dth)) beyond, and V read >= the smallest node
+        value (over every heading) in that band: a range minimum over radius bins (a sparse
+        table, built once), widened by 1e-9 m for round-off.
+        """
+        if self._radial is None:
+            self._radial = _radial_table(self.grid, self.values)
+        width, table, h, rho = self._radial
+        lo = np.asarray(r_lo, dtype=float)
+        if self.rotationally_symmetric:
+            lo = np.where(lo > rho, np.maximum(rho, lo * (1.0 - self.grid.spacing[2])), lo)
+        lo = np.maximum(lo - h - 1e-9, 0.0)
+        hi = np.asarray(r_hi, dtype=float) + h + 1e-9
+        n_bins = table.shape[1] - 1      # the last column: the padding
+        first = np.minimum(np.floor(lo / width), n_bins).astype(np.intp)
+        last = np.minimum(np.floor(hi / width), n_bins - 1).astype(np.intp)
+        level = np.floor(np.log2(np.maximum(last - first + 1, 1))).astype(np.intp)
+        # the range's minimum is that of its first 2**level bins and its last 2**level bins (an
+        # empty range, beyond every node: the padding column, +inf)
+        a = np.minimum(first, n_bins)
+        b = np.where(last >= first, last - (1 << level) + 1, n_bins)
+        return np.minimum(table[level, a], table[level, b])
+
     def __getstate__(self):
         state = dict(self.__dict__)
-        state['_flat'] = state['_flat_grad_theta'] = None    # memoryviews do not pickle; rebuilt on use
+        state['_flat'] = state['_flat_grad_theta'] = state['_radial'] = None    # memoryviews do not pickle; rebuilt on use
         return state
 
     def flat_values(self):
@@ -221,3 +256,26 @@ class ValueFunction:
         }
         with open(path, 'w') as f:
             json.dump(d, f)
+
+
+def _radial_table(grid: Grid, values):
+    """(bin width, sparse table, cell diagonal, rho) of ``ValueFunction.radial_minimum``: the
+    node values' minimum over headings, binned by node radius (bins of half the smaller
+    spacing); row k of the table the minimum over 2**k bins from each bin on, with a last
+    column of +inf (no node); rho the radius of the largest disc about the origin inside the
+    rectangle (0 if the origin is outside)."""
+    dx, dy, _ = grid.spacing
+    width = 0.5 * min(dx, dy)
+    radius = np.hypot(grid.x[:, None], grid.y[None, :]).reshape(-1)
+    lowest = np.asarray(values, dtype=float).min(axis=2).reshape(-1)
+    bins = np.floor(radius / width).astype(np.intp)
+    n_bins = int(bins.max()) + 1
+    row = np.full(n_bins + 1, np.inf)
+    np.minimum.at(row, bins, lowest)
+    table = [row]
+    while 2 ** len(table) <= n_bins:
+        span = 2 ** (len(table) - 1)
+        prev = table[-1]
+        table.append(np.concatenate([np.minimum(prev[:-span], prev[span:]), np.full(span, np.inf)]))
+    rho = max(0.0, min(-grid.lo[0], -grid.lo[1], grid.hi[0], grid.hi[1]))
+    return width, np.array(table), math.hypot(dx, dy), rho
