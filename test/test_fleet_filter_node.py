@@ -266,3 +266,67 @@ def test_robots_parameter_is_read_only_and_must_name_distinct_robots(setup, ros_
     with pytest.raises(ValueError, match='twice'):
         FleetSafetyFilterNode(node_name='fleet_dup', context=ros_context,
                               parameter_overrides=[Parameter('robots', value=['a', '/a/'])])
+
+
+def test_fleet_throttle_publishes_as_a_throttle_per_robot():
+    """FleetThrottle (the fleet node's arrays) says the same robots are due, tick by tick, as one
+    StateThrottle per robot: on its phase, on a change of action or of the set, and after pauses
+    (the phase restarts)."""
+    from supersafe_ros.nodes.filter_wiring import FleetThrottle, StateThrottle
+    rng = np.random.default_rng(3)
+    n, period, start = 37, 0.5, 100.0
+    fleet = FleetThrottle(n, start, period)
+    each = [StateThrottle(i / n, start, period) for i in range(n)]
+    updates = [object(), object()]
+    now, kinds = start, set()
+    for tick in range(500):
+        if tick < 100:      # first steady: only the phases make robots due
+            now += 0.01
+            actions, update = ['pass'] * n, updates[0]
+        else:               # then ticks, and pauses longer than 2 periods, changes of action and set
+            now += rng.choice([0.02, 0.02, 0.02, 0.3, 1.2])
+            actions = [str(a) for a in rng.choice(['pass', 'override', 'fail_safe'], n, p=[0.9, 0.07, 0.03])]
+            update = updates[int(rng.random() < 0.02)]
+        want = [i for i, th in enumerate(each) if th.due(now, actions[i], update, period)]
+        got = fleet.due(now, actions, update, period)
+        assert got == want, f'tick {tick}'
+        kinds.add(0 < len(got) < n)
+    assert kinds == {True, False}       # some ticks with a few robots due, some with all or none
+
+
+def test_fleet_story_tells_each_kind_of_change_once_per_tick(ros_context, monkeypatch):
+    """The fleet's INFO/ERROR story: quiet while robots start failing safe, one line for the robots
+    whose inputs became valid, one for those that failed safe (with the first one's reason), one
+    for those back; nothing when nothing changed."""
+    node = FleetSafetyFilterNode(node_name='fleet_story', context=ros_context, parameter_overrides=[
+        Parameter('robots', value=['a', 'b', 'c', 'd']), Parameter('per_robot_topics', value=False)])
+    lines = []
+
+    class Log:
+        def info(self, text):
+            lines.append(('info', text))
+
+        def error(self, text):
+            lines.append(('error', text))
+    monkeypatch.setattr(node, 'get_logger', lambda: Log())
+
+    class Outs(list):
+        def __init__(self, actions):
+            super().__init__(type('Out', (), {'reason': f'why {i}'})() for i in range(len(actions)))
+            self.action = actions
+    try:
+        tell = lambda *a: (lines.clear(), node._tell_story(Outs(list(a))), list(lines))[2]   # noqa: E731
+        assert tell('fail_safe', 'fail_safe', 'fail_safe', 'fail_safe') == []          # starting: quiet
+        assert tell('pass', 'override', 'fail_safe', 'fail_safe') == [
+            ('info', 'inputs valid, filtering: 2 robot(s) (/a, /b)')]
+        assert tell('pass', 'override', 'fail_safe', 'fail_safe') == []                # no change
+        assert tell('fail_safe', 'pass', 'pass', 'fail_safe') == [
+            ('info', 'inputs valid, filtering: 1 robot(s) (/c)'),
+            ('error', 'failing safe: 1 robot(s) (/a); first: why 0')]
+        assert tell('pass', 'fail_safe', 'pass', 'pass') == [
+            ('info', 'inputs valid, filtering: 1 robot(s) (/d)'),
+            ('error', 'failing safe: 1 robot(s) (/b); first: why 1'),
+            ('info', 'inputs valid again, filtering: 1 robot(s) (/a)')]
+    finally:
+        node.close()
+        node.destroy_node()

@@ -37,6 +37,8 @@ base are those of safety_filter_node (``filter_wiring``).
 """
 from __future__ import annotations
 
+import itertools
+from operator import eq
 import time
 
 import numpy as np
@@ -49,7 +51,7 @@ from std_msgs.msg import Float64MultiArray
 from ..filter.core import FAIL_SAFE, step_many, update_commands, update_detections_all, update_poses
 from ..ros_io import cdr, fleetmsg, rosmsg
 from .common import declare, run_node
-from .filter_wiring import FilterWiring, StateThrottle
+from .filter_wiring import FilterWiring, FleetThrottle
 
 
 def robot_namespace(name: str) -> str:
@@ -106,8 +108,8 @@ class FleetSafetyFilterNode(Node):
         self.wiring = w = FilterWiring(self, self.namespaces, on_rate=self._set_rate)
         self.n = len(self.namespaces)
         start = time.monotonic()
-        self._throttles = [StateThrottle(i / self.n, start, w.state_period) for i in range(self.n)]
-        self._failing = [None] * self.n
+        self._throttle = FleetThrottle(self.n, start, w.state_period)
+        self._failing = np.full(self.n, -1, dtype=np.int8)    # per robot: -1 starting, 0 filtering, 1 failing safe
         self.ticks = 0
         self.failing_safe = 0
         self.decisions = np.zeros(self.n, dtype=np.int64)
@@ -258,7 +260,7 @@ class FleetSafetyFilterNode(Node):
         self.failing_safe = outs.action.count(FAIL_SAFE)
         now = time.monotonic()
         period, update = w.state_period, w.set_update
-        due = [i for i, (th, a) in enumerate(zip(self._throttles, outs.action)) if th.due(now, a, update, period)]
+        due = self._throttle.due(now, outs.action, update, period)
         if self.per_robot:
             for topics, v, omega in zip(self.topics, outs.linear, outs.omega):
                 topics.cmd_pub.publish(cdr.twist_bytes(v, omega))   # serialized: no Twist built
@@ -277,20 +279,12 @@ class FleetSafetyFilterNode(Node):
     def _tell_story(self, outs):
         """At most one line per kind of change of the robots' fail-safe states per tick (quiet while
         starting): robots whose inputs became valid, robots failing safe, robots back."""
-        started, lost, back = [], [], []
-        for i, action in enumerate(outs.action):
-            failing = action == FAIL_SAFE
-            before = self._failing[i]
-            if before is None:
-                if not failing:
-                    self._failing[i] = False
-                    started.append(i)
-            elif failing and not before:
-                self._failing[i] = True
-                lost.append(i)
-            elif not failing and before:
-                self._failing[i] = False
-                back.append(i)
+        failing = np.fromiter(map(eq, outs.action, itertools.repeat(FAIL_SAFE)), dtype=bool, count=self.n)
+        before = self._failing
+        started, lost, back = (np.flatnonzero(c).tolist() for c in
+                               ((before < 0) & ~failing, failing & (before == 0), ~failing & (before == 1)))
+        before[started] = before[back] = 0      # a robot failing safe from the start stays starting
+        before[lost] = 1
 
         def names(rows):
             shown = ', '.join(self.namespaces[i] for i in rows[:5])
