@@ -330,3 +330,32 @@ def test_fleet_story_tells_each_kind_of_change_once_per_tick(ros_context, monkey
     finally:
         node.close()
         node.destroy_node()
+
+
+def test_flowing_poses_keep_the_timer_quiet_and_a_pause_wakes_it(setup, monkeypatch):
+    """While fleet/poses come faster than the rate, the decisions are theirs and the timer does
+    not even wake (each batched tick restarts it); when they pause, the timer decides at the
+    rate, taking the commands that wait."""
+    node, d, spin = setup
+    batched_tick(d, spin, [FAR, FAR, FAR], [0.3, 0.3, 0.3], actions('pass', 'pass', 'pass'), 'all passing')
+    calls = []
+    real = node.timer.callback
+    monkeypatch.setattr(node.timer, 'callback', lambda: calls.append(time.monotonic()) or real())
+    period = node.period
+    sent, last, allowed = 0, time.monotonic(), 2      # the timer may wake once per period of a stall
+    start = last
+    while time.monotonic() - start < 20 * period:
+        d.fleet_poses.publish(fleet_poses([FAR, FAR, FAR]))
+        now = time.monotonic()
+        allowed += int((now - last) // period)
+        last, sent = now, sent + 1
+        while time.monotonic() < now + 0.4 * period:
+            spin.executor.spin_once(timeout_sec=0.002)
+    assert sent >= 40 and len(calls) <= allowed + int((time.monotonic() - last) // period), (sent, calls)
+    # a pause: the timer decides, and takes the new commands with it
+    ticks = node.ticks
+    d.fleet_cmd.publish(fleetmsg.commands_to_msg([(3.0, -0.25)] * 3))
+    spin.until(lambda: node.ticks >= ticks + 4 and d.fleet_out
+               and np.asarray(d.fleet_out[-1].data).reshape(-1, 2)[:, 1] == pytest.approx([-0.25] * 3),
+               10.0, 'the timer deciding on the new commands')
+    assert len(calls) >= 4

@@ -20,14 +20,16 @@ fleet manager or simulator that holds every robot's state; robot i = robots[i]:
 (fleet/... are relative to the node's namespace.)
 
 Every decision of every robot is made in ONE vectorised ``filter.core.step_many``
-call per tick. Ticks: a steady-clock timer at ``rate``, plus every ``fleet/poses``
-message (the batched reply). Per-robot topics are not taken through the executor one
+call per tick. Ticks: every ``fleet/poses`` message (the batched reply), and a
+steady-clock timer at ``rate`` while they pause (more than 1.5 periods; each batched
+tick restarts the timer, so flowing poses cost no timer wake-up). Per-robot topics,
+fleet/detections and fleet/cmd_vel_nav are not taken through the executor one
 message at a time: their subscriptions belong to a helper node that is never spun,
-and each tick drains them serialized and decodes only the newest sample of each
-(``ros_io.cdr``: light views read by the same validators), and each robot's cmd_vel is
-published serialized, so the cost per robot is a few takes and one publish, not a
-callback and a message object per sample. A per-robot decision therefore
-waits for the next tick (at most 1/rate s).
+and each tick drains them, keeping the newest sample of each (the batched ones decoded
+by rclpy; the per-robot ones serialized, decoded with ``ros_io.cdr``: light views read
+by the same validators). Each robot's cmd_vel is published serialized, so the cost per
+robot is a few takes and one publish, not a callback and a message object per sample.
+A per-robot decision therefore waits for the next tick (at most 1/rate s).
 
 Bad batched input (wrong frame or size, NaN rows) is rejected with a logged reason:
 a whole bad pose message fails every robot safe (their newest pose is rejected), a
@@ -76,18 +78,18 @@ class _RobotTopics:
         self.state_pub = io.create_publisher(DiagnosticStatus, f'{ns}/safety_filter/state', rosmsg.QOS_STREAM)
 
 
-def take_newest(sub):
+def take_newest(sub, raw=True):
     """The newest sample waiting on ``sub``, serialized (None if none), the older ones dropped
-    undecoded (the tick decodes the newest with ``ros_io.cdr``)."""
-    return take_newest_counted(sub)[0]
+    undecoded (the tick decodes the newest with ``ros_io.cdr``); ``raw=False``: decoded."""
+    return take_newest_counted(sub, raw)[0]
 
 
-def take_newest_counted(sub):
+def take_newest_counted(sub, raw=True):
     """(the newest sample waiting on ``sub`` or None, how many were waiting)."""
     newest, count = None, 0
     handle, msg_type = sub.handle, sub.msg_type
     while True:
-        got = handle.take_message(msg_type, True)
+        got = handle.take_message(msg_type, raw)
         if got is None:
             return newest, count
         newest, count = got[0], count + 1
@@ -117,19 +119,21 @@ class FleetSafetyFilterNode(Node):
         self.poses_sub = None
         self.superseded_poses = 0
 
-        self.io = None
+        # its entities are drained by the tick: never add this node to an executor
+        self.io = Node(f'{node_name}_io', namespace=self.get_namespace(), context=self.context,
+                       start_parameter_services=False)
         self.topics = []
         if self.per_robot:
-            # its entities are drained by the tick: never add this node to an executor
-            self.io = Node(f'{node_name}_io', namespace=self.get_namespace(), context=self.context,
-                           start_parameter_services=False)
             self.topics = [_RobotTopics(self.io, ns) for ns in self.namespaces]
+        self.fleet_detections_sub = self.fleet_commands_sub = None
         if self.batched:
-            # detections and commands first: in one wake-up the executor takes them before the poses
-            self.create_subscription(PoseArray, 'fleet/detections', self.on_fleet_detections,
-                                     rosmsg.QOS_STREAM)
-            self.create_subscription(Float64MultiArray, 'fleet/cmd_vel_nav', self.on_fleet_commands,
-                                     rosmsg.QOS_STREAM)
+            # detections and commands are drained by the tick, before the poses (no executor wake-up
+            # of their own: the poses tick, and the timer while they pause)
+            noop = lambda msg: None  # noqa: E731
+            self.fleet_detections_sub = self.io.create_subscription(PoseArray, 'fleet/detections', noop,
+                                                                    rosmsg.QOS_STREAM)
+            self.fleet_commands_sub = self.io.create_subscription(Float64MultiArray, 'fleet/cmd_vel_nav', noop,
+                                                                  rosmsg.QOS_STREAM)
             # raw: the poses are read straight from the CDR buffer (fleetmsg.posearray_cdr_to_states)
             self.poses_sub = self.create_subscription(PoseArray, 'fleet/poses', self.on_fleet_poses,
                                                       rosmsg.QOS_STREAM, raw=True)
@@ -180,6 +184,17 @@ class FleetSafetyFilterNode(Node):
                                f'previous command')
 
     # -- batched topics ---------------------------------------------------------------------------------
+    def _drain_batched(self):
+        """The newest fleet/detections and fleet/cmd_vel_nav waiting, each taken as it arrived."""
+        if not self.batched:
+            return
+        msg = take_newest(self.fleet_detections_sub, raw=False)
+        if msg is not None:
+            self.on_fleet_detections(msg)
+        msg = take_newest(self.fleet_commands_sub, raw=False)
+        if msg is not None:
+            self.on_fleet_commands(msg)
+
     def on_fleet_detections(self, msg: PoseArray):
         w = self.wiring
         t = w.now()
@@ -221,6 +236,7 @@ class FleetSafetyFilterNode(Node):
                 w.complain('fleet poses behind', f'fleet/poses: {self.superseded_poses} message(s) superseded so '
                            f'far by newer ones that came while the filter decided (it is slower than the '
                            f'poses); deciding on the newest')
+        self._drain_batched()       # the detections and commands sent before these poses
         t = w.now()
         try:
             if isinstance(data, PoseArray):
@@ -242,6 +258,7 @@ class FleetSafetyFilterNode(Node):
             update_poses(w.filters, states, t, stamp=stamp, skip=bad)   # the good rows, validated at once
         self.decide(t)
         self._last_batched = time.monotonic()
+        self.timer.reset()      # the timer decides only when the poses pause (on_tick)
 
     # -- ticks ----------------------------------------------------------------------------------------
     def on_tick(self):
@@ -251,7 +268,10 @@ class FleetSafetyFilterNode(Node):
 
     def decide(self, t=None):
         w = self.wiring
-        t = w.now() if t is None else t
+        if t is None:       # a tick of the timer's: the batched inputs that wait are taken first
+            if self.batched:
+                self._drain_batched()
+            t = w.now()
         if self.per_robot:
             self._drain(t)
         outs = step_many(w.filters, w.safe_set, t)     # commands as lists; outputs built when read
@@ -298,8 +318,7 @@ class FleetSafetyFilterNode(Node):
 
     def close(self):
         self.wiring.close()
-        if self.io is not None:
-            self.io.destroy_node()
+        self.io.destroy_node()
 
 
 def main(args=None):
