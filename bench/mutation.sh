@@ -54,5 +54,6 @@ case "$target" in
              test/test_study_efficiency.py ;;&
   law|all) run_one law supersafe_ros/filter/law.py test/test_filter_core.py test/test_reach_io.py ;;&
   core|all) run_one core supersafe_ros/filter/core.py test/test_filter_core.py test/test_filter_core_mutants.py \
+             test/test_reach_radial.py \
              test/test_filter_vectorised.py ;;
 esac
