@@ -1142,11 +1142,10 @@ def _cluster_rows(filters, configs, states, planned, horizon, speed, bang, clust
     stores = {}       # id(config) -> its default store (robots of a fleet share one config)
     joins = {}        # (id(detections), id(config)) -> the entry its robots join (None: no clusters)
     # runs of robots with the same detections array and configuration (a batched fleet: one run)
-    # join their entry at once
-    ids = np.stack([np.fromiter(map(id, dets), dtype=np.uint64, count=m),
-                    np.fromiter(map(id, configs), dtype=np.uint64, count=m)]) if m else np.zeros((2, 0), np.uint64)
-    starts = np.flatnonzero(np.concatenate(([True], np.any(ids[:, 1:] != ids[:, :-1], axis=0)))).tolist() if m else []
-    for row, end in zip(starts, starts[1:] + [m]):
+    # join their entry at once (found in C: no numpy on a lone robot's path)
+    end = 0
+    for _, run in itertools.groupby(zip(map(id, dets), map(id, configs))):
+        row, end = end, end + len(list(run))
         f, det, cfg = filters[row], dets[row], configs[row]
         key = (id(det), id(cfg))
         if key in joins:            # robots given one detections array (the batched fleet)
