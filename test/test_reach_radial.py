@@ -25,16 +25,20 @@ def value_functions(solved):
     symmetry), and noise on an off-centre grid with the symmetric read: no smoothness or
     symmetry to lean on, and rotations that leave the rectangle (clamped reads); and V growing
     with the radius on an off-centre grid, and falling with it (a read nearer the origin, or
-    farther from it, than its bound allows is lower, and shows)."""
+    farther from it, than its bound allows is lower, and shows); and V falling with the radius on a grid that
+    does not hold the origin (its clamped reads can land farther out than the state)."""
     rng = np.random.default_rng(4)
     noise = Grid((-5, -2), (9, 7), (15, 19, 12))
     ramp = Grid((-6, -3), (9, 8), (61, 45, 24))        # V grows with the radius: lower reads show
+    away = Grid((1.75, -4.65), (6.65, 1.65), (21, 29, 6))     # the origin outside: clamps go outward too
     x, y, th = ramp.mesh()
+    ax, ay, _ = away.mesh()
     return [solved, ValueFunction(solved.grid, solved.values, {}),
             ValueFunction(noise, rng.normal(0, 3, noise.shape), dict(DISC)),
             ValueFunction(noise, rng.normal(0, 3, noise.shape), {}),
             ValueFunction(ramp, np.hypot(x, y) - 2.0 + 0.1 * np.sin(th), dict(DISC)),
-            ValueFunction(ramp, 12.0 - np.hypot(x, y) + 0.1 * np.sin(th), dict(DISC))]
+            ValueFunction(ramp, 12.0 - np.hypot(x, y) + 0.1 * np.sin(th), dict(DISC)),
+            ValueFunction(away, 10.0 - np.hypot(ax, ay) + rng.normal(0, 0.1, away.shape), dict(DISC))]
 
 
 def test_no_read_is_below_the_radial_minimum_of_its_band(solved):
@@ -64,7 +68,7 @@ def test_pair_reads_skip_only_holds_that_cannot_reach_the_level(solved):
     pair looks ahead exactly as with every hold read, and most holds away from the obstacle
     are skipped."""
     rng = np.random.default_rng(7)
-    for k, (vf, level) in enumerate(zip(value_functions(solved), (0.0, 0.3, 1.0, -2.0, 0.5, 5.0))):
+    for k, (vf, level) in enumerate(zip(value_functions(solved), (0.0, 0.3, 1.0, -2.0, 0.5, 5.0, 4.0))):
         n = 4000
         g = vf.grid
         rel = np.stack([rng.uniform(g.lo[0] - 3, g.hi[0] + 3, n), rng.uniform(g.lo[1] - 3, g.hi[1] + 3, n),
@@ -82,5 +86,5 @@ def test_pair_reads_skip_only_holds_that_cannot_reach_the_level(solved):
         assert np.array_equal(nxt[low], next_all[low]) and low.sum() > 50
         skipped = nxt != next_all
         assert np.all(nxt[skipped] > level)
-        if k in (0, 1, 4, 5):     # not noise (noise has every value near every radius)
+        if k in (0, 1, 4, 5, 6):     # not noise (noise has every value near every radius)
             assert skipped.sum() > 0.2 * np.isfinite(next_all).sum()

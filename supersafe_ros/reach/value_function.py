@@ -118,41 +118,49 @@ class ValueFunction:
 
     def radial_minimum(self, r_lo, r_hi) -> np.ndarray:
         """A lower bound of ``value(s)`` over every state s on the grid whose (x, y) lies at a
-        distance in [r_lo, r_hi] from the origin (arrays; +inf where no read can be there).
+        distance in [r_lo, r_hi] from the origin (arrays; +inf where no read can be there,
+        -inf where a radius is not finite).
 
         Either read of V is a convex combination of node values (trilinear, or bilinear on a
         heading layer) of the nodes of one (x, y) cell, all within the cell's diagonal h of
         the point read. A trilinear read is at (x, y) itself. A rotationally symmetric read is
         at (x, y) rotated about the origin by at most one heading step dth, so at the same
-        radius r, unless the rotation leaves the rectangle (only if r > rho, the radius of the
-        largest disc about the origin inside it): then it is clamped, which moves it no
-        farther than its distance r dth from (x, y), and onto the rectangle's edge (radius >=
-        rho). So every node a read can use has its radius in [f(r_lo) - h, r_hi + h], with
-        f(r) = r up to rho and max(rho, r (1 - dth)) beyond, and V read >= the smallest node
-        value (over every heading) in that band: a range minimum over radius bins (a sparse
-        table, built once), widened by 1e-9 m for round-off.
+        radius r, unless the rotation leaves the rectangle: then it is clamped onto it, which
+        moves it no farther than its distance r dth from (x, y) (a projection onto a convex
+        set that holds (x, y)). If the rectangle holds the origin, the clamped point is no
+        farther out than r (the projection holds the origin too) and, if r > rho (the largest
+        disc about the origin inside the rectangle), no nearer than max(rho, r (1 - dth));
+        otherwise it is within r (1 -+ dth). So every node a read can use has its radius in
+        [f(r_lo) - h, g(r_hi) + h], and V read >= the smallest node value (over every
+        heading) in that band: a range minimum over radius bins (a sparse table, built
+        once). The band is widened by 1e-5 m for round-off (``arc_flow``'s nearly straight
+        arcs end within ~1e-6 m of the exact arc).
         """
         if self._radial is None:
             self._radial = _radial_table(self.grid, self.values)
-        width, table, h, rho = self._radial
-        lo = np.asarray(r_lo, dtype=float)
+        width, table, h, rho, origin_inside = self._radial
+        lo, hi = np.asarray(r_lo, dtype=float), np.asarray(r_hi, dtype=float)
         if self.rotationally_symmetric:
-            lo = np.where(lo > rho, np.maximum(rho, lo * (1.0 - self.grid.spacing[2])), lo)
-        lo = np.maximum(lo - h - 1e-9, 0.0)
-        hi = np.asarray(r_hi, dtype=float) + h + 1e-9
+            dth = self.grid.spacing[2]
+            lo = np.where(lo > rho, np.maximum(rho, lo * (1.0 - dth)), lo)
+            if not origin_inside:
+                hi = hi * (1.0 + dth)
+        finite = np.isfinite(lo) & np.isfinite(hi)
+        lo = np.where(finite, np.maximum(lo - h - 1e-5, 0.0), 0.0)
+        hi = np.where(finite, hi + h + 1e-5, 0.0)
         n_bins = table.shape[1] - 1      # the last column: the padding
         first = np.minimum(np.floor(lo / width), n_bins).astype(np.intp)
         last = np.minimum(np.floor(hi / width), n_bins - 1).astype(np.intp)
         level = np.floor(np.log2(np.maximum(last - first + 1, 1))).astype(np.intp)
         # the range's minimum is that of its first 2**level bins and its last 2**level bins (an
         # empty range, beyond every node: the padding column, +inf)
-        a = np.minimum(first, n_bins)
         b = np.where(last >= first, last - (1 << level) + 1, n_bins)
-        return np.minimum(table[level, a], table[level, b])
+        return np.where(finite, np.minimum(table[level, first], table[level, b]), -np.inf)
 
     def __getstate__(self):
         state = dict(self.__dict__)
-        state['_flat'] = state['_flat_grad_theta'] = state['_radial'] = None    # memoryviews do not pickle; rebuilt on use
+        state['_flat'] = state['_flat_grad_theta'] = None    # memoryviews do not pickle; rebuilt on use
+        state['_radial'] = None     # rebuilt on use
         return state
 
     def flat_values(self):
@@ -259,11 +267,11 @@ class ValueFunction:
 
 
 def _radial_table(grid: Grid, values):
-    """(bin width, sparse table, cell diagonal, rho) of ``ValueFunction.radial_minimum``: the
-    node values' minimum over headings, binned by node radius (bins of half the smaller
-    spacing); row k of the table the minimum over 2**k bins from each bin on, with a last
-    column of +inf (no node); rho the radius of the largest disc about the origin inside the
-    rectangle (0 if the origin is outside)."""
+    """(bin width, sparse table, cell diagonal, rho, whether the rectangle holds the origin)
+    of ``ValueFunction.radial_minimum``: the node values' minimum over headings, binned by
+    node radius (bins of half the smaller spacing); row k of the table the minimum over 2**k
+    bins from each bin on, with a last column of +inf (no node); rho the radius of the
+    largest disc about the origin inside the rectangle (0 if the origin is outside)."""
     dx, dy, _ = grid.spacing
     width = 0.5 * min(dx, dy)
     radius = np.hypot(grid.x[:, None], grid.y[None, :]).reshape(-1)
@@ -277,5 +285,5 @@ def _radial_table(grid: Grid, values):
         span = 2 ** (len(table) - 1)
         prev = table[-1]
         table.append(np.concatenate([np.minimum(prev[:-span], prev[span:]), np.full(span, np.inf)]))
-    rho = max(0.0, min(-grid.lo[0], -grid.lo[1], grid.hi[0], grid.hi[1]))
-    return width, np.array(table), math.hypot(dx, dy), rho
+    margin = min(-grid.lo[0], -grid.lo[1], grid.hi[0], grid.hi[1])     # < 0: the origin is outside
+    return width, np.array(table), math.hypot(dx, dy), max(0.0, margin), margin >= 0.0
