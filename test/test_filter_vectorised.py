@@ -595,3 +595,13 @@ def test_the_better_bang_turns_left_on_ties_within_the_tolerance():
     assert _better_bang(left, right, 0.1).tolist() == [1.0, 1.0, -1.0, 1.0, -1.0, 1.0]
     assert _better_bang(left, right, np.array([0.0, 0.0, 0.3, 0.0, 0.0, 0.0])).tolist() == [
         1.0, -1.0, 1.0, 1.0, -1.0, 1.0]
+
+
+def test_robots_with_equal_but_distinct_configurations_keep_their_own_fields(standard):
+    """Two configurations that compare equal (0.0 == -0.0) are still two: each robot's command
+    carries its own turn bound's sign, as when it is decided alone."""
+    fleet = [RobotFilter(FilterConfig(omega_max=-0.0), name='a'), RobotFilter(FilterConfig(omega_max=0.0), name='b')]
+    assert fleet[0].config == fleet[1].config
+    out = step_many(fleet, standard, 10.0)        # no inputs yet: stop-turn at +w_max
+    alone = [step_many([RobotFilter(f.config)], standard, 10.0).omega[0] for f in fleet]
+    assert repr(out.omega) == repr(alone) == repr([-0.0, 0.0])

@@ -74,7 +74,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 import itertools
 import math
-from operator import attrgetter, is_not
+from operator import attrgetter, is_, is_not
 
 import numpy as np
 
@@ -530,8 +530,9 @@ def _judged(f, t):
 def _config_columns(configs, names):
     """Per robot, the configuration fields ``names`` as float columns (robots share a few
     configurations: each field is read once per distinct one)."""
-    if configs and configs.count(configs[0]) == len(configs):      # equal configurations: equal fields
-        c = configs[0]
+    c = configs[0] if configs else None
+    if c is not None and all(map(is_, configs, itertools.repeat(c))):   # one configuration (not just equal ones:
+        # 0.0 == -0.0, and a zero's sign shows in the commands)
         return [np.full(len(configs), float(getattr(c, a))) for a in names]
     distinct = {id(c): c for c in configs}
     index = {k: i for i, k in enumerate(distinct)}
@@ -1456,9 +1457,13 @@ def _pair_reads(vf: ValueFunction, rel, omega, horizon, speed, bang, level=math.
         value[near] = vf.value(rel, outside=np.inf)
         return value, value_next
     horizon, speed = horizon[near], speed[near]
-    radius, travel = np.hypot(rel[:, 0], rel[:, 1]), 2.0 * speed * horizon
-    bound = vf.radial_minimum(radius - travel, radius + travel)
-    held = np.flatnonzero((horizon > 0) & ~(bound > level + 1e-6))      # NaN-safe: read if unsure
+    if level < math.inf:
+        radius, travel = np.hypot(rel[:, 0], rel[:, 1]), 2.0 * speed * horizon
+        bound = vf.radial_minimum(radius - travel, radius + travel)
+        held = np.flatnonzero((horizon > 0) & ~(bound > level + 1e-6))     # read unless above the level
+    else:           # every hold read (a lone robot's many pairs: no bound to compute)
+        bound = np.full(k, np.inf)
+        held = np.flatnonzero(horizon > 0)
     h = len(held)
     ahead = arc_flow(rel[held], speed[held], omega[near][held], horizon[held])
     v = vf.value(np.concatenate([rel, _bang_ends(ahead, speed[held], bang[near][held], horizon[held]), ahead]),
