@@ -359,3 +359,23 @@ def test_flowing_poses_keep_the_timer_quiet_and_a_pause_wakes_it(setup, monkeypa
                and np.asarray(d.fleet_out[-1].data).reshape(-1, 2)[:, 1] == pytest.approx([-0.25] * 3),
                10.0, 'the timer deciding on the new commands')
     assert len(calls) >= 4
+
+
+def test_batched_commands_waiting_for_a_tick_are_each_applied_in_order(setup):
+    """Commands that wait for the tick are taken in order, each as its own callback would: a
+    bad row of the newest falls back to that robot's row of the message before (not to an
+    older command), and a bad message among them is rejected and logged."""
+    node, d, spin = setup
+    batched_tick(d, spin, [FAR, FAR, FAR], [0.1, 0.1, 0.1], actions('pass', 'pass', 'pass'), 'all passing')
+    bad = Float64MultiArray()
+    bad.data = [3.0, 0.9, 3.0, 0.9]
+    d.fleet_cmd.publish(fleetmsg.commands_to_msg([(3.0, 0.3)] * 3))
+    d.fleet_cmd.publish(bad)                                                  # wrong size: rejected
+    d.fleet_cmd.publish(fleetmsg.commands_to_msg([(3.0, 0.2), (3.0, math.nan), (3.0, 0.2)]))
+    spin.spin_for(0.05)
+    d.fleet_out.clear()
+    d.fleet_poses.publish(fleet_poses([FAR, FAR, FAR]))
+    spin.until(lambda: d.fleet_out, 5.0, 'a reply')
+    assert np.asarray(d.fleet_out[-1].data).reshape(-1, 2)[:, 1] == pytest.approx([0.2, 0.3, 0.2])
+    spin.until(lambda: d.rosout.has('fleet_safety_filter', 'fleet/cmd_vel_nav rejected', '4 values for 3 robots'),
+               5.0, 'the rejection of the waiting message logged')

@@ -21,13 +21,14 @@ fleet manager or simulator that holds every robot's state; robot i = robots[i]:
 
 Every decision of every robot is made in ONE vectorised ``filter.core.step_many``
 call per tick. Ticks: every ``fleet/poses`` message (the batched reply), and a
-steady-clock timer at ``rate`` while they pause (more than 1.5 periods; each batched
-tick restarts the timer, so flowing poses cost no timer wake-up). Per-robot topics,
-fleet/detections and fleet/cmd_vel_nav are not taken through the executor one
-message at a time: their subscriptions belong to a helper node that is never spun,
-and each tick drains them, keeping the newest sample of each (the batched ones decoded
-by rclpy; the per-robot ones serialized, decoded with ``ros_io.cdr``: light views read
-by the same validators). Each robot's cmd_vel is published serialized, so the cost per
+steady-clock timer at ``rate`` while they pause: each batched tick restarts the timer, so
+flowing poses cost no timer wake-up, and with batched topics alone the timer decides once
+no poses have come for 1.5 periods (its second wake-up, two periods after the last
+poses, then one per period). Per-robot topics, fleet/detections and fleet/cmd_vel_nav
+are not taken through the executor one message at a time: their subscriptions belong to a
+helper node that is never spun, and each tick drains them: every batched message waiting,
+in order (decoded by rclpy); the newest sample of each per-robot topic (serialized,
+decoded with ``ros_io.cdr``: light views read by the same validators). Each robot's cmd_vel is published serialized, so the cost per
 robot is a few takes and one publish, not a callback and a message object per sample.
 A per-robot decision therefore waits for the next tick (at most 1/rate s).
 
@@ -78,18 +79,28 @@ class _RobotTopics:
         self.state_pub = io.create_publisher(DiagnosticStatus, f'{ns}/safety_filter/state', rosmsg.QOS_STREAM)
 
 
-def take_newest(sub, raw=True):
+def take_newest(sub):
     """The newest sample waiting on ``sub``, serialized (None if none), the older ones dropped
-    undecoded (the tick decodes the newest with ``ros_io.cdr``); ``raw=False``: decoded."""
-    return take_newest_counted(sub, raw)[0]
+    undecoded (the tick decodes the newest with ``ros_io.cdr``)."""
+    return take_newest_counted(sub)[0]
 
 
-def take_newest_counted(sub, raw=True):
+def take_all(sub) -> list:
+    """Every sample waiting on ``sub``, decoded, oldest first."""
+    out, handle, msg_type = [], sub.handle, sub.msg_type
+    while True:
+        got = handle.take_message(msg_type, False)
+        if got is None:
+            return out
+        out.append(got[0])
+
+
+def take_newest_counted(sub):
     """(the newest sample waiting on ``sub`` or None, how many were waiting)."""
     newest, count = None, 0
     handle, msg_type = sub.handle, sub.msg_type
     while True:
-        got = handle.take_message(msg_type, raw)
+        got = handle.take_message(msg_type, True)
         if got is None:
             return newest, count
         newest, count = got[0], count + 1
@@ -185,14 +196,14 @@ class FleetSafetyFilterNode(Node):
 
     # -- batched topics ---------------------------------------------------------------------------------
     def _drain_batched(self):
-        """The newest fleet/detections and fleet/cmd_vel_nav waiting, each taken as it arrived."""
+        """Every fleet/detections and fleet/cmd_vel_nav message waiting, oldest first, each
+        applied (or rejected, and logged) as its own callback would: a bad row falls back to
+        the previous message's. They count as arrived now, at most a period after they came."""
         if not self.batched:
             return
-        msg = take_newest(self.fleet_detections_sub, raw=False)
-        if msg is not None:
+        for msg in take_all(self.fleet_detections_sub):
             self.on_fleet_detections(msg)
-        msg = take_newest(self.fleet_commands_sub, raw=False)
-        if msg is not None:
+        for msg in take_all(self.fleet_commands_sub):
             self.on_fleet_commands(msg)
 
     def on_fleet_detections(self, msg: PoseArray):
