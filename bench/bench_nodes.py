@@ -524,9 +524,12 @@ def _window_rates(reports, t0, t1):
     span = (int(last['t']) - int(first['t'])) * 1e-9
     decided = (np.array(last['decisions'].split(','), dtype=float)
                - np.array(first['decisions'].split(','), dtype=float)) / span
-    _window_rates.ticks = int(last['ticks']) - int(first['ticks'])
+    # the child's ticks at the span's rate over the window itself (the driver's CPU figure is
+    # the window's; the span reaches up to a report period beyond it on each side)
+    _window_rates.ticks = (int(last['ticks']) - int(first['ticks'])) * (t1 - t0) / span
     _window_rates.superseded = int(last.get('superseded', 0)) - int(first.get('superseded', 0))
-    # failing safe once fed (the report just before the window is from before the first input)
+    # failing safe once fed (from half a second into the window: a section without warm-up
+    # starts its window with the first inputs, which take a moment to come)
     fed = [r for r in reports if int((t0 + 0.5) * 1e9) <= int(r['t']) <= int(t1 * 1e9)]
     return decided, max((int(r['fail_safe']) for r in fed), default=-1)
 

@@ -605,3 +605,8 @@ def test_robots_with_equal_but_distinct_configurations_keep_their_own_fields(sta
     out = step_many(fleet, standard, 10.0)        # no inputs yet: stop-turn at +w_max
     alone = [step_many([RobotFilter(f.config)], standard, 10.0).omega[0] for f in fleet]
     assert repr(out.omega) == repr(alone) == repr([-0.0, 0.0])
+
+
+def test_an_empty_fleet_decides_nothing(standard):
+    out = step_many([], standard, 10.0)
+    assert len(out) == 0 and out.omega == [] and out.linear == [] and out.action == []
