@@ -129,6 +129,12 @@ class FilterConfig:
             raise ValueError(f'cluster_alpha must be finite, got {self.cluster_alpha}')
         object.__setattr__(self, 'cluster_alpha', float(self.cluster_alpha))
 
+    @property
+    def sent_kept(self) -> float:
+        """How long the commands sent are remembered: a pose is propagated over at most
+        hold_timeout and judged stale after pose_timeout, plus a second."""
+        return max(self.hold_timeout, self.pose_timeout) + 1.0
+
 
 @dataclass(frozen=True)
 class SafeSet:
@@ -324,7 +330,7 @@ class RobotFilter:
     def record_sent(self, omega, t) -> None:
         """Remember a command sent at ``t`` (step_many does this for every decision)."""
         self.sent.append((float(t), float(omega)))
-        keep = max(self.config.hold_timeout, self.config.pose_timeout) + 1.0
+        keep = self.config.sent_kept
         while len(self.sent) > 1 and self.sent[1][0] <= t - keep:
             self.sent.popleft()
 
@@ -550,10 +556,10 @@ def _gather(filters, t) -> _Robots:
     n = len(filters)
     configs = [f.config for f in filters]
     (pose_timeout, det_timeout, hold, bang_all, compensate, cmd_timeout, look, period, speed, margin,
-     cluster_alpha) = _config_columns(configs, ('pose_timeout', 'detections_timeout', 'hold_timeout', 'omega_max',
-                                                'compensate_delay', 'cmd_timeout', 'lookahead', 'control_period',
-                                                'speed', 'clear_margin', 'cluster_alpha'))
-    rb.all_configs, rb.all_bang, rb.all_keep = configs, bang_all, _py_max(hold, pose_timeout) + 1.0
+     cluster_alpha, rb.all_keep) = _config_columns(configs, (
+        'pose_timeout', 'detections_timeout', 'hold_timeout', 'omega_max', 'compensate_delay', 'cmd_timeout',
+        'lookahead', 'control_period', 'speed', 'clear_margin', 'cluster_alpha', 'sent_kept'))
+    rb.all_configs, rb.all_bang = configs, bang_all
     poses, dets = [f.pose for f in filters], [f.detections for f in filters]
     pose_t = np.fromiter(map(_T, poses), dtype=float, count=n)
     det_t = np.fromiter(map(_T, dets), dtype=float, count=n)
@@ -999,7 +1005,7 @@ def _outputs(filters, rb, safe_set, t, tab, k_gov, kind, k_small, solving) -> De
 def _record_all(filters, omega, over, t, keep) -> None:
     """Each robot's ``overriding = over[i]`` and ``record_sent(omega[i], t)``, in one loop (a
     fleet's tick: the method's call and its configuration lookups cost more than its work);
-    ``keep``: each robot's history kept, as ``record_sent`` computes it."""
+    ``keep``: each robot's ``config.sent_kept``."""
     ts = float(t)
     for f, w, o, cut in zip(filters, omega, over, (t - keep).tolist()):
         f.overriding = o  # failing safe clears it: re-enter by the law once inputs are back

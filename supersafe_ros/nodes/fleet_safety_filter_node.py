@@ -280,8 +280,7 @@ class FleetSafetyFilterNode(Node):
     def decide(self, t=None):
         w = self.wiring
         if t is None:       # a tick of the timer's: the batched inputs that wait are taken first
-            if self.batched:
-                self._drain_batched()
+            self._drain_batched()
             t = w.now()
         if self.per_robot:
             self._drain(t)
