@@ -99,6 +99,95 @@ def test_inputs_out_of_order_are_ordered_by_their_stamps(supervisor_vf):
     assert sorted(a) == sorted(c) and b.counts['unmatched_interventions'] == 0
 
 
+def test_obstacle_sets_arriving_after_the_poses_they_precede_lose_no_encounter(supervisor_vf):
+    """An obstacle set read after poses stamped later than it (DDS orders messages within a
+    topic, not across topics), up to the reorder window late, and interventions read
+    together with it: poses are judged a window after they arrive, so the set is in force
+    for them. The same encounters as in order, none unmatched."""
+    events = list(phase2_events(Watcher(supervisor_vf, mu=0.6, sigma=0.3, seed=5), PHASE2_OFFSETS, dt=0.2))
+    ordered = builder()
+    feed(ordered, events)
+    ordered.finish_all()
+    expected = sorted((r.obstacle, r.intervened, r.t) for r in ordered.pop_finished())
+    assert sum(e[1] for e in expected) >= 3
+    rng = np.random.default_rng(1)
+    for trial in range(20):
+        late, held, poses, release = [], [], 0, 0
+        for ev in events:
+            if ev[0] == 'obstacles':
+                # read after 1 to 5 of the poses stamped after it (at most 1.0 s late), in the
+                # order published (one topic)
+                release = max(release, poses + int(rng.integers(1, 6)))
+                held.append((release, ev))
+                continue
+            if ev[0] == 'intervention' and held and rng.random() < 0.5:
+                held.append((release, ev))      # read together with the set still on its way
+                continue
+            late.append(ev)
+            if ev[0] == 'pose':
+                poses += 1
+                while held and held[0][0] <= poses:
+                    late.append(held.pop(0)[1])
+        late += [h[1] for h in held]
+        b = builder(reorder=1.0)
+        feed(b, late)
+        b.finish_all()
+        got = sorted((r.obstacle, r.intervened, r.t) for r in b.pop_finished())
+        assert b.counts['unmatched_interventions'] == 0, trial
+        assert got == expected, trial
+
+
+def test_held_poses_are_judged_when_the_robot_stops_resets_or_the_run_ends():
+    b = builder(reorder=1.0, stale_wall=2.0)
+    b.set_obstacles([1], [(0.0, 0.0)], 0.5)
+    for k in range(4):                                       # 1.0 .. 1.6, arrived at wall 10 .. 11.5
+        b.pose('r', 1.0 + 0.2 * k, (-7.0 + 0.6 * k, 0.5, 0.0), wall=10.0 + 0.5 * k)
+    b.intervention(1, 1.3, (-5.8, 0.5, 0.0), wall=13.0)
+    b.tick(11.9)
+    assert b.open_count == 1 and not b.pop_finished()       # no pose judged: the intervention waits
+    b.tick(12.6)                                             # 1.0 and 1.2 waited stale_wall
+    assert b.open_count == 2 and not b.pop_finished()       # an encounter, the intervention waiting
+    b.tick(13.0)                                             # 1.4, the frame after the intervention
+    (r,) = b.pop_finished()
+    assert r.intervened and list(r.t) == pytest.approx([1.0, 1.2, 1.4])
+    # a reset (stamps going back) judges what came before it at once
+    c = builder(reorder=1.0)
+    c.set_obstacles([1], [(0.0, 0.0)], 0.0)
+    drive(c, 'r', 5.0, -7.0, 0.5, 4)
+    c.pose('r', 0.5, (-30.0, 0.0, 0.0))
+    (r,) = c.pop_finished() or [None]
+    assert r is None and c.counts['jump'] == 0 and c.open_count == 1
+    c.pose('r', 2.0, (-30.0, 0.0, 0.0))                      # ... the jump itself, a window later
+    c.finish_all()
+    (r,) = c.pop_finished()
+    assert r.reason == 'jump' and list(r.t) == pytest.approx([5.0, 5.2, 5.4, 5.6])
+    # the end of a run judges every held pose
+    d = builder(reorder=1.0)
+    d.set_obstacles([1], [(0.0, 0.0)], 0.0)
+    drive(d, 'r', 1.0, -7.0, 0.5, 15)                        # passes the obstacle at 3.4 (x > 0)
+    assert not d.pop_finished()
+    d.finish_all()
+    (r,) = d.pop_finished()
+    assert r.reason == 'passed' and len(r.t) == 13
+
+
+@pytest.mark.parametrize('reorder', [0.0, 1.0])
+def test_sets_read_before_the_first_pose_is_judged_all_apply_by_their_stamps(reorder):
+    """A scene's set and its removal both read before any pose of the robot is judged (the
+    first poses held by the window, or not arrived yet): the removal does not replace the
+    set for the poses stamped between them."""
+    b = builder(reorder=reorder)
+    b.set_obstacles([1], [(0.0, 0.0)], 1.2)
+    b.set_obstacles([], np.zeros((0, 2)), 3.2)
+    b.intervention(1, 2.9, (-3.2, -2.25, 0.0))
+    drive(b, 'r', 1.4, -8.0, -2.25, 9)                     # 1.4 .. 3.0
+    b.pose('r', 3.4, (-30.0, 0.0, 0.0))
+    b.finish_all()
+    (r,) = b.pop_finished()
+    assert r.intervened and r.obstacle == 1 and r.t[0] == pytest.approx(1.4) and r.t[-1] == pytest.approx(3.0)
+    assert b.counts['unmatched_interventions'] == 0
+
+
 def test_a_removal_stamped_by_a_lagging_clock_cuts_no_frame_before_it():
     b = builder(grace=0.0, removal_delay=1.0)
     b.set_obstacles([1], [(0.0, 0.0)], 0.5)

@@ -26,6 +26,13 @@ Ordering. Poses, obstacle sets and interventions come on separate topics, so the
 arrive out of order. Every input carries its time stamp, and the builder orders by
 stamps, not arrival:
 
+* with ``reorder`` > 0, a robot's pose stamped t is judged only once that robot has a
+  pose stamped t + ``reorder`` or later (or ``stale_wall`` wall seconds after it arrived,
+  ``tick``), so an obstacle set or intervention that arrives up to ``reorder`` seconds of
+  pose time after poses stamped later than it is still in force for them (DDS orders
+  messages within a topic, not across topics; a set read after the poses it precedes
+  would miss the encounter's start, and an intervention then finds no encounter);
+
 * an obstacle set stamped T applies to a robot's poses stamped >= T (each robot keeps
   its own place in the list of obstacle-set versions); unstamped sets (T = 0) apply at
   once, and a set that no robot's poses reach within ``stale_wall`` wall seconds (the
@@ -44,6 +51,7 @@ obstacle set (the world removes it) or ``pending_timeout`` seconds of pose time 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from collections import deque
 import json
 import math
 
@@ -121,14 +129,15 @@ class EncounterBuilder:
 
     def __init__(self, lo, hi, speed: float, *, jump_distance: float = 1.0, grace: float = 2.0,
                  match_tolerance: float = 1.0, pending_timeout: float = 5.0, max_frames: int = 2000,
-                 stale_wall: float = 2.0, max_versions: int = 1000, removal_delay: float = 1.0):
+                 stale_wall: float = 2.0, max_versions: int = 1000, removal_delay: float = 1.0,
+                 reorder: float = 0.0):
         self.lo = np.asarray(lo, dtype=float).reshape(2)
         self.hi = np.asarray(hi, dtype=float).reshape(2)
         if not np.all(self.hi > self.lo):
             raise ValueError(f'grid bounds must have hi > lo, got {lo}, {hi}')
         for name, v in (('speed', speed), ('jump_distance', jump_distance), ('grace', grace),
                         ('match_tolerance', match_tolerance), ('pending_timeout', pending_timeout),
-                        ('stale_wall', stale_wall)):
+                        ('stale_wall', stale_wall), ('reorder', reorder)):
             if not (math.isfinite(v) and v >= 0):
                 raise ValueError(f'{name} must be finite and >= 0, got {v}')
         if max_frames < 2:
@@ -136,7 +145,8 @@ class EncounterBuilder:
         self.speed, self.jump_distance, self.grace = float(speed), float(jump_distance), float(grace)
         self.match_tolerance, self.pending_timeout = float(match_tolerance), float(pending_timeout)
         self.max_frames, self.stale_wall, self.max_versions = int(max_frames), float(stale_wall), max_versions
-        self.removal_delay = float(removal_delay)
+        self.removal_delay, self.reorder = float(removal_delay), float(reorder)
+        self._held: dict[str, deque] = {}           # robot -> poses (t, x, y, th, wall) not judged yet
         self._lingering: dict[tuple, float] = {}    # (robot, obstacle) -> pose time it ends at
         # obstacle-set versions: [stamp, first_seen_wall, {id: (x, y)}]; robots index into it
         self._versions = [[-math.inf, -math.inf, {}]]
@@ -149,7 +159,7 @@ class EncounterBuilder:
         self._pending: list[tuple] = []             # interventions ahead of some robot's poses
         self._blocked: dict[int, float] = {}        # obstacle -> intervention time
         self._finished: list[EncounterRecord] = []
-        self.newest = -math.inf                     # newest pose stamp seen
+        self.newest = -math.inf                     # newest pose stamp received
         self.counts = {'unmatched_interventions': 0, 'jumps': 0, 'ignored_poses': 0}
         self.counts.update({r: 0 for r in END_REASONS})
 
@@ -174,12 +184,35 @@ class EncounterBuilder:
             self._versions.append([stamp, wall, centres])
         self._prune()
 
-    def pose(self, robot: str, stamp: float, state) -> None:
-        """One robot pose (map frame) stamped ``stamp`` [s]."""
+    def pose(self, robot: str, stamp: float, state, wall: float = 0.0) -> None:
+        """One robot pose (map frame) stamped ``stamp`` [s], arrived at ``wall`` (``tick``'s clock)."""
         x, y, th = (float(v) for v in np.asarray(state, dtype=float).reshape(3))
         stamp = float(stamp)
         if not all(math.isfinite(v) for v in (x, y, th, stamp)):
             raise ValueError(f'pose of {robot} is not finite ({x}, {y}, {th}) at {stamp}')
+        self.newest = max(self.newest, stamp)
+        if robot not in self._robot_version:
+            self._robot_version[robot] = self._base     # keeps the sets its held poses may need
+        if self.reorder <= 0.0:
+            self._judge(robot, stamp, x, y, th)
+            return
+        held = self._held.setdefault(robot, deque())
+        if held and stamp < held[-1][0]:
+            self._release(robot, math.inf)      # the stamps went back (a reset): judge what came before
+        held.append((stamp, x, y, th, float(wall)))
+        self._release(robot, stamp - self.reorder)
+
+    def _release(self, robot, until, wall=None):
+        """Judge the robot's held poses stamped <= until (or arrived stale_wall before wall)."""
+        held = self._held.get(robot)
+        while held and (held[0][0] <= until or (wall is not None and held[0][4] + self.stale_wall <= wall)):
+            t, x, y, th, _ = held.popleft()
+            self._judge(robot, t, x, y, th)
+        if held is not None and not held:
+            del self._held[robot]
+
+    def _judge(self, robot, stamp, x, y, th):
+        """One pose, in its turn: encounters start, grow and end."""
         prev = self._last_pose.get(robot)
         jumped = False
         if prev is not None:
@@ -191,9 +224,6 @@ class EncounterBuilder:
         if self._awaiting:
             self._resolve_awaiting(robot, stamp, x, y, th, jumped)
         self._last_pose[robot] = (stamp, x, y)
-        self.newest = max(self.newest, stamp)
-        if robot not in self._robot_version:
-            self._robot_version[robot] = self._base
         self._advance_to_stamp(robot, stamp)
         obstacles = self._versions[self._robot_version[robot] - self._base][2]
         if self._lingering:
@@ -252,7 +282,9 @@ class EncounterBuilder:
     def _match_pending(self, wall: float | None = None):
         if not self._pending:
             return
-        reached = min((p[0] for p in self._last_pose.values()), default=-math.inf)
+        # the poses judged so far (a robot whose poses are all still held has reached nothing)
+        reached = min([p[0] for p in self._last_pose.values()]
+                      + [-math.inf for r in self._held if r not in self._last_pose], default=-math.inf)
         still = []
         for stamp, obstacle, rel, arrived in sorted(self._pending):
             if stamp <= reached + 1e-9 or (wall is not None and arrived + self.stale_wall <= wall):
@@ -328,18 +360,24 @@ class EncounterBuilder:
 
     def tick(self, wall: float) -> None:
         """Wall-clock housekeeping: apply obstacle sets that no robot's poses have reached
-        within ``stale_wall`` seconds of their arrival (``wall`` is the arrival clock)."""
+        within ``stale_wall`` seconds of their arrival (``wall`` is the arrival clock), and
+        judge poses held that long (a robot that stopped publishing)."""
+        for r in list(self._held):
+            self._release(r, -math.inf, wall)
         for k, v in enumerate(self._versions):
             if v[0] > -math.inf and v[1] + self.stale_wall <= wall:
                 v[0] = -math.inf       # in force now
         for r in list(self._robot_version):
-            self._advance_to_stamp(r, self._last_pose[r][0] if r in self._last_pose else self.newest)
+            if r in self._last_pose:           # (a robot whose poses are all held stays put)
+                self._advance_to_stamp(r, self._last_pose[r][0])
         self._prune()
         self._match_pending(wall)
 
     def finish_all(self) -> None:
         """Shutdown: pending interventions are matched, encounters held for the grace time
         are final; open ones are dropped (they had not ended)."""
+        for r in list(self._held):
+            self._release(r, math.inf)
         self._match_pending(math.inf)
         for enc in self._closing:
             self._emit(enc)
@@ -425,7 +463,8 @@ class EncounterBuilder:
 
     def _prune(self):
         """Drop obstacle-set versions every robot has moved past (bounded memory)."""
-        lowest = min(self._robot_version.values(), default=self._base + len(self._versions) - 1)
+        # before any pose every set is kept (up to max_versions): the first poses may be older
+        lowest = min(self._robot_version.values(), default=self._base)
         drop = max(lowest - self._base, len(self._versions) - self.max_versions, 0)
         drop = min(drop, len(self._versions) - 1)
         if drop > 0:

@@ -156,7 +156,10 @@ class LearnerNode(Node):
             max_frames=p('max_encounter_frames', 2000, 'frames after which an encounter is closed '
                          '(bounded memory)', 2, 1_000_000),
             removal_delay=p('removal_delay', 1.0, 'an encounter with a removed obstacle goes on this long '
-                            'after the removal\'s stamp (the world stamps with a coarse clock) [s]', 0.0, 100.0))
+                            'after the removal\'s stamp (the world stamps with a coarse clock) [s]', 0.0, 100.0),
+            reorder=p('reorder_window', 1.0, 'a pose is judged once its robot has poses this much newer '
+                      '(pose time), so obstacle sets and interventions read up to this late still apply '
+                      'to it (topics are not ordered with each other) [s]', 0.0, 100.0))
 
         t0 = time.perf_counter()
         self.entries = build_library(speed, radius, horizon, omegas, self.lo, self.hi, shape, cache_dir)
@@ -380,7 +383,7 @@ class LearnerNode(Node):
         try:
             state = rosmsg.pose_to_state(msg)
             stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-            self.builder.pose(robot, stamp, state)
+            self.builder.pose(robot, stamp, state, time.monotonic())
         except ValueError as exc:
             self.get_logger().error(f'pose of {robot} rejected: {exc}', throttle_duration_sec=1.0)
             return

@@ -117,7 +117,7 @@ class Learners:
         self.builder_args = dict(speed=p['library_speed'], jump_distance=p['jump_distance'],
                                  grace=p['intervention_grace'], match_tolerance=p['match_tolerance'],
                                  pending_timeout=p['pending_timeout'], max_frames=int(p['max_encounter_frames']),
-                                 removal_delay=p['removal_delay'])
+                                 removal_delay=p['removal_delay'], reorder=p['reorder_window'])
 
     def publish(self, fit, **extra):
         """(value function as published, or None if the fit is not admissible)."""
