@@ -202,7 +202,7 @@ def bench_latency(args):
         ns = '/bench_robot'
         procs = [start(node_cmd('safety_filter_node', ns, publish_on_pose=(chain == 'filter'), rate=1.0,
                                 cmd_timeout=30.0, pose_timeout=30.0, detections_timeout=30.0,
-                                hold_timeout=30.0), 'latency_filter')]
+                                hold_timeout=30.0, direct_take=not args.no_direct_take), 'latency_filter')]
         if chain != 'filter':
             procs.append(start(node_cmd('planner_node', ns), 'latency_planner'))
         d = Driver('bench_latency')
@@ -242,7 +242,9 @@ def bench_latency(args):
                 d.spin_for(max(0.0, 0.02 - (time.monotonic_ns() - t0) * 1e-9))   # 50 Hz
             results[chain] = lat
             both = lat['pass'] + lat['override']
-            print(f'[latency] pose -> cmd_vel, {chain}: {ms(both)} (load {os.getloadavg()[0]:.1f})')
+            taker = 'the executor' if args.no_direct_take else 'their own thread'
+            print(f'[latency] pose -> cmd_vel, {chain} (pose taken by {taker}): {ms(both)} '
+                  f'(load {os.getloadavg()[0]:.1f})')
             print(f"[latency]    pass: {ms(lat['pass'])}; override: {ms(lat['override'])}")
         finally:
             d.close()
@@ -761,6 +763,8 @@ def main(argv=None):
     parser.add_argument('--node-counts', type=int, nargs='+', default=[1, 5, 10, 20])
     parser.add_argument('--window', type=float, default=5.0, help='seconds per node-count run')
     parser.add_argument('--interventions', type=int, default=40)
+    parser.add_argument('--no-direct-take', action='store_true',
+                        help='latency: the filter\'s executor takes pose and cmd_vel_nav (direct_take false)')
     parser.add_argument('--serve-vf-echo', action='store_true', help=argparse.SUPPRESS)
     parser.add_argument('--fleet-sizes', type=int, nargs='+', default=[50, 100, 150])
     parser.add_argument('--batched-sizes', type=int, nargs='+', default=[500, 1000, 2000])

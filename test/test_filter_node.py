@@ -70,16 +70,20 @@ class Driver:
         return rosmsg.diagnostic_values(self.states[-1]) if self.states else {}
 
 
-@pytest.fixture(scope='module')
-def setup(ros_context):
+@pytest.fixture(scope='module', params=[True, False], ids=['direct_take', 'executor_takes'])
+def setup(ros_context, request):
+    """Every test runs twice: pose and cmd_vel_nav taken by their own thread (the default) and by
+    the executor (direct_take false)."""
     params = [Parameter('standard_shape', value=SHAPE), Parameter('pose_timeout', value=0.3),
               Parameter('detections_timeout', value=0.3), Parameter('hold_timeout', value=0.6),
-              Parameter('state_rate', value=100.0), Parameter('rate', value=20.0)]
+              Parameter('state_rate', value=100.0), Parameter('rate', value=20.0),
+              Parameter('direct_take', value=request.param)]
     node = SafetyFilterNode(namespace=NS, context=ros_context, parameter_overrides=params)
     driver = Driver(ros_context)
     spin = Spinner(ros_context, node, driver.node)
     spin.client_node = driver.node
     spin.until(lambda: matched(*driver.endpoints()), 10.0, 'filter topics to match')
+    assert (node.direct is not None) == request.param
     yield node, driver, spin
     spin.shutdown()
     node.destroy_node()

@@ -81,10 +81,11 @@ def learned_alpha(meta: dict, k: float) -> float:
 class FilterWiring:
     """Parameters, filters, safe sets, time base and state messages of a filter node."""
 
-    def __init__(self, node, names, on_rate=None):
+    def __init__(self, node, names, on_rate=None, lock=None):
         self.node = node
         self.log = node.get_logger()
         self._on_rate = on_rate
+        self._lock = lock             # held while parameters change (the node's callbacks hold it too)
         p = lambda *a, **k: declare(node, *a, **k)  # noqa: E731
         fixed = dict(read_only=True)
         speed = p('speed', 3.0, 'robot speed, true dynamics [m/s] (standard set; linear.x)', 0.01, 100.0,
@@ -159,7 +160,7 @@ class FilterWiring:
 
     # -- parameters at run time ----------------------------------------------------------------
     def _live_parameters(self):
-        live = LiveParameters(self.node)
+        live = LiveParameters(self.node, lock=self._lock)
 
         def config_check(name):
             def check(value):

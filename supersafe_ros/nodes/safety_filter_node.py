@@ -45,6 +45,7 @@ check of learned sets (on a worker thread, off the control path): ``filter_wirin
 """
 from __future__ import annotations
 
+import threading
 import time
 
 from rclpy.node import Node
@@ -54,6 +55,7 @@ from geometry_msgs.msg import PoseArray, PoseStamped, Twist
 
 from ..filter.core import FAIL_SAFE
 from ..ros_io import cdr, rosmsg
+from ..ros_io.direct_take import DirectTake
 from .common import declare, run_node
 from .filter_wiring import VALUE_FUNCTION_TOPIC, FilterWiring, StateThrottle, learned_alpha  # noqa: F401
 from .markers import LevelSetMarkerPublisher
@@ -62,7 +64,10 @@ from .markers import LevelSetMarkerPublisher
 class SafetyFilterNode(Node):
     def __init__(self, node_name='safety_filter', **kwargs):
         super().__init__(node_name, **kwargs)
-        self.wiring = w = FilterWiring(self, [self.get_namespace()], on_rate=self._set_rate)
+        # every callback that reads or changes the filter holds this lock (pose and command may be
+        # taken by a thread of their own, below; parameters change under it too)
+        self.lock = threading.RLock()
+        self.wiring = w = FilterWiring(self, [self.get_namespace()], on_rate=self._set_rate, lock=self.lock)
         self.filter = w.filters[0]
         self.publish_on_pose = declare(self, 'publish_on_pose', False,
                                        'also decide and publish on every pose (not in a lockstep graph)')
@@ -92,11 +97,22 @@ class SafetyFilterNode(Node):
 
         self.cmd_pub = self.create_publisher(Twist, 'cmd_vel', rosmsg.QOS_STREAM)
         self.state_pub = self.create_publisher(DiagnosticStatus, 'safety_filter/state', rosmsg.QOS_STREAM)
+        self.direct = None
         # pose and command raw: read straight from their CDR bytes (ros_io.cdr), no message objects
         # built on the path from pose to cmd_vel
-        self.create_subscription(PoseStamped, 'pose', self.on_pose, rosmsg.QOS_STREAM, raw=True)
-        self.create_subscription(PoseArray, 'detections', self.on_detections, rosmsg.QOS_STREAM)
-        self.create_subscription(Twist, 'cmd_vel_nav', self.on_command, rosmsg.QOS_STREAM, raw=True)
+        if declare(self, 'direct_take', True, 'pose and cmd_vel_nav are taken by a thread of their own that '
+                   'waits on them alone (helper node <name>_io), off the executor\'s wake-up over every '
+                   'entity: about 0.3 ms less from pose to cmd_vel; false = the executor takes them',
+                   read_only=True):
+            self.direct = DirectTake(self, self.lock)
+            self.direct.add(PoseStamped, 'pose', self.on_pose, rosmsg.QOS_STREAM, raw=True)
+            self.direct.add(Twist, 'cmd_vel_nav', self.on_command, rosmsg.QOS_STREAM, raw=True)
+        else:
+            self.create_subscription(PoseStamped, 'pose', self._locked(self.on_pose), rosmsg.QOS_STREAM,
+                                     raw=True)
+            self.create_subscription(Twist, 'cmd_vel_nav', self._locked(self.on_command), rosmsg.QOS_STREAM,
+                                     raw=True)
+        self.create_subscription(PoseArray, 'detections', self._locked(self.on_detections), rosmsg.QOS_STREAM)
         self.timer = None
         self._set_rate(w.rate)
         # RViz: the level set in force around each detected obstacle (computed only while watched)
@@ -109,8 +125,16 @@ class SafetyFilterNode(Node):
             self.level_set = LevelSetMarkerPublisher(
                 self, lambda: (w.safe_set, self.filter.pose.value, self.filter.detections.value),
                 level_set_rate)
+        if self.direct is not None:
+            self.direct.start()
         self.get_logger().info('filtering cmd_vel_nav -> cmd_vel; waiting for the first pose and detections '
                                '(failing safe until then)')
+
+    def _locked(self, callback):
+        def locked(*args):
+            with self.lock:
+                return callback(*args)
+        return locked
 
     # compatibility: the set in force and the standard set (tests, tools)
     @property
@@ -125,7 +149,7 @@ class SafetyFilterNode(Node):
         self.period = 1.0 / rate
         if self.timer is not None:
             self.destroy_timer(self.timer)
-        self.timer = self.create_timer(self.period, self.on_watchdog, clock=self.wiring.steady)
+        self.timer = self.create_timer(self.period, self._locked(self.on_watchdog), clock=self.wiring.steady)
 
     # -- inputs -----------------------------------------------------------------------------
     def on_pose(self, data):
@@ -255,7 +279,14 @@ class SafetyFilterNode(Node):
             self.get_logger().info(f'inputs valid again: filtering ({out.action}: {out.reason})')
 
     def close(self):
+        if self.direct is not None:
+            self.direct.close()
         self.wiring.close()
+
+    def destroy_node(self):
+        if self.direct is not None:
+            self.direct.close()          # its thread stops before the handles it waits on go
+        return super().destroy_node()
 
 
 def main(args=None):
