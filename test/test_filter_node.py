@@ -332,3 +332,47 @@ def test_read_only_and_out_of_range_parameter_sets_are_refused(setup, name, valu
     assert node.get_parameter(name).value == before
     if name == 'speed':
         assert node.filter.config.speed == 3.0
+
+
+def test_pose_and_command_are_taken_by_the_helper_node_or_by_the_filter_node(setup):
+    node, driver, spin = setup
+    io = f'{node.get_name()}_io'
+    for topic, direct in (('pose', True), ('cmd_vel_nav', True), ('detections', False)):
+        takers = {i.node_name for i in driver.node.get_subscriptions_info_by_topic(f'{NS}/{topic}')}
+        assert takers == ({io} if direct and node.direct is not None else {node.get_name()}), (topic, takers)
+
+
+def test_use_learned_turned_off_while_a_set_is_checked_keeps_the_standard_set(setup, monkeypatch):
+    """The value-function worker puts a set in force under the node's lock, and only if the
+    levels and use_learned are still those it was checked with."""
+    import threading
+    import supersafe_ros.nodes.filter_wiring as wiring
+    node, driver, spin = setup
+    entered, release = threading.Event(), threading.Event()
+    check = wiring.check_learned_set
+
+    def slow_check(*args, **kwargs):
+        entered.set()
+        release.wait(20.0)
+        return check(*args, **kwargs)
+    monkeypatch.setattr(wiring, 'check_learned_set', slow_check)
+    assert node.safe_set.source == 'standard'
+    more_conservative = value_function_to_msg(shifted(node.standard.vf, -0.3), source='learned', mu=0.0, sigma=0.0)
+    before = counts(driver, spin)
+    driver.vf.publish(more_conservative)
+    spin.until(entered.is_set, 20.0, 'the check to start')
+    try:
+        assert set_parameters(node, spin, use_learned=False).successful
+    finally:
+        release.set()
+    spin.until(lambda: not node.wiring.vf_busy and node.wiring._pending is None, 20.0, 'the worker to finish')
+    assert node.safe_set.source == 'standard'
+    # turned on again: checked anew and in force
+    entered.clear()
+    assert set_parameters(node, spin, use_learned=True).successful
+    wait_set_update(driver, spin, before, 'accepted')
+    assert node.safe_set.source == 'learned'
+    before = counts(driver, spin)
+    driver.vf.publish(value_function_to_msg(node.standard.vf, source='standard', alpha=0.0))
+    wait_set_update(driver, spin, before, 'accepted')
+    assert node.safe_set.source == 'standard'

@@ -66,6 +66,17 @@ def state_of(driver, twist):
     return same[-1] if same else {}
 
 
+def test_in_lockstep_the_executor_takes_pose_and_command_whatever_direct_take_says(setup):
+    """The executor reads /clock before a pose waiting with it (it calls subscriptions in the
+    order made), so _clock_passed knows a pose the clock has passed; a thread of its own
+    could answer such a pose and ack the newer step with it."""
+    node, driver, spin, _, _ = setup
+    assert node.get_parameter('direct_take').value is True and node.direct is None
+    for topic in ('pose', 'cmd_vel_nav'):
+        takers = {i.node_name for i in driver.node.get_subscriptions_info_by_topic(f'{NS}/{topic}')}
+        assert takers == {node.get_name()}, (topic, takers)
+
+
 def test_each_pose_is_answered_once_on_that_pose(setup):
     node, driver, spin, _, _ = setup
     far = ((40.0, 40.0),)

@@ -52,13 +52,17 @@ def test_messages_are_taken_in_order_under_the_lock_and_a_failing_callback_is_sa
         # the lock keeps a callback out while another thread holds it
         with lock:
             pub.publish(Int32(data=100))
-            time.sleep(0.2)
-            assert 100 not in got
+            wait(lambda: direct.taken == 41, 5.0, 'the message to be taken')
+            time.sleep(0.05)
+            assert 100 not in got                                   # taken, its callback waits
         wait(lambda: 100 in got, 5.0, 'the message held back by the lock')
+        thread = direct._thread
     finally:
         direct.close()
-    assert not direct._thread.is_alive()
+    assert not thread.is_alive()
     wait(lambda: pub.get_subscription_count() == 0, 10.0, 'the helper node to leave the graph')
+    with pytest.raises(RuntimeError, match='after start'):
+        direct.add(Int32, 'late', on_number, rosmsg.QOS_EVENTS)
     direct.close()                             # twice is harmless
     owner.destroy_node()
     talker.destroy_node()

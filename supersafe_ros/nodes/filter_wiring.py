@@ -21,6 +21,7 @@
 """
 from __future__ import annotations
 
+from contextlib import nullcontext
 from dataclasses import replace
 import math
 from operator import ne
@@ -318,6 +319,7 @@ class FilterWiring:
                                           'set stays in force')
             self.log.info(self.set_update[1])
             return
+        settings = (self.use_learned, self.standard_alpha, self.alpha_offset)
         alpha = learned_alpha(vf.meta, self.alpha_offset)
         try:
             candidate = SafeSet(vf, alpha, 'learned')
@@ -334,7 +336,13 @@ class FilterWiring:
         # the law's lazily cached arrays (node gradients: 3 x the values) are built here, not
         # on the first decision that uses the set
         evaluate_pairs(vf, np.zeros((1, 3)))
-        self.safe_set = candidate
+        with self._lock if self._lock is not None else nullcontext():
+            if (self.use_learned, self.standard_alpha, self.alpha_offset) != settings or self._learned is not vf:
+                # the levels or the set changed while it was checked: check again with the new ones
+                if self.use_learned:
+                    self._submit(('reselect',))
+                return
+            self.safe_set = candidate
         timing = f'decoded in {decode_s:.3f} s, ' if decode_s is not None else ''
         self._accept(
             f'learned set in force: omega_max {vf.meta.get("omega_max")}, alpha {alpha:.4g} '
@@ -349,11 +357,12 @@ class FilterWiring:
 
     def _reject(self, reason, revert=False):
         self.set_updates['rejected'] += 1
-        if revert and self.safe_set is not self.standard:
-            self.safe_set = self.standard
-            reason += '; back to the standard set'
-        else:
-            reason += f'; keeping the {self.safe_set.source} set'
+        with self._lock if self._lock is not None else nullcontext():
+            if revert and self.safe_set is not self.standard:
+                self.safe_set = self.standard
+                reason += '; back to the standard set'
+            else:
+                reason += f'; keeping the {self.safe_set.source} set'
         self.set_update = ('rejected', reason)
         self.log.error(reason)
 

@@ -98,21 +98,23 @@ class SafetyFilterNode(Node):
         self.cmd_pub = self.create_publisher(Twist, 'cmd_vel', rosmsg.QOS_STREAM)
         self.state_pub = self.create_publisher(DiagnosticStatus, 'safety_filter/state', rosmsg.QOS_STREAM)
         self.direct = None
+        direct = declare(self, 'direct_take', True, 'pose and cmd_vel_nav are taken by a thread of their own '
+                         'that waits on them alone (helper node <name>_io), off the executor\'s wake-up over '
+                         'every entity: about 0.3 ms less from pose to cmd_vel; false = the executor takes '
+                         'them. Not with lockstep (there a pose must be read after the /clock before it)',
+                         read_only=True)
         # pose and command raw: read straight from their CDR bytes (ros_io.cdr), no message objects
-        # built on the path from pose to cmd_vel
-        if declare(self, 'direct_take', True, 'pose and cmd_vel_nav are taken by a thread of their own that '
-                   'waits on them alone (helper node <name>_io), off the executor\'s wake-up over every '
-                   'entity: about 0.3 ms less from pose to cmd_vel; false = the executor takes them',
-                   read_only=True):
-            self.direct = DirectTake(self, self.lock)
-            self.direct.add(PoseStamped, 'pose', self.on_pose, rosmsg.QOS_STREAM, raw=True)
-            self.direct.add(Twist, 'cmd_vel_nav', self.on_command, rosmsg.QOS_STREAM, raw=True)
-        else:
+        # built on the path from pose to cmd_vel. The executor calls ready subscriptions in the order
+        # they were made: pose, detections, command (the command is judged on the detections with it).
+        if not direct or self.lockstep:
+            # lockstep: the executor reads /clock before a pose that waits with it, so a pose the
+            # clock has passed is known as such (_clock_passed); a thread of its own would not be
             self.create_subscription(PoseStamped, 'pose', self._locked(self.on_pose), rosmsg.QOS_STREAM,
                                      raw=True)
+        self.create_subscription(PoseArray, 'detections', self._locked(self.on_detections), rosmsg.QOS_STREAM)
+        if not direct or self.lockstep:
             self.create_subscription(Twist, 'cmd_vel_nav', self._locked(self.on_command), rosmsg.QOS_STREAM,
                                      raw=True)
-        self.create_subscription(PoseArray, 'detections', self._locked(self.on_detections), rosmsg.QOS_STREAM)
         self.timer = None
         self._set_rate(w.rate)
         # RViz: the level set in force around each detected obstacle (computed only while watched)
@@ -125,7 +127,14 @@ class SafetyFilterNode(Node):
             self.level_set = LevelSetMarkerPublisher(
                 self, lambda: (w.safe_set, self.filter.pose.value, self.filter.detections.value),
                 level_set_rate)
-        if self.direct is not None:
+        if direct and not self.lockstep:
+            self.direct = DirectTake(self, self.lock)
+            try:
+                self.direct.add(PoseStamped, 'pose', self.on_pose, rosmsg.QOS_STREAM, raw=True)
+                self.direct.add(Twist, 'cmd_vel_nav', self.on_command, rosmsg.QOS_STREAM, raw=True)
+            except BaseException:
+                self.direct.close()
+                raise
             self.direct.start()
         self.get_logger().info('filtering cmd_vel_nav -> cmd_vel; waiting for the first pose and detections '
                                '(failing safe until then)')

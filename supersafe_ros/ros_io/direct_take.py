@@ -9,11 +9,16 @@ rcl wait set holding only them and a stop guard, takes what is ready, and calls 
 under ``lock``. The node's executor keeps everything else; callbacks that share state with
 these take the same lock.
 
+The helper ignores the process's global ROS arguments (a ``__node:=`` remap would give it
+the owner's name; ``use_sim_time`` would give it a /clock subscription it never reads): it
+subscribes to the names the owner resolves, so the owner's remaps apply.
+
 ``rclpy.wait_for_message`` waits on such a wait set the same way (the ``_rclpy.WaitSet`` it
 uses is rclpy's own binding, not public API: this module is the one place that touches it).
 """
 from __future__ import annotations
 
+from contextlib import ExitStack
 import threading
 import traceback
 
@@ -22,72 +27,99 @@ from rclpy.node import Node
 
 
 class DirectTake:
-    """``add(msg_type, topic, callback, qos, raw)`` subscriptions, served from ``start()`` until
-    ``close()``. A callback that raises is logged (with its traceback, once per kind of
-    error) and the thread goes on: the node's watchdog and fail-safe still stand."""
+    """``add(msg_type, topic, callback, qos, raw)`` subscriptions (before ``start()``), served
+    until ``close()`` or the context's shutdown. A callback that raises is logged (with its
+    traceback, once per kind of error) and the thread goes on; if the waiting itself fails
+    the thread says so and ends (the owner's inputs then go stale: its watchdog fails safe)."""
 
     def __init__(self, node: Node, lock):
         self.node = node
         self.lock = lock
         self.io = Node(f'{node.get_name()}_io', namespace=node.get_namespace(), context=node.context,
-                       start_parameter_services=False)
+                       start_parameter_services=False, use_global_arguments=False)
         self._subs = []                      # (subscription, callback)
         self._stop = self.io.create_guard_condition(lambda: None)
         self._closing = False
+        self._closed = False
+        self._started = False
         self._thread = None
         self._errors = set()
         self.taken = 0
+        node.context.on_shutdown(self._on_shutdown)
 
     def add(self, msg_type, topic, callback, qos, raw=False):
-        sub = self.io.create_subscription(msg_type, topic, lambda msg: None, qos, raw=raw)
+        """Subscribe to ``topic`` as the owner resolves it (its namespace and remaps)."""
+        if self._started:
+            raise RuntimeError('DirectTake.add after start: the wait set is sized at start')
+        sub = self.io.create_subscription(msg_type, self.node.resolve_topic_name(topic), lambda msg: None,
+                                          qos, raw=raw)
         self._subs.append((sub, callback))
         return sub
 
     def start(self):
+        self._started = True
         self._thread = threading.Thread(target=self._run, name=f'{self.io.get_name()}_take', daemon=True)
         self._thread.start()
 
     def _run(self):
         subs = self._subs
-        wait_set = _rclpy.WaitSet(len(subs), 1, 0, 0, 0, 0, self.io.context.handle)
-        while not self._closing:
-            wait_set.clear_entities()
-            for sub, _ in subs:
-                wait_set.add_subscription(sub.handle)
-            wait_set.add_guard_condition(self._stop.handle)
-            try:
-                wait_set.wait(-1)
-            except Exception:              # noqa: BLE001  the context is going away
-                if not self._closing:
-                    self.node.get_logger().error(f'{self.io.get_name()}: waiting failed; inputs no longer '
-                                                 f'taken: {traceback.format_exc()}')
-                return
-            if self._closing:
-                return
-            ready = wait_set.get_ready_entities('subscription')
-            for sub, callback in subs:
-                if sub.handle.pointer not in ready:
-                    continue
-                taken = sub.handle.take_message(sub.msg_type, sub.raw)
-                if taken is None:
-                    continue
-                self.taken += 1
-                try:
-                    with self.lock:
-                        callback(taken[0])
-                except Exception as exc:   # noqa: BLE001  keep serving: the watchdog still stands
-                    kind = (sub.topic_name, type(exc).__name__)
-                    if kind not in self._errors:
-                        self._errors.add(kind)
-                        self.node.get_logger().error(f'{sub.topic_name} callback failed (said once per kind): '
-                                                     f'{traceback.format_exc()}')
+        try:
+            with ExitStack() as handles:     # kept alive while waited on (as rclpy's executor does)
+                handles.enter_context(self.io.context.handle)
+                for sub, _ in subs:
+                    handles.enter_context(sub.handle)
+                handles.enter_context(self._stop.handle)
+                wait_set = _rclpy.WaitSet(len(subs), 1, 0, 0, 0, 0, self.io.context.handle)
+                while not self._closing:
+                    wait_set.clear_entities()
+                    for sub, _ in subs:
+                        wait_set.add_subscription(sub.handle)
+                    wait_set.add_guard_condition(self._stop.handle)
+                    wait_set.wait(-1)
+                    if self._closing:
+                        return
+                    ready = wait_set.get_ready_entities('subscription')
+                    for sub, callback in subs:
+                        if sub.handle.pointer in ready:
+                            self._take(sub, callback)
+        except Exception:   # noqa: BLE001  the context going away, or rcl failing: say so and end
+            if not self._closing:
+                self.node.get_logger().error(f'{self.io.get_name()}: taking inputs failed; they are no longer '
+                                             f'taken (the watchdog fails safe on them): {traceback.format_exc()}')
+
+    def _take(self, sub, callback):
+        taken = sub.handle.take_message(sub.msg_type, sub.raw)
+        if taken is None:
+            return
+        self.taken += 1
+        try:
+            with self.lock:
+                callback(taken[0])
+        except Exception as exc:   # noqa: BLE001  keep serving: the watchdog still stands
+            kind = (sub.topic_name, type(exc).__name__)
+            if kind not in self._errors:
+                self._errors.add(kind)
+                self.node.get_logger().error(f'{sub.topic_name} callback failed (said once per kind): '
+                                             f'{traceback.format_exc()}')
+
+    def _on_shutdown(self):
+        self._closing = True
+        try:
+            self._stop.trigger()
+        except Exception:   # noqa: BLE001  already destroyed
+            pass
 
     def close(self):
         """Stop the thread (it finishes the callback it is in) and destroy the helper node."""
-        if self._closing:
+        if self._closed:
             return
-        self._closing = True
-        if self._thread is not None:
+        self._closed = self._closing = True
+        thread, self._thread = self._thread, None
+        if thread is not None:
             self._stop.trigger()
-            self._thread.join(timeout=5.0)
+            thread.join(timeout=5.0)
+            if thread.is_alive():      # a callback stuck: leave its handles alone
+                self.node.get_logger().error(f'{self.io.get_name()}: input thread still busy after 5 s; '
+                                             'helper node left in place')
+                return
         self.io.destroy_node()
