@@ -764,7 +764,7 @@ def main(argv=None):
     parser.add_argument('--window', type=float, default=5.0, help='seconds per node-count run')
     parser.add_argument('--interventions', type=int, default=40)
     parser.add_argument('--no-direct-take', action='store_true',
-                        help='latency: the filter\'s executor takes pose and cmd_vel_nav (direct_take false)')
+                        help='latency: the filter\'s executor takes its inputs (direct_take false)')
     parser.add_argument('--serve-vf-echo', action='store_true', help=argparse.SUPPRESS)
     parser.add_argument('--fleet-sizes', type=int, nargs='+', default=[50, 100, 150])
     parser.add_argument('--batched-sizes', type=int, nargs='+', default=[500, 1000, 2000])

@@ -334,12 +334,14 @@ def test_read_only_and_out_of_range_parameter_sets_are_refused(setup, name, valu
         assert node.filter.config.speed == 3.0
 
 
-def test_pose_and_command_are_taken_by_the_helper_node_or_by_the_filter_node(setup):
+def test_inputs_are_taken_by_the_helper_node_or_by_the_filter_node(setup):
     node, driver, spin = setup
     io = f'{node.get_name()}_io'
-    for topic, direct in (('pose', True), ('cmd_vel_nav', True), ('detections', False)):
+    for topic in ('pose', 'detections', 'cmd_vel_nav'):
         takers = {i.node_name for i in driver.node.get_subscriptions_info_by_topic(f'{NS}/{topic}')}
-        assert takers == ({io} if direct and node.direct is not None else {node.get_name()}), (topic, takers)
+        assert takers == ({io} if node.direct is not None else {node.get_name()}), (topic, takers)
+    takers = {i.node_name for i in driver.node.get_subscriptions_info_by_topic(VALUE_FUNCTION_TOPIC)}
+    assert takers == {node.get_name()}      # value functions stay on the executor (decoded off the path)
 
 
 def test_use_learned_turned_off_while_a_set_is_checked_keeps_the_standard_set(setup, monkeypatch):

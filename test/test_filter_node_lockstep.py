@@ -72,7 +72,7 @@ def test_in_lockstep_the_executor_takes_pose_and_command_whatever_direct_take_sa
     could answer such a pose and ack the newer step with it."""
     node, driver, spin, _, _ = setup
     assert node.get_parameter('direct_take').value is True and node.direct is None
-    for topic in ('pose', 'cmd_vel_nav'):
+    for topic in ('pose', 'detections', 'cmd_vel_nav'):
         takers = {i.node_name for i in driver.node.get_subscriptions_info_by_topic(f'{NS}/{topic}')}
         assert takers == {node.get_name()}, (topic, takers)
 

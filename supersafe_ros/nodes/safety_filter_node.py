@@ -64,7 +64,7 @@ from .markers import LevelSetMarkerPublisher
 class SafetyFilterNode(Node):
     def __init__(self, node_name='safety_filter', **kwargs):
         super().__init__(node_name, **kwargs)
-        # every callback that reads or changes the filter holds this lock (pose and command may be
+        # every callback that reads or changes the filter holds this lock (the inputs may be
         # taken by a thread of their own, below; parameters change under it too)
         self.lock = threading.RLock()
         self.wiring = w = FilterWiring(self, [self.get_namespace()], on_rate=self._set_rate, lock=self.lock)
@@ -98,11 +98,11 @@ class SafetyFilterNode(Node):
         self.cmd_pub = self.create_publisher(Twist, 'cmd_vel', rosmsg.QOS_STREAM)
         self.state_pub = self.create_publisher(DiagnosticStatus, 'safety_filter/state', rosmsg.QOS_STREAM)
         self.direct = None
-        direct = declare(self, 'direct_take', True, 'pose and cmd_vel_nav are taken by a thread of their own '
-                         'that waits on them alone (helper node <name>_io), off the executor\'s wake-up over '
-                         'every entity: about 0.3 ms less from pose to cmd_vel; false = the executor takes '
-                         'them. Not with lockstep (there a pose must be read after the /clock before it)',
-                         read_only=True)
+        direct = declare(self, 'direct_take', True, 'pose, detections and cmd_vel_nav are taken by a thread of '
+                         'their own that waits on them alone (helper node <name>_io), off the executor\'s '
+                         'wake-up over every entity: about 0.3 ms less from pose to cmd_vel; false = the '
+                         'executor takes them. Not with lockstep (there a pose must be read after the /clock '
+                         'before it)', read_only=True)
         # pose and command raw: read straight from their CDR bytes (ros_io.cdr), no message objects
         # built on the path from pose to cmd_vel. The executor calls ready subscriptions in the order
         # they were made: pose, detections, command (the command is judged on the detections with it).
@@ -111,8 +111,8 @@ class SafetyFilterNode(Node):
             # clock has passed is known as such (_clock_passed); a thread of its own would not be
             self.create_subscription(PoseStamped, 'pose', self._locked(self.on_pose), rosmsg.QOS_STREAM,
                                      raw=True)
-        self.create_subscription(PoseArray, 'detections', self._locked(self.on_detections), rosmsg.QOS_STREAM)
-        if not direct or self.lockstep:
+            self.create_subscription(PoseArray, 'detections', self._locked(self.on_detections),
+                                     rosmsg.QOS_STREAM)
             self.create_subscription(Twist, 'cmd_vel_nav', self._locked(self.on_command), rosmsg.QOS_STREAM,
                                      raw=True)
         self.timer = None
@@ -130,7 +130,9 @@ class SafetyFilterNode(Node):
         if direct and not self.lockstep:
             self.direct = DirectTake(self, self.lock)
             try:
+                # taken in this order when ready together, as the executor did
                 self.direct.add(PoseStamped, 'pose', self.on_pose, rosmsg.QOS_STREAM, raw=True)
+                self.direct.add(PoseArray, 'detections', self.on_detections, rosmsg.QOS_STREAM)
                 self.direct.add(Twist, 'cmd_vel_nav', self.on_command, rosmsg.QOS_STREAM, raw=True)
             except BaseException:
                 self.direct.close()
