@@ -283,8 +283,8 @@ class EncounterBuilder:
         if not self._pending:
             return
         # the poses judged so far (a robot whose poses are all still held has reached nothing)
-        reached = min([p[0] for p in self._last_pose.values()]
-                      + [-math.inf for r in self._held if r not in self._last_pose], default=-math.inf)
+        reached = min((self._last_pose[r][0] if r in self._last_pose else -math.inf for r in self._robot_version),
+                      default=-math.inf)
         still = []
         for stamp, obstacle, rel, arrived in sorted(self._pending):
             if stamp <= reached + 1e-9 or (wall is not None and arrived + self.stale_wall <= wall):

@@ -7,6 +7,7 @@ a clean stop, 1 if the node failed to start.
 """
 from __future__ import annotations
 
+from contextlib import nullcontext
 import gc
 import os
 import signal
@@ -234,7 +235,8 @@ class LiveParameters:
         self._node = node
         self._entries = {}
         self._after = after
-        self._lock = lock          # applied under it (a node whose callbacks run on several threads)
+        # applied under it (a node whose callbacks run on several threads)
+        self._lock = lock if lock is not None else nullcontext()
         node.add_on_set_parameters_callback(self._on_set)
 
     def add(self, name, apply, check=None) -> None:
@@ -253,17 +255,11 @@ class LiveParameters:
             if reason:
                 self._node.get_logger().warn(f'parameter {p.name} := {p.value!r} refused: {reason}')
                 return SetParametersResult(successful=False, reason=f'{p.name}: {reason}')
-        if self._lock is not None:
-            with self._lock:
-                self._apply(ours)
-        else:
-            self._apply(ours)
+        with self._lock:
+            for p in ours:
+                self._entries[p.name][0](p.value)
+            if ours and self._after is not None:
+                self._after({p.name for p in ours})
         for p in ours:
             self._node.get_logger().info(f'parameter {p.name} := {p.value!r} in force')
         return SetParametersResult(successful=True)
-
-    def _apply(self, ours):
-        for p in ours:
-            self._entries[p.name][0](p.value)
-        if ours and self._after is not None:
-            self._after({p.name for p in ours})

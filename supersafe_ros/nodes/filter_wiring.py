@@ -86,7 +86,8 @@ class FilterWiring:
         self.node = node
         self.log = node.get_logger()
         self._on_rate = on_rate
-        self._lock = lock             # held while parameters change (the node's callbacks hold it too)
+        # held while parameters change and a checked set goes in force (the node's callbacks hold it too)
+        self._lock = lock if lock is not None else nullcontext()
         p = lambda *a, **k: declare(node, *a, **k)  # noqa: E731
         fixed = dict(read_only=True)
         speed = p('speed', 3.0, 'robot speed, true dynamics [m/s] (standard set; linear.x)', 0.01, 100.0,
@@ -336,7 +337,7 @@ class FilterWiring:
         # the law's lazily cached arrays (node gradients: 3 x the values) are built here, not
         # on the first decision that uses the set
         evaluate_pairs(vf, np.zeros((1, 3)))
-        with self._lock if self._lock is not None else nullcontext():
+        with self._lock:
             if (self.use_learned, self.standard_alpha, self.alpha_offset) != settings or self._learned is not vf:
                 # the levels or the set changed while it was checked: check again with the new ones
                 if self.use_learned:
@@ -357,7 +358,7 @@ class FilterWiring:
 
     def _reject(self, reason, revert=False):
         self.set_updates['rejected'] += 1
-        with self._lock if self._lock is not None else nullcontext():
+        with self._lock:
             if revert and self.safe_set is not self.standard:
                 self.safe_set = self.standard
                 reason += '; back to the standard set'

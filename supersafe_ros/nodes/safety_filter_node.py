@@ -103,18 +103,6 @@ class SafetyFilterNode(Node):
                          'wake-up over every entity: about 0.3 ms less from pose to cmd_vel; false = the '
                          'executor takes them. Not with lockstep (there a pose must be read after the /clock '
                          'before it)', read_only=True)
-        # pose and command raw: read straight from their CDR bytes (ros_io.cdr), no message objects
-        # built on the path from pose to cmd_vel. The executor calls ready subscriptions in the order
-        # they were made: pose, detections, command (the command is judged on the detections with it).
-        if not direct or self.lockstep:
-            # lockstep: the executor reads /clock before a pose that waits with it, so a pose the
-            # clock has passed is known as such (_clock_passed); a thread of its own would not be
-            self.create_subscription(PoseStamped, 'pose', self._locked(self.on_pose), rosmsg.QOS_STREAM,
-                                     raw=True)
-            self.create_subscription(PoseArray, 'detections', self._locked(self.on_detections),
-                                     rosmsg.QOS_STREAM)
-            self.create_subscription(Twist, 'cmd_vel_nav', self._locked(self.on_command), rosmsg.QOS_STREAM,
-                                     raw=True)
         self.timer = None
         self._set_rate(w.rate)
         # RViz: the level set in force around each detected obstacle (computed only while watched)
@@ -127,17 +115,26 @@ class SafetyFilterNode(Node):
             self.level_set = LevelSetMarkerPublisher(
                 self, lambda: (w.safe_set, self.filter.pose.value, self.filter.detections.value),
                 level_set_rate)
+        # (type, topic, callback, raw): pose and command raw, read straight from their CDR bytes
+        # (ros_io.cdr), no message objects built on the path from pose to cmd_vel. Ready together,
+        # they are taken in this order (the executor's: the order made), so a command is judged on
+        # the detections that came with it.
+        inputs = ((PoseStamped, 'pose', self.on_pose, True), (PoseArray, 'detections', self.on_detections, False),
+                  (Twist, 'cmd_vel_nav', self.on_command, True))
         if direct and not self.lockstep:
             self.direct = DirectTake(self, self.lock)
             try:
-                # taken in this order when ready together, as the executor did
-                self.direct.add(PoseStamped, 'pose', self.on_pose, rosmsg.QOS_STREAM, raw=True)
-                self.direct.add(PoseArray, 'detections', self.on_detections, rosmsg.QOS_STREAM)
-                self.direct.add(Twist, 'cmd_vel_nav', self.on_command, rosmsg.QOS_STREAM, raw=True)
+                for msg_type, topic, callback, raw in inputs:
+                    self.direct.add(msg_type, topic, callback, rosmsg.QOS_STREAM, raw=raw)
             except BaseException:
                 self.direct.close()
                 raise
             self.direct.start()
+        else:
+            # lockstep: the executor reads /clock before a pose that waits with it, so a pose the
+            # clock has passed is known as such (_clock_passed); a thread of its own would not be
+            for msg_type, topic, callback, raw in inputs:
+                self.create_subscription(msg_type, topic, self._locked(callback), rosmsg.QOS_STREAM, raw=raw)
         self.get_logger().info('filtering cmd_vel_nav -> cmd_vel; waiting for the first pose and detections '
                                '(failing safe until then)')
 
