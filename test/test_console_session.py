@@ -101,6 +101,7 @@ def page(driver):
         const r = document.querySelector('[data-robot="robot_0"]');
         const o = document.querySelector('[data-obstacle-id]');
         return {phase: document.body.dataset.phase, waiting: document.body.dataset.waiting,
+                running: document.body.dataset.running,
                 x: r && r.hasAttribute('data-x') ? parseFloat(r.dataset.x) : null,
                 obstacle: o ? o.dataset.obstacleId : null,
                 fits: [...document.querySelectorAll('#fit-lines li')].map(li => li.textContent),
@@ -163,6 +164,102 @@ def test_scripted_participant_goes_through_phase_two_and_gets_a_fit(tmp_path):
         _, _, _, messages = read_bag(tmp_path / '12' / 'recording-1' / 'recording-1_0.mcap')
         frames = [m.header.frame_id for topic, _, _, m, _ in messages if topic == '/interventions']
         assert sorted(frames) == sorted(f'obstacle_{o}' for o in handled)
+    finally:
+        if browser:
+            browser.close()
+        if proc.poll() is None:
+            proc.send_signal(2)
+            try:
+                proc.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+        print(proc.stdout.read())
+
+
+def test_scripted_participant_completes_the_whole_protocol(tmp_path):
+    """Phase I (arrow keys), Phase II (Space), the fit, three games with clicks and both
+    Likert screens, to subject.json; then the researcher's --analyse over it."""
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.keys import Keys
+    port = free_port()
+    n, game_s = 3, 6.0
+    proc = subprocess.Popen(
+        [sys.executable, '-m', 'supersafe_ros.cli', 'session', '--participant', 'w1', '--out',
+         str(tmp_path), '--port', str(port), '--offsets', str(n), '--phase1-seconds', '4',
+         '--game-seconds', str(game_s), '--rate-factor', '2', '--no-record'],
+        env=dict(os.environ), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        start_new_session=True)
+    browser = None
+    try:
+        wait_for_server(f'http://127.0.0.1:{port}/', timeout=60)
+        browser = Browser()
+        d = browser.driver
+        d.get(f'http://127.0.0.1:{port}/')
+
+        def press_start(phase):
+            wait_until(lambda: page(d)['phase'] == phase and page(d)['waiting'] == 'true', 180,
+                       lambda: f'the {phase} start button (page: {page(d)})')
+            d.find_element('id', 'start').click()
+            wait_until(lambda: page(d)['waiting'] != 'true' or page(d)['phase'] != phase, 30,
+                       f'{phase} to start')
+
+        press_start('phase1')
+        wait_until(lambda: page(d)['running'] == 'true', 60, 'Phase I to run')
+        ActionChains(d).key_down(Keys.ARROW_LEFT).perform()
+        wait_until(lambda: page(d)['phase'] != 'phase1', 120, 'Phase I to end')
+        ActionChains(d).key_up(Keys.ARROW_LEFT).perform()
+        press_start('phase2')
+        handled = set()
+
+        def phase2_step():
+            p = page(d)
+            if p['phase'] in ('fitting', 'fit'):
+                return True
+            if (p['obstacle'] is not None and p['obstacle'] not in handled and len(handled) < n - 1
+                    and p['x'] is not None and -6.0 <= p['x'] <= -2.5):
+                d.find_element('tag name', 'body').send_keys(Keys.SPACE)
+                handled.add(p['obstacle'])
+            return False
+        wait_until(phase2_step, 60 + 30 * n, 'Phase II to end', period=0.03)
+        press_start('fit')
+        clicks = 0
+        for game in range(3):
+            press_start('game')
+
+            def game_step():
+                nonlocal clicks
+                p = page(d)
+                if p['phase'] != 'game' or p['waiting'] == 'true':
+                    return True
+                if p['obstacle'] is not None and p['running'] == 'true' and clicks < 2 * (game + 1):
+                    d.find_element('css selector', '[data-obstacle-id]').click()
+                    clicks += 1
+                return False
+            wait_until(game_step, 180, f'game {game + 1} to end', period=0.5)
+            if game >= 1:
+                wait_until(lambda: page(d)['phase'] == 'likert', 60, 'the Likert screen')
+                for radio in d.execute_script("""
+                    const seen = new Set(); const out = [];
+                    for (const r of document.querySelectorAll('input[data-likert]')) {
+                      if (!seen.has(r.name) && r.value === '5') { seen.add(r.name); out.push(r); } }
+                    return out;"""):
+                    radio.click()
+                d.find_element('css selector', 'button[data-action="answers"]').click()
+        wait_until(lambda: page(d)['phase'] == 'done', 120, 'the end of the session')
+        assert proc.wait(timeout=60) == 0
+        subject = json.loads((tmp_path / 'w1' / 'subject.json').read_text())
+        session = json.loads((tmp_path / 'w1' / 'session.json').read_text())
+        assert set(session['games']) == set(S.CONDITIONS)
+        for cond, g in session['games'].items():
+            assert g['complete'] and g['sim_time'] == pytest.approx(game_s, abs=0.06), (cond, g)
+            assert g['trips'] + g['crashes'] + g['interventions'] >= 0
+        assert sum(g['interventions'] for g in session['games'].values()) >= 1   # the clicks reached the world
+        assert len(session['answers']) == 2 and all(set(a['values'].values()) == {5} for a in session['answers'])
+        assert subject['answers'] == session['answers'] or len(subject.get('answers', [])) == 2
+        out = io.StringIO()
+        from supersafe_ros.console.session_runner import analyse
+        assert analyse([tmp_path], out=out) == 0
+        assert '1 subjects (1 human' in out.getvalue() or '1 subject' in out.getvalue()
     finally:
         if browser:
             browser.close()

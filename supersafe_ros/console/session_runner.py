@@ -43,7 +43,7 @@ class PhaseNode:
     ~/step_done is the observer topic the sim clock waits for. Own context, own thread."""
 
     def __init__(self, env, state: ConsoleState, robots, drive_robot: str | None = None,
-                 keys=None, w_max: float = 1.0):
+                 keys=None, w_max: float = 1.0, set_msg=None, on_first_pose=None):
         from ..rosenv import ensure_local_ros_env
         ensure_local_ros_env()
         import rclpy
@@ -60,11 +60,13 @@ class PhaseNode:
         self.Twist = Twist
         self.keys = keys
         self.w_max = w_max
+        self.on_first_pose = on_first_pose     # the clock has started: the phase runs
         self.cmd_pub = (self.node.create_publisher(Twist, f'/{drive_robot}/cmd_vel', rosmsg.QOS_STREAM)
                         if drive_robot else None)
         self.acks = StepAcknowledger(self.node, robots)
         self.bridge = ConsoleBridge(self.node, state, on_pose=self._after_pose)
         self.acks.watch(*self.bridge.pose_subscriptions)
+        self.set_gate = SetGate(self.node, set_msg, len(robots)) if set_msg is not None else None
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self.thread = threading.Thread(target=self._spin, daemon=True)
@@ -77,6 +79,9 @@ class PhaseNode:
             pass
 
     def _after_pose(self, robot, msg):
+        if self.on_first_pose is not None:
+            callback, self.on_first_pose = self.on_first_pose, None
+            callback()
         if self.cmd_pub is not None:
             # the person's arrow keys: left turns left (+u); this is also the lockstep answer
             left, right = self.keys() if self.keys else (False, False)
@@ -93,6 +98,50 @@ class PhaseNode:
             self.node.destroy_node()
         except Exception:
             pass
+
+
+SET_GATE_TOPIC = '/session/set_in_force'
+
+
+class SetGate:
+    """Publishes one value-function message, latched, on /safe_set/value_function, and opens
+    a gate (a publisher on ``SET_GATE_TOPIC``, which the game's sim clock waits for) once
+    ``n_filters`` safety filters have said on /rosout that a set from it is in force: a
+    game's first step then runs on the condition's set, not on the one a filter starts with."""
+
+    def __init__(self, node, msg, n_filters: int):
+        from rcl_interfaces.msg import Log
+        from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+        from std_msgs.msg import Empty, Float32MultiArray
+        from ..ros_io import rosmsg
+        self.node, self.n_filters, self.Empty = node, int(n_filters), Empty
+        self.in_force = set()
+        self.gate = None
+        rosout = QoSProfile(depth=1000, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE,
+                            durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        node.create_subscription(Log, '/rosout', self.on_log, rosout)
+        self.pub = node.create_publisher(Float32MultiArray, '/safe_set/value_function', rosmsg.QOS_LATCHED)
+        self.pub.publish(msg)
+
+    def on_log(self, log):
+        # "learned set in force: ..." or "... the local standard set is in force ..."
+        if log.name.endswith('safety_filter') and (' set in force' in log.msg or ' set is in force' in log.msg):
+            self.in_force.add(log.name)
+            if len(self.in_force) >= self.n_filters and self.gate is None:
+                from ..ros_io import rosmsg
+                self.gate = self.node.create_publisher(self.Empty, SET_GATE_TOPIC, rosmsg.QOS_LATCHED)
+
+
+def add_clock_gate(argvs, topic):
+    """The sim clock also waits for one publisher on ``topic`` before its first step."""
+    from ..team import _param_value, process_name
+    for a in argvs:
+        if process_name(a) == 'sim_clock':
+            for i, item in enumerate(a):
+                if item.startswith('wait_for_publishers:='):
+                    entries = [t for t in item.split(':=', 1)[1].strip('[]').split(',') if t]
+                    a[i] = f'wait_for_publishers:={_param_value(entries + [f"{topic}=1"])}'
+    return argvs
 
 
 def without(argvs, *names):
@@ -237,10 +286,13 @@ class Session:
                 self.recorder.stop()
             self.server.stop()
 
-    def _graph(self, argvs, robots, name, duration, drive_robot=None):
+    def _graph(self, argvs, robots, name, duration, drive_robot=None, set_msg=None):
         from ..team import run_team
         self.phase_node = PhaseNode(self.env, self.state, robots, drive_robot=drive_robot,
-                                    keys=lambda: self.keys)
+                                    keys=lambda: self.keys, set_msg=set_msg,
+                                    on_first_pose=lambda: self.show(self.view['phase'], **dict(
+                                        {k: v for k, v in self.view.items() if k not in ('type', 'phase')},
+                                        running=True)))
         try:
             log_dir = self.store.dir / 'logs' / name
             with open(self.store.dir / 'logs' / f'{name}.runner.log', 'w') as out:
@@ -263,7 +315,7 @@ class Session:
                         'robot_0/planner', 'supervisor')
         # pose readers: the world and this session (no planner)
         set_clock_param(argvs, 'wait_for_subscriptions', ['/robot_0/pose=2', '/clock=1'])
-        self.show('phase1', seconds=self.args.phase1_seconds, running=True)
+        self.show('phase1', seconds=self.args.phase1_seconds, running=False)
         result = self._graph(argvs, ['robot_0'], 'phase1', self.args.phase1_seconds, drive_robot='robot_0')
         self.store.data['phase1'] = {'seconds': self.args.phase1_seconds,
                                      'stats': result.get('stats', {}), 'reason': result['reason']}
@@ -362,33 +414,31 @@ class Session:
                 'scenes': len(self.store.data['scenes'])}
 
     def game(self, i, cond):
-        from ..ros_io.vfmsg import value_function_to_msg
-        from ..study.population import Subject
-        from ..study.runner import LatchedValueFunction, StudyOptions, game_argvs, game_counts
-        opts = StudyOptions(step=0.05, rate_factor=self.args.rate_factor,
-                            game_seconds=self.args.game_seconds)
+        """One Phase III game: a fresh graph (world, two robots with planner and filter, no
+        supervisor process: the person is the supervisor) whose clock starts once both
+        filters have the condition's set in force (``SetGate``)."""
+        from ..study.runner import condition_message, game_counts
+        from ..team import node_argv, team_layout
         fit = (self.store.data['fit'] or {}).get(self.args.estimator.replace('-', '_'))
         vf = self.learned_vf()
-        use = cond if (cond != 'learned' or vf is not None) else 'standard'
-        stand_in = Subject(index=0, omega_max=1.0, mu=0.0, sigma=0.1, seed=0)
+        learned = {'learned': (vf, fit)} if (vf is not None and fit) else {}
+        msg, alpha, ran = condition_message(cond, learned)
         world_seed = participant_number(self.store.pid) % 100000
-        argvs = without(game_argvs(use, world_seed, stand_in, opts), 'supervisor')
-        latched = None
-        if use == 'learned':
-            summary = {k: v for k, v in fit.items() if k not in ('candidates', 'notes')}
-            latched = LatchedValueFunction(self.env, value_function_to_msg(vf, **summary, source='learned'))
+        layout = team_layout(2, self.args.rate_factor, seed=world_seed, duration=self.args.game_seconds,
+                             step=0.05, with_learner=False,
+                             overrides={'safety_filter': {'use_learned': True, 'alpha_offset': 0.0}})
+        argvs = without([node_argv(n.kind, n.namespace, n.params, n.remaps) for n in layout], 'supervisor')
+        add_clock_gate(argvs, SET_GATE_TOPIC)
         self.interventions_open = True
-        self.show('game', game=GAME_LABELS[i], seconds=self.args.game_seconds, running=True)
+        self.show('game', game=GAME_LABELS[i], seconds=self.args.game_seconds, running=False)
         try:
             result = self._graph(argvs, ['robot_0', 'robot_1'], f'game-{i + 1}-{cond}',
-                                 self.args.game_seconds)
+                                 self.args.game_seconds, set_msg=msg)
         finally:
             self.interventions_open = False
-            if latched:
-                latched.close()
         counts = game_counts(result)
-        counts.update(reason=result['reason'], position=i + 1, played=use,
-                      complete=counts['sim_time'] >= self.args.game_seconds - 1e-6)
+        counts.update(reason=result['reason'], position=i + 1, played=ran,
+                      alpha=alpha, complete=counts['sim_time'] >= self.args.game_seconds - 1e-6)
         self.store.data['games'][cond] = counts
         self.store.save()
 

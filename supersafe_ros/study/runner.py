@@ -586,6 +586,12 @@ def _finite(v):
     return v
 
 
+def _measure(v) -> float | None:
+    """A stored H2 measure as a finite float, or None (not measured: NaN in memory, null in
+    JSON, e.g. path per trip in a game without a trip)."""
+    return None if v is None else _finite(float(v))
+
+
 def jsonable(obj):
     """Nested dicts/lists with numpy scalars and non-finite floats made JSON-safe."""
     if isinstance(obj, dict):
@@ -646,7 +652,7 @@ def summarize(records: list, standard_vf, conservative_vf, sweep_k=(0.0, 1.0, 2.
     counts = {c: {key: [int(r['games'][c][key]) for r in records]
                   for key in ('false_positives', 'interventions', 'crashes', 'trips')}
               for c in conditions}
-    measures = {c: {m: [_finite(float(r['games'][c].get(m, float('nan')))) for r in records]
+    measures = {c: {m: [_measure(r['games'][c].get(m)) for r in records]
                     for m in H2_MEASURES + ('avoidance_total', 'avoidance_arcs')}
                 for c in conditions}
     fp = {c: counts[c]['false_positives'] for c in conditions}

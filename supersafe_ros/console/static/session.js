@@ -61,6 +61,7 @@
     view = v;
     document.body.dataset.phase = v.phase;
     document.body.dataset.waiting = v.waiting ? 'true' : 'false';
+    document.body.dataset.running = v.running ? 'true' : 'false';
     const t = TEXT[v.phase] || [v.phase, ''];
     el('phase-title').textContent = t[0];
     el('phase-text').textContent = typeof t[1] === 'function' ? t[1](v) : t[1];
