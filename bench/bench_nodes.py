@@ -254,7 +254,7 @@ def bench_latency(args):
 
 # -- core ---------------------------------------------------------------------------------------
 def _core_fleet(n, rng, field, shared, **cfg):
-    from supersafe_ros.filter.core import FilterConfig, RobotFilter
+    from supersafe_ros.filter import FilterConfig, RobotFilter
     config = FilterConfig(**cfg)
     filters = []
     for i in range(n):
@@ -286,7 +286,7 @@ def bench_core(args):
     loiter fallback in force (union values not yet solved), clusters on with the union values
     in force (every robot sees the same 10 obstacles, as the batched fleet/detections give)."""
     from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore
-    from supersafe_ros.filter.core import SafeSet, step_many
+    from supersafe_ros.filter import SafeSet, step_many
     from supersafe_ros.reach.grid import Grid
     from supersafe_ros.reach.library import load_or_solve
     vf = load_or_solve(Grid((-8, -8), (8, 8), (65, 65, 42)), 3.0, 1.0, 1.8, 3.0)

@@ -172,7 +172,7 @@ def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
             # each command holds for one step; a decision on the step before's pose (its
             # pose and cmd_vel_nav callbacks race) is propagated from the pose's stamp, and
             # a reply that misses its step holds for one more: look ahead two steps
-            # (see filter.core: delay compensation, lookahead). A lockstepped robot does not
+            # (see filter.propagation and filter.law: delay compensation, lookahead). A lockstepped robot does not
             # move while /clock waits (a busy machine, a slow rate factor), so the filter
             # counts a stopped /clock as lost only after 20 s (docs/filter_node.md).
             # lockstep: the filter answers each pose once, on that pose (the robot's step

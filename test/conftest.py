@@ -40,7 +40,7 @@ def decision_path(request, monkeypatch):
     takes the one-robot path (``_decide_one``, Python scalars); beside a robot with no inputs
     (left out of the law: it only gets the stop-turn) it takes the vectorised path. Every
     single-robot expectation then holds for both."""
-    from supersafe_ros.filter.core import RobotFilter, step_many
+    from supersafe_ros.filter import RobotFilter, step_many
     if request.param != 'alone':
         def step_beside_idle(self, safe_set, t, clusters=None):
             return step_many([self, RobotFilter(self.config)], safe_set, t, clusters)[0]

@@ -1,8 +1,8 @@
-"""The per-robot implementation of ``filter.core.step_many`` before it was vectorised
+"""The per-robot implementation of ``filter.step_many`` before it was vectorised
 (commit 003abdd), kept verbatim as the reference the vectorised one must equal decision
 for decision (test_filter_vectorised.py). Only the imports differ, the control
 period is computed from the filter's interval deques here (as it was), not from its cache,
-and propagate_poses wraps theta when no robot has an arc (as filter.core does since: a
+and propagate_poses wraps theta when no robot has an arc (as filter.propagation does since: a
 robot's state must not depend on the other robots' plans).
 """
 from __future__ import annotations
@@ -11,8 +11,11 @@ import math
 
 import numpy as np
 
-from supersafe_ros.filter.core import (FAIL_SAFE, OVERRIDE, PASS, FilterOutput, SafeSet, _clip,
-                                       _planned_turn, arc_flow, default_cluster_store)
+from supersafe_ros.filter import FAIL_SAFE, FilterOutput, OVERRIDE, PASS, SafeSet, default_cluster_store
+
+from supersafe_ros.filter.gather import clip, planned_turn
+
+from supersafe_ros.filter.propagation import arc_flow
 from supersafe_ros.filter.law import evaluate_pairs, tie_tolerance
 from supersafe_ros.reach.grid import wrap_angle
 from supersafe_ros.reach.value_function import ValueFunction
@@ -48,7 +51,7 @@ def propagate_poses(filters, use, t):
         ages[row] = max(0.0, min(t - t0, f.config.hold_timeout))
         plans.append(f.segments_since(t - ages[row], t))
     depth = max((len(p) for p in plans), default=0)
-    if depth == 0:      # (added later: theta wrapped as a zero-length arc would, see filter.core)
+    if depth == 0:      # (added later: theta wrapped as a zero-length arc would, see filter.propagation)
         states[:, 2] = wrap_angle(states[:, 2])
         return states, ages
     speed = np.array([filters[i].config.speed for i in use])
@@ -156,7 +159,7 @@ def step_many_reference(filters, safe_set: SafeSet, t, clusters=None) -> list:
             why = ('clear: no obstacle near' if k < 0 else
                    f'clear: V={c.value[k]:.3g} > alpha={c.level[k]:.3g}')
             # the robot's bound, whatever the planner asked (angular.z = 1e30 goes out as w_max)
-            omega = _clip(f.command.value, cfg.omega_max)
+            omega = clip(f.command.value, cfg.omega_max)
             out.append(FilterOutput(omega, cfg.speed, PASS, why, **common))
     for f, o in zip(filters, out):
         f.record_sent(o.omega, t)
@@ -273,7 +276,7 @@ def _add_cluster_constraints(c: _Constraints, f, state, horizon, t, store) -> No
     # (+-w_max) with the larger V at the end of its hold, and the planner's command is
     # judged by what the filter can still do after it: the better bang held for one more
     # period (a pass never leaves the robot where no held turn keeps V above the level)
-    u = _planned_turn(f, t)
+    u = planned_turn(f, t)
     w = cfg.omega_max
     speed = np.full(3, cfg.speed)
     hold = np.full(3, horizon)
@@ -328,7 +331,7 @@ def _sampled_control(filters, vf: ValueFunction, rel, robot, t, horizons, turn):
         return turn, np.zeros(0)
     # per-robot values, repeated over each robot's pairs (pairs are grouped by robot)
     robots, counts = np.unique(robot, return_counts=True)
-    per = np.array([(_planned_turn(filters[i], t), horizons[i], filters[i].config.speed,
+    per = np.array([(planned_turn(filters[i], t), horizons[i], filters[i].config.speed,
                      filters[i].config.omega_max) for i in robots], dtype=float).reshape(-1, 4)
     omega, horizon, speed, bang = (np.repeat(per[:, c], counts) for c in range(4))
     if not np.any(horizon > 0):
@@ -343,3 +346,25 @@ def _sampled_control(filters, vf: ValueFunction, rel, robot, t, horizons, turn):
     use = (horizon > 0) & (np.isfinite(left) | np.isfinite(right))
     value_next = np.where(horizon > 0, np.minimum(v[4], np.maximum(v[2], v[3])), np.inf)
     return np.where(use, held, turn), value_next
+
+
+def govern_one(tab, overriding, margin):
+    """The governing rule for one robot whose table columns are lists, as the filter's scalar
+    path wrote it before the rule was written once (law.govern): (the row that makes it
+    override and why, or -1 and 0 to pass; the row with the smallest finite V - level, or -1).
+    Within a cluster its sound row first, then enter, ahead, stay, each by the smallest score
+    and the first in the robot's list on ties. An oracle for law.govern and law.smallest."""
+    rows = range(len(tab.value))
+    enter = [tab.value[r] <= tab.level[r] for r in rows]
+    ahead = [tab.value_next[r] <= tab.level[r] for r in rows]
+    stay = [overriding and tab.value[r] <= tab.level[r] + margin for r in rows]
+    governed = {tab.group[r] for r in rows if tab.sound[r] and (enter[r] or ahead[r] or stay[r])}
+    usable = [tab.sound[r] or tab.group[r] not in governed for r in rows]
+    k_gov, kind = -1, 0
+    for code, flags, values in ((1, enter, tab.value), (2, ahead, tab.value_next), (3, stay, tab.value)):
+        hits = [(values[r] - tab.level[r], tab.position[r], r) for r in rows if usable[r] and flags[r]]
+        if hits:
+            k_gov, kind = min(hits)[2], code
+            break
+    finite = [(tab.value[r] - tab.level[r], tab.position[r], r) for r in rows if math.isfinite(tab.value[r])]
+    return k_gov, kind, min(finite)[2] if finite else -1

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore, canonical, components, to_frame
-from supersafe_ros.filter.core import FilterConfig, RobotFilter, SafeSet, step_many
+from supersafe_ros.filter import FilterConfig, RobotFilter, SafeSet, step_many
 from supersafe_ros.filter.encounters import (cup_layout, layout_encounters, random_layout, row_layout,
                                              run_encounters, single_disc_encounters, standard_guard)
 from supersafe_ros.reach.dynamics import DubinsCar

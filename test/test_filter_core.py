@@ -1,11 +1,12 @@
-"""ROS-free tests of the per-robot filter state machine (supersafe_ros.filter.core)."""
+"""ROS-free tests of the per-robot filter state machine (supersafe_ros.filter)."""
 import math
 
 import numpy as np
 import pytest
 
-from supersafe_ros.filter.core import (FAIL_SAFE, OVERRIDE, PASS, FilterConfig, RobotFilter, SafeSet,
-                                       evaluate_pairs, step_many)
+from supersafe_ros.filter import FAIL_SAFE, FilterConfig, OVERRIDE, PASS, RobotFilter, SafeSet, step_many
+
+from supersafe_ros.filter.law import evaluate_pairs
 from supersafe_ros.reach.dynamics import DubinsCar
 from supersafe_ros.reach.grid import Grid
 from supersafe_ros.reach.sets import Disc
@@ -331,7 +332,7 @@ def test_equal_detections_in_separate_arrays_share_their_cluster_frames(standard
     """Robots sent equal detections in separate messages (the fleet node's per-robot topics)
     compute the cluster frames once; other content gets its own; the cache is bounded; and
     the decisions are those computed without it."""
-    import supersafe_ros.filter.core as core
+    import supersafe_ros.filter.cluster_rows as core
     from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore
     store = ClusterStore(ClusterSettings(), fallback_only=True)
     pair = [(OBSTACLE[0], OBSTACLE[1]), (OBSTACLE[0] + 4.0, OBSTACLE[1] + 1.0)]      # one cluster

@@ -1,4 +1,4 @@
-"""Tests that kill the mutants of ``supersafe_ros.filter.core`` that survived the fast tests.
+"""Tests that kill the mutants of ``supersafe_ros.filter`` (then filter/core.py) that survived the fast tests.
 
 Each test names the mutation it guards against (issue 9: mutation testing with mutmut,
 ``bash bench/mutation.sh core``); the equivalent survivors are listed with a reason in
@@ -9,8 +9,11 @@ import math
 import numpy as np
 import pytest
 
-from supersafe_ros.filter.core import (FAIL_SAFE, OVERRIDE, PASS, FilterConfig, RobotFilter, SafeSet, arc_flow,
-                                       evaluate_pairs, step_many)
+from supersafe_ros.filter import FAIL_SAFE, FilterConfig, OVERRIDE, PASS, RobotFilter, SafeSet, step_many
+
+from supersafe_ros.filter.law import evaluate_pairs
+
+from supersafe_ros.filter.propagation import arc_flow
 from supersafe_ros.reach.dynamics import DubinsCar
 from supersafe_ros.reach.grid import Grid
 from supersafe_ros.reach.sets import Disc
@@ -149,7 +152,7 @@ def test_arc_flow_is_straight_and_exact_for_negligible_turns():
         assert got[1] == pytest.approx(-0.2 + 3.0 * dt * np.sin(0.7), abs=1e-12)
 
 
-# -- the rule at its boundaries (_govern): "override when V <= alpha" ------------------------------
+# -- the rule at its boundaries (govern): "override when V <= alpha" ------------------------------
 def test_value_exactly_at_alpha_overrides(standard):
     """V == alpha is inside the override set (kills ``V < level`` for entering)."""
     pose = at(-6.0, 0.0, 0.0)
@@ -161,10 +164,10 @@ def test_value_exactly_at_alpha_overrides(standard):
 
 def test_lookahead_value_exactly_at_alpha_overrides(standard):
     """V after the planner's hold == alpha also overrides (kills ``V_next < level``)."""
-    from supersafe_ros.filter.core import _pair_values
+    from supersafe_ros.filter.pairs import pair_values
     rel = np.array([[RIGHT[0] - OBSTACLE[0], RIGHT[1] - OBSTACLE[1], RIGHT[2]]])
     one = np.ones(1)
-    _, _, v_next = _pair_values(standard.vf, rel, 0.9 * one, HOLD * one, 3.0 * one, one)
+    _, _, v_next = pair_values(standard.vf, rel, 0.9 * one, HOLD * one, 3.0 * one, one)
     level = float(v_next[0])
     f = robot(pose=RIGHT, cmd=0.9, lookahead=HOLD, control_period=HOLD)
     out = f.step(SafeSet(standard.vf, level), T)
@@ -183,12 +186,12 @@ def test_value_exactly_at_alpha_plus_margin_keeps_overriding(standard):
     assert out.action == OVERRIDE and 'not clear' in out.reason
 
 
-# -- which constraint governs (_govern on a hand-made table) ---------------------------------------
+# -- which constraint governs (govern on a hand-made table) ---------------------------------------
 def table(rows):
-    """A constraint table for _govern: rows of (robot, position, value, level, value_next, sound,
+    """A constraint table for govern: rows of (robot, position, value, level, value_next, sound,
     group)."""
-    from supersafe_ros.filter.core import _Table
-    tab = _Table()
+    from supersafe_ros.filter.law import ConstraintTable
+    tab = ConstraintTable()
     cols = list(zip(*rows))
     tab.robot, tab.position = np.array(cols[0], np.intp), np.array(cols[1], np.intp)
     tab.value, tab.level, tab.value_next = (np.array(c, float) for c in cols[2:5])
@@ -197,9 +200,9 @@ def table(rows):
 
 
 def govern(rows, overriding=False, margin=0.2):
-    from supersafe_ros.filter.core import _govern
+    from supersafe_ros.filter.law import govern
     tab = table(rows)
-    k, kind = _govern(tab, np.array([overriding]), np.array([margin]), int(tab.group.max()) + 1, 1)
+    k, kind = govern(tab, np.array([overriding]), np.array([margin]), int(tab.group.max()) + 1, 1)
     return int(k[0]), int(kind[0])
 
 
@@ -234,7 +237,7 @@ def test_the_smallest_value_above_its_own_level_governs_across_levels():
     assert govern([lone_stay, cluster_stay], overriding=True) == (1, 3)
 
 
-# -- the lookahead's reach (_pair_values) -------------------------------------------------------
+# -- the lookahead's reach (pair_values) -------------------------------------------------------
 def test_a_long_hold_judges_robots_that_start_off_the_grid(standard):
     """With a 2 s hold at 3 m/s a robot 5 m outside the value's grid (V = +inf now) ends its
     hold on the grid, at V below a high level: the lookahead overrides. Pairs are skipped only
@@ -255,7 +258,7 @@ def test_lookahead_values_on_lopsided_grids_equal_their_definition(lo, hi):
     from the definition with DubinsCar's own flow, for robots all around a grid that is
     neither square nor centred: the shortcut that skips pairs too far to reach the grid must
     skip no pair that reaches it (kills bounds read from the wrong axis)."""
-    from supersafe_ros.filter.core import _pair_values
+    from supersafe_ros.filter.pairs import pair_values
     vf = solve_avoid(Grid(lo, hi, (33, 33, 16)), DubinsCar(3.0, 1.0), Disc(0, 0, 1.8), horizon=2.0)
     rng = np.random.default_rng(11)
     n, hold = 3000, 2.0
@@ -263,7 +266,7 @@ def test_lookahead_values_on_lopsided_grids_equal_their_definition(lo, hi):
                     rng.uniform(-np.pi, np.pi, n)], axis=1)
     u = rng.uniform(-1.0, 1.0, n)
     one = np.ones(n)
-    value, _, got = _pair_values(vf, rel, u, hold * one, 3.0 * one, one)
+    value, _, got = pair_values(vf, rel, u, hold * one, 3.0 * one, one)
     car = DubinsCar(3.0, 1.0)
     ahead = car.flow(rel, u, hold)
     best = np.maximum(*(vf.value(car.flow(ahead, w, hold), outside=np.inf) for w in (1.0, -1.0)))
@@ -377,7 +380,7 @@ def test_the_loiter_fallback_turns_left_on_an_exact_tie(standard):
     circle is clear now (0.2 m) but not after the planner's 0.2 s hold: the fallback governs
     by the lookahead and sets its members' own rows aside."""
     from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore
-    from supersafe_ros.filter.core import step_many
+    from supersafe_ros.filter import step_many
     store = ClusterStore(ClusterSettings(), fallback_only=True)
     f = robot(pose=at(-5.0, 0.0, 0.0), detections=[(OBSTACLE[0], OBSTACLE[1] + 4.0), (OBSTACLE[0], OBSTACLE[1] - 4.0)],
               cmd=0.0, lookahead=0.2, control_period=0.2)
@@ -392,7 +395,7 @@ def test_new_detections_replace_the_clusters_of_the_old_ones(standard):
     new detections (the pair moved 30 m away) the old cluster no longer constrains the robot
     (kills reusing the cache when the array is not the cached one)."""
     from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore
-    from supersafe_ros.filter.core import step_many
+    from supersafe_ros.filter import step_many
     store = ClusterStore(ClusterSettings(), fallback_only=True)
     pair = np.array([(OBSTACLE[0], OBSTACLE[1] + 4.0), (OBSTACLE[0], OBSTACLE[1] - 4.0)])
     f = robot(pose=at(-5.0, 0.0, 0.0), detections=pair, cmd=0.0, lookahead=0.2, control_period=0.2)
@@ -410,12 +413,12 @@ def test_a_diagonal_clusters_union_value_is_read_in_its_canonical_frame(standard
     value at the robot's state mapped by ``cluster.to_frame`` (kills sign and operator errors
     in the vectorised frame transform). ``RobotFilter.step`` uses the store it is given, not
     the process's default one (here a fallback-only store without the union value)."""
-    from supersafe_ros.filter import core
+    from supersafe_ros.filter import cluster_rows
     from supersafe_ros.filter.cluster import (ClusterSettings, ClusterStore, ClusterValue, canonical,
                                               solve_cluster, to_frame)
-    from supersafe_ros.filter.core import step_many
+    from supersafe_ros.filter import step_many
     default = ClusterSettings(radius=1.8, speed=3.0, omega_max=1.0, link=0.0)
-    monkeypatch.setitem(core._STORES, default, ClusterStore(default, fallback_only=True))
+    monkeypatch.setitem(cluster_rows._STORES, default, ClusterStore(default, fallback_only=True))
     settings = ClusterSettings(cell=0.8, headings=12, reach=5.0, disk_cache=False)
     dets = np.array([OBSTACLE, (OBSTACLE[0] + 3.0, OBSTACLE[1] + 3.0)])
     key, origin, angle, centres = canonical(dets, settings.key_resolution)
@@ -443,12 +446,12 @@ def test_robots_with_different_cluster_stores_keep_their_own_fallback(standard, 
     radius 3 m and 6 m). Stepped together, each robot's loiter fallback is computed with its
     own store's settings, exactly as when stepped alone (kills selecting every fallback row
     for every store, where the last store's circles win)."""
-    from supersafe_ros.filter import core
+    from supersafe_ros.filter import cluster_rows
     from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore
     for w in (1.0, 0.5):       # fallback-only default stores: no background solves in a test
         cfg = FilterConfig(omega_max=w)
         settings = ClusterSettings(radius=cfg.radius, speed=cfg.speed, omega_max=w, link=cfg.cluster_link)
-        monkeypatch.setitem(core._STORES, settings, ClusterStore(settings, fallback_only=True))
+        monkeypatch.setitem(cluster_rows._STORES, settings, ClusterStore(settings, fallback_only=True))
 
     def fleet():
         out = []
@@ -458,19 +461,18 @@ def test_robots_with_different_cluster_stores_keep_their_own_fallback(standard, 
                              control_period=0.2, omega_max=w))
         return out
 
-    alone = [core.step_many([f], standard, T)[0] for f in fleet()]
-    together = core.step_many(fleet(), standard, T)
+    alone = [step_many([f], standard, T)[0] for f in fleet()]
+    together = step_many(fleet(), standard, T)
     assert alone[0].source == 'cluster-fallback' and alone[0].value == pytest.approx(np.hypot(5.0, 1.0) - 4.9)
     for a, b in zip(alone, together):
         assert (a.action, a.omega, a.value, a.source, a.obstacle_index) == (b.action, b.omega, b.value, b.source,
                                                                             b.obstacle_index)
 
 
-
 # -- inputs, batched (update_poses, update_detections_all) and the default cluster store ----------
 def test_batched_poses_without_a_stamp_take_the_arrival_time():
     """(kills ``float(stamp)`` for a missing stamp)"""
-    from supersafe_ros.filter.core import update_poses
+    from supersafe_ros.filter import update_poses
     filters = [RobotFilter(), RobotFilter()]
     update_poses(filters, [(0.0, 0.0, 0.0), (1.0, 2.0, 3.0)], T)
     assert [f.pose.stamp for f in filters] == [T, T]
@@ -479,7 +481,7 @@ def test_batched_poses_without_a_stamp_take_the_arrival_time():
 def test_batched_poses_with_a_repeated_stamp_do_not_shorten_the_measured_period():
     """A pose stamped as the previous one adds no interval to the control period's median, as
     in update_pose (kills ``>=``: zero intervals would measure a period of 0)."""
-    from supersafe_ros.filter.core import update_poses
+    from supersafe_ros.filter import update_poses
     batched, single = RobotFilter(), RobotFilter()
     for stamp in (0.0, 0.2, 0.2, 0.2):
         update_poses([batched], [(0.0, 0.0, 0.0)], stamp + 0.01, stamp=stamp)
@@ -491,7 +493,7 @@ def test_batched_detections_accept_none_and_reject_malformed():
     """No detections is (0, 2); non-finite centres and rows that are not (x, y) are rejected
     (kills the empty case read as size 1, replaced by None, (1, 2) or (0, 3), and ``and`` for
     ``or`` in the shape/finite check)."""
-    from supersafe_ros.filter.core import update_detections_all
+    from supersafe_ros.filter import update_detections_all
     filters = [RobotFilter(), RobotFilter()]
     for empty in ([], np.zeros((0, 2))):
         update_detections_all(filters, empty, T)
@@ -504,14 +506,14 @@ def test_batched_detections_accept_none_and_reject_malformed():
 def test_the_default_cluster_store_follows_the_robots_configuration(monkeypatch):
     """One shared store per robot configuration, with that robot's radius, speed, turn rate and
     link distance (kills every wrong or missing field, and not keeping or creating the store)."""
-    from supersafe_ros.filter import core
-    monkeypatch.setattr(core, '_STORES', {})
+    from supersafe_ros.filter import cluster_rows
+    monkeypatch.setattr(cluster_rows, '_STORES', {})
     cfg = FilterConfig(radius=1.5, speed=2.0, omega_max=0.8, cluster_link=7.0)
-    store = core.default_cluster_store(cfg)
+    store = cluster_rows.default_cluster_store(cfg)
     st = store.settings
     assert (st.radius, st.speed, st.omega_max, st.link) == (1.5, 2.0, 0.8, 7.0)
-    assert core.default_cluster_store(cfg) is store
-    assert core.default_cluster_store(FilterConfig()) is not store
+    assert cluster_rows.default_cluster_store(cfg) is store
+    assert cluster_rows.default_cluster_store(FilterConfig()) is not store
 
 
 def test_a_robots_inputs_accept_a_pose_row_and_empty_detections_and_reject_a_bare_number():

@@ -10,7 +10,7 @@ import time
 import pytest
 from rclpy.parameter import Parameter
 
-from supersafe_ros.filter import core
+from supersafe_ros.filter import default_cluster_store
 from supersafe_ros.nodes.safety_filter_node import SafetyFilterNode
 
 from filter_learner_support import Spinner, matched, ros_context  # noqa: F401  (fixture)
@@ -27,7 +27,7 @@ def setup(ros_context):
               Parameter('lockstep_silence', value=60.0), Parameter('cluster_hold_timeout', value=60.0)]
     node = SafetyFilterNode(namespace=NS, context=ros_context, parameter_overrides=params)
     # the cluster solver of this process: requests are recorded, solved only when the test says
-    store = core.default_cluster_store(node.filter.config)
+    store = default_cluster_store(node.filter.config)
     asked = {}
 
     def request(key, centres):

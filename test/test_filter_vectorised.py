@@ -20,7 +20,7 @@ import pytest
 
 from filter_reference_support import step_many_reference
 from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore, ClusterValue, solve_cluster
-from supersafe_ros.filter.core import FilterConfig, RobotFilter, SafeSet, step_many
+from supersafe_ros.filter import FilterConfig, RobotFilter, SafeSet, step_many
 from supersafe_ros.reach.dynamics import DubinsCar
 from supersafe_ros.reach.grid import Grid
 from supersafe_ros.reach.sets import Disc
@@ -191,7 +191,7 @@ def test_vectorised_step_many_decides_as_the_per_robot_reference(standard, solve
 
 def test_control_period_median_is_numpys():
     """The control period's median (sorted, in Python) equals np.median bit for bit."""
-    from supersafe_ros.filter.core import _median_of_sorted
+    from supersafe_ros.filter.inputs import _median_of_sorted
     rng = np.random.default_rng(0)
     for n in range(1, 17):
         for _ in range(200):
@@ -203,7 +203,7 @@ def test_interval_windows_keep_numpys_median_as_they_slide():
     """The filter's interval windows (the last 16, kept sorted as they slide) give np.median of
     the last 16 intervals after every new one, with ties and repeats. A window is never changed:
     the next one is new (robots share windows), and the one before still reads as it did."""
-    from supersafe_ros.filter.core import PERIOD_SAMPLES, _Intervals
+    from supersafe_ros.filter.inputs import PERIOD_SAMPLES, _Intervals
     rng = np.random.default_rng(1)
     for _ in range(100):
         window, history = _Intervals(), []
@@ -222,7 +222,7 @@ def test_batched_input_updates_equal_the_per_robot_ones(standard, solved_values)
     """update_poses / update_commands / update_detections_all (the fleet node's batched
     messages) leave every filter as update_pose / update_command / update_detections would, and
     so decide the same."""
-    from supersafe_ros.filter.core import update_commands, update_detections_all, update_poses
+    from supersafe_ros.filter import update_commands, update_detections_all, update_poses
     rng = np.random.default_rng(7)
     fleets = [build_fleet(11, 60)[0] for _ in range(2)]
     stores = [make_store('pending', solved_values) for _ in range(2)]
@@ -275,7 +275,8 @@ def test_cluster_instances_left_out_are_off_their_grid_for_every_hold(solved_val
     (both bangs from now, the planner's hold, both bangs after it) all end off the grid, so the
     rows left out would have read V = +inf. Robots sampled in a ring around the grid's corners,
     where the bound is tight, and everywhere else."""
-    from supersafe_ros.filter.core import _beyond_grid, arc_flow
+    from supersafe_ros.filter.cluster_rows import _beyond_grid
+    from supersafe_ros.filter.propagation import arc_flow
     from types import SimpleNamespace
     rng = np.random.default_rng(5)
     # the solved clusters' grids, and lopsided ones (a bound read from the wrong axis shows there)
@@ -397,20 +398,20 @@ def test_robots_just_inside_a_union_grids_corners_decide_as_the_reference(standa
     (16, 'solved', 0.5, 'learned'), (17, 'pending', -0.3, 'standard')])
 def test_each_robot_decided_alone_decides_as_in_the_fleet(standard, solved_values, seed, store_kind, alpha, source,
                                                           monkeypatch):
-    """A robot's own filter (step_many of one robot, the Python-scalar path ``_decide_one``,
+    """A robot's own filter (step_many of one robot, the one-robot path ``decide.decide_one``,
     V read in Python floats when few obstacles are near) decides as the vectorised fleet path
     decides that robot: over six closed-loop ticks, the same command, reason, values and state
     for every robot, with clusters solved, pending and solved at the request."""
-    from supersafe_ros.filter import core
+    from supersafe_ros.filter import decide
     alone_calls, python_reads = [], []
-    decide_one, robot_pair_values = core._decide_one, core._robot_pair_values
-    monkeypatch.setattr(core, '_decide_one', lambda *a: alone_calls.append(1) or decide_one(*a))
+    decide_one, robot_pair_values = decide.decide_one, decide.robot_pair_values
+    monkeypatch.setattr(decide, 'decide_one', lambda *a: alone_calls.append(1) or decide_one(*a))
 
     def pair_values_spy(*a):
         got = robot_pair_values(*a)
         python_reads.append(got is not None)
         return got
-    monkeypatch.setattr(core, '_robot_pair_values', pair_values_spy)
+    monkeypatch.setattr(decide, 'robot_pair_values', pair_values_spy)
     safe = SafeSet(standard.vf, alpha, source)
     fleets = [build_fleet(seed, 320) for _ in range(2)]
     stores = [make_store(store_kind, solved_values) for _ in range(2)]
@@ -441,9 +442,9 @@ def test_each_robot_decided_alone_decides_as_in_the_fleet(standard, solved_value
 
 
 def test_one_arc_in_python_floats_is_arc_flows():
-    """core._arc (one state, Python floats) equals arc_flow bit for bit: turning, nearly
+    """propagation.arc (one state, Python floats) equals arc_flow bit for bit: turning, nearly
     straight (|omega dt| <= 1e-9), zero-length, and headings far outside [-pi, pi)."""
-    from supersafe_ros.filter.core import _arc, arc_flow
+    from supersafe_ros.filter.propagation import arc, arc_flow
     rng = np.random.default_rng(5)
     n = 4000
     states = np.column_stack([rng.uniform(-9, 9, n), rng.uniform(-9, 9, n), rng.uniform(-12, 12, n)])
@@ -451,7 +452,7 @@ def test_one_arc_in_python_floats_is_arc_flows():
     dt = rng.choice([0.0, 0.02, 0.1, 1.5], n)
     speed = rng.choice([3.0, 0.5], n)
     want = arc_flow(states, speed, omega, dt)
-    got = np.array([_arc(*s.tolist(), float(v), float(w), float(h)) for s, v, w, h in zip(states, speed, omega, dt)])
+    got = np.array([arc(*s.tolist(), float(v), float(w), float(h)) for s, v, w, h in zip(states, speed, omega, dt)])
     assert repr(got.tolist()) == repr(want.tolist())
 
 
@@ -493,12 +494,12 @@ def test_a_robots_propagated_state_does_not_depend_on_the_other_robots_plans(sta
 
 @pytest.mark.parametrize('kind', ['standard', 'lopsided, not symmetric'])
 def test_one_robots_pair_values_in_python_floats_equal_numpys(standard, kind):
-    """_robot_pair_values (one robot, Python floats) equals _pair_values (numpy) bit for bit:
+    """robot_pair_values (one robot, Python floats) equals pair_values (numpy) bit for bit:
     V, the turn (the law's and the held one) and V after the hold, for pairs on, near and off
     the grid, holds of 0 (the law's turn) to 1.5 s, on the standard set and on a set whose
     grid is not square and whose V is not rotationally symmetric; None exactly when more
     than ``few`` pairs are near the grid."""
-    from supersafe_ros.filter.core import _pair_values, _robot_pair_values
+    from supersafe_ros.filter.pairs import pair_values, robot_pair_values
     from supersafe_ros.reach.value_function import ValueFunction
     vf = standard.vf
     if kind != 'standard':
@@ -516,10 +517,10 @@ def test_one_robots_pair_values_in_python_floats_equal_numpys(standard, kind):
         horizon = float(rng.choice([0.0, 0.0, 0.05, 0.2, 1.5]))
         speed, bang = float(rng.choice([3.0, 1.0])), float(rng.choice([1.0, 0.5]))
         few = int(rng.integers(1, 4))
-        got = _robot_pair_values(vf, x, y, th, centres, planned, horizon, speed, bang, few)
+        got = robot_pair_values(vf, x, y, th, centres, planned, horizon, speed, bang, few)
         rel = np.array([(x - cx, y - cy, th) for cx, cy in centres])
         full = lambda v: np.full(n, v)      # noqa: E731
-        want = [a.tolist() for a in _pair_values(vf, rel, full(planned), full(horizon), full(speed), full(bang))]
+        want = [a.tolist() for a in pair_values(vf, rel, full(planned), full(horizon), full(speed), full(bang))]
         reach = 2.0 * speed * horizon + 1.0 if horizon > 0 else 0.0
         near = int(np.sum((rel[:, 0] >= g.lo[0] - reach) & (rel[:, 0] <= g.hi[0] + reach)
                           & (rel[:, 1] >= g.lo[1] - reach) & (rel[:, 1] <= g.hi[1] + reach)))
@@ -535,17 +536,19 @@ def test_one_robots_pair_values_in_python_floats_equal_numpys(standard, kind):
     assert min(seen.values()) > 20, seen
 
 
-def test_one_robots_governing_rule_in_python_is_the_tables():
-    """_govern_one (one robot, lists) picks what _govern and _first_min pick over the same
-    table: random rows with levels that differ (pairs at alpha, clusters at their own level),
-    sound cluster rows and their members, values off the grid, exact ties, overriding or not."""
-    from supersafe_ros.filter.core import _first_min, _govern, _govern_one, _Table
+def test_the_governing_rule_is_the_per_robot_oracles():
+    """law.govern and law.smallest pick what the oracle's rule for one robot (Python lists,
+    filter_reference_support.govern_one) picks over the same table: random rows with levels
+    that differ (pairs at alpha, clusters at their own level), sound cluster rows and their
+    members, values off the grid, exact ties, overriding or not."""
+    from filter_reference_support import govern_one as _govern_one
+    from supersafe_ros.filter.law import ConstraintTable, first_min, govern
     rng = np.random.default_rng(8)
     kinds = set()
     for trial in range(3000):
         n_pairs, n_cl = int(rng.integers(0, 5)), int(rng.integers(0, 3))
         k = n_pairs + n_cl
-        lists, arrays = _Table(), _Table()
+        lists, arrays = ConstraintTable(), ConstraintTable()
         value = rng.choice([-0.5, 0.0, 0.1, 0.3, 0.8, math.inf], k) + rng.choice([0.0, 1e-3], k) * rng.random(k)
         value_next = np.where(rng.random(k) < 0.2, math.inf, value + rng.normal(0.0, 0.3, k))
         level = np.concatenate([np.full(n_pairs, rng.choice([0.0, 0.3, -0.2])), rng.choice([0.0, 0.2, 0.6], n_cl)])
@@ -558,8 +561,8 @@ def test_one_robots_governing_rule_in_python_is_the_tables():
             setattr(arrays, name, col)
             setattr(lists, name, col.tolist())
         overriding, margin = bool(rng.random() < 0.5), float(rng.choice([0.0, 0.2]))
-        k_gov, kind = _govern(arrays, np.array([overriding]), np.array([margin]), n_pairs + n_cl, 1)
-        k_small = _first_min(arrays.robot, arrays.position, value - level, np.isfinite(value), 1)
+        k_gov, kind = govern(arrays, np.array([overriding]), np.array([margin]), n_pairs + n_cl, 1)
+        k_small = first_min(arrays.robot, arrays.position, value - level, np.isfinite(value), 1)
         got = _govern_one(lists, overriding, margin)
         assert got == (int(k_gov[0]), int(kind[0]), int(k_small[0])), trial
         kinds.add(got[1])
@@ -567,33 +570,33 @@ def test_one_robots_governing_rule_in_python_is_the_tables():
 
 
 def test_the_first_minimum_of_each_run_is_first_min_s():
-    """_first_min_of_runs (the nearest member of each cluster instance: runs of member rows, in
-    their cluster's order) picks what _first_min picks by position: the smallest score, the
+    """first_min_of_runs (the nearest member of each cluster instance: runs of member rows, in
+    their cluster's order) picks what first_min picks by position: the smallest score, the
     first on exact ties, runs of one row and one run alone included."""
-    from supersafe_ros.filter.core import _first_min, _first_min_of_runs
+    from supersafe_ros.filter.law import first_min, first_min_of_runs
     rng = np.random.default_rng(12)
-    assert len(_first_min_of_runs(np.zeros(0), np.zeros(0, np.intp), np.zeros(0, np.intp))) == 0
+    assert len(first_min_of_runs(np.zeros(0), np.zeros(0, np.intp), np.zeros(0, np.intp))) == 0
     ties = 0
     for trial in range(2000):
         size = rng.integers(1, 5, int(rng.integers(1, 7)))
         run = np.repeat(np.arange(len(size)), size)
         position = np.concatenate([np.arange(k) for k in size])
         score = rng.choice([0.0, 0.5, 1.0, 2.5], len(run)) + rng.choice([0.0, 0.25], len(run))
-        want = _first_min(run, position, score, np.ones(len(run), bool), len(size))
-        got = _first_min_of_runs(score, run, np.cumsum(size) - size)
+        want = first_min(run, position, score, np.ones(len(run), bool), len(size))
+        got = first_min_of_runs(score, run, np.cumsum(size) - size)
         assert np.array_equal(got, want), trial
         ties += sum(int(np.sum(score[run == r] == score[want[r]]) > 1) for r in range(len(size)))
     assert ties > 500
 
 
 def test_the_better_bang_turns_left_on_ties_within_the_tolerance():
-    """_better_bang (the held avoid turn of pairs and of cluster union values): left (+1) when
+    """better_bang (the held avoid turn of pairs and of cluster union values): left (+1) when
     V after the left turn is at least V after the right one less the tie tolerance, else right."""
-    from supersafe_ros.filter.core import _better_bang
+    from supersafe_ros.filter.law import better_bang
     left = np.array([1.0, 1.0, 1.0, 0.5, -np.inf, np.inf])
     right = np.array([1.0, 1.05, 1.2, 0.4, 0.0, np.inf])
-    assert _better_bang(left, right, 0.1).tolist() == [1.0, 1.0, -1.0, 1.0, -1.0, 1.0]
-    assert _better_bang(left, right, np.array([0.0, 0.0, 0.3, 0.0, 0.0, 0.0])).tolist() == [
+    assert better_bang(left, right, 0.1).tolist() == [1.0, 1.0, -1.0, 1.0, -1.0, 1.0]
+    assert better_bang(left, right, np.array([0.0, 0.0, 0.3, 0.0, 0.0, 0.0])).tolist() == [
         1.0, -1.0, 1.0, 1.0, -1.0, 1.0]
 
 

@@ -1,4 +1,4 @@
-"""Grid interpolation, value-function files, the library cache, the filter law and the CLI."""
+"""Grid interpolation, value-function files, the library cache and the CLI."""
 import json
 import subprocess
 import sys
@@ -6,7 +6,6 @@ import sys
 import numpy as np
 import pytest
 
-from supersafe_ros.filter.law import filter_law, most_constraining
 from supersafe_ros.reach.dynamics import DubinsCar
 from supersafe_ros.reach.grid import Grid
 from supersafe_ros.reach.library import LibrarySpec, load_or_build_library, load_or_solve
@@ -187,30 +186,8 @@ def test_library_cache_loads_what_it_solved(tmp_path):
     assert [e.from_cache for e in again.entries] == [False, False]
 
 
-def test_filter_law_overrides_at_the_level_set_and_turns_uphill():
-    X, Y, TH = GRID.mesh()
-    # V grows with theta near theta = 0: the optimal control turns left (+)
-    vf = ValueFunction(GRID, X + 0.5 * np.sin(TH))
-    states = np.array([[2.0, 0.0, 0.0], [0.1, 0.0, 0.0], [-1.0, 0.0, np.pi / 2 + 0.3], [50.0, 0.0, 0.0]])
-    d = filter_law(vf, 0.5, states, omega_max=1.0)
-    assert list(d.override) == [False, True, True, False]
-    assert d.control[1] == 1.0           # dV/dth = 0.5 cos(0) > 0
-    assert d.control[2] == -1.0          # past pi/2, V falls with theta
-    assert d.value[3] == np.inf          # outside the grid: far from the obstacle
-    with pytest.raises(ValueError):
-        filter_law(vf, 0.5, np.array([[np.nan, 0, 0]]), 1.0)
-    # two obstacles for robot 0, one for robot 1: the smaller V decides
-    override, control, value, pair = most_constraining([0, 0, 1, 1], d, 3)
-    assert list(pair) == [1, 2, -1] and list(override) == [True, True, False]
 
 
-def test_filter_law_is_vectorised_over_thousands_of_pairs():
-    X, Y, TH = GRID.mesh()
-    vf = ValueFunction(GRID, X + 0.5 * np.sin(TH))
-    rng = np.random.default_rng(1)
-    states = np.stack([rng.uniform(-4, 4, 5000), rng.uniform(-3, 5, 5000), rng.uniform(-3, 3, 5000)], -1)
-    d = filter_law(vf, 0.0, states, 1.0)
-    assert d.override.shape == (5000,) and np.array_equal(d.override, d.value <= 0.0)
 
 
 def test_cli_reach_writes_the_documented_file(tmp_path):
@@ -231,59 +208,14 @@ def test_cli_reach_writes_the_documented_file(tmp_path):
     assert r.returncode == 2 and '--radius' in r.stderr
 
 
-def test_filter_law_acts_at_the_level_itself_and_leaves_passing_pairs_at_zero():
-    X, Y, TH = GRID.mesh()
-    vf = ValueFunction(GRID, X + 0.5 * np.sin(TH))
-    states = np.array([[0.5, 0.0, 0.4], [3.0, 0.0, 0.0]])
-    level = float(vf.value(states[:1])[0])
-    d = filter_law(vf, level, states, omega_max=2.0)        # V == alpha exactly: override
-    assert list(d.override) == [True, False]
-    assert d.control[0] == 2.0 and d.control[1] == 0.0      # the robot's w_max, and nothing when passing
 
 
-def test_a_ridge_in_theta_turns_left():
-    """dV/dtheta = 0 on the nodes at theta = 0 (V symmetric in theta): a tie, turned left."""
-    X, Y, TH = GRID.mesh()
-    vf = ValueFunction(GRID, X - 0.3 * np.cos(TH))
-    d = filter_law(vf, 10.0, np.array([[-1.0, 0.0, 0.0], [-1.0, 0.5, 0.0]]), omega_max=1.0)
-    assert list(d.control) == [1.0, 1.0]
 
 
-def test_most_constraining_takes_each_robots_smallest_value_from_any_pair():
-    X, Y, TH = GRID.mesh()
-    vf = ValueFunction(GRID, X + 0.5 * np.sin(TH))
-    # robot 0: pairs 0 (V ~ 0.1, overriding, turning right past pi/2) and 2 (far); robot 1: pair 1
-    states = np.array([[-0.2, 0.0, np.pi / 2 + 0.6], [1.5, 0.0, 0.0], [3.5, 0.0, 0.0]])
-    d = filter_law(vf, 0.5, states, omega_max=1.0)
-    override, control, value, pair = most_constraining([0, 1, 0], d, 2)
-    assert list(pair) == [0, 1]
-    assert list(override) == [True, False] and list(control) == [-1.0, 0.0]
-    assert value == pytest.approx(d.value[[0, 1]])
 
 
-def test_a_robot_without_pairs_is_unconstrained_even_when_the_last_pair_overrides():
-    X, Y, TH = GRID.mesh()
-    vf = ValueFunction(GRID, X + 0.5 * np.sin(TH))
-    states = np.array([[1.5, 0.0, 0.0], [3.5, 0.0, 0.0], [-0.2, 0.0, np.pi / 2 + 0.6]])
-    d = filter_law(vf, 0.5, states, omega_max=1.0)
-    assert list(d.override) == [False, False, True]
-    override, control, value, pair = most_constraining([1, 0, 0], d, 3)
-    assert list(pair) == [2, 0, -1] and list(override) == [True, False, False]
-    assert list(control) == [-1.0, 0.0, 0.0] and value[2] == np.inf
 
 
-def test_a_tie_is_judged_relative_to_the_gradients_scale():
-    """V scaled by 1e4: a dV/dtheta of -0.01 next to the ridge is round-off (a tie: left);
-    on the unscaled V the same relative slope would be -1e-6."""
-    X, Y, TH = GRID.mesh()
-    vf = ValueFunction(GRID, 1e4 * (X - 0.3 * np.cos(TH)))
-    dth = GRID.spacing[2]
-    g_next = 1e4 * 0.3 * np.sin(dth)             # dV/dtheta at the next heading node (approximately)
-    eps = 0.01 * dth / g_next                     # interpolated slope about -0.01 at theta = -eps
-    d = filter_law(vf, 1e6, np.array([[-1.0, 0.0, -eps], [-1.0, 0.0, -0.5 * dth]]), omega_max=1.0)
-    assert list(d.control) == [1.0, -1.0]         # a real slope still turns its way
-    from supersafe_ros.filter.law import avoid_turn_at
-    assert [avoid_turn_at(vf, -1.0, 0.0, th) for th in (-eps, -0.5 * dth)] == [1.0, -1.0]   # one state at a time
 
 
 def _save_many(path, seed, count):

@@ -3,7 +3,7 @@ filter's pair reads that skip the holds it rules out (the same decisions)."""
 import numpy as np
 import pytest
 
-from supersafe_ros.filter.core import _pair_reads
+from supersafe_ros.filter.pairs import pair_reads
 from supersafe_ros.reach.dynamics import DubinsCar
 from supersafe_ros.reach.grid import Grid
 from supersafe_ros.reach.sets import Disc
@@ -78,8 +78,8 @@ def test_pair_reads_skip_only_holds_that_cannot_reach_the_level(solved):
         omega = np.clip(rng.uniform(-3, 3, n), -bang, bang)
         horizon = rng.choice([0.0, 0.02, 0.1, 0.3], n)
         speed = rng.choice([3.0, 1.0], n)
-        v_all, next_all = _pair_reads(vf, rel, omega, horizon, speed, bang)
-        v, nxt = _pair_reads(vf, rel, omega, horizon, speed, bang, level)
+        v_all, next_all = pair_reads(vf, rel, omega, horizon, speed, bang)
+        v, nxt = pair_reads(vf, rel, omega, horizon, speed, bang, level)
         assert repr(v.tolist()) == repr(v_all.tolist())
         assert np.array_equal(nxt <= level, next_all <= level)
         low = nxt <= level

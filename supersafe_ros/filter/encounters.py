@@ -29,7 +29,9 @@ import numpy as np
 
 from ..reach.dynamics import DubinsCar
 from ..reach.grid import wrap_angle
-from .core import FilterConfig, RobotFilter, step_many
+from .decide import step_many
+from .inputs import RobotFilter
+from .types import FilterConfig
 
 
 @dataclass(frozen=True)

@@ -1,29 +1,37 @@
-"""The minimally invasive filter law, as a pure function over many robots.
+"""The filter law: the rule every robot obeys, written once, vectorised over robots.
 
-For robot states expressed relative to each detected obstacle (obstacle at the
-origin, axes as the map), with avoid value V:
+Per constraint (a row of ``ConstraintTable``: one per robot and detected obstacle, one per
+robot and cluster of close obstacles), with V its value at the robot's state now, V_next
+its value after the planner's command held for the lookahead H and then the better bang
+held once more (``filter.pairs``), and alpha its level:
 
-    override  = V(x) <= alpha
-    u*        = omega_max * sign(dV/dtheta)       (the control that raises V fastest)
+    enter  = V <= alpha
+    ahead  = V_next <= alpha
+    stay   = overriding and V <= alpha + clear_margin            (hysteresis)
 
-A robot with several obstacles is governed by the smallest V (see
-``most_constraining``). Pairs outside the value function's grid are far from the
-obstacle and never constrain (V = +inf there).
+Within a cluster whose own (sound) row acts, its members' single-obstacle rows are set
+aside, so the union's avoid turn is never traded for a single member's. The governing
+row (``govern``) is the first kind with a hit, in the order enter, ahead, stay, and within
+it the smallest score (V - alpha, or V_next - alpha), the first in the robot's list on
+ties. The command (``decide_rows``):
+
+    fail safe  inputs stale/invalid: the avoid turn of the row with the smallest V - alpha
+               from the last valid state, else stop-turn (v = 0, u = +w_max)
+    override   a governing row: u* = w_max x turn of that row, v = speed
+    pass       the planner's command clipped to +-w_max (silent planner: zero twist)
+
+The avoid turn of a pair is the minimally invasive law's u* = w_max sign(dV/dtheta)
+(``avoid_turn``; ties left), and with a hold H the bang whose hold ends at the larger V
+(``better_bang``), which tends to sign(dV/dtheta) as H -> 0.
+
+``RobotFilter.step`` (one robot's own filter) and ``step_many`` (a fleet) both call
+``decide_rows``: a lone robot's table is the same table with one robot's rows.
 """
 from __future__ import annotations
-
-from dataclasses import dataclass
 
 import numpy as np
 
 from ..reach.value_function import ValueFunction
-
-
-@dataclass
-class FilterDecision:
-    override: np.ndarray   # bool[N]: apply u* instead of the planner's command
-    control: np.ndarray    # float[N]: u* (turn rate), meaningful where override
-    value: np.ndarray      # float[N]: V at each state (+inf outside the grid)
 
 
 def evaluate_pairs(vf: ValueFunction, rel_states):
@@ -36,7 +44,7 @@ def evaluate_pairs(vf: ValueFunction, rel_states):
     interpolated dV/dtheta at a head-on state is float32 round-off (-1.4e-8 at
     (-3, 0, 0) on 41 x 41 x 24), whose sign means nothing. Only the theta
     component of the gradient is interpolated. Callers that hold a robot in an
-    override band (filter.core) need the turn where V > alpha too, so it is
+    override band (filter.pairs) need the turn where V > alpha too, so it is
     evaluated at every pair.
     """
     s = np.asarray(rel_states, dtype=float).reshape(-1, 3)
@@ -80,32 +88,119 @@ def tie_tolerance(vf: ValueFunction) -> float:
     return tol
 
 
-def filter_law(vf: ValueFunction, alpha: float, rel_states, omega_max: float) -> FilterDecision:
-    """Decide, for N relative states (N, 3), whether to override and with which turn rate."""
-    s = np.asarray(rel_states, dtype=float).reshape(-1, 3)
-    if not np.isfinite(alpha):
-        raise ValueError(f'alpha must be finite, got {alpha}')
-    if not np.all(np.isfinite(s)):
-        raise ValueError('relative states contain NaN or infinite values')
-    value, turn = evaluate_pairs(vf, s)
-    override = value <= alpha
-    return FilterDecision(override, np.where(override, omega_max * turn, 0.0), value)
+def better_bang(left, right, tie) -> np.ndarray:
+    """The unit turn whose hold ends at the larger V: left (+1) unless V after the right turn
+    is larger by more than ``tie`` (the value's tie tolerance: ties turn left)."""
+    return np.where(left >= right - tie, 1.0, -1.0)
 
 
-def most_constraining(robot_index, decision: FilterDecision, n_robots: int):
-    """Reduce pair decisions to one per robot: the pair with the smallest V wins.
+class ConstraintTable:
+    """Every constraint of every robot, one row each (pairs first, then clusters).
 
-    Returns (override bool[n], control float[n], value float[n], pair index int[n] or -1).
+    Columns: the robot (row in ``use``), its position in the robot's list (ties go to
+    the first), V, level, the unit avoid turns (``turns_of(rows)``: read only for the rows
+    robots avoid by), V after the planner's hold, the obstacle
+    it names (index in the robot's detections) and its centre, whether it is sound for
+    its layout (a cluster's union value or the loiter fallback), its group (a lone
+    obstacle, or the cluster its members belong to), members, and for a cluster row whether it
+    is the loiter fallback (its source 'cluster-fallback', else 'cluster').
     """
-    robot_index = np.asarray(robot_index, dtype=int)
-    value = np.full(n_robots, np.inf)
-    pair = np.full(n_robots, -1)
-    order = np.argsort(decision.value, kind='stable')[::-1]  # largest first, smallest written last
-    value[robot_index[order]] = decision.value[order]
-    pair[robot_index[order]] = order
-    has = pair >= 0
-    override = np.zeros(n_robots, dtype=bool)
-    control = np.zeros(n_robots)
-    override[has] = decision.override[pair[has]]
-    control[has] = decision.control[pair[has]]
-    return override, control, value, pair
+
+    __slots__ = ('robot', 'position', 'value', 'level', 'turns_of', 'value_next', 'obstacle', 'xy',
+                 'sound', 'group', 'members', 'fallback')
+
+
+def first_min(segment, position, score, mask, n, rank=None) -> np.ndarray:
+    """Per segment 0..n-1: the row with the smallest ``score`` among ``mask``, the first
+    by ``position`` on ties (Python's ``min`` over a list in that order); -1 if none.
+    ``rank``: a key before the score (the smallest rank first, then the smallest score)."""
+    out = np.full(n, -1, dtype=np.intp)
+    idx = np.flatnonzero(mask)
+    if len(idx):
+        keys = (position[idx], score[idx], segment[idx]) if rank is None else \
+            (position[idx], score[idx], rank[idx], segment[idx])
+        order = idx[np.lexsort(keys)]
+        seg = segment[order]
+        if len(seg) == 1:
+            out[seg] = order
+        else:
+            first = np.flatnonzero(np.concatenate(([True], seg[1:] != seg[:-1])))
+            out[seg[first]] = order[first]
+    return out
+
+
+def first_min_of_runs(score, run, starts) -> np.ndarray:
+    """Per run of equal ``run`` labels 0..k-1 (consecutive, each non-empty, beginning at
+    ``starts``): the index of its smallest ``score``, the first on ties (``first_min`` over
+    rows in run order, without its sort); ``score`` has no NaN."""
+    if len(starts) == 0:
+        return np.zeros(0, dtype=np.intp)
+    at = np.flatnonzero(score == np.minimum.reduceat(score, starts)[run])
+    return at[np.concatenate(([True], run[at[1:]] != run[at[:-1]]))]
+
+
+def govern(tab, overriding, margin, n_groups, m):
+    """(constraint, why) per robot row that makes the filter override, or (smallest, '') to pass.
+
+    Within a cluster its sound constraint (union value or fallback) comes first: if
+    it enters, looks ahead to its level or holds its hysteresis, the cluster's
+    members' own constraints are set aside, so the union's avoid turn is never
+    traded for a single member's. Between clusters and lone obstacles (farther
+    apart than the link distance) the smallest value governs, as per obstacle.
+    Checked in order: enter (V <= level), ahead (V after the planner's hold <=
+    level), stay (overriding and V <= level + clear margin); within each, the
+    smallest V - level (resp. V_next - level), first in the robot's list on ties.
+    """
+    r = tab.robot
+    enter = tab.value <= tab.level
+    ahead = tab.value_next <= tab.level
+    stay = overriding[r] & (tab.value <= tab.level + margin[r])
+    acts = enter | ahead | stay
+    if not acts.any():          # every robot passes (most decisions): nothing to order
+        return np.full(m, -1, dtype=np.intp), np.zeros(m, dtype=np.int8)
+    governed = np.zeros(n_groups, bool)
+    governed[tab.group[tab.sound & acts]] = True
+    use = tab.sound | ~governed[tab.group]
+    # each acting row by the first kind it has (1 enter, 2 ahead, 3 stay) and that kind's score:
+    # a robot's first kind with a hit is its rows' smallest kind, and its rows of that kind are
+    # exactly those whose first kind it is, so one ordering by (kind, score, position) finds it
+    code = np.where(enter, 1, np.where(ahead, 2, 3)).astype(np.int8)
+    score = np.where(code == 2, tab.value_next, tab.value) - tab.level
+    k = first_min(r, tab.position, score, use & acts, m, rank=code)
+    kind = np.zeros(m, dtype=np.int8)      # 0 pass, 1 enter, 2 ahead, 3 stay
+    got = k >= 0
+    kind[got] = code[k[got]]
+    return k, kind
+
+
+KINDS = ('', 'enter', 'ahead', 'stay')     # why a row governs, by ``govern``'s code
+
+
+def smallest(tab, m) -> np.ndarray:
+    """Per robot row: the constraint with the smallest finite V - alpha (the first in the
+    robot's list on ties), -1 if none: the one a pass names and a fail safe avoids."""
+    return first_min(tab.robot, tab.position, tab.value - tab.level, np.isfinite(tab.value), m)
+
+
+def decide_rows(tab, m, n_groups, overriding, margin, failing, fresh, planned, bang, speed):
+    """The rule for the M robot rows of ``tab``: (omega, linear, action code 0 pass / 1
+    override / 2 fail safe, overrides, the row each robot names, why it governs (``KINDS``)).
+
+    ``overriding``, ``margin``, ``failing``, ``fresh``, ``planned``, ``bang``, ``speed``: per
+    robot row (``failing``: inputs stale or invalid, its last valid state judged instead;
+    ``planned``: the planner's command clipped, 0 if silent). Avoid turns are read
+    (``tab.turns_of``) only for the robots that avoid.
+    """
+    k_gov, kind = govern(tab, overriding, margin, n_groups, m)
+    k_small = smallest(tab, m)
+    overrides = ~failing & (kind > 0)
+    named = np.where(overrides, k_gov, k_small)      # the constraint each robot's output names
+    avoid = named >= 0
+    avoiding = overrides | (failing & avoid)
+    turn = np.zeros(m)
+    turn[avoiding] = tab.turns_of(named[avoiding])
+    omega = np.where(avoiding, bang * turn, np.where(failing, bang, planned))
+    stopped = (failing & ~avoid) | (~failing & ~overrides & ~fresh)
+    linear = np.where(stopped, 0.0, speed)
+    code = np.where(failing, 2, np.where(overrides, 1, 0))
+    return omega, linear, code, overrides, named, kind

@@ -34,7 +34,7 @@ from rclpy.clock import Clock, ClockType
 from std_msgs.msg import Float32MultiArray
 
 from ..filter.admissibility import check_learned_set
-from ..filter.core import FilterConfig, RobotFilter, SafeSet, default_cluster_store
+from ..filter import FilterConfig, RobotFilter, SafeSet, default_cluster_store
 from ..filter.timebase import FilterTime
 from ..ros_io import rosmsg
 from ..filter.law import evaluate_pairs

@@ -19,7 +19,7 @@ fleet manager or simulator that holds every robot's state; robot i = robots[i]:
                                                              changed or whose state is due (state_rate)
 (fleet/... are relative to the node's namespace.)
 
-Every decision of every robot is made in ONE vectorised ``filter.core.step_many``
+Every decision of every robot is made in ONE vectorised ``filter.step_many``
 call per tick. Ticks: every ``fleet/poses`` message (the batched reply), and a
 steady-clock timer at ``rate`` while they pause: each batched tick restarts the timer, so
 flowing poses cost no timer wake-up, and with batched topics alone the timer decides once
@@ -51,7 +51,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseArray, PoseStamped, Twist
 from std_msgs.msg import Float64MultiArray
 
-from ..filter.core import FAIL_SAFE, step_many, update_commands, update_detections_all, update_poses
+from ..filter import FAIL_SAFE, step_many, update_commands, update_detections_all, update_poses
 from ..ros_io import cdr, fleetmsg, rosmsg
 from .common import declare, run_node
 from .filter_wiring import FilterWiring, FleetThrottle

@@ -15,7 +15,7 @@ Topics (relative; run it in the robot's namespace such as /robot_0):
                                                             heading around each detection (RViz;
                                                             level_set_markers, level_set_rate)
 
-The decision is ``supersafe_ros.filter.core`` (law, hysteresis, fail safe, delay
+The decision is ``supersafe_ros.filter`` (law, hysteresis, fail safe, delay
 compensation; see there). When it is made: on every planner command (and, with
 ``publish_on_pose``, on every pose), plus a watchdog on the steady clock that
 publishes when nothing went out for 1/rate s, so the robot never starves, even with
@@ -53,7 +53,7 @@ from rclpy.node import Node
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseArray, PoseStamped, Twist
 
-from ..filter.core import FAIL_SAFE
+from ..filter import FAIL_SAFE
 from ..ros_io import cdr, rosmsg
 from ..ros_io.direct_take import DirectTake
 from .common import declare, run_node

@@ -48,7 +48,7 @@ import math
 import numpy as np
 
 from ..filter.cluster import ClusterSettings, ClusterStore, canonical, components
-from ..filter.core import FilterConfig, RobotFilter, SafeSet, step_many
+from ..filter import FilterConfig, RobotFilter, SafeSet, step_many
 from .dubins_sim import LossySensor, RobotSim
 from .planner import goal_seeking_turn_rate
 from .watcher import Watcher

@@ -35,7 +35,7 @@ import time
 import numpy as np
 
 from ..filter.admissibility import check_learned_set
-from ..filter.core import FilterConfig, SafeSet
+from ..filter import FilterConfig, SafeSet
 from ..learning.encounters import EncounterBuilder, feed, phase2_events
 from ..learning.estimators import (admissible_mask, encounter_intervals, fit_first_passage_intervals,
                                    fit_paper_values)

@@ -1,0 +1,396 @@
+"""The cluster constraints: obstacles closer than the link distance judged by their union.
+
+Two discs closer than 2 radius + a turning diameter can trap a robot that avoids each
+alone (filter.cluster). For every robot with more than one detection, per cluster of its
+detections: one constraint row (``filter.law.ConstraintTable``) with
+
+* the union's value, solved in the background by the ``ClusterStore`` and read in the
+  cluster's canonical frame, when it is in force;
+* else the loiter-circle fallback (``cluster.orbit_value``) from a state with a clear circle.
+
+Robots given one detections array (the fleet node's batched topic) share its cluster
+frames; robots sent equal arrays share them by content (``cluster_frames``).
+"""
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+
+from . import cluster
+from .gather import py_max, py_min
+from .law import better_bang, first_min_of_runs
+from .propagation import arc_flow, bang_ends
+from .types import FilterConfig
+
+
+class ClusterFrames:
+    """The clusters (>1 member) of one detections array and their canonical frames, as arrays
+    (computed once per detections array and store settings; robots given the same array, as
+    the fleet node's batched detections, share them)."""
+
+    def __init__(self, det, store):
+        st = store.settings
+        groups = [g for g in cluster.components(det, st.link_distance) if len(g) > 1]
+        self.n = len(groups)
+        self.keys, self.centres = [], []
+        origin, angle, cs, sn = [], [], [], []
+        for g in groups:
+            key, o, a, c = cluster.canonical(det[g], st.key_resolution)
+            self.keys.append(key)
+            self.centres.append(c)
+            origin.append(o)
+            angle.append(a)
+            cs.append(math.cos(a))      # as cluster.to_frame computes them
+            sn.append(math.sin(a))
+        size = [len(g) for g in groups]
+        # per cluster: origin x, y, angle, cos, sin, members; per member (in its cluster's order): index, x, y
+        self.frames = np.column_stack([np.array(origin, dtype=float).reshape(-1, 2), angle, cs, sn, size])
+        member = np.concatenate(groups) if groups else np.zeros(0, np.intp)
+        self.members = np.column_stack([member, det[member]])
+
+
+_FRAMES_BY_CONTENT: dict = {}      # (link, resolution, shape, bytes) -> _ClusterFrames
+_FRAMES_KEPT = 4096
+
+
+def cluster_frames(det, store) -> ClusterFrames:
+    """The cluster frames of a detections array, shared by content: robots sent equal
+    detections in separate messages (per-robot topics) compute them once. Bounded: the
+    oldest entries go first."""
+    st = store.settings
+    key = (st.link_distance, st.key_resolution, det.shape, det.tobytes())
+    got = _FRAMES_BY_CONTENT.get(key)
+    if got is None:
+        if len(_FRAMES_BY_CONTENT) >= _FRAMES_KEPT:
+            for old in list(_FRAMES_BY_CONTENT)[:_FRAMES_KEPT // 4]:
+                del _FRAMES_BY_CONTENT[old]
+        got = _FRAMES_BY_CONTENT[key] = ClusterFrames(det, store)
+        got.frames.flags.writeable = got.members.flags.writeable = False
+    return got
+
+
+_NONE_I, _NONE_F, _NONE_B = np.zeros(0, np.intp), np.zeros(0), np.zeros(0, bool)
+_NONE_I.flags.writeable = _NONE_F.flags.writeable = _NONE_B.flags.writeable = False
+_NO_CLUSTERS = dict(robot=_NONE_I, index=_NONE_I, value=_NONE_F, level=_NONE_F,
+                    turns_of=lambda r: np.zeros(len(r)), value_next=_NONE_F,
+                    obstacle=_NONE_I, xy=_NONE_F.reshape(0, 2), group=_NONE_I, members=_NONE_I, fallback=_NONE_B,
+                    member_pairs=_NONE_I, member_groups=_NONE_I, n_groups=0)
+
+
+def cluster_rows(filters, configs, states, planned, horizon, speed, bang, cluster_alpha, dets, start,
+                 store_arg) -> dict:
+    """The cluster constraints of every robot, as table columns (see ``law.ConstraintTable``).
+
+    A robot with clusters enabled and more than one detection gets, per cluster of its
+    detections (obstacles within the link distance, see ``filter.cluster``), one row:
+
+    * the union's value if solved, read at its state now; its turn is the bang
+      (+-w_max) with the larger V at the end of its hold (ties left), and the planner's
+      command is judged by V where its hold ends and after the better bang held one
+      more period from there (the smaller): a pass never leaves the robot where no
+      held turn keeps V above the level;
+    * else the loiter-circle fallback (``cluster.orbit_value``) if the robot's state now
+      has a clear circle (its invariant holds only from such a state; from any other,
+      the per-obstacle rows, always in the table, are the best known until the
+      union's value is in force).
+
+    Either way the cluster's members' own rows join the cluster's group. All (robot,
+    cluster) instances are evaluated together: one arc_flow for the holds, one value
+    read per distinct cluster value, one fallback evaluation per store. The rows' turns
+    are read on demand (``turns_of``, for the rows robots avoid by).
+    """
+    m = len(filters)
+    solving = np.zeros(m, dtype=np.intp)
+    entries = _entries(filters, configs, dets, store_arg)
+    if not entries:
+        return dict(_NO_CLUSTERS, solving=solving)
+    fc = _FrameColumns(entries)
+    inst_row, inst_gi, frame, val, busy = _instances(entries, fc, states, speed, horizon)
+    n_inst = len(inst_row)
+    size = fc.size[frame]
+    member_inst = np.repeat(np.arange(n_inst), size)
+    mg = fc.mstart[frame][member_inst] + (np.arange(int(size.sum())) - np.repeat(np.cumsum(size) - size, size))
+    members, member_xy = fc.member[mg], fc.member_xy[mg]
+    np.add.at(solving, inst_row, busy.astype(np.intp))
+    member_pairs = start[inst_row][member_inst] + members     # the members' own rows join the cluster
+    read = _UnionReader(fc.values, val, fc.origin[frame], fc.angle[frame], fc.cos[frame], fc.sin[frame])
+
+    # holds from the state now: the planner's command, then both bangs from its end (the bangs
+    # from the state now give the avoid turn, read only for the rows a robot names: turns_of)
+    rows = np.flatnonzero(np.bincount(inst_row, minlength=m))     # np.unique's, without a sort
+    s0 = states[rows]
+    ahead_r = arc_flow(s0, speed[rows], planned[rows], horizon[rows])
+    pts = bang_ends(ahead_r, speed[rows], bang[rows], horizon[rows])
+    where = np.searchsorted(rows, inst_row)
+    nr = len(rows)
+    state, ahead = s0[where], ahead_r[where]
+
+    # the member nearest to the robot (the first on ties) names the cluster: an instance's members
+    # are one run of member_inst, in their cluster's order (distances are finite: states are)
+    d = np.hypot(*(member_xy - states[inst_row[member_inst], :2]).T)
+    nearest_m = first_min_of_runs(d, member_inst, np.cumsum(size) - size)
+    nearest, nearest_xy = members[nearest_m], member_xy[nearest_m]
+
+    # the union's value where it is in force: now, after the hold and each bang after it
+    ok = val >= 0
+    v4 = np.full((4, n_inst), np.inf)
+    if np.any(ok):
+        idx = np.flatnonzero(ok)
+        w_ = where[idx]
+        v4[:, idx] = read(idx, np.stack([state[idx], pts[w_], pts[nr + w_], ahead[idx]]))[0]
+    u_next = py_min(v4[3], py_max(v4[1], v4[2]))
+
+    # the loiter fallback where no union value is in force
+    f_value = np.full((2, n_inst), -np.inf)
+    f_turn = np.zeros(n_inst)
+    inst_store = fc.store[frame]
+    for k, store in enumerate(fc.stores):
+        sel = ~ok & (inst_store == k)
+        if np.any(sel):
+            st = store.settings
+            v, u = _orbit_values(np.stack([state[sel], ahead[sel]]), member_xy, member_inst, sel,
+                                 st.radius + st.margin, st.turning_radius)
+            f_value[:, sel] = v
+            f_turn[sel] = u[0]
+    keep = ok | (f_value[0] > 0.0)
+    kept = np.flatnonzero(keep)
+
+    def turns_of(r) -> np.ndarray:
+        """The unit avoid turn of the returned rows ``r``: with a union value in force, the bang
+        (+-w_max) whose hold from the state now ends at the larger V (ties left, within the
+        value's tie tolerance); with the fallback, its loiter circle's turn."""
+        i = kept[np.asarray(r, dtype=np.intp)]
+        out = f_turn[i]
+        u = i[ok[i]]
+        if len(u):
+            robot = inst_row[u]
+            ends = bang_ends(state[u], speed[robot], bang[robot], horizon[robot]).reshape(2, len(u), 3)
+            (left, right), tie = read(u, ends)
+            out[ok[i]] = better_bang(left, right, tie)
+        return out
+
+    level = cluster_alpha[inst_row]
+    return dict(robot=inst_row[keep], index=inst_gi[keep], value=np.where(ok, v4[0], f_value[0])[keep],
+                level=np.where(ok, level, 0.0)[keep], turns_of=turns_of,
+                value_next=np.where(ok, u_next, f_value[1])[keep], obstacle=nearest[keep],
+                xy=nearest_xy[keep], group=np.arange(n_inst)[keep], members=size[keep], fallback=~ok[keep],
+                member_pairs=member_pairs, member_groups=member_inst, n_groups=n_inst, solving=solving)
+
+
+def _entries(filters, configs, dets, store_arg) -> list:
+    """[(ClusterFrames, store, robot rows)] of the robots with clusters: robots with one
+    detections array and configuration share an entry (a batched fleet: one); each robot
+    keeps its frames (``_cluster_cache``) while its detections array is the same."""
+    entries = {}      # (frames, store) -> rows of the robots that use them, in order
+    shared = {}
+    stores = {}       # id(config) -> its default store (robots of a fleet share one config)
+    joins = {}        # (id(detections), id(config)) -> the entry its robots join (None: no clusters)
+    # runs of robots with the same detections array and configuration (a batched fleet: one run)
+    # join their entry at once (found in C: no numpy on a lone robot's path)
+    end = 0
+    for _, run in itertools.groupby(zip(map(id, dets), map(id, configs))):
+        row, end = end, end + len(list(run))
+        f, det, cfg = filters[row], dets[row], configs[row]
+        key = (id(det), id(cfg))
+        if key in joins:            # robots given one detections array (the batched fleet)
+            entry = joins[key]
+            if entry is not None:
+                entry[2].extend(range(row, end))
+            continue
+        joins[key] = None
+        if not cfg.clusters or len(det) <= 1:
+            continue
+        store = store_arg
+        if store is None:
+            store = stores.get(id(cfg))
+            if store is None:
+                store = stores[id(cfg)] = default_cluster_store(cfg)
+        cache = f.__dict__.get('_cluster_cache')
+        if cache is None or cache[0] is not det:
+            got = shared.get((id(det), id(store)))
+            if got is None:
+                got = shared[(id(det), id(store))] = cluster_frames(det, store)
+            cache = f._cluster_cache = (det, got)
+        fr = cache[1]
+        if fr.n:
+            entry = entries.get((id(fr), id(store)))
+            if entry is None:
+                entry = entries[(id(fr), id(store))] = (fr, store, [])
+            entry[2].extend(range(row, end))
+            joins[key] = entry
+    return list(entries.values())
+
+
+def _lookups(entries) -> dict:
+    """The union's value of each cluster geometry, looked up (and requested) in the order the
+    robots meet them: the first (robot, cluster) of a geometry sees the store before its
+    request, every later one after it (as robot-by-robot lookups would: an inline store
+    solves at the request). (store, key) -> [value before, busy before, value after, busy
+    after, (entry, cluster) that met it first]."""
+    firsts = sorted((rows[0], gi, e) for e, (fr, _, rows) in enumerate(entries) for gi in range(fr.n))
+    known = {}
+    for _, gi, e in firsts:
+        fr, store, _ = entries[e]
+        sk = (id(store), fr.keys[gi])
+        if sk in known:
+            continue
+        before = store.get(fr.keys[gi])
+        if before is None:
+            store.request(fr.keys[gi], fr.centres[gi])
+            busy = store.solving(fr.keys[gi])
+            after = store.get(fr.keys[gi])
+            known[sk] = [before, busy, after, store.solving(fr.keys[gi]) if after is None else False, (e, gi)]
+        else:
+            known[sk] = [before, False, before, False, (e, gi)]
+    return known
+
+
+class _FrameColumns:
+    """Every entry's clusters ("frames") in one table: per frame its canonical frame
+    (origin, angle, cos, sin), members (size, first member ``mstart`` into ``member`` and
+    ``member_xy``), store (index into ``stores``) and the union value in force (``val``, an
+    index into ``values``, -1: none) and whether it is being solved (``busy``), after its
+    request; ``first_inst``: the instances that met a geometry first, with what they saw
+    before the request. Entry e's frames start at ``frame0[e]``, its instances at ``inst0[e]``."""
+
+    def __init__(self, entries):
+        known = _lookups(entries)
+        self.values, index_of = [], {}     # distinct union values in force, by index
+
+        def value_index(v):
+            if v is None:
+                return -1
+            j = index_of.get(id(v))
+            if j is None:
+                j = index_of[id(v)] = len(self.values)
+                self.values.append(v)
+            return j
+
+        self.n_frames = np.array([fr.n for fr, _, _ in entries], dtype=np.intp)
+        self.n_rows = np.array([len(rows) for _, _, rows in entries], dtype=np.intp)
+        self.frame0 = np.cumsum(self.n_frames) - self.n_frames
+        self.inst0 = np.cumsum(self.n_rows * self.n_frames) - self.n_rows * self.n_frames
+        val, busy, self.first_inst = [], [], []
+        for e, (fr, store, _) in enumerate(entries):
+            for gi, key in enumerate(fr.keys):
+                b, bb, a, ab, first = known[(id(store), key)]
+                val.append(value_index(a))
+                busy.append(ab)
+                if first == (e, gi):      # the first robot of this entry is the first to meet the key
+                    self.first_inst.append((int(self.inst0[e]) + gi, value_index(b), bb))
+        self.val = np.array(val, dtype=np.intp)
+        self.busy = np.array(busy, dtype=bool)
+        frames = np.concatenate([fr.frames for fr, _, _ in entries])
+        self.origin, self.angle, self.cos, self.sin = frames[:, 0:2], frames[:, 2], frames[:, 3], frames[:, 4]
+        self.size = frames[:, 5].astype(np.intp)
+        self.stores, store_index = [], {}
+        for _, store, _ in entries:
+            if id(store) not in store_index:
+                store_index[id(store)] = len(self.stores)
+                self.stores.append(store)
+        self.store = np.repeat(np.array([store_index[id(st)] for _, st, _ in entries], dtype=np.intp),
+                               self.n_frames)
+        member_table = np.concatenate([fr.members for fr, _, _ in entries])
+        self.member, self.member_xy = member_table[:, 0].astype(np.intp), member_table[:, 1:3]
+        self.mstart = np.cumsum(self.size) - self.size
+
+
+def _instances(entries, fc: _FrameColumns, states, speed, horizon):
+    """One instance per (robot, cluster), entry by entry, robot-major within an entry: (robot
+    row, cluster index in its frames, frame, union value index, busy). An instance whose union
+    value is in force but whose grid no hold can reach reads V = +inf at every state the rows
+    read: it never acts nor names the smallest V, so it is left out (most of a wide fleet's
+    instances; requests and solving counts come from the instances not in force)."""
+    n_rows, n_frames = fc.n_rows, fc.n_frames
+    n_inst = int(np.sum(n_rows * n_frames))
+    inst_entry = np.repeat(np.arange(len(entries)), n_rows * n_frames)
+    q = np.arange(n_inst) - fc.inst0[inst_entry]
+    g_e = n_frames[inst_entry]
+    all_rows = np.fromiter(itertools.chain.from_iterable(rows for _, _, rows in entries), dtype=np.intp,
+                           count=int(n_rows.sum()))
+    inst_row = all_rows[(np.cumsum(n_rows) - n_rows)[inst_entry] + q // g_e]
+    inst_gi = q % g_e
+    frame = fc.frame0[inst_entry] + inst_gi
+    val, busy = fc.val[frame], fc.busy[frame]
+    for k, b, bb in fc.first_inst:
+        val[k], busy[k] = b, bb
+    far = _beyond_grid(fc.values, val, states[inst_row, :2] - fc.origin[frame],
+                       2.0 * speed[inst_row] * horizon[inst_row] + 1.0)
+    if far.any():
+        near = ~far
+        return inst_row[near], inst_gi[near], frame[near], val[near], busy[near]
+    return inst_row, inst_gi, frame, val, busy
+
+
+class _UnionReader:
+    """V of the union values in force at cluster instances: ``reader(idx, s)`` reads instances
+    ``idx`` at their states ``s`` (k, len(idx), 3) in the map frame, each in its cluster's
+    canonical frame (``cluster.to_frame``); (V (+inf off the grid), each instance's tie
+    tolerance)."""
+
+    def __init__(self, values, val, origin, angle, cos, sin):
+        self.values, self.val, self.origin, self.angle, self.cos, self.sin = values, val, origin, angle, cos, sin
+
+    def __call__(self, idx, s):
+        v = np.full(s.shape[:2], np.inf)
+        tie = np.zeros(len(idx))
+        origin, angle, cs, sn = self.origin[idx], self.angle[idx], self.cos[idx], self.sin[idx]
+        dx, dy = s[..., 0] - origin[:, 0], s[..., 1] - origin[:, 1]      # cluster.to_frame
+        in_frame = np.stack([cs * dx + sn * dy, -sn * dx + cs * dy, s[..., 2] - angle], axis=-1)
+        for j, cv in enumerate(self.values):
+            sel = np.flatnonzero(self.val[idx] == j)
+            if len(sel):
+                v[:, sel] = cv.value(in_frame[:, sel].reshape(-1, 3)).reshape(len(s), len(sel))
+                tie[sel] = cv.tie
+        return v, tie
+
+
+def _beyond_grid(values, val, offset, reach) -> np.ndarray:
+    """Per instance: its union value is in force (``val`` indexes ``values``) and its robot,
+    ``offset`` (k, 2) from the cluster frame's origin, is farther than ``reach`` beyond every
+    corner of that value's grid (frames only rotate about the origin, so a distance bound needs
+    no rotation): every state within ``reach`` of the robot is off the grid."""
+    if not values:
+        return np.zeros(len(val), bool)
+    corner = np.array([max(math.hypot(x, y) for x in (g.lo[0], g.hi[0]) for y in (g.lo[1], g.hi[1]))
+                       for g in (cv.vf.grid for cv in values)] + [math.inf])
+    return np.hypot(offset[:, 0], offset[:, 1]) > corner[val] + reach    # val -1 -> inf: never far
+
+
+def _orbit_values(states, member_xy, member_inst, sel, radius, turning_radius):
+    """``cluster.orbit_value`` for many (state, cluster) pairs at once.
+
+    ``states`` (2, k, 3): the state now and after the planner's hold of each selected
+    cluster instance; its discs are the rows of ``member_xy`` whose ``member_inst`` is
+    selected by ``sel``. Returns (clearance (2, k), turn (2, k)).
+    """
+    inst = np.flatnonzero(sel)
+    col = np.full(len(sel), -1, np.intp)
+    col[inst] = np.arange(len(inst))
+    take = sel[member_inst]
+    c = member_xy[take]
+    seg = col[member_inst[take]]                     # members are grouped by instance, in order
+    starts = np.flatnonzero(np.concatenate(([True], seg[1:] != seg[:-1])))
+    out = []
+    for side in (1.0, -1.0):
+        mx = states[..., 0] - side * turning_radius * np.sin(states[..., 2])
+        my = states[..., 1] + side * turning_radius * np.cos(states[..., 2])
+        dist = np.hypot(mx[:, seg] - c[:, 0], my[:, seg] - c[:, 1])
+        out.append(np.minimum.reduceat(np.abs(dist - turning_radius) - radius, starts, axis=1))
+    left, right = out
+    return np.maximum(left, right), np.where(left >= right, 1.0, -1.0)
+
+
+_STORES = {}
+
+
+def default_cluster_store(cfg: FilterConfig):
+    """The process's shared ClusterStore for a robot configuration (background solves)."""
+    settings = cluster.ClusterSettings(radius=cfg.radius, speed=cfg.speed, omega_max=cfg.omega_max,
+                                       link=cfg.cluster_link)
+    store = _STORES.get(settings)
+    if store is None:
+        store = _STORES[settings] = cluster.ClusterStore(settings)
+    return store

@@ -1,0 +1,203 @@
+"""The fleet's inputs as columns: one read of every robot's state, once per decision.
+
+``gather(filters, t)`` says which robots can be judged now (fresh, valid pose and
+detections), which fail safe but still have a state young enough to avoid from
+(``hold_timeout``), and for those (the rows the law sees) the pose, the arcs held since
+its stamp (``filter.propagation``), the planner's command clipped to the robot's bound
+(0 if silent), the lookahead (at least the control period) and the configuration
+fields the law needs, as numpy columns. The same comparisons and arithmetic as the
+per-robot functions below (``judged``, ``command_fresh``, ``planned_turn``; Python's min
+and max as ``py_min`` / ``py_max``), so the same values bit for bit.
+"""
+from __future__ import annotations
+
+import itertools
+import math
+from operator import attrgetter, is_, is_not
+
+import numpy as np
+
+from .propagation import arc, plan, wrap
+
+
+class RobotColumns:
+    """The inputs of a fleet's robots as columns (``gather``): for all N robots, their
+    configurations, problems ('' if judged), turn bound and history kept; for the M robots
+    whose (last valid) state enters the law (``use``, their rows), everything the law needs."""
+
+    __slots__ = ('filters', 'use', 'problems', 'all_configs', 'all_bang', 'all_keep', 'configs', 'failing',
+                 'poses', 'omega_arcs', 'dt_arcs', 'age', 'dets', 'horizon', 'planned', 'speed', 'bang',
+                 'overriding', 'margin', 'fresh', 'cluster_alpha')
+
+
+_NEVER = (math.inf, 0.0)      # the (time, turn) a robot with no such command sent shows: no arc starts then
+_VALUE, _T, _STAMP, _REJECTED = (attrgetter(a) for a in ('value', 't', 'stamp', 'rejected'))
+
+
+def judged(f, t):
+    """(why ``f`` cannot be judged now, '' if it can; whether its (last valid) state enters
+    the law: judged, or failing safe with a pose and detections younger than hold_timeout)."""
+    cfg, pose, det = f.config, f.pose, f.detections
+    if (pose.rejected or det.rejected or pose.value is None or det.value is None
+            or t - pose.t > cfg.pose_timeout or t - det.t > cfg.detections_timeout):
+        return f.problem(t), (pose.value is not None and det.value is not None
+                              and t - pose.t <= cfg.hold_timeout and t - det.t <= cfg.hold_timeout)
+    return '', True
+
+
+def _config_columns(configs, names):
+    """Per robot, the configuration fields ``names`` as float columns (robots share a few
+    configurations: each field is read once per distinct one)."""
+    c = configs[0] if configs else None
+    if c is not None and all(map(is_, configs, itertools.repeat(c))):   # one configuration (not just equal ones:
+        # 0.0 == -0.0, and a zero's sign shows in the commands)
+        return [np.full(len(configs), float(getattr(c, a))) for a in names]
+    distinct = {id(c): c for c in configs}
+    index = {k: i for i, k in enumerate(distinct)}
+    row = np.fromiter((index[id(c)] for c in configs), dtype=np.intp, count=len(configs))
+    return [np.array([float(getattr(c, a)) for c in distinct.values()])[row] for a in names]
+
+
+def gather(filters, t) -> RobotColumns:
+    """The fleet's inputs as columns, with ``judged``, ``propagation.plan``, ``command_fresh``,
+    ``RobotFilter.lookahead`` and ``planned_turn`` evaluated over them: the same comparisons
+    and the same arithmetic (Python's min and max as ``py_min``/``py_max``), so the same
+    values bit for bit; a robot whose plan is neither of ``propagation.plan``'s two common cases gets
+    ``segments_since`` (a pose older than two commands sent)."""
+    rb = RobotColumns()
+    n = len(filters)
+    configs = [f.config for f in filters]
+    (pose_timeout, det_timeout, hold, bang_all, compensate, cmd_timeout, look, period, speed, margin,
+     cluster_alpha, rb.all_keep) = _config_columns(configs, (
+        'pose_timeout', 'detections_timeout', 'hold_timeout', 'omega_max', 'compensate_delay', 'cmd_timeout',
+        'lookahead', 'control_period', 'speed', 'clear_margin', 'cluster_alpha', 'sent_kept'))
+    rb.all_configs, rb.all_bang = configs, bang_all
+    poses, dets = [f.pose for f in filters], [f.detections for f in filters]
+    pose_t = np.fromiter(map(_T, poses), dtype=float, count=n)
+    det_t = np.fromiter(map(_T, dets), dtype=float, count=n)
+    pose_values, det_values = list(map(_VALUE, poses)), list(map(_VALUE, dets))
+    has = (np.fromiter(map(is_not, pose_values, itertools.repeat(None)), dtype=bool, count=n)
+           & np.fromiter(map(is_not, det_values, itertools.repeat(None)), dtype=bool, count=n))
+    clean = np.ones(n, bool)
+    for inputs in (poses, dets):
+        if any(map(_REJECTED, inputs)):
+            clean &= ~np.fromiter(map(bool, map(_REJECTED, inputs)), dtype=bool, count=n)
+    judged = has & clean & ~(t - pose_t > pose_timeout) & ~(t - det_t > det_timeout)
+    rb.problems = [''] * n
+    for i in np.flatnonzero(~judged).tolist():
+        rb.problems[i] = filters[i].problem(t)
+    use = np.flatnonzero(judged | (has & (t - pose_t <= hold) & (t - det_t <= hold)))
+    rb.use, m = use, len(use)
+    if m < n:
+        filters, configs, poses, pose_values, det_values = (
+            [x[i] for i in use.tolist()] for x in (filters, configs, poses, pose_values, det_values))
+        pose_t = pose_t[use]
+        (hold, compensate, cmd_timeout, look, period, speed, bang, margin, cluster_alpha) = (
+            c[use] for c in (hold, compensate, cmd_timeout, look, period, speed, bang_all, margin, cluster_alpha))
+    else:
+        bang = bang_all
+    rb.filters, rb.configs, rb.failing = filters, configs, ~judged[use]
+    rb.speed, rb.bang, rb.margin, rb.cluster_alpha = speed, bang, margin, cluster_alpha
+    rb.dets = det_values
+    rb.poses = np.array(pose_values, dtype=float).reshape(m, 3)
+    rb.overriding = np.fromiter((f.overriding for f in filters), dtype=bool, count=m)
+    compensate = compensate != 0.0
+
+    # propagation.plan: the pose's age, and the arcs held since its stamp
+    stamp = np.fromiter(map(_STAMP, poses), dtype=float, count=m)
+    age = t - np.where(stamp < pose_t, stamp, pose_t)
+    age = np.where(compensate, py_max(0.0, py_min(age, hold)), 0.0)
+    rb.age = age
+    t0 = t - age
+    sents = [f.sent for f in filters]
+    last = np.fromiter(itertools.chain.from_iterable(s[-1] if s else _NEVER for s in sents), dtype=float,
+                       count=2 * m).reshape(m, 2)
+    prev = np.fromiter(itertools.chain.from_iterable(s[-2] if len(s) > 1 else _NEVER for s in sents),
+                       dtype=float, count=2 * m).reshape(m, 2)
+    moving = compensate & (t > t0)
+    one = moving & (last[:, 0] <= t0)                        # nothing sent since the pose: one arc
+    two = moving & ~one & (prev[:, 0] <= t0) & (t0 < last[:, 0]) & (last[:, 0] < t)   # one command since
+    rest = np.flatnonzero(moving & ~one & ~two).tolist()
+    plans = [filters[i].segments_since(float(t0[i]), t) for i in rest]
+    depth = max([len(p) for p in plans] + [2 if two.any() else 1 if one.any() else 0])
+    omegas, dts = np.zeros((depth, m)), np.zeros((depth, m))
+    if depth:
+        omegas[0, one], dts[0, one] = last[one, 1], t - t0[one]
+        omegas[0, two], dts[0, two] = prev[two, 1], last[two, 0] - t0[two]
+    if depth > 1:
+        omegas[1, two], dts[1, two] = last[two, 1], t - last[two, 0]
+    for i, arcs in zip(rest, plans):
+        for k, (w, d) in enumerate(arcs):
+            omegas[k, i], dts[k, i] = w, d
+    rb.omega_arcs, rb.dt_arcs = omegas, dts
+
+    # command_fresh, planned_turn (clipped as clip) and the lookahead
+    commands = [f.command for f in filters]
+    value = list(map(_VALUE, commands))
+    rb.fresh = fresh = (np.fromiter(map(is_not, value, itertools.repeat(None)), dtype=bool, count=m)
+                        & (t - np.fromiter(map(_T, commands), dtype=float, count=m) <= cmd_timeout))
+    value = np.array([0.0 if v is None else v for v in value] if None in value else value, dtype=float)
+    clipped = np.where(value < bang, value, bang)
+    clipped = np.where(clipped > -bang, clipped, -bang)
+    rb.planned = np.where(fresh, clipped, 0.0)
+    # measured period: the larger median of the pose and command intervals (each > 0; none: 0)
+    windows = ([f._pose_intervals for f in filters], [f._command_intervals for f in filters])
+    measured = py_max(*(np.array([0.0 if w.middle is None else w.middle for w in ws], dtype=float)
+                        for ws in windows))
+    period = np.where(period > 0.0, period, measured)
+    rb.horizon = np.where(compensate, py_max(look, period), look)
+    return rb
+
+
+def command_fresh(f, t) -> bool:
+    """Whether the planner's command is recent enough to forward."""
+    return f.command.value is not None and t - f.command.t <= f.config.cmd_timeout
+
+
+def planned_turn(f, t, fresh=None) -> float:
+    """The command the filter would forward (a silent planner counts as 0), clipped;
+    ``fresh``: ``command_fresh(f, t)`` if the caller has it."""
+    if fresh is None:
+        fresh = command_fresh(f, t)
+    return clip(f.command.value, f.config.omega_max) if fresh else 0.0
+
+
+def clip(value, bound) -> float:
+    """value clipped to +-bound (scalars; np.clip costs ~10 us a call)."""
+    return max(-bound, min(bound, float(value)))
+
+
+def py_max(a, b):
+    """Python's max(a, b) elementwise (a on ties: -0.0 and 0.0 come out as Python's would)."""
+    return np.where(b > a, b, a)
+
+
+def py_min(a, b):
+    return np.where(b < a, b, a)
+
+
+_ONE = np.zeros(1, np.intp)
+_ONE.flags.writeable = False
+
+
+def gather_one(f, problem, t):
+    """``gather`` for one robot with a state to judge, in Python floats (numpy's cost per call
+    would be most of a lone robot's decision): (its one-row columns, its state now (x, y,
+    theta) propagated as ``propagation.follow`` does, the same bits)."""
+    cfg = f.config
+    rb = RobotColumns()
+    age, arcs = plan(f, t)
+    x, y, th = f.pose.value.tolist()
+    for omega, dt in arcs:
+        x, y, th = arc(x, y, th, cfg.speed, omega, dt)
+    if not arcs:
+        th = wrap(th)
+    fresh = command_fresh(f, t)
+    # the one row's float columns, made in one call (views of one array)
+    (rb.bang, rb.all_keep, rb.speed, rb.margin, rb.cluster_alpha, rb.age, rb.horizon, rb.planned) = np.array(
+        [[cfg.omega_max], [cfg.sent_kept], [cfg.speed], [cfg.clear_margin], [cfg.cluster_alpha], [age],
+         [f.lookahead()], [planned_turn(f, t, fresh)]], dtype=float)
+    rb.all_bang = rb.bang
+    rb.failing, rb.overriding, rb.fresh = np.array([[bool(problem)], [f.overriding], [fresh]])
+    rb.filters, rb.use, rb.problems, rb.configs, rb.all_configs = [f], _ONE, [problem], [cfg], [cfg]
+    return rb, (x, y, th)

@@ -1,0 +1,296 @@
+"""What a filter knows of its robot: the newest pose, detections and planner command (each
+with when it arrived and whether a newer one was rejected), whether it is overriding, and the
+commands it sent (to propagate an old pose to now, ``filter.propagation``).
+
+``RobotFilter`` is one robot's input state; ``update_poses``, ``update_commands`` and
+``update_detections_all`` feed many robots at once (the fleet node's batched topics: one
+validation for all rows). ``RobotFilter.step`` decides (``filter.decide.step_many``).
+
+The control period (how long a command holds) is measured, when not configured, as the
+larger of the median intervals between pose stamps and between planner commands over the
+last PERIOD_SAMPLES (``_Intervals``: immutable windows, shared by robots fed by one message).
+"""
+from __future__ import annotations
+
+from bisect import bisect_left, insort
+from collections import deque
+from dataclasses import dataclass, field
+import math
+
+import numpy as np
+
+from .decide import step_many
+from .gather import clip
+from .types import FilterConfig, FilterOutput, SafeSet
+
+PERIOD_SAMPLES = 16    # intervals in the median that measures the control period
+
+
+@dataclass
+class _Input:
+    """The newest valid sample of one input, and whether a newer one was rejected."""
+
+    value: object = None
+    t: float = -math.inf          # arrival time of the newest valid sample
+    stamp: float = -math.inf      # the time it describes (its header stamp; arrival if unstamped)
+    rejected: str = ''            # reason the newest sample was rejected ('' if it was valid)
+    rejected_t: float = -math.inf
+
+    def accept(self, value, t, stamp=None):
+        self.value, self.t, self.rejected = value, float(t), ''
+        self.stamp = float(t) if stamp is None else float(stamp)
+
+    def age(self, t) -> float:
+        """Age at ``t``: since its stamp, or since arrival if that is earlier (a stamp ahead
+        of the receiver's clock is not believed)."""
+        return t - min(self.t, self.stamp)
+
+    def reject(self, reason, t):
+        self.rejected, self.rejected_t = str(reason), float(t)
+
+
+@dataclass
+class RobotFilter:
+    """Filter state of one robot: the last inputs and whether it is overriding."""
+
+    config: FilterConfig = field(default_factory=FilterConfig)
+    name: str = ''
+
+    def __post_init__(self):
+        self.pose = _Input()
+        self.detections = _Input()
+        self.command = _Input()
+        self.overriding = False
+        self.sent = deque()    # (decision time, turn rate) of the commands sent, oldest first
+        self._pose_intervals = _NO_INTERVALS      # windows of the last intervals (immutable: robots
+        self._command_intervals = _NO_INTERVALS   # fed by one message share them)
+
+    # -- inputs ------------------------------------------------------------------------
+    def update_pose(self, state, t, stamp=None) -> None:
+        """A pose (x, y, theta) in map, arrived at ``t``; raises ValueError (and records it)
+        if not finite.
+
+        ``stamp``: the time the pose describes (its header stamp) on the same clock as
+        ``t``, or None to take the arrival time. The filter propagates the pose from its
+        stamp to the decision time under the commands it sent.
+        """
+        s = np.asarray(state, dtype=float).reshape(-1)
+        if s.shape != (3,) or not all(map(math.isfinite, s.tolist())):    # (np.isfinite: ~10x the cost)
+            reason = f'pose is not a finite (x, y, theta): {s.tolist()}'
+            self.pose.reject(reason, t)
+            raise ValueError(reason)
+        if stamp is not None and not math.isfinite(float(stamp)):
+            reason = f'pose stamp is not finite ({stamp})'
+            self.pose.reject(reason, t)
+            raise ValueError(reason)
+        previous = self.pose.stamp if self.pose.value is not None else None
+        self.pose.accept(s, t, stamp)
+        if previous is not None and self.pose.stamp > previous:
+            self._pose_intervals = self._pose_intervals.then(self.pose.stamp - previous)
+
+    def reject_pose(self, reason, t) -> None:
+        """Record a pose message the caller could not convert (wrong frame, bad quaternion)."""
+        self.pose.reject(reason, t)
+
+    def update_detections(self, centres, t) -> None:
+        """Obstacle centres (N, 2) in map, N >= 0; raises ValueError if malformed."""
+        c = np.asarray(centres, dtype=float)
+        if c.size == 0:
+            c = np.zeros((0, 2))
+        if c.ndim != 2 or c.shape[1] != 2 or not np.all(np.isfinite(c)):
+            reason = f'detections must be finite (N, 2) centres, got shape {c.shape}'
+            self.detections.reject(reason, t)
+            raise ValueError(reason)
+        self.detections.accept(c, t)
+
+    def reject_detections(self, reason, t) -> None:
+        self.detections.reject(reason, t)
+
+    def update_command(self, omega, t) -> None:
+        """The planner's turn rate; a non-finite one is rejected and the previous kept."""
+        w = float(omega)
+        if not math.isfinite(w):
+            reason = f'planner command is not finite ({w})'
+            self.command.reject(reason, t)
+            raise ValueError(reason)
+        previous = self.command.t if self.command.value is not None else None
+        self.command.accept(w, t)
+        if previous is not None and t > previous:
+            self._command_intervals = self._command_intervals.then(t - previous)
+
+    def control_period(self) -> float:
+        """The hold time of a command: configured, else measured (0 until measurable).
+
+        Measured as the larger of the median intervals between pose stamps (the
+        robot's step) and between planner commands (when new commands come).
+        """
+        if self.config.control_period > 0.0:
+            return self.config.control_period
+        poses, commands = self._pose_intervals.middle, self._command_intervals.middle   # None: empty
+        if poses is None:
+            return 0.0 if commands is None else commands
+        return poses if commands is None else max(poses, commands)
+
+    def lookahead(self) -> float:
+        cfg = self.config
+        return max(cfg.lookahead, self.control_period()) if cfg.compensate_delay else cfg.lookahead
+
+    # -- decision ------------------------------------------------------------------------
+    def problem(self, t) -> str:
+        """Why the filter cannot judge the planner's command now ('' if it can)."""
+        cfg = self.config
+        for label, inp, timeout in (('pose', self.pose, cfg.pose_timeout),
+                                    ('detections', self.detections, cfg.detections_timeout)):
+            if inp.rejected:
+                return f'{label} rejected: {inp.rejected}'
+            if inp.value is None:
+                return f'no {label} received yet'
+            age = t - inp.t     # since arrival: a pose that keeps coming is not lost
+            if age > timeout:
+                return f'{label} stale ({age:.3g} s old > {timeout:g} s)'
+        return ''
+
+    def step(self, safe_set: SafeSet, t, clusters=None) -> FilterOutput:
+        return step_many([self], safe_set, t, clusters)[0]
+
+    # -- what the robot did since its pose ---------------------------------------------
+    def record_sent(self, omega, t) -> None:
+        """Remember a command sent at ``t`` (step_many does this for every decision)."""
+        self.sent.append((float(t), float(omega)))
+        keep = self.config.sent_kept
+        while len(self.sent) > 1 and self.sent[1][0] <= t - keep:
+            self.sent.popleft()
+
+    def segments_since(self, t0, t1):
+        """[(turn rate, duration)] the robot held from ``t0`` to ``t1``, by the commands sent.
+
+        A command counts from the time it was sent until the next one. Before the
+        first command remembered: the planner's current command (clipped), else 0.
+        """
+        if t1 <= t0:
+            return []
+        w = self.config.omega_max
+        before = clip(self.command.value, w) if self.command.value is not None else 0.0
+        inside = []      # commands sent in (t0, t1), newest first
+        current = before
+        for ts, omega in reversed(self.sent):
+            if ts >= t1:
+                continue
+            if ts <= t0:
+                current = omega
+                break
+            inside.append((ts, omega))
+        segments, start = [], t0
+        for ts, omega in reversed(inside):
+            segments.append((current, ts - start))
+            start, current = ts, omega
+        segments.append((current, t1 - start))
+        return segments
+
+
+def update_poses(filters, states, t, stamp=None, skip=None) -> None:
+    """``filters[i].update_pose(states[i], t, stamp)`` for every robot whose ``skip[i]`` is
+    falsy (the fleet node's batched poses: one validation for all rows, then a few
+    assignments per robot instead of a call that re-validates one row). Raises ValueError
+    before updating anyone if a row to take is not finite or the stamp is not."""
+    s = np.asarray(states, dtype=float).reshape(len(filters), 3)
+    take = _taken(filters, skip)
+    if not np.all(np.isfinite(s[take])):
+        raise ValueError('poses are not finite (x, y, theta)')
+    t = float(t)
+    stamp = t if stamp is None else float(stamp)
+    if not math.isfinite(stamp):
+        raise ValueError(f'pose stamp is not finite ({stamp})')
+    _accept_rows(filters, 'pose', s, take, t, stamp)
+
+
+def update_commands(filters, omegas, t, skip=None) -> None:
+    """``filters[i].update_command(omegas[i], t)`` for every robot whose ``skip[i]`` is falsy
+    (the fleet node's batched commands). Raises ValueError before updating anyone if a turn
+    rate to take is not finite."""
+    w = np.asarray(omegas, dtype=float).reshape(len(filters))
+    take = _taken(filters, skip)
+    if not np.all(np.isfinite(w[take])):
+        raise ValueError('planner commands are not finite')
+    t = float(t)
+    _accept_rows(filters, 'command', w.tolist(), take, t, t)
+
+
+def _taken(filters, skip) -> np.ndarray:
+    return np.ones(len(filters), bool) if skip is None else ~np.array([bool(b) for b in skip], dtype=bool)
+
+
+def _accept_rows(filters, name, rows, take, t, stamp) -> None:
+    """Each taken row becomes its filter's newest ``name`` input (pose or command), arrived at
+    ``t`` and describing ``stamp``; the interval since the previous stamp feeds the measured
+    control period (as ``update_pose`` / ``update_command`` do). Robots with the same window
+    and the same previous stamp get the same next window, made once."""
+    windows = '_pose_intervals' if name == 'pose' else '_command_intervals'
+    made = {}      # (window before, previous stamp) -> window after (kept alive here: ids stay unique)
+    for f, row, ok in zip(filters, rows, take.tolist()):
+        if not ok:
+            continue
+        inp = f.pose if name == 'pose' else f.command
+        previous = inp.stamp if inp.value is not None else None
+        inp.value, inp.t, inp.rejected, inp.stamp = row, t, '', stamp
+        if previous is not None and stamp > previous:
+            before = getattr(f, windows)
+            after = made.get((before, previous))
+            if after is None:
+                after = made[(before, previous)] = before.then(stamp - previous)
+            setattr(f, windows, after)
+
+
+def update_detections_all(filters, centres, t) -> None:
+    """``update_detections(centres, t)`` for every robot, with one array shared by all (the
+    fleet node's batched detections; robots that share it share its cluster frames)."""
+    c = np.asarray(centres, dtype=float)
+    if c.size == 0:
+        c = np.zeros((0, 2))
+    if c.ndim != 2 or c.shape[1] != 2 or not np.all(np.isfinite(c)):
+        raise ValueError(f'detections must be finite (N, 2) centres, got shape {c.shape}')
+    t = float(t)
+    for f in filters:
+        f.detections.accept(c, t)
+
+
+class _Intervals:
+    """The last PERIOD_SAMPLES intervals in arrival order (``recent``), the same sorted
+    (``ordered``) and their median (``middle``, None if empty), made once: a window is never
+    changed, ``then`` makes the next one, so robots fed by one message share their windows and
+    a fleet's tick makes one window instead of one per robot."""
+
+    __slots__ = ('recent', 'ordered', 'middle')
+
+    def __init__(self, recent=(), ordered=()):
+        self.recent, self.ordered = tuple(recent), tuple(ordered)
+        self.middle = _median_of_sorted(self.ordered) if self.ordered else None
+
+    def then(self, interval) -> '_Intervals':
+        """The window after one more interval (the oldest leaves when it is full)."""
+        ordered = list(self.ordered)
+        recent = self.recent
+        if len(recent) == PERIOD_SAMPLES:
+            del ordered[bisect_left(ordered, recent[0])]
+            recent = recent[1:]
+        insort(ordered, interval)
+        return _Intervals(recent + (interval,), ordered)
+
+    def __len__(self):
+        return len(self.recent)
+
+    def __iter__(self):
+        return iter(self.recent)
+
+    def __getitem__(self, i):
+        return self.recent[i]
+
+
+_NO_INTERVALS = _Intervals()
+
+
+def _median_of_sorted(s) -> float:
+    """np.median of a few sorted finite floats, bit for bit (the mean of the two middle ones for
+    an even count, (a + b) / 2 as numpy computes it), without numpy's cost (~10 us a call)."""
+    k = len(s) // 2
+    return float(s[k]) if len(s) % 2 else float((s[k - 1] + s[k]) / 2.0)

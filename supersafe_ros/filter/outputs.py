@@ -1,0 +1,147 @@
+"""What a decision sends and says: the commands of every robot, the state they leave in
+their filters (overriding, the command remembered as sent), and each robot's
+``FilterOutput`` with the reason, built only when read (``Decisions``: formatting a
+thousand reasons costs more than deciding them, and most are never read).
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+import math
+
+import numpy as np
+
+from .law import KINDS, decide_rows
+from .types import FAIL_SAFE, OVERRIDE, PASS, FilterOutput
+
+
+_ACTIONS = np.array([PASS, OVERRIDE, FAIL_SAFE], dtype=object)     # by code: 0 pass, 1 override, 2 fail safe
+
+
+class Decisions(Sequence):
+    """What ``decide.step_many`` decided, one entry per robot filter, in order.
+
+    ``omega``, ``linear`` and ``action`` are lists: the commands to send, all a batched caller
+    needs every tick. ``decisions[i]`` is robot i's ``FilterOutput`` with its reason, built on
+    first access from values fixed at the decision (formatting a thousand reasons costs more
+    than deciding them, and most are never read).
+    """
+
+    __slots__ = ('omega', 'linear', 'action', '_describe', '_built')
+
+    def __init__(self, omega, linear, action, describe):
+        self.omega, self.linear, self.action, self._describe = omega, linear, action, describe
+        self._built = [None] * len(action)
+
+    def __len__(self):
+        return len(self._built)
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[j] for j in range(*i.indices(len(self)))]
+        got = self._built[i]
+        if got is None:
+            got = self._built[i] = self._describe(range(len(self))[i])
+        return got
+
+    def __repr__(self):
+        return f'Decisions({list(self)!r})'
+
+
+def outputs(filters, rb, safe_set, t, tab, n_groups, solving) -> Decisions:
+    """Every robot's command (as lists), its filter's state (overriding, the command
+    remembered as sent), and a builder of its FilterOutput: the law (``law.decide_rows``)
+    over the table's rows, spread back to all robots (a robot with no recent valid state
+    gets the stop-turn)."""
+    n, use = len(filters), rb.use
+    m = len(use)
+    omega, linear, code, over, named, kind = decide_rows(
+        tab, m, n_groups, rb.overriding, rb.margin, rb.failing, rb.fresh, rb.planned, rb.bang, rb.speed)
+    if m < n:       # spread to every robot (rows of ``use`` in place; no recent valid state: stop-turn)
+        rows = np.full(n, -1, dtype=np.intp)
+        rows[use] = np.arange(m)
+        spread = rb.all_bang.copy(), np.zeros(n), np.full(n, 2), np.zeros(n, bool)
+        for full, part in zip(spread, (omega, linear, code, over)):
+            full[use] = part
+        omega, linear, code, over = spread
+        rows = rows.tolist()
+    else:
+        rows = range(n)
+    omega, linear, over = omega.tolist(), linear.tolist(), over.tolist()
+    action = _ACTIONS[code].tolist()
+    record_all(filters, omega, over, t, rb.all_keep)
+    problems, configs = rb.problems, rb.all_configs      # configs as at the decision (a parameter change
+    common = set_fields(safe_set)                        # replaces a robot's)
+    fresh, kind, named, ages, horizon = rb.fresh.tolist(), kind.tolist(), named.tolist(), rb.age, rb.horizon
+
+    def describe(i) -> FilterOutput:
+        row = rows[i]
+        if row < 0:
+            return explain(problems[i], configs[i], omega[i], linear[i], action[i], common, None, -1, 0, False,
+                           0.0, 0.0, 0, True)
+        return explain(problems[i], configs[i], omega[i], linear[i], action[i], common, tab, named[row], kind[row],
+                       fresh[row], float(horizon[row]), float(ages[row]), int(solving[row]), False)
+
+    return Decisions(omega, linear, action, describe)
+
+
+def record_all(filters, omega, over, t, keep) -> None:
+    """Each robot's ``overriding = over[i]`` and ``record_sent(omega[i], t)``, in one loop (a
+    fleet's tick: the method's call and its configuration lookups cost more than its work);
+    ``keep``: each robot's ``config.sent_kept``."""
+    ts = float(t)
+    for f, w, o, cut in zip(filters, omega, over, (t - keep).tolist()):
+        f.overriding = o  # failing safe clears it: re-enter by the law once inputs are back
+        sent = f.sent
+        sent.append((ts, w))
+        while len(sent) > 1 and sent[1][0] <= cut:
+            sent.popleft()
+
+
+def set_fields(safe_set) -> dict:
+    """The FilterOutput fields every robot's decision takes from the safe set in force."""
+    set_omega = safe_set.omega_max
+    return dict(alpha=float(safe_set.alpha), source=safe_set.source,
+                omega_max_set=float(set_omega) if set_omega is not None else math.nan)
+
+
+def explain(problem, cfg, w, v, a, set_fields, tab, k, kind, fresh, horizon, age, solving, lost) -> FilterOutput:
+    """One robot's FilterOutput: its command (w, v, a) and why, from the table row ``k`` that it
+    names (-1: none) and how it acted on it (``kind``, see ``law.govern``); ``lost``: no recent
+    valid state (stop-turn)."""
+    common = dict(set_fields, pose_age=age, lookahead=horizon, clusters_solving=solving)
+    if k < 0:
+        common.update(obstacle_index=-1, obstacle_xy=(math.nan, math.nan), value=math.inf)
+        value = level = math.nan
+    else:
+        value, level = float(tab.value[k]), float(tab.level[k])
+        members, obstacle = int(tab.members[k]), int(tab.obstacle[k])
+        common.update(obstacle_index=obstacle, obstacle_xy=tuple(float(c) for c in tab.xy[k]), value=value,
+                      alpha=level)
+        source = 'cluster-fallback' if tab.fallback[k] else 'cluster'     # a cluster row's
+        if tab.sound[k]:
+            common['source'] = source
+        label = (f'a cluster of {members} obstacles ({source}, nearest {obstacle})' if members > 1
+                 else f'obstacle {obstacle}')
+    if problem:
+        if k >= 0:
+            why = f'{problem}; avoiding {label} from the last valid state (V={value:.3g})'
+        else:
+            why = f'{problem}; {"no recent valid state" if lost else "no obstacle near the last valid state"}' \
+                  ': stop-turn'
+    elif a == OVERRIDE:
+        how = KINDS[kind]
+        if how == 'enter':
+            why = f'V={value:.3g} <= alpha={level:.3g} at {label}'
+        elif how == 'ahead':
+            why = (f'the planner\'s command would reach V={float(tab.value_next[k]):.3g} <= alpha={level:.3g} '
+                   f'within {horizon:.3g} s ({label})')
+        else:
+            why = f'V={value:.3g} <= alpha+margin={level + cfg.clear_margin:.3g}: not clear yet'
+    elif not fresh:
+        # Nav2 style: no input, zero twist (a Dubins robot drives straight on; the filter still
+        # guards it against every detected obstacle)
+        why = 'clear; planner silent: zero command'
+    else:
+        # the robot's bound, whatever the planner asked (angular.z = 1e30 goes out as w_max)
+        why = 'clear: no obstacle near' if k < 0 else f'clear: V={value:.3g} > alpha={level:.3g}'
+    return FilterOutput(w, v, a, why, **common)

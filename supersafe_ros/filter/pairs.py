@@ -1,0 +1,164 @@
+"""V at every (robot, obstacle) pair: now, and after the holds the lookahead judges.
+
+A pair is a robot's state relative to one detected obstacle (the obstacle at the origin,
+axes as the map): translation invariance lets one value function, solved for a disc at the
+origin, serve every obstacle. Per pair (``pair_values``):
+
+* V at the state now (+inf off the grid: far from the obstacle, never constraining);
+* the unit avoid turn: the law's sign(dV/dtheta), or with a hold H the better bang
+  (``filter.law``);
+* V_next = min(V(end of the planner's command held for H), max over +-w_max of V(that end,
+  then the bang held for H)): what the filter can still do after letting the command pass.
+
+``pair_reads`` reads V and V_next of many pairs in one call (skipping the hold reads of
+pairs whose radial bound keeps V_next above the level), ``pair_turns`` the turns, and
+``robot_pair_values`` does one robot's few pairs in Python floats (the same bits).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..reach.value_function import ValueFunction
+from .law import avoid_turn, avoid_turn_at, better_bang, tie_tolerance
+from .propagation import arc, arc_flow, bang_ends
+
+
+def pair_values(vf: ValueFunction, rel, omega, horizon, speed, bang):
+    """V, the avoid turn and the lookahead value of every pair, for commands held over H.
+
+    First the law at the pair's relative state (``law.evaluate_pairs``): V (+inf off the
+    grid) and the unit turn sign(dV/dtheta) (ties left; 0 off the grid).
+
+    Per pair: the planner's (clipped) command ``omega``, the hold H (``horizon``, the
+    robot's lookahead, >= its control period), the robot's speed and turn bound
+    ``bang``. A command holds for H, so:
+
+    * the avoid turn is the bang (+-w_max) whose hold ends at the larger V (ties
+      left, within the law's tie tolerance); as H -> 0 this is sign(dV/dtheta), the
+      continuous law, which it keeps where both ends are off the grid;
+    * the planner's command is judged by what the filter can still do after it:
+      V where the command's hold ends, and after the better bang held for one more
+      period from there (the smaller of the two). A pass therefore never leaves the
+      robot below the level, nor where no held turn keeps V above it (the filter
+      acts one hold early rather than one hold late).
+
+    A silent planner counts as a zero command (what the filter would forward).
+    Translation invariance: the relative state moves like the robot itself.
+    ``pair_reads`` reads V and V next of every pair in one call, ``pair_turns`` the turns
+    (the fleet path reads turns only for the rows its robots name).
+    Returns (V, unit turn, V after the planner's hold and the best bang's).
+    """
+    value, value_next = pair_reads(vf, rel, omega, horizon, speed, bang)
+    return value, pair_turns(vf, rel, value, horizon, speed, bang), value_next
+
+
+def pair_reads(vf: ValueFunction, rel, omega, horizon, speed, bang, level=math.inf):
+    """(V, V next) of ``pair_values``: V at the pair's state and where the planner's hold and
+    both bangs after it end, in one read; V next only where it can be at or below ``level``
+    (the pairs' alpha; +inf: everywhere), else a lower bound above it (so the row never looks
+    ahead: the same decisions).
+
+    The holds end within 2 speed H of the pair's state, so no read there can be below
+    ``vf.radial_minimum`` over that band of radii: a pair whose bound is above the level
+    needs no hold read (most pairs on the grid, away from their obstacle)."""
+    n = len(rel)
+    value, value_next = np.full(n, np.inf), np.full(n, np.inf)
+    if n == 0:
+        return value, value_next
+    holds = bool(np.any(horizon > 0))
+    # pairs too far from the grid for any hold to reach it: every V below is +inf, so V and V_next
+    # stay +inf (two holds move the robot at most 2 speed H; +1 m for round-off); without holds,
+    # the pairs on the grid
+    g = vf.grid
+    reach = 2.0 * speed * horizon + 1.0 if holds else 0.0
+    near = np.flatnonzero((rel[:, 0] >= g.lo[0] - reach) & (rel[:, 0] <= g.hi[0] + reach)
+                          & (rel[:, 1] >= g.lo[1] - reach) & (rel[:, 1] <= g.hi[1] + reach))
+    if len(near) == 0:
+        return value, value_next
+    rel = rel[near]
+    k = len(rel)
+    if not holds:
+        value[near] = vf.value(rel, outside=np.inf)
+        return value, value_next
+    horizon, speed = horizon[near], speed[near]
+    if level < math.inf:
+        radius, travel = np.hypot(rel[:, 0], rel[:, 1]), 2.0 * speed * horizon
+        bound = vf.radial_minimum(radius - travel, radius + travel)
+        held = np.flatnonzero((horizon > 0) & ~(bound > level + 1e-6))     # read unless above the level
+    else:           # every hold read (a lone robot's many pairs: no bound to compute)
+        bound = np.full(k, np.inf)
+        held = np.flatnonzero(horizon > 0)
+    h = len(held)
+    ahead = arc_flow(rel[held], speed[held], omega[near][held], horizon[held])
+    v = vf.value(np.concatenate([rel, bang_ends(ahead, speed[held], bang[near][held], horizon[held]), ahead]),
+                 outside=np.inf)
+    value[near] = v[:k]
+    later = np.where(horizon > 0, bound, np.inf)
+    later[held] = np.minimum(v[k + 2 * h:], np.maximum(v[k:k + h], v[k + h:k + 2 * h]))
+    value_next[near] = later
+    return value, value_next
+
+
+def pair_turns(vf: ValueFunction, rel, value, horizon, speed, bang):
+    """The unit avoid turns of ``pair_values`` for pairs at ``rel`` with V ``value``: the
+    law's sign(dV/dtheta) where V is finite (on the grid), else 0; with a hold, the bang whose
+    hold ends at the larger V (ties left) wherever either end is on the grid. (A pair
+    ``pair_reads`` left out as beyond any hold's reach has both ends off the grid: 0.)"""
+    turn = np.zeros(len(rel))
+    inside = np.isfinite(value)
+    if np.any(inside):
+        turn[inside] = avoid_turn(vf, rel[inside])
+    held = np.flatnonzero(horizon > 0)
+    if len(held):
+        ends = bang_ends(rel[held], speed[held], bang[held], horizon[held])
+        left, right = vf.value(ends, outside=np.inf).reshape(2, len(held))
+        use = np.isfinite(left) | np.isfinite(right)
+        turn[held] = np.where(use, better_bang(left, right, tie_tolerance(vf)), turn[held])
+    return turn
+
+
+FEW_PAIRS = 3     # a robot decided alone reads V in Python floats up to this many pairs near the grid
+
+
+def robot_pair_values(vf: ValueFunction, x, y, th, centres, planned, horizon, speed, bang, few):
+    """``pair_values`` for one robot's pairs (its state x, y, th; ``centres`` a list of
+    (cx, cy); its command, hold, speed and bound), as lists; None if more than ``few``
+    pairs are near the grid (then numpy's evaluation is the cheaper).
+
+    V is read state by state in Python floats (``ValueFunction.value_at``): a robot's own
+    filter has one or two obstacles near, and numpy's cost per call (some 150 calls) is
+    most of its decision. The same operations in the same order, so the same values bit
+    for bit (test_filter_vectorised: each robot decided alone decides as in a fleet).
+    """
+    g = vf.grid
+    inf = math.inf
+    reach = 2.0 * speed * horizon + 1.0 if horizon > 0 else 0.0
+    rel = [(x - cx, y - cy) for cx, cy in centres]
+    near = [j for j, (rx, ry) in enumerate(rel) if g.lo[0] - reach <= rx <= g.hi[0] + reach
+            and g.lo[1] - reach <= ry <= g.hi[1] + reach]
+    if len(near) > few:
+        return None
+    n = len(rel)
+    value, turn, value_next = [inf] * n, [0.0] * n, [inf] * n
+    if not near:
+        return value, turn, value_next
+    tol = tie_tolerance(vf)
+    for j in near:
+        rx, ry = rel[j]
+        v0 = value[j] = vf.value_at(rx, ry, th, outside=inf)
+        if v0 != inf:       # on the grid: the law's turn
+            turn[j] = avoid_turn_at(vf, rx, ry, th)
+        if horizon > 0:     # (without a hold: V_next = +inf and the law's turn)
+            left = vf.value_at(*arc(rx, ry, th, speed, bang, horizon), outside=inf)
+            right = vf.value_at(*arc(rx, ry, th, speed, -bang, horizon), outside=inf)
+            ax, ay, ath = arc(rx, ry, th, speed, planned, horizon)
+            end_left = vf.value_at(*arc(ax, ay, ath, speed, bang, horizon), outside=inf)
+            end_right = vf.value_at(*arc(ax, ay, ath, speed, -bang, horizon), outside=inf)
+            v_ahead = vf.value_at(ax, ay, ath, outside=inf)
+            better = end_left if end_left > end_right else end_right       # np.maximum
+            value_next[j] = v_ahead if v_ahead < better else better          # np.minimum
+            if left != inf or right != inf:
+                turn[j] = 1.0 if left >= right - tol else -1.0
+    return value, turn, value_next

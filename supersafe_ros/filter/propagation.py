@@ -1,0 +1,93 @@
+"""Delay compensation: where a robot is now, given its pose and the commands it was sent.
+
+A pose describes the robot at its stamp, not at the decision: in a lockstep graph the
+filter may decide at step k on the pose of step k-1, and a real robot's pose is some
+milliseconds old. The filter knows what the robot did since: it sent the commands. So it
+propagates the pose over its age (decision time - stamp, at most ``hold_timeout``) along
+exact Dubins arcs under the commands it sent (``plan``, ``follow``), and judges the
+robot's state *now*. The same arcs give the lookahead's holds (``bang_ends``).
+
+Dubins arc of turn rate w held for dt from (x, y, th), speed v:
+
+    th1 = th + w dt
+    x1  = x + v (sin th1 - sin th) / w,    y1 = y + v (cos th - cos th1) / w    (w dt != 0)
+    x1  = x + v cos th dt,                 y1 = y + v sin th dt                  (straight)
+
+``arc_flow`` over arrays; ``arc`` and ``wrap`` the same operations on Python floats
+(the same bits: a robot's own filter decides without numpy's per-call cost).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..reach.grid import TWO_PI, wrap_angle
+
+
+def arc_flow(states, speed, omega, dt) -> np.ndarray:
+    """Exact Dubins arcs for arrays of states (N, 3), speeds, turn rates and durations (N,)."""
+    s = np.asarray(states, dtype=float)
+    x, y, th = s[:, 0], s[:, 1], s[:, 2]
+    th1 = th + omega * dt
+    turning = np.abs(omega * dt) > 1e-9
+    safe = np.where(turning, omega, 1.0)
+    c0, s0 = np.cos(th), np.sin(th)      # both branches use them: computed once
+    ax = np.where(turning, (np.sin(th1) - s0) / safe, c0 * dt)
+    ay = np.where(turning, (c0 - np.cos(th1)) / safe, s0 * dt)
+    return np.stack([x + speed * ax, y + speed * ay, wrap_angle(th1)], axis=1)
+
+
+def bang_ends(states, speed, bang, hold) -> np.ndarray:
+    """Where holding +bang, then -bang, for ``hold`` from ``states`` (k, 3) ends: (2k, 3), the
+    left turns' ends first."""
+    return arc_flow(np.concatenate([states, states]), np.tile(speed, 2), np.concatenate([bang, -bang]),
+                    np.tile(hold, 2))
+
+
+def follow(states, omegas, dts, speed) -> np.ndarray:
+    """``states`` (N, 3) moved along their robots' plans at ``speed`` (N,): arc k of robot i
+    holds ``omegas[k, i]`` for ``dts[k, i]`` (``gather``'s arcs; shorter plans padded with
+    zero-length arcs, which only wrap theta); with no arcs at all, theta wrapped all the same
+    (a robot's state does not depend on the other robots' plans)."""
+    if len(omegas) == 0:
+        states[:, 2] = wrap_angle(states[:, 2])
+        return states
+    for omega, dt in zip(omegas, dts):
+        states = arc_flow(states, speed, omega, dt)
+    return states
+
+
+def arc(x, y, th, speed, omega, dt):
+    """``arc_flow`` of one state, in Python floats (the same operations, the same bits)."""
+    th1 = th + omega * dt
+    if abs(omega * dt) > 1e-9:
+        ax = (math.sin(th1) - math.sin(th)) / omega
+        ay = (math.cos(th) - math.cos(th1)) / omega
+    else:
+        ax, ay = math.cos(th) * dt, math.sin(th) * dt
+    return x + speed * ax, y + speed * ay, wrap(th1)
+
+
+def wrap(theta):
+    """``wrap_angle`` of one angle, in Python floats (the same operations, the same bits)."""
+    return (theta + math.pi) % TWO_PI - math.pi
+
+
+def plan(f, t):
+    """(pose age, [(turn rate, duration)] held from the pose's stamp to ``t``) of one robot;
+    (0, ()) without delay compensation."""
+    if not f.config.compensate_delay:
+        return 0.0, ()
+    pose = f.pose
+    age = max(0.0, min(t - min(pose.t, pose.stamp), f.config.hold_timeout))
+    t0 = t - age
+    sent = f.sent
+    # segments_since's answer in the two common cases: nothing sent since the pose (one arc),
+    # or one command sent since (a robot deciding on a pose older than its last decision)
+    if sent and sent[-1][0] <= t0 and t > t0:
+        return age, ((sent[-1][1], t - t0),)
+    if len(sent) > 1 and sent[-2][0] <= t0 < sent[-1][0] < t:
+        ts = sent[-1][0]
+        return age, ((sent[-2][1], ts - t0), (sent[-1][1], t - ts))
+    return age, f.segments_since(t0, t)

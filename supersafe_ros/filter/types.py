@@ -1,0 +1,128 @@
+"""The filter's shared vocabulary: its configuration, the safe set in force, and what one
+decision says (the ``types`` header of nav2_collision_monitor, for this filter).
+
+* ``FilterConfig``: timeouts, hysteresis margin, lookahead, cluster settings of one robot;
+* ``SafeSet``: a value function V and the level alpha at or below which the filter acts;
+* ``FilterOutput``: the command of one decision and why (``record()`` for the state topic);
+* the actions ``PASS``, ``OVERRIDE``, ``FAIL_SAFE`` and their diagnostic levels.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+import math
+
+from ..reach.value_function import ValueFunction
+
+PASS = 'pass'
+OVERRIDE = 'override'
+FAIL_SAFE = 'fail_safe'
+
+# diagnostic_msgs/DiagnosticStatus levels, by action
+LEVEL_OK, LEVEL_WARN, LEVEL_ERROR = 0, 1, 2
+LEVEL_OF_ACTION = {PASS: LEVEL_OK, OVERRIDE: LEVEL_WARN, FAIL_SAFE: LEVEL_ERROR}
+
+
+@dataclass(frozen=True)
+class FilterConfig:
+    """Parameters of the filter (times in seconds, rates in rad/s)."""
+
+    speed: float = 3.0               # robot speed (informative in the Twist)
+    omega_max: float = 1.0           # the robot's turn-rate bound: |u*| = omega_max
+    pose_timeout: float = 0.5        # a pose older than this is stale
+    detections_timeout: float = 1.0  # detections older than this are stale
+    hold_timeout: float = 1.0        # last valid state still usable for fail-safe avoidance
+    cmd_timeout: float = 0.5         # planner silent longer than this: zero twist
+    clear_margin: float = 0.2        # hysteresis: release override when V > alpha + margin
+    lookahead: float = 0.1           # override if the planner's command would reach alpha this soon
+    control_period: float = 0.0      # the robot's command hold time; 0 = measure it from arrivals
+    # propagate each pose over its age under the commands sent, and keep the lookahead >= the
+    # control period (False: judge the pose as if current and use ``lookahead`` as given, the
+    # behaviour before issue 9; for ablation benchmarks only)
+    compensate_delay: bool = True
+    # obstacles closer than cluster_link (0 = 2 radius + a turning diameter) are judged by
+    # their union's value (filter.cluster), at level cluster_alpha, with the true dynamics
+    clusters: bool = True
+    radius: float = 1.8              # obstacle radius (cluster values)
+    cluster_link: float = 0.0
+    cluster_alpha: float = 0.0       # the union's level (the standard set's alpha)
+
+    def __post_init__(self):
+        for name in ('speed', 'omega_max', 'pose_timeout', 'detections_timeout', 'hold_timeout',
+                     'cmd_timeout', 'clear_margin', 'lookahead', 'control_period', 'radius',
+                     'cluster_link'):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0.0):
+                raise ValueError(f'{name} must be finite and >= 0, got {v}')
+            object.__setattr__(self, name, float(v))   # floats in every command (speed=3 goes out as 3.0)
+        if not math.isfinite(self.cluster_alpha):
+            raise ValueError(f'cluster_alpha must be finite, got {self.cluster_alpha}')
+        object.__setattr__(self, 'cluster_alpha', float(self.cluster_alpha))
+
+    @property
+    def sent_kept(self) -> float:
+        """How long the commands sent are remembered: a pose is propagated over at most
+        hold_timeout and judged stale after pose_timeout, plus a second."""
+        return max(self.hold_timeout, self.pose_timeout) + 1.0
+
+
+@dataclass(frozen=True)
+class SafeSet:
+    """A value function and the level alpha below which the filter overrides.
+
+    ``source`` is 'standard' (true dynamics, computed locally) or 'learned'
+    (received from the learner).
+    """
+
+    vf: ValueFunction
+    alpha: float
+    source: str = 'standard'
+
+    def __post_init__(self):
+        if not math.isfinite(self.alpha):
+            raise ValueError(f'alpha must be finite, got {self.alpha}')
+
+    @property
+    def omega_max(self):
+        return self.vf.meta.get('omega_max')
+
+
+@dataclass
+class FilterOutput:
+    """What one step decided."""
+
+    omega: float                 # turn rate to command (angular.z)
+    linear: float                # linear.x to command (speed, or 0 for stop-turn)
+    action: str                  # pass | override | fail_safe
+    reason: str
+    obstacle_index: int = -1     # index in the last detections, -1 if none
+    obstacle_xy: tuple = (math.nan, math.nan)
+    value: float = math.inf      # smallest V over the detections (+inf: none near)
+    alpha: float = math.nan
+    source: str = ''
+    omega_max_set: float = math.nan  # omega_max of the safe set's model
+    pose_age: float = 0.0        # seconds the pose was propagated over before judging
+    lookahead: float = 0.0       # hold time the planner's command was judged over [s]
+    clusters_solving: int = 0    # clusters near the robot whose union value is still being solved
+
+    @property
+    def level(self) -> int:
+        return LEVEL_OF_ACTION[self.action]
+
+    def record(self) -> dict:
+        """Flat key/value record (for the diagnostic state message)."""
+        return {
+            'action': self.action,
+            'reason': self.reason,
+            'cmd_angular_z': f'{self.omega:.6g}',
+            'cmd_linear_x': f'{self.linear:.6g}',
+            'obstacle_index': str(self.obstacle_index),
+            'obstacle_x': f'{self.obstacle_xy[0]:.6g}',
+            'obstacle_y': f'{self.obstacle_xy[1]:.6g}',
+            'value': f'{self.value:.6g}',
+            'alpha': f'{self.alpha:.6g}',
+            'omega_max': f'{self.omega_max_set:.6g}',
+            'source': self.source,
+            'pose_age': f'{self.pose_age:.6g}',
+            'lookahead': f'{self.lookahead:.6g}',
+            'clusters_solving': str(self.clusters_solving),
+        }
