@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Mutation testing (mutmut, from PyPI) of the modules whose decisions matter most.
-#   bash bench/mutation.sh [world|law|core|all] [MUTANT-NAME-GLOB...]
-# (globs restrict the run to some functions, e.g. 'supersafe_ros.filter.core.x_step_many__mutmut_*';
+#   bash bench/mutation.sh [world|filter|all] [MUTANT-NAME-GLOB...]
+# (globs restrict the run to some functions, e.g. 'supersafe_ros.filter.law.x_govern__mutmut_*';
 # the rest are counted as not checked)
 # Works on a copy of the committed tree in a scratch folder with its own venv
 # (mutmut rewrites the sources it mutates); prints the score and lists every
@@ -19,7 +19,7 @@ if [ ! -x "$venv/bin/mutmut" ]; then
   "$venv/bin/pip" install -q --disable-pip-version-check mutmut==3.8.1 numpy scipy matplotlib pyyaml pytest \
     2>&1 | grep -v "is ignored" || true
 fi
-run_one() {  # name, source path, test files...
+run_one() {  # name, source paths (comma-separated), test files...
   local name="$1" src="$2"; shift 2
   local dir="$work/$name"
   rm -rf "$dir" && mkdir -p "$dir"
@@ -27,7 +27,8 @@ run_one() {  # name, source path, test files...
   ln -sfn "$root/../shared" "$work/shared" 2>/dev/null || true
   {
     echo '[mutmut]'
-    echo "source_paths = $src"
+    echo "source_paths ="
+    for p in ${src//,/ }; do echo "    $p"; done
     echo "pytest_add_cli_args_test_selection ="
     for t in "$@"; do echo "    $t"; done
     echo 'also_copy = supersafe_ros'
@@ -52,8 +53,8 @@ run_one() {  # name, source path, test files...
 case "$target" in
   world|all) run_one world supersafe_ros/sim/world.py test/test_sim_core.py test/test_sim_world_rules.py \
              test/test_study_efficiency.py ;;&
-  law|all) run_one law supersafe_ros/filter/law.py test/test_filter_core.py test/test_reach_io.py ;;&
-  core|all) run_one core supersafe_ros/filter/core.py test/test_filter_core.py test/test_filter_core_mutants.py \
-             test/test_reach_radial.py \
-             test/test_filter_vectorised.py ;;
+  # the filter's decision: every module of filter/ that decides (filter/core.py before the split)
+  filter|all) run_one filter supersafe_ros/filter/law.py,supersafe_ros/filter/decide.py,supersafe_ros/filter/gather.py,supersafe_ros/filter/pairs.py,supersafe_ros/filter/cluster_rows.py,supersafe_ros/filter/outputs.py,supersafe_ros/filter/inputs.py,supersafe_ros/filter/propagation.py \
+             test/test_filter_core.py test/test_filter_core_mutants.py test/test_filter_law.py \
+             test/test_reach_radial.py test/test_filter_vectorised.py ;;
 esac

@@ -1,36 +1,39 @@
-"""Check that every surviving mutant of a filter/core.py mutation run has a disposition in
-docs/filter_learner.md, and that the docs list no mutant the run killed.
+"""Check that every surviving mutant of a filter mutation run has a disposition in
+bench/results/mutation.md, and that the results list no mutant the run killed.
 
-    bash bench/mutation.sh core > /tmp/core.txt; python3 bench/mutation_check.py /tmp/core.txt
+    bash bench/mutation.sh filter > /tmp/filter.txt; python3 bench/mutation_check.py /tmp/filter.txt
 
-The docs name survivors either one by one (`` `fn #k` ``) or grouped by function
-(`` `fn` #a, #b ``), in the section after "Run after the batched-speed changes".
-Exit status 1 if the two disagree.
+The results name survivors either one by one (`` `module.fn #k` ``) or grouped by function
+(`` `module.fn` #a, #b ``), in the section that starts with SECTION, up to "Noticed, left
+alone:". Exit status 1 if the two disagree.
 """
 import re
 import sys
 from pathlib import Path
 
-DOCS = Path(__file__).resolve().parent.parent / 'docs' / 'filter_learner.md'
-SECTION = '**Run after the batched-speed changes**'
+DOCS = Path(__file__).resolve().parent / 'results' / 'mutation.md'
+SECTION = '**Run of the split filter**'
 
 
 def survivors(run_output: str) -> set:
-    """Short names (``RobotFilter.step #3``, ``_govern #31``) of the survived / not covered mutants."""
+    """Short names (``inputs.RobotFilter.step #3``, ``law.govern #31``) of the survived / not
+    covered mutants."""
     names = set()
     for line in run_output.splitlines():
-        if not line.startswith('--- supersafe_ros.filter.core.'):
+        if not line.startswith('--- supersafe_ros.filter.'):
             continue
-        mangled = line.split('supersafe_ros.filter.core.', 1)[1].strip()
+        module, mangled = line.split('supersafe_ros.filter.', 1)[1].strip().split('.', 1)
         m = re.match(r'xǁ(\w+)ǁ(\w+?)__mutmut_(\d+)$', mangled) or re.match(r'x_(\w+?)__mutmut_(\d+)$', mangled)
         if m is None:
             raise SystemExit(f'cannot read mutant name {mangled!r}')
         *fn, k = m.groups()
-        names.add(f'{".".join(fn)} #{k}')
+        names.add(f'{module}.{".".join(fn)} #{k}')
     return names
 
 
 def documented(docs: str) -> set:
+    if SECTION not in docs:
+        raise SystemExit(f'{DOCS} has no section {SECTION!r} yet: record a run of the split filter there')
     text = docs[docs.index(SECTION):]
     text = text[:text.index('Noticed, left alone:')]
     names = set(re.findall(r'`([\w.]+ #\d+)`', text))
