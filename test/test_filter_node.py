@@ -348,16 +348,16 @@ def test_use_learned_turned_off_while_a_set_is_checked_keeps_the_standard_set(se
     """The value-function worker puts a set in force under the node's lock, and only if the
     levels and use_learned are still those it was checked with."""
     import threading
-    import supersafe_ros.nodes.filter_wiring as wiring
+    import supersafe_ros.filter.set_selector as set_selector
     node, driver, spin = setup
     entered, release = threading.Event(), threading.Event()
-    check = wiring.check_learned_set
+    check = set_selector.check_learned_set
 
     def slow_check(*args, **kwargs):
         entered.set()
         release.wait(20.0)
         return check(*args, **kwargs)
-    monkeypatch.setattr(wiring, 'check_learned_set', slow_check)
+    monkeypatch.setattr(set_selector, 'check_learned_set', slow_check)
     assert node.safe_set.source == 'standard'
     more_conservative = value_function_to_msg(shifted(node.standard.vf, -0.3), source='learned', mu=0.0, sigma=0.0)
     before = counts(driver, spin)
@@ -367,7 +367,7 @@ def test_use_learned_turned_off_while_a_set_is_checked_keeps_the_standard_set(se
         assert set_parameters(node, spin, use_learned=False).successful
     finally:
         release.set()
-    spin.until(lambda: not node.wiring.vf_busy and node.wiring._pending is None, 20.0, 'the worker to finish')
+    spin.until(node.wiring.selector.idle, 20.0, 'the worker to finish')
     assert node.safe_set.source == 'standard'
     # turned on again: checked anew and in force
     entered.clear()

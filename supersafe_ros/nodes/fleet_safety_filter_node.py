@@ -54,7 +54,8 @@ from std_msgs.msg import Float64MultiArray
 from ..filter.core import FAIL_SAFE, step_many, update_commands, update_detections_all, update_poses
 from ..ros_io import cdr, fleetmsg, rosmsg
 from .common import declare, run_node
-from .filter_wiring import FilterWiring, FleetThrottle
+from .filter_state import FleetThrottle
+from .filter_wiring import FilterWiring
 
 
 def robot_namespace(name: str) -> str:

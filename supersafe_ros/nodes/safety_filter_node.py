@@ -59,7 +59,8 @@ from ..filter.lockstep import GIVE_UP, LockstepAnswers
 from ..ros_io import cdr, rosmsg
 from ..ros_io.direct_take import DirectTake
 from .common import declare, run_node
-from .filter_wiring import VALUE_FUNCTION_TOPIC, FilterWiring, StateThrottle, learned_alpha  # noqa: F401
+from .filter_state import StateThrottle
+from .filter_wiring import VALUE_FUNCTION_TOPIC, FilterWiring, learned_alpha  # noqa: F401  (re-exported)
 from .markers import LevelSetMarkerPublisher
 
 
