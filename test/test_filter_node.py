@@ -378,3 +378,20 @@ def test_use_learned_turned_off_while_a_set_is_checked_keeps_the_standard_set(se
     driver.vf.publish(value_function_to_msg(node.standard.vf, source='standard', alpha=0.0))
     wait_set_update(driver, spin, before, 'accepted')
     assert node.safe_set.source == 'standard'
+
+
+def test_every_parameter_is_declared_from_its_table_live_or_read_only(setup):
+    """Descriptors as the tables say (description, range, read-only unless live), and every
+    live parameter has something that puts it into force."""
+    from supersafe_ros.nodes.filter_parameters import FILTER_PARAMETERS
+    from supersafe_ros.nodes.safety_filter_node import PARAMETERS
+    node, driver, spin = setup
+    specs = FILTER_PARAMETERS + PARAMETERS
+    for spec, desc in zip(specs, node.describe_parameters([p.name for p in specs])):
+        assert desc.description == spec.description and desc.read_only is not spec.live, spec.name
+        ranges = list(desc.floating_point_range) + list(desc.integer_range)
+        if spec.lo is not None and not isinstance(spec.default, bool):
+            assert (ranges[0].from_value, ranges[0].to_value) == (spec.lo, spec.hi), spec.name
+        else:
+            assert not ranges, spec.name
+    assert node.wiring.live.names == {p.name for p in specs if p.live} | {'use_sim_time'}

@@ -58,10 +58,30 @@ from ..filter.core import FAIL_SAFE
 from ..filter.lockstep import GIVE_UP, LockstepAnswers
 from ..ros_io import cdr, rosmsg
 from ..ros_io.direct_take import DirectTake
-from .common import declare, run_node
+from .common import ParameterSpec, declare_all, run_node
 from .filter_state import StateThrottle
 from .filter_wiring import VALUE_FUNCTION_TOPIC, FilterWiring, learned_alpha  # noqa: F401  (re-exported)
 from .markers import LevelSetMarkerPublisher
+
+# this node's own parameters (the filter's are in filter_parameters), in the order declared
+PARAMETERS = (
+    ParameterSpec('publish_on_pose', False, 'also decide and publish on every pose (not in a lockstep graph)',
+                  live=True),
+    ParameterSpec('lockstep', False, 'the robot is lockstepped (sim_clock_node): answer each pose once, on '
+                  'that pose; planner commands and the watchdog do not publish'),
+    ParameterSpec('lockstep_silence', 2.0, 'lockstep: the watchdog publishes only after this long without '
+                  'a pose [steady s]', 0.01, 3600.0),
+    ParameterSpec('cluster_hold_timeout', 0.0, 'lockstep: hold the answer to a pose while a cluster\'s union '
+                  'value is being solved, at most this long [steady s]; 0 = never hold (the fallback acts)',
+                  0.0, 600.0),
+    ParameterSpec('direct_take', True, 'pose, detections and cmd_vel_nav are taken by a thread of their own '
+                  'that waits on them alone (helper node <name>_io), off the executor\'s wake-up over every '
+                  'entity: about 0.3 ms less from pose to cmd_vel; false = the executor takes them. Not with '
+                  'lockstep (there a pose must be read after the /clock before it)'),
+    ParameterSpec('level_set_rate', 2.0, 'rate of safety_filter/level_set markers [Hz, steady clock]', 0.1, 50.0),
+    ParameterSpec('level_set_markers', True, 'publish the level set in force at the robot\'s heading around '
+                  'each detected obstacle on safety_filter/level_set (LINE_STRIPs, for RViz)'),
+)
 
 
 class SafetyFilterNode(Node):
@@ -72,21 +92,11 @@ class SafetyFilterNode(Node):
         self.lock = threading.RLock()
         self.wiring = w = FilterWiring(self, [self.get_namespace()], on_rate=self._set_rate, lock=self.lock)
         self.filter = w.filters[0]
-        self.publish_on_pose = declare(self, 'publish_on_pose', False,
-                                       'also decide and publish on every pose (not in a lockstep graph)')
+        p = declare_all(self, PARAMETERS)
+        self.publish_on_pose = p['publish_on_pose']
         w.live.add('publish_on_pose', lambda v: setattr(self, 'publish_on_pose', bool(v)))
-        self.lockstep = declare(self, 'lockstep', False,
-                                'the robot is lockstepped (sim_clock_node): answer each pose once, on '
-                                'that pose; planner commands and the watchdog do not publish',
-                                read_only=True)
-        lockstep_silence = declare(self, 'lockstep_silence', 2.0,
-                                   'lockstep: the watchdog publishes only after this long without '
-                                   'a pose [steady s]', 0.01, 3600.0, read_only=True)
-        cluster_hold_timeout = declare(self, 'cluster_hold_timeout', 0.0,
-                                       'lockstep: hold the answer to a pose while a cluster\'s union '
-                                       'value is being solved, at most this long [steady s]; 0 = '
-                                       'never hold (the fallback acts)', 0.0, 600.0, read_only=True)
-        self.answers = LockstepAnswers(cluster_hold_timeout, lockstep_silence, time.monotonic())
+        self.lockstep = p['lockstep']
+        self.answers = LockstepAnswers(p['cluster_hold_timeout'], p['lockstep_silence'], time.monotonic())
         self._last_out = None              # the last decision published
         self.name = self.get_fully_qualified_name()
         self._last_publish = -1e18     # steady seconds
@@ -96,31 +106,21 @@ class SafetyFilterNode(Node):
 
         self.cmd_pub = self.create_publisher(Twist, 'cmd_vel', rosmsg.QOS_STREAM)
         self.state_pub = self.create_publisher(DiagnosticStatus, 'safety_filter/state', rosmsg.QOS_STREAM)
-        self.direct = None
-        direct = declare(self, 'direct_take', True, 'pose, detections and cmd_vel_nav are taken by a thread of '
-                         'their own that waits on them alone (helper node <name>_io), off the executor\'s '
-                         'wake-up over every entity: about 0.3 ms less from pose to cmd_vel; false = the '
-                         'executor takes them. Not with lockstep (there a pose must be read after the /clock '
-                         'before it)', read_only=True)
         self.timer = None
         self._set_rate(w.rate)
         # RViz: the level set in force around each detected obstacle (computed only while watched)
-        level_set_rate = declare(self, 'level_set_rate', 2.0,
-                                 'rate of safety_filter/level_set markers [Hz, steady clock]', 0.1, 50.0,
-                                 read_only=True)
-        if declare(self, 'level_set_markers', True, 'publish the level set in force at the robot\'s '
-                   'heading around each detected obstacle on safety_filter/level_set (LINE_STRIPs, '
-                   'for RViz)', read_only=True):
+        if p['level_set_markers']:
             self.level_set = LevelSetMarkerPublisher(
                 self, lambda: (w.safe_set, self.filter.pose.value, self.filter.detections.value),
-                level_set_rate)
+                p['level_set_rate'])
+        self.direct = None
         # (type, topic, callback, raw): pose and command raw, read straight from their CDR bytes
         # (ros_io.cdr), no message objects built on the path from pose to cmd_vel. Ready together,
         # they are taken in this order (the executor's: the order made), so a command is judged on
         # the detections that came with it.
         inputs = ((PoseStamped, 'pose', self.on_pose, True), (PoseArray, 'detections', self.on_detections, False),
                   (Twist, 'cmd_vel_nav', self.on_command, True))
-        if direct and not self.lockstep:
+        if p['direct_take'] and not self.lockstep:
             self.direct = DirectTake(self, self.lock)
             try:
                 for msg_type, topic, callback, raw in inputs:
