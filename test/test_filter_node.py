@@ -348,16 +348,16 @@ def test_use_learned_turned_off_while_a_set_is_checked_keeps_the_standard_set(se
     """The value-function worker puts a set in force under the node's lock, and only if the
     levels and use_learned are still those it was checked with."""
     import threading
-    import supersafe_ros.nodes.filter_wiring as wiring
+    import supersafe_ros.filter.set_selector as set_selector
     node, driver, spin = setup
     entered, release = threading.Event(), threading.Event()
-    check = wiring.check_learned_set
+    check = set_selector.check_learned_set
 
     def slow_check(*args, **kwargs):
         entered.set()
         release.wait(20.0)
         return check(*args, **kwargs)
-    monkeypatch.setattr(wiring, 'check_learned_set', slow_check)
+    monkeypatch.setattr(set_selector, 'check_learned_set', slow_check)
     assert node.safe_set.source == 'standard'
     more_conservative = value_function_to_msg(shifted(node.standard.vf, -0.3), source='learned', mu=0.0, sigma=0.0)
     before = counts(driver, spin)
@@ -367,7 +367,7 @@ def test_use_learned_turned_off_while_a_set_is_checked_keeps_the_standard_set(se
         assert set_parameters(node, spin, use_learned=False).successful
     finally:
         release.set()
-    spin.until(lambda: not node.wiring.vf_busy and node.wiring._pending is None, 20.0, 'the worker to finish')
+    spin.until(node.wiring.selector.idle, 20.0, 'the worker to finish')
     assert node.safe_set.source == 'standard'
     # turned on again: checked anew and in force
     entered.clear()
@@ -378,3 +378,20 @@ def test_use_learned_turned_off_while_a_set_is_checked_keeps_the_standard_set(se
     driver.vf.publish(value_function_to_msg(node.standard.vf, source='standard', alpha=0.0))
     wait_set_update(driver, spin, before, 'accepted')
     assert node.safe_set.source == 'standard'
+
+
+def test_every_parameter_is_declared_from_its_table_live_or_read_only(setup):
+    """Descriptors as the tables say (description, range, read-only unless live), and every
+    live parameter has something that puts it into force."""
+    from supersafe_ros.nodes.filter_parameters import FILTER_PARAMETERS
+    from supersafe_ros.nodes.safety_filter_node import PARAMETERS
+    node, driver, spin = setup
+    specs = FILTER_PARAMETERS + PARAMETERS
+    for spec, desc in zip(specs, node.describe_parameters([p.name for p in specs])):
+        assert desc.description == spec.description and desc.read_only is not spec.live, spec.name
+        ranges = list(desc.floating_point_range) + list(desc.integer_range)
+        if spec.lo is not None and not isinstance(spec.default, bool):
+            assert (ranges[0].from_value, ranges[0].to_value) == (spec.lo, spec.hi), spec.name
+        else:
+            assert not ranges, spec.name
+    assert node.wiring.live.names == {p.name for p in specs if p.live} | {'use_sim_time'}

@@ -272,7 +272,7 @@ def test_fleet_throttle_publishes_as_a_throttle_per_robot():
     """FleetThrottle (the fleet node's arrays) says the same robots are due, tick by tick, as one
     StateThrottle per robot: on its phase, on a change of action or of the set, and after pauses
     (the phase restarts)."""
-    from supersafe_ros.nodes.filter_wiring import FleetThrottle, StateThrottle
+    from supersafe_ros.nodes.filter_state import FleetThrottle, StateThrottle
     rng = np.random.default_rng(3)
     n, period, start = 37, 0.5, 100.0
     fleet = FleetThrottle(n, start, period)

@@ -13,8 +13,10 @@ Where the decision is made: ``RobotFilter.step`` (one robot) or ``step_many`` (a
 * ``outputs``: the commands, the filters' new state, and each robot's explanation;
 * ``decide``: the steps above, in order;
 * beside them: ``cluster`` (union values solved in the background), ``admissibility``
-  (a learned set must contain the standard unsafe set), ``timebase`` (input ages),
-  ``contours`` (RViz level sets), ``trials`` (closed-loop collision trials).
+  (a learned set must contain the standard unsafe set), ``set_selector`` (which learned
+  set is in force, checked off the control path), ``lockstep`` (when a lockstepped filter
+  answers a pose), ``timebase`` (input ages), ``contours`` (RViz level sets), ``trials``
+  (closed-loop collision trials).
 """
 from .cluster_rows import default_cluster_store
 from .decide import step_many

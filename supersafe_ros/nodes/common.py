@@ -4,10 +4,15 @@
 the node, spins it, and stops quietly on Ctrl-C or SIGTERM (``StopSignals``: the
 spin ends before the context is shut down). It returns a process exit code: 0 on
 a clean stop, 1 if the node failed to start.
+
+Parameters: ``declare`` (one, with its descriptor), ``ParameterSpec`` and
+``declare_all`` (a node's table of them), ``LiveParameters`` (those that change at
+run time).
 """
 from __future__ import annotations
 
 from contextlib import nullcontext
+from dataclasses import dataclass
 import gc
 import os
 import signal
@@ -168,6 +173,28 @@ def declare(node, name, default, description, lo=None, hi=None, step=0, read_onl
             desc.floating_point_range = [FloatingPointRange(from_value=float(lo), to_value=float(hi),
                                                             step=float(step))]
     return node.declare_parameter(name, default, desc).value
+
+
+@dataclass(frozen=True)
+class ParameterSpec:
+    """One parameter of a node: its default, description and range in one row of a table.
+
+    ``live``: it takes effect when set at run time (the node registers it with
+    ``LiveParameters``); otherwise it is declared ``read_only``.
+    """
+
+    name: str
+    default: object
+    description: str
+    lo: float | None = None
+    hi: float | None = None
+    live: bool = False
+
+
+def declare_all(node, specs) -> dict:
+    """Declare every ``ParameterSpec`` of ``specs`` (``declare``), in order; name -> value."""
+    return {s.name: declare(node, s.name, s.default, s.description, s.lo, s.hi, read_only=not s.live)
+            for s in specs}
 
 
 class StepAcknowledger:

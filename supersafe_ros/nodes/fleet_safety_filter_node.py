@@ -53,8 +53,18 @@ from std_msgs.msg import Float64MultiArray
 
 from ..filter import FAIL_SAFE, step_many, update_commands, update_detections_all, update_poses
 from ..ros_io import cdr, fleetmsg, rosmsg
-from .common import declare, run_node
-from .filter_wiring import FilterWiring, FleetThrottle
+from .common import ParameterSpec, declare_all, run_node
+from .filter_state import FleetThrottle
+from .filter_wiring import FilterWiring
+
+# this node's own parameters (the filter's are in filter_parameters), in the order declared
+PARAMETERS = (
+    ParameterSpec('robots', ['robot_0'], 'namespaces of the robots (order = rows of the batched topics)'),
+    ParameterSpec('per_robot_topics', True, 'serve <ns>/pose, <ns>/detections, <ns>/cmd_vel_nav -> '
+                  '<ns>/cmd_vel, <ns>/safety_filter/state'),
+    ParameterSpec('batched_topics', True, 'serve fleet/poses, fleet/detections, fleet/cmd_vel_nav -> '
+                  'fleet/cmd_vel, fleet/safety_filter/state'),
+)
 
 
 def robot_namespace(name: str) -> str:
@@ -109,13 +119,9 @@ def take_newest_counted(sub):
 class FleetSafetyFilterNode(Node):
     def __init__(self, node_name='fleet_safety_filter', **kwargs):
         super().__init__(node_name, **kwargs)
-        robots = declare(self, 'robots', ['robot_0'], 'namespaces of the robots (order = rows of the '
-                         'batched topics)', read_only=True)
-        self.per_robot = declare(self, 'per_robot_topics', True, 'serve <ns>/pose, <ns>/detections, '
-                                 '<ns>/cmd_vel_nav -> <ns>/cmd_vel, <ns>/safety_filter/state', read_only=True)
-        self.batched = declare(self, 'batched_topics', True, 'serve fleet/poses, fleet/detections, '
-                               'fleet/cmd_vel_nav -> fleet/cmd_vel, fleet/safety_filter/state', read_only=True)
-        self.namespaces = [robot_namespace(r) for r in robots]
+        p = declare_all(self, PARAMETERS)
+        self.per_robot, self.batched = p['per_robot_topics'], p['batched_topics']
+        self.namespaces = [robot_namespace(r) for r in p['robots']]
         if len(set(self.namespaces)) != len(self.namespaces):
             raise ValueError(f'robots lists a namespace twice: {self.namespaces}')
         self.wiring = w = FilterWiring(self, self.namespaces, on_rate=self._set_rate)

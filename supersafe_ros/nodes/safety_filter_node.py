@@ -40,6 +40,7 @@ Ages of inputs: on the filter's time base (``filter.timebase``): sim time while
 stands still longer than ``clock_stall_timeout``. A stale input is detected whatever
 ``use_sim_time`` says.
 
+When a lockstepped pose is answered (skipped, held, given up): ``filter.lockstep``.
 Safe set, parameters at run time, value-function decoding and the admissibility
 check of learned sets (on a worker thread, off the control path): ``filter_wiring``.
 """
@@ -54,11 +55,33 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseArray, PoseStamped, Twist
 
 from ..filter import FAIL_SAFE
+from ..filter.lockstep import GIVE_UP, LockstepAnswers
 from ..ros_io import cdr, rosmsg
 from ..ros_io.direct_take import DirectTake
-from .common import declare, run_node
-from .filter_wiring import VALUE_FUNCTION_TOPIC, FilterWiring, StateThrottle, learned_alpha  # noqa: F401
+from .common import ParameterSpec, declare_all, run_node
+from .filter_state import StateThrottle
+from .filter_wiring import VALUE_FUNCTION_TOPIC, FilterWiring, learned_alpha  # noqa: F401  (re-exported)
 from .markers import LevelSetMarkerPublisher
+
+# this node's own parameters (the filter's are in filter_parameters), in the order declared
+PARAMETERS = (
+    ParameterSpec('publish_on_pose', False, 'also decide and publish on every pose (not in a lockstep graph)',
+                  live=True),
+    ParameterSpec('lockstep', False, 'the robot is lockstepped (sim_clock_node): answer each pose once, on '
+                  'that pose; planner commands and the watchdog do not publish'),
+    ParameterSpec('lockstep_silence', 2.0, 'lockstep: the watchdog publishes only after this long without '
+                  'a pose [steady s]', 0.01, 3600.0),
+    ParameterSpec('cluster_hold_timeout', 0.0, 'lockstep: hold the answer to a pose while a cluster\'s union '
+                  'value is being solved, at most this long [steady s]; 0 = never hold (the fallback acts)',
+                  0.0, 600.0),
+    ParameterSpec('direct_take', True, 'pose, detections and cmd_vel_nav are taken by a thread of their own '
+                  'that waits on them alone (helper node <name>_io), off the executor\'s wake-up over every '
+                  'entity: about 0.3 ms less from pose to cmd_vel; false = the executor takes them. Not with '
+                  'lockstep (there a pose must be read after the /clock before it)'),
+    ParameterSpec('level_set_rate', 2.0, 'rate of safety_filter/level_set markers [Hz, steady clock]', 0.1, 50.0),
+    ParameterSpec('level_set_markers', True, 'publish the level set in force at the robot\'s heading around '
+                  'each detected obstacle on safety_filter/level_set (LINE_STRIPs, for RViz)'),
+)
 
 
 class SafetyFilterNode(Node):
@@ -69,25 +92,11 @@ class SafetyFilterNode(Node):
         self.lock = threading.RLock()
         self.wiring = w = FilterWiring(self, [self.get_namespace()], on_rate=self._set_rate, lock=self.lock)
         self.filter = w.filters[0]
-        self.publish_on_pose = declare(self, 'publish_on_pose', False,
-                                       'also decide and publish on every pose (not in a lockstep graph)')
+        p = declare_all(self, PARAMETERS)
+        self.publish_on_pose = p['publish_on_pose']
         w.live.add('publish_on_pose', lambda v: setattr(self, 'publish_on_pose', bool(v)))
-        self.lockstep = declare(self, 'lockstep', False,
-                                'the robot is lockstepped (sim_clock_node): answer each pose once, on '
-                                'that pose; planner commands and the watchdog do not publish',
-                                read_only=True)
-        self.lockstep_silence = declare(self, 'lockstep_silence', 2.0,
-                                        'lockstep: the watchdog publishes only after this long without '
-                                        'a pose [steady s]', 0.01, 3600.0, read_only=True)
-        self.cluster_hold_timeout = declare(self, 'cluster_hold_timeout', 0.0,
-                                            'lockstep: hold the answer to a pose while a cluster\'s union '
-                                            'value is being solved, at most this long [steady s]; 0 = '
-                                            'never hold (the fallback acts)', 0.0, 600.0, read_only=True)
-        self._last_pose_arrival = time.monotonic()   # steady seconds
-        self._held = None                  # (filter time, steady time held since) of a held answer
-        self.holds = 0                     # answers held for a cluster solve (statistics)
-        self.poses_skipped = 0             # lockstep: poses the clock had passed (not answered)
-        self._hold_spent = False           # a hold timed out: no more until nothing is solving
+        self.lockstep = p['lockstep']
+        self.answers = LockstepAnswers(p['cluster_hold_timeout'], p['lockstep_silence'], time.monotonic())
         self._last_out = None              # the last decision published
         self.name = self.get_fully_qualified_name()
         self._last_publish = -1e18     # steady seconds
@@ -97,31 +106,21 @@ class SafetyFilterNode(Node):
 
         self.cmd_pub = self.create_publisher(Twist, 'cmd_vel', rosmsg.QOS_STREAM)
         self.state_pub = self.create_publisher(DiagnosticStatus, 'safety_filter/state', rosmsg.QOS_STREAM)
-        self.direct = None
-        direct = declare(self, 'direct_take', True, 'pose, detections and cmd_vel_nav are taken by a thread of '
-                         'their own that waits on them alone (helper node <name>_io), off the executor\'s '
-                         'wake-up over every entity: about 0.3 ms less from pose to cmd_vel; false = the '
-                         'executor takes them. Not with lockstep (there a pose must be read after the /clock '
-                         'before it)', read_only=True)
         self.timer = None
         self._set_rate(w.rate)
         # RViz: the level set in force around each detected obstacle (computed only while watched)
-        level_set_rate = declare(self, 'level_set_rate', 2.0,
-                                 'rate of safety_filter/level_set markers [Hz, steady clock]', 0.1, 50.0,
-                                 read_only=True)
-        if declare(self, 'level_set_markers', True, 'publish the level set in force at the robot\'s '
-                   'heading around each detected obstacle on safety_filter/level_set (LINE_STRIPs, '
-                   'for RViz)', read_only=True):
+        if p['level_set_markers']:
             self.level_set = LevelSetMarkerPublisher(
                 self, lambda: (w.safe_set, self.filter.pose.value, self.filter.detections.value),
-                level_set_rate)
+                p['level_set_rate'])
+        self.direct = None
         # (type, topic, callback, raw): pose and command raw, read straight from their CDR bytes
         # (ros_io.cdr), no message objects built on the path from pose to cmd_vel. Ready together,
         # they are taken in this order (the executor's: the order made), so a command is judged on
         # the detections that came with it.
         inputs = ((PoseStamped, 'pose', self.on_pose, True), (PoseArray, 'detections', self.on_detections, False),
                   (Twist, 'cmd_vel_nav', self.on_command, True))
-        if direct and not self.lockstep:
+        if p['direct_take'] and not self.lockstep:
             self.direct = DirectTake(self, self.lock)
             try:
                 for msg_type, topic, callback, raw in inputs:
@@ -144,7 +143,7 @@ class SafetyFilterNode(Node):
                 return callback(*args)
         return locked
 
-    # compatibility: the set in force and the standard set (tests, tools)
+    # compatibility: the set in force and the standard set (tests, tools); lockstep statistics
     @property
     def safe_set(self):
         return self.wiring.safe_set
@@ -152,6 +151,16 @@ class SafetyFilterNode(Node):
     @property
     def standard(self):
         return self.wiring.standard
+
+    @property
+    def holds(self) -> int:
+        """Answers held for a cluster solve."""
+        return self.answers.holds
+
+    @property
+    def poses_skipped(self) -> int:
+        """Lockstep: poses the clock had passed (not answered)."""
+        return self.answers.poses_skipped
 
     def _set_rate(self, rate):
         self.period = 1.0 / rate
@@ -172,32 +181,22 @@ class SafetyFilterNode(Node):
             self.filter.reject_pose(str(exc), t)
             w.complain('pose', f'pose rejected: {exc}; failing safe', level='error')
         if self.lockstep:
-            self._last_pose_arrival = time.monotonic()
-            self._held = None
+            self.answers.new_pose(time.monotonic())
             if msg is not None and self._clock_passed(msg.header.stamp):
                 return
-            self.decide(t, hold=self.cluster_hold_timeout > 0.0)
+            self.decide(t, answers_pose=True)
         elif self.publish_on_pose:
             self.decide(t)
 
     def _clock_passed(self, stamp) -> bool:
-        """Lockstep with sim time: True (and counted) if /clock is already past this pose.
-
-        The clock cannot pass a step before the robot acknowledges it, and the robot
-        acknowledges on the first command after its pose. A pose the clock has passed was
-        acknowledged without this filter's answer (a parked or timed-out robot acknowledges
-        by itself; so does a reply to an older pose), and the robot is already at a newer
-        pose, queued behind this one. Answering it would acknowledge the newer step with a
-        decision on the older pose, and the filter would stay a step behind from then on
-        (seen at start-up: up to 5 steps, 1 s, for seconds). Skipping it lets the next,
-        current pose be answered. Unstamped poses and wall time are always answered.
-        """
-        stamp_ns = stamp.sec * 1_000_000_000 + stamp.nanosec
-        if not self.wiring.time.sim or stamp_ns <= 0:
+        """Lockstep with sim time: True (and said) if /clock is already past this pose, which
+        the robot has acknowledged without this answer (``LockstepAnswers.clock_passed``).
+        Answering it would acknowledge the newer step with a decision on the older pose, and
+        the filter would stay a step behind from then on (seen at start-up: up to 5 steps,
+        1 s, for seconds). Skipping it lets the next, current pose be answered."""
+        clock_ns = self.get_clock().now().nanoseconds if self.wiring.time.sim else None
+        if not self.answers.clock_passed(stamp.sec * 1_000_000_000 + stamp.nanosec, clock_ns):
             return False
-        if stamp_ns >= self.get_clock().now().nanoseconds:
-            return False
-        self.poses_skipped += 1
         self.wiring.complain('lockstep', f'skipped a pose the clock has already passed ({self.poses_skipped} '
                              'so far): its step went on without this answer; answering the current pose',
                              level='info')
@@ -225,10 +224,10 @@ class SafetyFilterNode(Node):
 
     def on_watchdog(self):
         now = time.monotonic()
-        if self._held is not None:
-            t, since = self._held
-            self.decide(t, hold=now - since < self.cluster_hold_timeout, held_since=since)
-        elif self.lockstep and now - self._last_pose_arrival < self.lockstep_silence:
+        held = self.answers.held_pose_time
+        if held is not None:
+            self.decide(held)       # a held answer: out once the cluster value is in force, or timed out
+        elif self.lockstep and self.answers.quiet(now):
             # the pose's answer is the robot's command (and its step's ack); the state topic
             # still reports the set in force (a new learned set) while no pose comes
             out = self._last_out
@@ -239,28 +238,20 @@ class SafetyFilterNode(Node):
             self.decide()
 
     # -- output --------------------------------------------------------------------------------
-    def decide(self, t=None, hold=False, held_since=None):
-        """Decide at ``t`` and publish, unless ``hold`` and a cluster near the robot is being
-        solved: then the answer waits (the watchdog decides again) and None is returned."""
+    def decide(self, t=None, answers_pose=False):
+        """Decide at ``t`` and publish, unless the lockstep rules hold the answer (a cluster
+        near the robot is being solved): then the watchdog decides again, and None is
+        returned. ``answers_pose``: this is the answer to a lockstepped pose."""
         w = self.wiring
-        out = self.filter.step(w.safe_set, w.now() if t is None else t)
-        if not out.clusters_solving:
-            self._hold_spent = False
-        if hold and out.clusters_solving and not self._hold_spent:
-            if held_since is None:
-                self.holds += 1
-                held_since = time.monotonic()
-            self._held = (w.now() if t is None else t, held_since)
+        t = w.now() if t is None else t
+        out = self.filter.step(w.safe_set, t)
+        verdict = self.answers.judge(t, time.monotonic(), out.clusters_solving, answers_pose)
+        if not verdict.publish:
             return None
-        if held_since is not None and out.clusters_solving:
-            # one hold per solve: a solve this slow must not stall every step after it
-            self._hold_spent = True
-            w.complain('cluster_hold', f'a cluster value still solving after {self.cluster_hold_timeout:g} s: '
-                       'answering with the fallback until it lands', level='warn')
-        if held_since is not None and not out.clusters_solving:
-            self.get_logger().info(f'step held {time.monotonic() - held_since:.2f} s until the cluster '
-                                   'value was in force')
-        self._held = None
+        if verdict.action == GIVE_UP:
+            w.complain('cluster_hold', f'{verdict.why}: answering with the fallback until it lands', level='warn')
+        elif verdict.held_for is not None:
+            self.get_logger().info(f'step held {verdict.held_for:.2f} s until the cluster value was in force')
         self.cmd_pub.publish(cdr.twist_bytes(float(out.linear), float(out.omega)))   # serialized: no Twist built
         now = time.monotonic()
         self._last_publish = now

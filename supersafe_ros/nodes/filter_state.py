@@ -1,0 +1,141 @@
+"""What a filter node tells: its robots' state messages, and complaints without floods.
+
+* ``StateReporter.state_message(name, out)``: a robot's diagnostic_msgs/DiagnosticStatus
+  (OK pass / WARN override / ERROR fail_safe): the decision's record plus the set update
+  (``set_update``, ``set_update_reason``, counts), the time base and the cluster solves
+  that failed (each one logged once);
+* ``StateThrottle`` / ``FleetThrottle``: when a robot's state is due (every change of
+  action or set update, else at ``state_rate`` on a fixed phase);
+* ``Complaints.complain(kind, text)``: the same kind of complaint logged at most every
+  ``LOG_THROTTLE_S``.
+"""
+from __future__ import annotations
+
+import math
+from operator import ne
+import time
+
+import numpy as np
+
+from ..filter import default_cluster_store
+from ..ros_io import rosmsg
+
+LOG_THROTTLE_S = 2.0   # the same kind of complaint at most this often
+
+
+class Complaints:
+    """Throttled log lines, per kind."""
+
+    def __init__(self, log):
+        self.log = log
+        self._last = {}
+
+    def complain(self, kind: str, text: str, level='warn'):
+        """Log ``text`` at most every LOG_THROTTLE_S per ``kind``."""
+        now = time.monotonic()
+        if now - self._last.get(kind, -math.inf) >= LOG_THROTTLE_S:
+            self._last[kind] = now
+            # rclpy ties a severity to each call site: one call per level
+            if level == 'error':
+                self.log.error(text)
+            elif level == 'info':
+                self.log.info(text)
+            else:
+                self.log.warn(text)
+
+
+class StateReporter:
+    """The state messages of a filter node's robots.
+
+    ``selector``: the set in force and its updates (``filter.set_selector``); ``time``:
+    the time base (``filter.timebase.FilterTime``); ``config()``: the filter config in
+    force (its cluster store holds the failed solves)."""
+
+    def __init__(self, log, selector, time_base, config):
+        self.log = log
+        self._selector, self._time, self._config = selector, time_base, config
+        self._msgs = {}                    # robot name -> its status, refilled (rosmsg.refill_diagnostic)
+        self._errors_told = {}             # id(store) -> failed solves already logged
+        self._store, self._store_config = None, None
+
+    def state_values(self, out) -> dict:
+        values = out.record()
+        s = self._selector
+        values['set_update'], values['set_update_reason'] = s.set_update
+        values['sets_accepted'] = str(s.set_updates['accepted'])
+        values['sets_rejected'] = str(s.set_updates['rejected'])
+        values['time_base'] = ('wall (steady)' if not self._time.sim else
+                               'wall (sim time stands still)' if self._time.stalled else 'sim')
+        values['cluster_solves_failed'] = str(self.report_cluster_errors())
+        return values
+
+    def report_cluster_errors(self) -> int:
+        """Log each cluster solve that failed (its cluster stays on the fallback); the count."""
+        # called for every state message (1,000 robots in a fleet tick): the store is looked up
+        # only when the config changed (cluster_link is live), the errors listed only when new
+        config = self._config()
+        if self._store_config is not config:
+            self._store, self._store_config = default_cluster_store(config), config
+        store = self._store
+        told, failed = self._errors_told.get(id(store), 0), len(store.errors)
+        if failed > told:
+            with store._lock:
+                new = list(store.errors.items())[told:]
+            for key, why in new:
+                self.log.error(f'cluster value {key} could not be solved ({why}): that '
+                               'cluster stays on the fallback rule')
+            self._errors_told[id(store)] = told + len(new)
+        return failed
+
+    def state_message(self, name: str, out):
+        """The state of robot ``name`` (one status object per robot, refilled each time)."""
+        old = self._msgs.get(name)
+        values, message = self.state_values(out), f'{out.action}: {out.reason}'
+        status = (rosmsg.make_diagnostic(name, values, message, out.level) if old is None else
+                  rosmsg.refill_diagnostic(old, name, values, message, out.level))
+        self._msgs[name] = status
+        return status
+
+
+class StateThrottle:
+    """When to publish a robot's state: on every change of action or set update, and every
+    ``period`` on a fixed phase (``phase`` in [0, 1) of a period), so that a fleet's periodic
+    states are spread over the period instead of all falling on one tick."""
+
+    __slots__ = ('t', 'action', 'update')
+
+    def __init__(self, phase=0.0, now=None, period=1.0):
+        self.t = -math.inf if now is None else now - period * (1.0 - phase)
+        self.action, self.update = None, None
+
+    def due(self, now, action, update, period) -> bool:
+        changed = action != self.action or update is not self.update
+        self.action, self.update = action, update
+        if now - self.t >= period:
+            # keep the phase; restart it after a long pause (or at start)
+            self.t = self.t + period if now - self.t < 2.0 * period else now
+            return True
+        return changed
+
+
+class FleetThrottle:
+    """``StateThrottle`` for a fleet's n robots at once (robot i on phase i / n), as arrays: the
+    same rule and the same arithmetic, without a call per robot each tick."""
+
+    def __init__(self, n, now, period):
+        self.t = now - period * (1.0 - np.arange(n) / n)
+        self.action, self.update = [None] * n, None
+
+    def due(self, now, actions, update, period) -> list:
+        """The robots (indices) whose state is due, given every robot's action now."""
+        n = len(self.t)
+        changed = np.fromiter(map(ne, actions, self.action), dtype=bool, count=n)
+        if update is not self.update:
+            changed[:] = True
+        self.action, self.update = list(actions), update
+        late = now - self.t >= period
+        if late.any():
+            t = self.t[late]
+            # keep the phase; restart it after a long pause (or at start)
+            self.t[late] = np.where(now - t < 2.0 * period, t + period, now)
+        return np.flatnonzero(late | changed).tolist()
