@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from supersafe_ros.learning.levels import learned_alpha
 from supersafe_ros.study import runner
 from supersafe_ros.study.analysis import CONDITIONS
 from supersafe_ros.study.population import Subject
@@ -204,7 +205,7 @@ def test_cli_registers_study_and_demo():
     with pytest.raises(ValueError, match='unknown'):
         cli.parse_conditions('standard,learnt')
     assert parser.parse_args(['demo']).func is cli.run_demo
-    assert math.isclose(runner.learned_alpha({'mu': 1.0, 'sigma': 0.5}, 2.0), 2.0)
+    assert math.isclose(learned_alpha({'mu': 1.0, 'sigma': 0.5}, 2.0), 2.0)
 
 
 def test_stored_frames_of_the_learner_store(tmp_path):

@@ -36,6 +36,7 @@ from std_msgs.msg import Float32MultiArray
 from ..filter.admissibility import check_learned_set
 from ..filter.core import FilterConfig, RobotFilter, SafeSet, default_cluster_store
 from ..filter.timebase import FilterTime
+from ..learning.levels import learned_alpha
 from ..ros_io import rosmsg
 from ..filter.law import evaluate_pairs
 from ..ros_io.vfcdr import serialized_to_value_function
@@ -69,14 +70,6 @@ def standard_value_function(lo, hi, shape, speed, omega_max, radius, horizon, ca
     from ..reach.library import load_or_solve
     return load_or_solve(Grid(tuple(lo), tuple(hi), tuple(int(n) for n in shape)), speed, omega_max,
                          radius, horizon if horizon > 0 else None, cache_dir=cache_dir or None)
-
-
-def learned_alpha(meta: dict, k: float) -> float:
-    """alpha = mu + k sigma from the fit's metadata, else its alpha, else 0."""
-    mu, sigma = meta.get('mu'), meta.get('sigma')
-    if mu is not None and sigma is not None:
-        return float(mu) + k * float(sigma)
-    return float(meta.get('alpha') or 0.0)
 
 
 class FilterWiring:

@@ -39,6 +39,7 @@ from ..filter.core import FilterConfig, SafeSet
 from ..learning.encounters import EncounterBuilder, feed, phase2_events
 from ..learning.estimators import (admissible_mask, encounter_intervals, fit_first_passage_intervals,
                                    fit_paper_values)
+from ..learning.levels import learned_alpha
 from ..reach.grid import Grid
 from ..reach.library import LibrarySpec, load_or_build_library, load_or_solve
 from ..sim.team_loop import RobotParams, TeamLoop
@@ -229,7 +230,6 @@ class CoreStudy:
         """(SafeSet, alpha or None, what ran) of one condition; ``learned``: condition ->
         (ValueFunction or None, fit or None). A set the filters would reject is an error,
         as it stops the graph's game."""
-        from .runner import learned_alpha
         standard_vf, conservative_vf = reference_sets()
         std_alpha = float(node_params('safety_filter')['standard_alpha'])
         if condition == 'conservative':

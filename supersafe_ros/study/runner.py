@@ -45,6 +45,7 @@ import numpy as np
 
 from ..team import Team, team_env, team_layout, node_argv
 from ..learning.data import PHASE2_OFFSETS, Encounter
+from ..learning.levels import learned_alpha
 from .population import Subject
 
 TRUE_RADIUS = 1.8
@@ -603,11 +604,6 @@ def jsonable(obj):
     if isinstance(obj, np.ndarray):
         return jsonable(obj.tolist())
     return _finite(obj)
-
-
-def learned_alpha(fit: dict | None, k: float = 0.0) -> float:
-    """alpha of a subject's learned set as the filter uses it: mu + k sigma."""
-    return float(fit['mu']) + k * float(fit['sigma'])
 
 
 def record_learned(r: dict) -> dict:
