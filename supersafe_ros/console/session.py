@@ -15,7 +15,7 @@ they are and keeps the record:
 * ``subject_record`` / ``write_subject`` / ``load_subject``: the same record a
   simulated subject of ``supersafe study`` has (subject, phase2, fit, states,
   learned_vf, games), plus the answers, in <dir>/subject.json and <dir>/learned_vf.npz,
-  so ``study.runner.summarize`` runs over any mix of human and simulated subjects.
+  so ``study.summary.summarize`` runs over any mix of human and simulated subjects.
 """
 from __future__ import annotations
 
@@ -161,7 +161,7 @@ def intervention_states(scenes) -> np.ndarray:
 
 
 def subject_record(data: dict, learned_vf=None, estimator: str = 'paper') -> dict:
-    """A study record (see study.runner.summarize) for a participant's session data;
+    """A study record (see study.records) for a participant's session data;
     ``fit`` is the estimator whose set the Learned game used, ``fits`` holds both."""
     pid = data['participant']
     scenes = data['scenes']

@@ -46,8 +46,8 @@ from ..sim.team_loop import RobotParams, TeamLoop
 from ..sim.watcher import Watcher
 from ..sim.world import WorldConfig
 from ..team import robot_names, start_poses
-from .runner import (FP_LEARNER, PHASE2_X0, PHASE2_X_END, SPEED, Phase2Result, _config_params,
-                     reference_sets, supervisor_seed)
+from .protocol import (FP_LEARNER, PHASE2_X0, PHASE2_X_END, SPEED, Phase2Result, config_params,
+                       reference_sets, supervisor_seed)
 
 N_ROBOTS = 2                     # the team of study.games.GameGraph
 MIN_INTERVENTIONS = 3            # learner.yaml min_interventions
@@ -56,7 +56,7 @@ MIN_INTERVENTIONS = 3            # learner.yaml min_interventions
 # -- parameters: the nodes' config files, with the overrides the study's graphs set ---------
 @functools.lru_cache(maxsize=None)
 def node_params(kind: str) -> dict:
-    return dict(_config_params(kind))
+    return dict(config_params(kind))
 
 
 def world_config() -> WorldConfig:
@@ -199,7 +199,7 @@ def scenes_from_events(events) -> list:
 
 
 class CoreStudy:
-    """One study's in-process engine (the runner's counterpart of the graph classes)."""
+    """One study's in-process engine (the counterpart of ``graph_phase2`` and ``games``)."""
 
     name = 'core'
 
