@@ -14,7 +14,7 @@ from pathlib import Path
 import sys
 import time
 
-from .analysis import CONDITIONS
+from .analysis import CONDITIONS, PAPER_STATS, format_h2, format_table1, ordered, significance_stars
 
 DEMO_SUBJECTS = 3
 DEMO_SEED = 7
@@ -87,7 +87,6 @@ def run_demo(args) -> int:
 
 def parse_conditions(text: str) -> tuple:
     """'standard,learned' -> ('standard', 'learned') in Table 1 order; ValueError if unknown."""
-    from .analysis import ordered
     names = [c.strip() for c in str(text).split(',') if c.strip()]
     if not names:
         raise ValueError('no conditions given')
@@ -110,7 +109,6 @@ def options_from_args(args):
 def run(args, out=sys.stdout) -> int:
     from ..rosenv import ensure_local_ros_env
     ensure_local_ros_env()
-    from .analysis import PAPER_STATS, format_h2, format_table1, significance_stars
     from .population import draw_subjects, pilot_fits
     from .plots import make_plots
     from .protocol import reference_sets

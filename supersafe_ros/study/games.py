@@ -89,7 +89,6 @@ class GameGraph:
 
     def __init__(self, env: dict, world_seed: int, supervisor: dict, step: float,
                  rate_factor: float, log_dir: Path, start_timeout: float = 120.0):
-        from ..ros_io.background_node import BackgroundNode
         from ..ros_io import rosmsg
         from diagnostic_msgs.msg import DiagnosticStatus
         from geometry_msgs.msg import PoseWithCovarianceStamped
