@@ -28,6 +28,8 @@ import zlib
 
 import numpy as np
 
+from ..study.records import jsonable
+
 CONDITIONS = ('standard', 'learned', 'conservative')
 # Williams design for three conditions: two mirrored Latin squares
 LATIN_ORDERS = (
@@ -140,20 +142,6 @@ class SessionStore:
     def add_scene(self, scene: dict) -> None:
         self.data['scenes'].append(scene)
         self.save()
-
-
-def jsonable(obj):
-    if isinstance(obj, dict):
-        return {str(k): jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return jsonable(obj.tolist())
-    if isinstance(obj, (np.floating, np.integer, np.bool_)):
-        obj = obj.item()
-    if isinstance(obj, float) and not np.isfinite(obj):
-        return None
-    return obj
 
 
 def intervention_states(scenes) -> np.ndarray:
