@@ -28,8 +28,8 @@ import numpy as np
 
 from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore
 from supersafe_ros.filter import FilterConfig, RobotFilter, SafeSet, step_many
-from supersafe_ros.filter.encounters import (cup_layout, layout_encounters, random_layout, row_layout,
-                                             run_encounters, single_disc_encounters, standard_guard)
+from supersafe_ros.filter.trials import (cup_layout, layout_trials, random_layout, row_layout, run_trials,
+                                         single_disc_trials, standard_guard)
 from supersafe_ros.reach.grid import Grid
 from supersafe_ros.reach.library import load_or_solve
 
@@ -53,9 +53,9 @@ def replay(args, safe):
                             FilterConfig(lookahead=0.1, compensate_delay=False)),
                            ('after  (propagated, lookahead >= period)', FilterConfig(lookahead=0.1))):
             t0 = time.perf_counter()
-            r = run_encounters(single_disc_encounters(args.encounters, np.random.default_rng(1)),
-                               standard_guard(safe), step=step, stale_probability=STALE, config=cfg,
-                               rng=np.random.default_rng(2))
+            r = run_trials(single_disc_trials(args.encounters, np.random.default_rng(1)),
+                           standard_guard(safe), step=step, stale_probability=STALE, config=cfg,
+                           rng=np.random.default_rng(2))
             print(f'step {step:4.2f}  {label}: {r.summary()}  [{time.perf_counter() - t0:.0f} s]',
                   flush=True)
 
@@ -79,13 +79,13 @@ def layouts(args, safe):
     print(f'== layouts: approaches per row as listed, {STALE:.1%} stale decisions ==')
     for step in args.steps:
         for name, lays in sets.items():
-            encounters = layout_encounters(lays, np.random.default_rng(4))
+            encounters = layout_trials(lays, np.random.default_rng(4))
             for label, cfg, store in (('min per obstacle', FilterConfig(clusters=False), None),
                                       ('cluster values', FilterConfig(),
                                        ClusterStore(ClusterSettings(disk_cache=False), background=False))):
                 t0 = time.perf_counter()
-                r = run_encounters(encounters, lambda fs, t: step_many(fs, safe, t, store), step=step,
-                                   stale_probability=STALE, config=cfg, rng=np.random.default_rng(5))
+                r = run_trials(encounters, lambda fs, t: step_many(fs, safe, t, store), step=step,
+                               stale_probability=STALE, config=cfg, rng=np.random.default_rng(5))
                 extra = ''
                 if store is not None and store.values:
                     times = [v.solve_time for v in store.values.values()]

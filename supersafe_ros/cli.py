@@ -14,7 +14,7 @@ import sys
 SUBCOMMANDS = [
     ('supersafe_ros.reach.cli', 'reach / library: compute avoid values and the candidate library'),
     ('supersafe_ros.learning.cli', 'fit: learn a supervisor safe set from interventions'),
-    ('supersafe_ros.team', 'team: run the ROS 2 node graph as separate processes'),
+    ('supersafe_ros.team_cli', 'team: run the ROS 2 node graph as separate processes'),
     ('supersafe_ros.study.cli', 'study / demo: the paper study in simulation'),
     ('supersafe_ros.recording.cli', 'record: record every topic to a rosbag2 MCAP bag'),
     ('supersafe_ros.console.session_runner', "session: the paper's protocol for one person in the console"),

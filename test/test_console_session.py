@@ -57,7 +57,8 @@ def test_store_resumes_and_never_overwrites_a_complete_participant(tmp_path):
 
 def test_human_and_simulated_subjects_go_through_the_study_analysis(tmp_path):
     from supersafe_ros.reach.library import load_or_build_library
-    from supersafe_ros.study.runner import reference_sets, summarize
+    from supersafe_ros.study.protocol import reference_sets
+    from supersafe_ros.study.summary import summarize
     lib = load_or_build_library()
     standard, conservative = reference_sets()
     games = {c: {'false_positives': fp, 'interventions': fp + 2, 'crashes': 0, 'trips': 9}

@@ -11,8 +11,8 @@ import pytest
 
 from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore, canonical, components, to_frame
 from supersafe_ros.filter import FilterConfig, RobotFilter, SafeSet, step_many
-from supersafe_ros.filter.encounters import (cup_layout, layout_encounters, random_layout, row_layout,
-                                             run_encounters, single_disc_encounters, standard_guard)
+from supersafe_ros.filter.trials import (cup_layout, layout_trials, random_layout, row_layout, run_trials,
+                                         single_disc_trials, standard_guard)
 from supersafe_ros.reach.dynamics import DubinsCar
 from supersafe_ros.reach.grid import Grid
 from supersafe_ros.reach.sets import Disc
@@ -41,9 +41,9 @@ def cluster_guard(safe_set, store):
 def test_stale_poses_at_a_coarse_step_never_collide(standard):
     """The issue's replay at a 0.2 s step: 7.3 % of decisions on the previous pose.
     Judged as if current with a fixed 0.1 s lookahead, robots crash; compensated, none."""
-    encounters = single_disc_encounters(150, np.random.default_rng(1))
-    run = lambda cfg: run_encounters(encounters, standard_guard(standard), step=0.2,  # noqa: E731
-                                     stale_probability=STALE, config=cfg, rng=np.random.default_rng(2))
+    encounters = single_disc_trials(150, np.random.default_rng(1))
+    run = lambda cfg: run_trials(encounters, standard_guard(standard), step=0.2,  # noqa: E731
+                                 stale_probability=STALE, config=cfg, rng=np.random.default_rng(2))
     before = run(FilterConfig(lookahead=0.1, compensate_delay=False))
     after = run(FilterConfig(lookahead=0.1))
     assert before.collisions > 10 and before.stale_decisions > 0
@@ -54,12 +54,12 @@ def test_stale_poses_at_a_coarse_step_never_collide(standard):
 def test_row_of_three_discs(standard, store):
     """Centres 4.5 m apart (0.9 m gaps): the smallest per-obstacle value crashes, the
     union's value does not."""
-    encounters = layout_encounters([row_layout(4.5)] * 80, np.random.default_rng(3))
+    encounters = layout_trials([row_layout(4.5)] * 80, np.random.default_rng(3))
     rule = dict(step=0.2, stale_probability=STALE, rng=np.random.default_rng(4))
-    old = run_encounters(encounters, standard_guard(standard), config=FilterConfig(clusters=False), **rule)
+    old = run_trials(encounters, standard_guard(standard), config=FilterConfig(clusters=False), **rule)
     assert old.collisions > 0
     rule['rng'] = np.random.default_rng(4)
-    new = run_encounters(encounters, cluster_guard(standard, store), config=FilterConfig(), **rule)
+    new = run_trials(encounters, cluster_guard(standard, store), config=FilterConfig(), **rule)
     assert new.collisions == 0 and new.trapped == 0, new.summary()
 
 
@@ -67,16 +67,16 @@ def test_row_of_three_discs(standard, store):
 def test_cups_of_three_discs(standard, store, step):
     rng = np.random.default_rng(5)
     layouts = [cup_layout(rng) for _ in range(3)] * (6 if step < 0.1 else 15)
-    res = run_encounters(layout_encounters(layouts, rng, offset=2.0), cluster_guard(standard, store),
-                         step=step, stale_probability=STALE, rng=np.random.default_rng(6))
+    res = run_trials(layout_trials(layouts, rng, offset=2.0), cluster_guard(standard, store),
+                     step=step, stale_probability=STALE, rng=np.random.default_rng(6))
     assert res.collisions == 0 and res.trapped == 0, res.summary()
 
 
 def test_random_dense_layouts(standard, store):
     rng = np.random.default_rng(7)
     layouts = [random_layout(rng, k, half=5.0, min_gap=0.3) for k in (3, 4, 5)] * 20
-    res = run_encounters(layout_encounters(layouts, rng), cluster_guard(standard, store),
-                         step=0.2, stale_probability=STALE, rng=np.random.default_rng(8))
+    res = run_trials(layout_trials(layouts, rng), cluster_guard(standard, store),
+                     step=0.2, stale_probability=STALE, rng=np.random.default_rng(8))
     assert res.collisions == 0 and res.trapped == 0, res.summary()
 
 
@@ -85,9 +85,9 @@ def test_learned_set_with_clusters_keeps_the_promise(store):
     for the cluster: the cluster governs where it acts, no collision."""
     learned = SafeSet(solve_avoid(Grid((-8, -8), (8, 8), (41, 41, 24)), DubinsCar(3.0, 0.5),
                                   Disc(0, 0, 1.8), horizon=3.0), 0.3, 'learned')
-    encounters = layout_encounters([row_layout(4.5)] * 30, np.random.default_rng(9))
-    res = run_encounters(encounters, cluster_guard(learned, store), step=0.2, stale_probability=STALE,
-                         rng=np.random.default_rng(10))
+    encounters = layout_trials([row_layout(4.5)] * 30, np.random.default_rng(9))
+    res = run_trials(encounters, cluster_guard(learned, store), step=0.2, stale_probability=STALE,
+                     rng=np.random.default_rng(10))
     assert res.collisions == 0 and res.trapped == 0, res.summary()
 
 
@@ -97,8 +97,8 @@ def test_loiter_fallback_alone_never_collides(standard):
     never = ClusterStore(ClusterSettings(), fallback_only=True)
     rng = np.random.default_rng(11)
     layouts = [row_layout(4.5)] * 20 + [cup_layout(rng) for _ in range(20)]
-    res = run_encounters(layout_encounters(layouts, rng), cluster_guard(standard, never), step=0.2,
-                         stale_probability=STALE, rng=np.random.default_rng(12), time_limit=15.0)
+    res = run_trials(layout_trials(layouts, rng), cluster_guard(standard, never), step=0.2,
+                     stale_probability=STALE, rng=np.random.default_rng(12), time_limit=15.0)
     assert res.collisions == 0, res.summary()
     assert not never.values and res.overrides > 0
 

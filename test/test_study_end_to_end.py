@@ -70,7 +70,7 @@ def test_one_subject_study_through_the_graph(tmp_path):
     # (seed, robot, obstacle id, approach), and both number the scenes' discs from 0
     from supersafe_ros.study.engine import CoreStudy
     from supersafe_ros.study.population import Subject
-    from supersafe_ros.study.runner import StudyOptions
+    from supersafe_ros.study.protocol import StudyOptions
     core = CoreStudy().phase2(Subject(**subj['subject']), StudyOptions(phase2_offsets=(-1.0, 0.0, 1.0)))
     # one scene may differ: in one of 38 compared scenes (bench_study --compare) the graph's
     # supervisor intervened and the engine's did not, not yet explained (docs/study.md)

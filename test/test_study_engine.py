@@ -15,7 +15,7 @@ from supersafe_ros.sim.team_loop import TeamLoop
 from supersafe_ros.study import cli, engine
 from supersafe_ros.study.analysis import CONDITIONS, H2_MEASURES
 from supersafe_ros.study.population import Subject
-from supersafe_ros.study.runner import PHASE2_X0, StudyOptions
+from supersafe_ros.study.protocol import PHASE2_X0, StudyOptions
 
 SUBJECT = Subject(0, 0.75, 0.5, 0.2, 1234)
 

@@ -7,7 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from supersafe_ros.study import runner
+from supersafe_ros.learning.levels import learned_alpha
+from supersafe_ros.study import fits, games, graph_phase2, protocol, records, summary
 from supersafe_ros.study.analysis import CONDITIONS
 from supersafe_ros.study.population import Subject
 
@@ -49,7 +50,7 @@ def test_summarize_pools_table1_and_lists_one_value_per_subject():
     # standard: V = x, alpha 0 -> inside x > 0: 2 + 2 = 4 of 7
     # conservative: V = x - 2, alpha 0 -> x > 2: 0 + 1 = 1
     # learned: V = x, alpha = mu -> s0: x > 0.5 -> 2; s1: x > 1.0 -> 1 => 3
-    s = runner.summarize(two_subjects(), XValue(0.0), XValue(-2.0))
+    s = summary.summarize(two_subjects(), XValue(0.0), XValue(-2.0))
     t = s['table1']
     assert (t['standard']['inside'], t['standard']['total']) == (4, 7)
     assert (t['learned']['inside'], t['conservative']['inside']) == (3, 1)
@@ -79,7 +80,7 @@ def test_both_learned_conditions_get_their_row_and_the_h2_comparison():
         r['games']['learned_fp'] = game(2, 3)
         for c, a in arcs.items():
             r['games'][c]['avoidance_length'] = a[i]
-    s = runner.summarize(recs, XValue(0.0), XValue(-2.0))
+    s = summary.summarize(recs, XValue(0.0), XValue(-2.0))
     assert list(s['conditions']) == ['standard', 'learned', 'learned_fp', 'conservative']
     assert s['table1']['learned_fp']['inside'] == 4 and s['table1']['learned']['inside'] == 3
     assert s['conditions']['learned_fp']['avoidance_length'] == [0.8, 0.7]
@@ -93,7 +94,7 @@ def test_both_learned_conditions_get_their_row_and_the_h2_comparison():
 
 
 def test_alpha_sweep_predicted_per_subject_and_observed_for_the_swept_ones():
-    s = runner.summarize(two_subjects(), XValue(0.0), XValue(-2.0))
+    s = summary.summarize(two_subjects(), XValue(0.0), XValue(-2.0))
     sw = s['alpha_sweep']
     assert list(sw) == ['mu', 'mu+1sigma', 'mu+2sigma']
     # s0: alpha 0.5, 1.5, 2.5 over x [-3,-1,1,2] -> 2/4, 1/4, 0; s1: alpha 1, 1.5, 2 over [-2,.5,3] -> 1/3 each
@@ -110,17 +111,17 @@ def test_alpha_sweep_predicted_per_subject_and_observed_for_the_swept_ones():
 def test_subject_without_fit_counts_the_standard_set_for_learned():
     recs = two_subjects()
     recs[1]['fit'], recs[1]['learned_vf'] = None, None
-    s = runner.summarize(recs, XValue(0.0), XValue(-2.0))
+    s = summary.summarize(recs, XValue(0.0), XValue(-2.0))
     # s0 learned 2 (as before) + s1 with the standard set (x > 0: 2)
     assert s['table1']['learned']['inside'] == 4
     assert len(s['alpha_sweep']['mu']['predicted']) == 1
 
 
 def test_json_output_is_strict_json():
-    s = runner.summarize(two_subjects(), XValue(0.0), XValue(-2.0))
+    s = summary.summarize(two_subjects(), XValue(0.0), XValue(-2.0))
     s['nan'] = float('nan')
     s['np'] = np.float32(1.5)
-    text = json.dumps(runner.jsonable(s), allow_nan=False)
+    text = json.dumps(records.jsonable(s), allow_nan=False)
     back = json.loads(text)
     assert back['nan'] is None and back['np'] == 1.5
     assert back['conditions']['standard']['false_positives'] == [6, 4]
@@ -131,11 +132,11 @@ def test_game_counts_from_world_stats_and_log():
                         'sim_time': '120.0'},
               'interventions': [{'false_positive': 'true'}, {'false_positive': 'false'},
                                 {'false_positive': 'True'}]}
-    c = runner.game_counts(result)
+    c = records.game_counts(result)
     assert (c['trips'], c['crashes'], c['interventions'], c['false_positives']) == (12, 1, 7, 5)
     assert c['sim_time'] == 120.0
     assert (c['logged_interventions'], c['logged_false_positives']) == (3, 2)
-    empty = runner.game_counts({'stats': {}, 'interventions': []})
+    empty = records.game_counts({'stats': {}, 'interventions': []})
     assert empty['trips'] == 0 and empty['sim_time'] == 0.0
 
 
@@ -145,7 +146,7 @@ def test_phase2_scenes_become_encounters_ending_at_the_intervention():
         {'y0': 1.0, 'intervened': True, 'state': [-5.1, 1.0, 0.0], 'frames': frames[:6] + [(-5.1, 1.0, 0.0)]},
         {'y0': 2.0, 'intervened': False, 'state': None, 'frames': frames},
     ]
-    enc = runner.phase2_encounters_from_scenes(scenes)
+    enc = fits.phase2_encounters_from_scenes(scenes)
     assert [e.intervened for e in enc] == [True, False]
     assert np.allclose(enc[0].states[-1], [-5.1, 1.0, 0.0])
     assert np.all(enc[0].states[:-1, 0] < -5.1)
@@ -153,7 +154,6 @@ def test_phase2_scenes_become_encounters_ending_at_the_intervention():
 
 
 def test_kept_alive_graph_has_no_clock_process_and_filters_take_the_set_from_the_topic():
-    from supersafe_ros.study import games
     argvs, clock = games.graph_argvs(3, {'w_max': 0.5, 'mu': 0.8, 'sigma': 0.2}, 0.2, 0.0)
 
     def params(name):
@@ -169,24 +169,24 @@ def test_kept_alive_graph_has_no_clock_process_and_filters_take_the_set_from_the
 
 def test_condition_messages_carry_the_set_and_alpha_the_filter_uses():
     from supersafe_ros.ros_io.vfmsg import msg_metadata
-    from supersafe_ros.nodes.safety_filter_node import learned_alpha as filter_alpha
-    std, cons = runner.reference_sets()
+    from supersafe_ros.learning.levels import learned_alpha as filter_alpha   # what the filter node uses
+    std, cons = protocol.reference_sets()
     fit = {'omega_max': 0.5, 'mu': 0.8, 'sigma': 0.3}
     learned = {'learned': (cons, fit), 'learned_fp': (None, None)}
-    msg, alpha, ran = runner.condition_message('learned', learned, alpha_offset=2.0)
+    msg, alpha, ran = games.condition_message('learned', learned, alpha_offset=2.0)
     meta = msg_metadata(msg)
     assert ran == 'learned' and alpha == pytest.approx(1.4)
     assert meta['source'] == 'learned' and filter_alpha(meta, 0.0) == pytest.approx(1.4)
-    msg, alpha, ran = runner.condition_message('conservative', learned)
+    msg, alpha, ran = games.condition_message('conservative', learned)
     meta = msg_metadata(msg)
     # not 'standard': a filter replaces a 'standard' message by its own standard set (radius
     # 1.8), which is how the Conservative games once ran on the Standard set
     assert ran == 'conservative' and alpha is None and meta['source'] == 'conservative'
     assert filter_alpha(meta, 0.0) == 0.0 and meta['grid'] == cons.grid.to_dict()
-    msg, alpha, ran = runner.condition_message('standard', learned)
+    msg, alpha, ran = games.condition_message('standard', learned)
     assert ran == 'standard' and msg_metadata(msg)['source'] == 'standard'
     # no fit: the learned condition runs (and is reported as) the standard set
-    msg, alpha, ran = runner.condition_message('learned_fp', learned)
+    msg, alpha, ran = games.condition_message('learned_fp', learned)
     assert ran == 'standard' and msg_metadata(msg)['condition'] == 'standard'
 
 
@@ -204,20 +204,20 @@ def test_cli_registers_study_and_demo():
     with pytest.raises(ValueError, match='unknown'):
         cli.parse_conditions('standard,learnt')
     assert parser.parse_args(['demo']).func is cli.run_demo
-    assert math.isclose(runner.learned_alpha({'mu': 1.0, 'sigma': 0.5}, 2.0), 2.0)
+    assert math.isclose(learned_alpha({'mu': 1.0, 'sigma': 0.5}, 2.0), 2.0)
 
 
 def test_stored_frames_of_the_learner_store(tmp_path):
     store = tmp_path / 'interventions.jsonl'
-    assert runner._stored_frames(store) == set()          # no file yet: nothing stored
+    assert graph_phase2._stored_frames(store) == set()          # no file yet: nothing stored
     store.write_text('{"frame": "obstacle_3", "x": -5.0}\nnot json\n{"frame": "obstacle_7"}\n')
-    assert runner._stored_frames(store) == {'obstacle_3', 'obstacle_7'}
+    assert graph_phase2._stored_frames(store) == {'obstacle_3', 'obstacle_7'}
 
 
 def test_phase2_graph_runs_a_first_passage_learner_on_its_own_topics_and_store(tmp_path):
     from supersafe_ros.team import process_name
     subject = Subject(0, 0.5, 1.0, 0.2, 100)
-    argvs = runner.phase2_argvs(subject, runner.StudyOptions(), tmp_path / 'i.jsonl', 0.0,
+    argvs = graph_phase2.phase2_argvs(subject, protocol.StudyOptions(), tmp_path / 'i.jsonl', 0.0,
                                 tmp_path / 'fp' / 'i.jsonl')
     learners = {process_name(a): a for a in argvs if 'supersafe_ros.nodes.learner_node' in a}
     assert set(learners) == {'learner', 'learner_fp'}        # two processes, two logs
@@ -231,17 +231,17 @@ def test_phase2_graph_runs_a_first_passage_learner_on_its_own_topics_and_store(t
     assert 'library_shape:=[65,65,42]' in fp                  # the config file's, re-keyed to the new name
     remaps = ros_args(learners['learner_fp'], '-r')
     assert '__node:=learner_fp' in remaps
-    assert f'/safe_set/value_function:={runner.FP_VF_TOPIC}' in remaps
-    assert f'/safe_set/fit:={runner.FP_FIT_TOPIC}' in remaps
+    assert f'/safe_set/value_function:={protocol.FP_VF_TOPIC}' in remaps
+    assert f'/safe_set/fit:={protocol.FP_FIT_TOPIC}' in remaps
     assert not any(a.startswith('__node') or a.startswith('/safe_set') for a in ros_args(learners['learner'], '-r'))
     # without an fp store (the console's Phase II) the graph has the paper learner only
-    argvs = runner.phase2_argvs(subject, runner.StudyOptions(), tmp_path / 'i.jsonl', 0.0)
+    argvs = graph_phase2.phase2_argvs(subject, protocol.StudyOptions(), tmp_path / 'i.jsonl', 0.0)
     assert [process_name(a) for a in argvs].count('learner_fp') == 0
 
 
 def test_learned_fp_is_the_first_passage_learner_message_with_its_newest_counts():
     from supersafe_ros.ros_io.vfmsg import value_function_to_msg
-    std, _ = runner.reference_sets()
+    std, _ = protocol.reference_sets()
     msg = value_function_to_msg(std, source='learned', estimator='first-passage', omega_max=1.0, mu=0.9,
                                 sigma=0.3, alpha=0.9, log_likelihood=-5.0, interventions=2, encounters=3,
                                 index=8)
@@ -250,15 +250,15 @@ def test_learned_fp_is_the_first_passage_learner_message_with_its_newest_counts(
               'omega_max': '1.0', 'mu': '0.900000', 'sigma': '0.310000', 'log_likelihood': '-6.0',
               'fitted_interventions': '3', 'fitted_encounters': '4', 'encounters': '4',
               'unmatched_interventions': '0'}
-    fit = runner.first_passage_learner_fit(msg, status)
+    fit = graph_phase2.first_passage_learner_fit(msg, status)
     assert fit['estimator'] == 'first-passage'
     assert (fit['interventions'], fit['encounters'], fit['sigma']) == (3, 4, 0.31)
     # a newer fit that was refused: the set in force is the message's, with its own values
     refused = dict(status, index='9', alpha='1.2', sigma='0.5')
-    fit = runner.first_passage_learner_fit(msg, refused)
+    fit = graph_phase2.first_passage_learner_fit(msg, refused)
     assert (fit['interventions'], fit['encounters'], fit['sigma'], fit['mu']) == (2, 3, 0.3, 0.9)
-    assert runner.first_passage_learner_fit(None, status) is None
-    p2 = runner.Phase2Result([], np.zeros((0, 3)), 'paper-msg', {'estimator': 'paper'}, 0.0, 0.0,
+    assert graph_phase2.first_passage_learner_fit(None, status) is None
+    p2 = protocol.Phase2Result([], np.zeros((0, 3)), 'paper-msg', {'estimator': 'paper'}, 0.0, 0.0,
                              fp_msg=msg, fp_fit=fit)
-    sets = runner.learned_sets(p2, ('learned', 'learned_fp'))
+    sets = fits.learned_sets(p2, ('learned', 'learned_fp'))
     assert sets['learned'] == ('paper-msg', {'estimator': 'paper'}) and sets['learned_fp'] == (msg, fit)

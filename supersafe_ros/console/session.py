@@ -15,7 +15,7 @@ they are and keeps the record:
 * ``subject_record`` / ``write_subject`` / ``load_subject``: the same record a
   simulated subject of ``supersafe study`` has (subject, phase2, fit, states,
   learned_vf, games), plus the answers, in <dir>/subject.json and <dir>/learned_vf.npz,
-  so ``study.runner.summarize`` runs over any mix of human and simulated subjects.
+  so ``study.summary.summarize`` runs over any mix of human and simulated subjects.
 """
 from __future__ import annotations
 
@@ -27,6 +27,8 @@ import time
 import zlib
 
 import numpy as np
+
+from ..study.records import jsonable
 
 CONDITIONS = ('standard', 'learned', 'conservative')
 # Williams design for three conditions: two mirrored Latin squares
@@ -142,26 +144,12 @@ class SessionStore:
         self.save()
 
 
-def jsonable(obj):
-    if isinstance(obj, dict):
-        return {str(k): jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return jsonable(obj.tolist())
-    if isinstance(obj, (np.floating, np.integer, np.bool_)):
-        obj = obj.item()
-    if isinstance(obj, float) and not np.isfinite(obj):
-        return None
-    return obj
-
-
 def intervention_states(scenes) -> np.ndarray:
     return np.array([s['state'] for s in scenes if s['intervened']], dtype=float).reshape(-1, 3)
 
 
 def subject_record(data: dict, learned_vf=None, estimator: str = 'paper') -> dict:
-    """A study record (see study.runner.summarize) for a participant's session data;
+    """A study record (see study.records) for a participant's session data;
     ``fit`` is the estimator whose set the Learned game used, ``fits`` holds both."""
     pid = data['participant']
     scenes = data['scenes']

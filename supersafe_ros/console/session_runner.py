@@ -24,16 +24,20 @@ or game that was running. A complete participant is never overwritten.
 """
 from __future__ import annotations
 
+import json
 from pathlib import Path
 import sys
 import threading
 import time
 
-
+from ..team import Team, _param_value, node_argv, process_name, run_team, team_env, team_layout
 from .session import (LIKERT_ITEMS, LIKERT_POINTS, ParticipantExists, SessionStore,
-                      check_answers, game_pairs, intervention_states, participant_number,
-                      subject_record, write_subject)
+                      check_answers, game_pairs, intervention_states, load_subject,
+                      participant_number, subject_record, write_subject)
 from .state import ConsoleState, Field
+
+# rclpy, the console's web server and the study's modules (numpy, scipy, matplotlib) are
+# imported where a phase needs them: `supersafe` imports this module to build its parser
 
 GAME_LABELS = ('Game 1', 'Game 2', 'Game 3')
 
@@ -134,7 +138,6 @@ class SetGate:
 
 def add_clock_gate(argvs, topic):
     """The sim clock also waits for one publisher on ``topic`` before its first step."""
-    from ..team import _param_value, process_name
     for a in argvs:
         if process_name(a) == 'sim_clock':
             for i, item in enumerate(a):
@@ -145,13 +148,11 @@ def add_clock_gate(argvs, topic):
 
 
 def without(argvs, *names):
-    from ..team import process_name
     return [a for a in argvs if process_name(a) not in names]
 
 
 def set_clock_param(argvs, key, value):
     """Replace one -p parameter of the sim clock's argv."""
-    from ..team import _param_value, process_name
     for a in argvs:
         if process_name(a) == 'sim_clock':
             for i, item in enumerate(a):
@@ -162,7 +163,6 @@ def set_clock_param(argvs, key, value):
 
 class Session:
     def __init__(self, args, out=sys.stdout):
-        from ..team import team_env
         from .server import ConsoleServer
         self.args = args
         self.out = out
@@ -287,7 +287,6 @@ class Session:
             self.server.stop()
 
     def _graph(self, argvs, robots, name, duration, drive_robot=None, set_msg=None):
-        from ..team import run_team
         self.phase_node = PhaseNode(self.env, self.state, robots, drive_robot=drive_robot,
                                     keys=lambda: self.keys, set_msg=set_msg,
                                     on_first_pose=lambda: self.show(self.view['phase'], **dict(
@@ -306,7 +305,6 @@ class Session:
         return result
 
     def phase1(self):
-        from ..team import team_layout, node_argv
         (self.store.dir / 'logs').mkdir(exist_ok=True)
         layout = team_layout(1, self.args.rate_factor, seed=participant_number(self.store.pid) % 100000,
                              duration=self.args.phase1_seconds, step=0.05, with_filter=False,
@@ -323,9 +321,9 @@ class Session:
 
     def phase2(self):
         from ..study.conductor import Phase2Conductor
+        from ..study.graph_phase2 import phase2_argvs
         from ..study.population import Subject
-        from ..study.runner import PHASE2_X0, PHASE2_X_END, SPEED, StudyOptions, phase2_argvs
-        from ..team import Team
+        from ..study.protocol import PHASE2_X0, PHASE2_X_END, SPEED, StudyOptions
         (self.store.dir / 'logs').mkdir(exist_ok=True)
         offsets = self.store.remaining_offsets()
         done0 = len(self.store.data['scenes'])
@@ -366,7 +364,8 @@ class Session:
     def fit(self):
         from ..learning.estimators import fit_paper
         from ..reach.library import load_or_build_library
-        from ..study.runner import TRUE_OMEGA, first_passage_fit
+        from ..study.fits import first_passage_fit
+        from ..study.protocol import TRUE_OMEGA
         scenes = self.store.data['scenes']
         states = intervention_states(scenes)
         lib = load_or_build_library()
@@ -391,7 +390,7 @@ class Session:
 
     def plot_fit(self):
         from ..study.plots import plot_learned_sets
-        from ..study.runner import TRUE_RADIUS, reference_sets
+        from ..study.protocol import TRUE_RADIUS, reference_sets
         standard, conservative = reference_sets()
         learned = []
         for name, label in (('paper', "paper's estimator"), ('first_passage', 'first-passage')):
@@ -417,8 +416,8 @@ class Session:
         """One Phase III game: a fresh graph (world, two robots with planner and filter, no
         supervisor process: the person is the supervisor) whose clock starts once both
         filters have the condition's set in force (``SetGate``)."""
-        from ..study.runner import condition_message, game_counts
-        from ..team import node_argv, team_layout
+        from ..study.games import condition_message
+        from ..study.records import game_counts
         fit = (self.store.data['fit'] or {}).get(self.args.estimator.replace('-', '_'))
         vf = self.learned_vf()
         learned = {'learned': (vf, fit)} if (vf is not None and fit) else {}
@@ -485,10 +484,10 @@ def add_parser(subparsers):
 
 
 def analyse(dirs, json_path=None, out=sys.stdout) -> int:
-    import json
     from ..study.analysis import format_table1
-    from ..study.runner import jsonable, reference_sets, summarize
-    from .session import load_subject
+    from ..study.protocol import reference_sets
+    from ..study.records import jsonable
+    from ..study.summary import summarize
     found = sorted({p.parent for d in dirs for p in Path(d).rglob('subject.json')})
     if not found:
         print(f'no subject.json under {[str(d) for d in dirs]}', file=sys.stderr)

@@ -22,7 +22,7 @@ force (the control path reads this one reference); ``set_update`` says what happ
 to the last set ((accepted | rejected | ignored | none, why)), ``set_updates`` counts.
 
 No ROS here: the decoder (``ros_io.vfcdr.serialized_to_value_function``), the level
-of a learned set (``nodes.filter_wiring.learned_alpha``) and the log (info, error)
+of a learned set (``learning.levels.learned_alpha``) and the log (info, error)
 are given.
 """
 from __future__ import annotations

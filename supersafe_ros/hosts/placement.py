@@ -1,4 +1,4 @@
-"""Which process of a team runs on which host, and `supersafe team --hosts K`.
+"""Which process of a team runs on which host, and running it so (`supersafe team --hosts K`).
 
 Host 0 is the server: the world, learner, supervisor (or console), the sim clock and,
 with ``--discovery-server``, the Fast DDS discovery server. Each robot's processes
@@ -30,6 +30,7 @@ import signal
 import subprocess
 import sys
 
+from ..team import process_name
 from .netns import HostNetwork, NetworkError, NetworkPermissionError, require_net_admin
 
 DISCOVERY_PORT = 11811
@@ -210,7 +211,6 @@ def discovery_server(server_argv, log_dir: Path):
 
 def describe(placed, net: HostNetwork, server_argv=None) -> str:
     """One line per process: host, namespace, address, argv."""
-    from ..team import process_name
     lines = [f'# {net.n_hosts} hosts on {net.address(0).rsplit(".", 1)[0]}.0/24, '
              f'bridge namespace {net.bridge_ns}']
     if server_argv:
@@ -226,18 +226,24 @@ def describe(placed, net: HostNetwork, server_argv=None) -> str:
     return '\n'.join(lines)
 
 
-def run_on_hosts(argvs: list[list[str]], args, log_dir) -> int:
-    """`supersafe team --hosts K`: the team's processes over K namespaces; exit code."""
-    from ..team import run_team
-    n_hosts = int(args.hosts)
+def run_on_hosts(argvs: list[list[str]], n_hosts: int, log_dir, run_team,
+                 with_discovery_server: bool = False, print_argv: bool = False) -> int:
+    """`supersafe team --hosts K`: the team's processes over ``n_hosts`` namespaces; exit code.
+
+    ``run_team(placed_argvs, log_dir)`` runs the placed processes and returns the result
+    dict of ``team.run_team`` (the command line binds its duration, timeout and domain);
+    it runs on host 0, with host 0's ROS settings. ``with_discovery_server``: a Fast DDS
+    discovery server on host 0 instead of multicast discovery. ``print_argv``: print the
+    placement and return, without making the namespaces."""
+    n_hosts = int(n_hosts)
     if n_hosts < 2:
         print('--hosts needs at least 2 hosts (host 0 and one robot host)', file=sys.stderr)
         return 2
     net = HostNetwork(n_hosts)
-    ds = bool(getattr(args, 'discovery_server', False))
+    ds = bool(with_discovery_server)
     placed = place(argvs, net, ds)
     server_argv = discovery_server_argv(net) if ds else None
-    if args.print_argv:
+    if print_argv:
         print(describe(placed, net, server_argv))
         return 0
     try:
@@ -254,8 +260,7 @@ def run_on_hosts(argvs: list[list[str]], args, log_dir) -> int:
                   f'{net.address(0)}/24, discovery '
                   f'{"server " + net.address(0) if ds else "SUBNET multicast"}', flush=True)
             with on_host_zero(net, ds), discovery_server(server_argv, log_dir):
-                result = run_team([a for _, a in placed], args.duration, args.timeout,
-                                  args.domain_id, log_dir)
+                result = run_team([a for _, a in placed], log_dir)
     except NetworkPermissionError as exc:
         print(f'supersafe team --hosts: {exc}', file=sys.stderr)
         return 2

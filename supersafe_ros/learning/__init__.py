@@ -5,7 +5,10 @@ ROS-free: numpy/scipy over the reachability core's value functions.
 * ``supervisor``: the noisy idealized supervisor (batch and streaming judgements).
 * ``data``: encounters, the CSV formats, the Phase II protocol.
 * ``estimators``: the paper's estimator, the first-passage estimator, the
-  conservative prior, alpha and the predicted false-positive fraction.
+  conservative prior, alpha and the predicted false-positive fraction;
+  ``newton``: the vectorised maximiser behind the first-passage fit.
+* ``levels``: ``learned_alpha``, the level mu + k sigma at which a filter uses a
+  learned set (the filter node's and the study's).
 * ``encounters``: encounters built online from poses, obstacle sets and
   interventions (the learner node's first-passage input).
 * ``intervention_store``: the durable JSON-lines stores (interventions, encounters).

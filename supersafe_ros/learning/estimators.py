@@ -41,9 +41,9 @@ drop of V_i between frames, the Jacobian the paper's estimator leaves out). In t
 natural parameters eta = mu/sigma, tau = 1/sigma each term is
 log P(lo tau - eta <= Z < hi tau - eta) with Z ~ N(0, 1), log-concave in (eta, tau)
 (Prekopa), so the maximum over mu >= 0, sigma > 0 is unique; all entries are fitted
-at once by a vectorised projected Newton method (analytic gradient, finite-difference
-Hessian, Armijo line search), started from the paper-style estimate; scipy's L-BFGS-B
-entry by entry is kept as a cross-check (``method='lbfgsb'``).
+at once by a vectorised projected Newton method (``newton``: analytic gradient,
+finite-difference Hessian, Armijo line search), started from the paper-style
+estimate; scipy's L-BFGS-B entry by entry is kept as a cross-check (``method='lbfgsb'``).
 An entry under which some recorded intervention is impossible (v_k >= m_{<k}: a
 frame earlier in the same encounter was already at or below the intervention's
 value) has log L_i = -inf, unless ``lapse`` > 0.
@@ -75,6 +75,7 @@ from scipy import optimize, special
 
 from ..reach.containment import contains
 from ..reach.value_function import ValueFunction
+from .newton import newton_maximise
 
 SIGMA_FLOOR = 1e-3      # value units (metres of clearance): below this a fit is degenerate
 _LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
@@ -402,68 +403,12 @@ _TAU_MIN = 1e-6                    # sigma <= 1e6: no bound in practice
 _TAU_MAX = 1.0 / SIGMA_FLOOR
 
 
-def _newton(fun, x, lower, upper, max_iter=100, tol=1e-10):
-    """Maximise m independent smooth 2-parameter functions at once, within box bounds.
-
-    fun(x (k, 2), rows) -> (f (k,), g (k, 2)) for the given rows (None: all m rows).
-    Projected Newton with a finite-difference Hessian of the analytic gradient, made negative definite when it is not, a
-    coordinate held at a bound while the gradient pushes it out, and a per-row
-    Armijo backtracking line search. Stops when every row's Newton decrement g.d is
-    below ``tol`` times (1 + |f|).
-    """
-    f, g = fun(x, None)
-    active = np.ones(len(x), dtype=bool)
-    for _ in range(max_iter):
-        idx = np.flatnonzero(active)
-        if idx.size == 0:
-            break
-        xa, ga = x[idx], g[idx]
-        H = np.empty((idx.size, 2, 2))
-        for j in range(2):
-            h = 1e-6 * np.maximum(1.0, np.abs(xa[:, j]))
-            xh = xa.copy()
-            # difference inward from an upper bound, outward from a lower one
-            xh[:, j] = np.where(xa[:, j] + h > upper[j], xa[:, j] - h, xa[:, j] + h)
-            _, gh = fun(xh, idx)
-            H[:, :, j] = (gh - ga) / (xh[:, j] - xa[:, j])[:, None]
-        H = 0.5 * (H + np.swapaxes(H, 1, 2))
-        # bounds: freeze a coordinate sitting on a bound with the gradient pointing out
-        frozen = np.stack([(xa[:, j] <= lower[j]) & (ga[:, j] < 0) |
-                           (xa[:, j] >= upper[j]) & (ga[:, j] > 0) for j in range(2)], axis=1)
-        # make -H positive definite (Levenberg shift) so that d = -H^-1 g ascends
-        eig_max = np.linalg.eigvalsh(H)[:, -1]
-        shift = np.where(eig_max >= 0.0, eig_max + 1e-8 * (1.0 + np.abs(H).max(axis=(1, 2))), 0.0)
-        Hn = H - shift[:, None, None] * np.eye(2)
-        gf = np.where(frozen, 0.0, ga)
-        Hn[:, 0, 1] = np.where(frozen.any(axis=1), 0.0, Hn[:, 0, 1])
-        Hn[:, 1, 0] = Hn[:, 0, 1]
-        d = -np.linalg.solve(Hn, gf[:, :, None])[:, :, 0]
-        decrement = np.sum(gf * d, axis=1)
-        done = decrement <= tol * (1.0 + np.abs(f[idx]))
-        step = np.ones(idx.size)
-        pending = ~done
-        for _ls in range(60):
-            if not pending.any():
-                break
-            rows = idx[pending]
-            xn = np.clip(x[rows] + step[pending, None] * d[pending], lower, upper)
-            fn, gn = fun(xn, rows)
-            ok = np.isfinite(fn) & (fn >= f[rows] + 1e-4 * step[pending] * decrement[pending])
-            x[rows[ok]], f[rows[ok]], g[rows[ok]] = xn[ok], fn[ok], gn[ok]
-            sub = np.flatnonzero(pending)
-            step[sub[~ok]] *= 0.5
-            pending[sub[ok]] = False
-        done |= pending           # no ascent along d: converged to rounding
-        active[idx[done]] = False
-    return x, f
-
-
 def maximise_first_passage(iv: EncounterIntervals, lapse=0.0, rows=None, method='newton', start=None):
     """Maximise the first-passage log-likelihood over mu >= 0, sigma >= SIGMA_FLOOR for the
     entries ``rows`` (default: every entry that can explain the data), in the natural
     parameters eta = mu/sigma, tau = 1/sigma with analytic gradients.
 
-    method 'newton': all entries at once (``_newton``, vectorised); 'lbfgsb': scipy's
+    method 'newton': all entries at once (``newton.newton_maximise``, vectorised); 'lbfgsb': scipy's
     L-BFGS-B entry by entry (slower; kept as a cross-check).
     start: (mu, sigma) arrays (n_entries,) to start from instead of the paper-style
     estimate, e.g. the previous fit of an online learner (non-finite values fall back).
@@ -494,8 +439,8 @@ def maximise_first_passage(iv: EncounterIntervals, lapse=0.0, rows=None, method=
             ll = np.where(bad, -np.inf, ll)
             return ll, np.where(bad[:, None], 0.0, np.stack([de, dt], axis=1))
 
-        x, ll = _newton(fun, x0.copy(),
-                        lower=np.array([0.0, _TAU_MIN]), upper=np.array([np.inf, _TAU_MAX]))
+        x, ll = newton_maximise(fun, x0.copy(),
+                                        lower=np.array([0.0, _TAU_MIN]), upper=np.array([np.inf, _TAU_MAX]))
     elif method == 'lbfgsb':
         x = np.empty_like(x0)
         scale = float(iv.lo.shape[1])          # keep the objective O(1) for the tolerances

@@ -26,6 +26,7 @@ from std_msgs.msg import Float32MultiArray
 from ..filter import RobotFilter, default_cluster_store
 from ..filter.set_selector import LearnedSetSelector
 from ..filter.timebase import FilterTime
+from ..learning.levels import learned_alpha
 from ..ros_io import rosmsg
 from ..ros_io.vfcdr import serialized_to_value_function
 from .filter_parameters import FilterParameters
@@ -43,14 +44,6 @@ def standard_value_function(lo, hi, shape, speed, omega_max, radius, horizon, ca
     from ..reach.library import load_or_solve
     return load_or_solve(Grid(tuple(lo), tuple(hi), tuple(int(n) for n in shape)), speed, omega_max,
                          radius, horizon if horizon > 0 else None, cache_dir=cache_dir or None)
-
-
-def learned_alpha(meta: dict, k: float) -> float:
-    """alpha = mu + k sigma from the fit's metadata, else its alpha, else 0."""
-    mu, sigma = meta.get('mu'), meta.get('sigma')
-    if mu is not None and sigma is not None:
-        return float(mu) + k * float(sigma)
-    return float(meta.get('alpha') or 0.0)
 
 
 class FilterWiring:

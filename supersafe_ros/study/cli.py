@@ -3,6 +3,8 @@
 By default (``--engine core``) every phase runs in this process with the package's
 ROS-free modules (``study.engine``); ``--engine graph`` runs it through the real node
 graph (the through-the-graph validation). See docs/study.md and ``supersafe_ros.study.runner``.
+The study's modules are imported when a command runs (scipy, the value functions): `supersafe`
+imports this module only to build its parser.
 """
 from __future__ import annotations
 
@@ -12,7 +14,7 @@ from pathlib import Path
 import sys
 import time
 
-from .analysis import CONDITIONS
+from .analysis import CONDITIONS, PAPER_STATS, format_h2, format_table1, ordered, significance_stars
 
 DEMO_SUBJECTS = 3
 DEMO_SEED = 7
@@ -85,7 +87,6 @@ def run_demo(args) -> int:
 
 def parse_conditions(text: str) -> tuple:
     """'standard,learned' -> ('standard', 'learned') in Table 1 order; ValueError if unknown."""
-    from .analysis import ordered
     names = [c.strip() for c in str(text).split(',') if c.strip()]
     if not names:
         raise ValueError('no conditions given')
@@ -93,7 +94,7 @@ def parse_conditions(text: str) -> tuple:
 
 
 def options_from_args(args):
-    from .runner import StudyOptions
+    from .protocol import StudyOptions
     opts = StudyOptions(subjects=args.subjects, seed=args.seed, step=args.step,
                         rate_factor=args.rate_factor, game_seconds=args.game_seconds,
                         conditions=parse_conditions(args.conditions),
@@ -108,9 +109,12 @@ def options_from_args(args):
 def run(args, out=sys.stdout) -> int:
     from ..rosenv import ensure_local_ros_env
     ensure_local_ros_env()
-    from .analysis import PAPER_STATS, format_h2, format_table1, significance_stars
     from .population import draw_subjects, pilot_fits
-    from .runner import jsonable, make_plots, reference_sets, run_study, summarize
+    from .plots import make_plots
+    from .protocol import reference_sets
+    from .records import jsonable
+    from .runner import run_study
+    from .summary import summarize
     if args.subjects < 1 or args.game_seconds <= 0 or args.step <= 0:
         print('need --subjects >= 1, --game-seconds > 0, --step > 0', file=sys.stderr)
         return 2

@@ -39,14 +39,15 @@ from ..filter import FilterConfig, SafeSet
 from ..learning.encounters import EncounterBuilder, feed, phase2_events
 from ..learning.estimators import (admissible_mask, encounter_intervals, fit_first_passage_intervals,
                                    fit_paper_values)
+from ..learning.levels import learned_alpha
 from ..reach.grid import Grid
 from ..reach.library import LibrarySpec, load_or_build_library, load_or_solve
 from ..sim.team_loop import RobotParams, TeamLoop
 from ..sim.watcher import Watcher
 from ..sim.world import WorldConfig
 from ..team import robot_names, start_poses
-from .runner import (FP_LEARNER, PHASE2_X0, PHASE2_X_END, SPEED, Phase2Result, _config_params,
-                     reference_sets, supervisor_seed)
+from .protocol import (FP_LEARNER, PHASE2_X0, PHASE2_X_END, SPEED, Phase2Result, config_params,
+                       reference_sets, supervisor_seed)
 
 N_ROBOTS = 2                     # the team of study.games.GameGraph
 MIN_INTERVENTIONS = 3            # learner.yaml min_interventions
@@ -55,7 +56,7 @@ MIN_INTERVENTIONS = 3            # learner.yaml min_interventions
 # -- parameters: the nodes' config files, with the overrides the study's graphs set ---------
 @functools.lru_cache(maxsize=None)
 def node_params(kind: str) -> dict:
-    return dict(_config_params(kind))
+    return dict(config_params(kind))
 
 
 def world_config() -> WorldConfig:
@@ -198,7 +199,7 @@ def scenes_from_events(events) -> list:
 
 
 class CoreStudy:
-    """One study's in-process engine (the runner's counterpart of the graph classes)."""
+    """One study's in-process engine (the counterpart of ``graph_phase2`` and ``games``)."""
 
     name = 'core'
 
@@ -229,7 +230,6 @@ class CoreStudy:
         """(SafeSet, alpha or None, what ran) of one condition; ``learned``: condition ->
         (ValueFunction or None, fit or None). A set the filters would reject is an error,
         as it stops the graph's game."""
-        from .runner import learned_alpha
         standard_vf, conservative_vf = reference_sets()
         std_alpha = float(node_params('safety_filter')['standard_alpha'])
         if condition == 'conservative':

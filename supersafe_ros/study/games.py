@@ -8,11 +8,12 @@ this process, on a context whose DDS participant the graph discovered once, with
 games, with the clock stopped, the runner resets everything a game depends on and waits for
 each node to confirm:
 
-1. the condition's safe set: one latched message on ``/safe_set/value_function`` (the
-   filters run with ``use_learned`` true and ``alpha_offset`` 0). Standard and
-   Conservative are the standard and radius-3.6 value functions marked ``source:
-   standard`` (alpha = the filter's ``standard_alpha``, 0), Learned sets carry their
-   ``alpha`` (mu + k sigma) explicitly. Confirmed by each filter's "... set in force" log;
+1. the condition's safe set (``condition_message``): one latched message on
+   ``/safe_set/value_function`` (the filters run with ``use_learned`` true and
+   ``alpha_offset`` 0). Standard is marked ``source: standard`` (each filter puts its own
+   standard set back in force); Conservative (the radius-3.6 value function) and Learned
+   sets carry their ``alpha`` (0; mu + k sigma) explicitly. Confirmed by each filter's
+   "... set in force" log;
 2. ``/world/reset`` (seed: the subject's world seed, the same for every condition):
    counts, H2 measures, layout (ids from 0) and goals afresh. Confirmed by
    ``resets`` in ``/world/stats``;
@@ -31,7 +32,9 @@ import threading
 import time
 from pathlib import Path
 
+from ..learning.levels import learned_alpha
 from ..team import Team, TeamMonitor, node_argv, robot_names, start_poses, team_layout
+from .protocol import reference_sets
 
 N_ROBOTS = 2
 RESEND_S = 15.0       # wall seconds before a reset request is sent again
@@ -49,6 +52,21 @@ def game_message(vf, alpha: float | None, label: str, **meta):
     level = 0.0 if alpha is None else float(alpha)
     return value_function_to_msg(vf, source='learned' if alpha is not None else label, condition=label,
                                  alpha=level, mu=None, sigma=None, **meta)
+
+
+def condition_message(condition: str, learned: dict, alpha_offset: float = 0.0):
+    """(message, alpha or None, what ran) of one condition; ``learned``: condition ->
+    (value function, fit) of the subject's learned sets. A learned condition without a
+    fit runs the Standard set (and is counted so)."""
+    standard_vf, conservative_vf = reference_sets()
+    if condition == 'conservative':
+        return game_message(conservative_vf, None, condition), None, 'conservative'
+    if condition in learned and learned[condition][0] is not None:
+        vf, fit = learned[condition]
+        alpha = learned_alpha(fit, alpha_offset)
+        return game_message(vf, alpha, condition, fit_mu=fit['mu'], fit_sigma=fit['sigma'],
+                            omega_max=fit['omega_max']), alpha, condition
+    return game_message(standard_vf, None, 'standard'), None, 'standard'
 
 
 def graph_argvs(world_seed: int, supervisor: dict, step: float, rate_factor: float) -> tuple:
@@ -71,7 +89,6 @@ class GameGraph:
 
     def __init__(self, env: dict, world_seed: int, supervisor: dict, step: float,
                  rate_factor: float, log_dir: Path, start_timeout: float = 120.0):
-        from ..ros_io.background_node import BackgroundNode
         from ..ros_io import rosmsg
         from diagnostic_msgs.msg import DiagnosticStatus
         from geometry_msgs.msg import PoseWithCovarianceStamped

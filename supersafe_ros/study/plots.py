@@ -1,12 +1,17 @@
 """The study's figures (PNG): the paper's Figs. 5 (FP per set), 6 (learned sets), 7
 (Phase II interventions over reachable sets), the alpha sweep of Sec. II-D and the H2
-efficiency panel (Sec. V-B)."""
+efficiency panel (Sec. V-B); ``make_plots`` draws them all for one study."""
 from __future__ import annotations
+
+from pathlib import Path
 
 import numpy as np
 
+from ..learning.levels import learned_alpha
 from ..reach.plots import theta_slice as _slice
 from .analysis import H2_MEASURES, LABELS, ordered, significance_stars
+from .protocol import TRUE_RADIUS
+from .records import record_learned
 
 COLORS = {'standard': '0.55', 'learned': 'tab:blue', 'learned_fp': 'tab:green',
           'conservative': 'tab:orange'}
@@ -160,3 +165,35 @@ def plot_alpha_sweep(path, sweep: dict) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
+
+
+def make_plots(out_dir: Path, summary: dict, records: list, standard_vf, conservative_vf) -> list:
+    """Every figure of a study (``summary.summarize``'s ``summary`` of ``records``) into
+    ``out_dir``; returns their paths."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = []
+    fp = {c: summary['conditions'][c]['false_positives'] for c in summary['conditions']}
+    p = out_dir / 'false_positives.png'
+    plot_false_positives(p, fp, summary['tukey'])
+    paths.append(p)
+    p = out_dir / 'efficiency.png'
+    plot_efficiency(p, summary['conditions'], summary['h2'])
+    paths.append(p)
+    learned = []
+    for r in records:
+        for c, (vf, fit) in record_learned(r).items():
+            if vf is not None:
+                learned.append((vf, learned_alpha(fit), f"subject {r['subject']['index']}", c))
+    p = out_dir / 'learned_sets.png'
+    plot_learned_sets(p, standard_vf, conservative_vf, learned, TRUE_RADIUS)
+    paths.append(p)
+    states = np.vstack([np.asarray(r['states'], dtype=float).reshape(-1, 3) for r in records])
+    p = out_dir / 'phase2_interventions.png'
+    plot_phase2(p, states, standard_vf, conservative_vf, TRUE_RADIUS)
+    paths.append(p)
+    sweep = {label: v for label, v in summary['alpha_sweep'].items() if v['predicted']}
+    if sweep:
+        p = out_dir / 'alpha_sweep.png'
+        plot_alpha_sweep(p, sweep)
+        paths.append(p)
+    return paths

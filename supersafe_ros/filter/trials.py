@@ -1,9 +1,10 @@
-"""Closed-loop encounters of filtered robots with detected discs, ROS-free.
+"""Collision trials: filtered robots in closed loop with detected discs, ROS-free.
 
-The collision tests and ``bench/bench_collisions.py`` count, with this loop,
-collisions with *detected* obstacles (every obstacle of a robot's layout is
-detected, from the start). Each robot has its own layout, start and goal and
-does not meet the others, so many encounters run side by side through one
+A trial is one robot's encounter with a layout of discs: from its start, across the
+layout, to its goal line. The collision tests and ``bench/bench_collisions.py``
+count, with this loop, collisions with *detected* obstacles (every obstacle of a
+robot's layout is detected, from the start). Each robot has its own layout, start
+and goal and does not meet the others, so many trials run side by side through one
 vectorised filter call per tick.
 
 One tick of ``step`` seconds, as in the lockstep team graph:
@@ -18,8 +19,8 @@ One tick of ``step`` seconds, as in the lockstep team graph:
    ``substeps`` points along the arc.
 
 A collision is an entry deeper than ``depth`` into a disc (counted once per
-entry). An encounter ends when the robot crosses its goal line; one that has
-not crossed it after ``time_limit`` seconds was trapped.
+entry). A trial ends when the robot crosses its goal line; one that has not
+crossed it after ``time_limit`` seconds was trapped.
 """
 from __future__ import annotations
 
@@ -35,10 +36,10 @@ from .types import FilterConfig
 
 
 @dataclass(frozen=True)
-class Encounter:
+class CollisionTrial:
     """One approach: discs (K, 2), a start state, a goal point and the goal line's normal.
 
-    The encounter is done when (p - goal) . direction >= 0.
+    The trial is done when (p - goal) . direction >= 0.
     """
 
     discs: np.ndarray
@@ -48,8 +49,10 @@ class Encounter:
 
 
 @dataclass
-class EncounterResult:
-    encounters: int = 0
+class TrialResult:
+    """Counts over trials run together (``run_trials``), added up with ``add``."""
+
+    trials: int = 0
     collisions: int = 0            # entries deeper than ``depth``
     deep_collisions: int = 0       # entries deeper than ``deep``
     max_depth: float = 0.0
@@ -60,28 +63,28 @@ class EncounterResult:
     sim_time: float = 0.0          # robot-seconds simulated
     depths: list = field(default_factory=list)
 
-    def add(self, other: 'EncounterResult') -> None:
-        for name in ('encounters', 'collisions', 'deep_collisions', 'trapped', 'decisions',
+    def add(self, other: 'TrialResult') -> None:
+        for name in ('trials', 'collisions', 'deep_collisions', 'trapped', 'decisions',
                      'stale_decisions', 'overrides', 'sim_time'):
             setattr(self, name, getattr(self, name) + getattr(other, name))
         self.max_depth = max(self.max_depth, other.max_depth)
         self.depths.extend(other.depths)
 
     def summary(self) -> str:
-        return (f'{self.encounters} encounters, {self.collisions} collisions > 1 cm '
+        return (f'{self.trials} encounters, {self.collisions} collisions > 1 cm '
                 f'({self.deep_collisions} > 5 cm, deepest {100 * self.max_depth:.1f} cm), '
                 f'{self.trapped} trapped, {self.overrides / max(self.decisions, 1):.1%} overrides, '
                 f'{self.stale_decisions / max(self.decisions, 1):.1%} decisions on the previous pose')
 
 
-def single_disc_encounters(n, rng, distance=9.0, offset=3.0, heading_noise=0.3) -> list:
+def single_disc_trials(n, rng, distance=9.0, offset=3.0, heading_noise=0.3) -> list:
     """Approaches to one disc at the origin: start at x = -distance with a lateral offset,
     goal on the far side with another offset, heading roughly at the goal."""
     out = []
     for _ in range(n):
         y0, y1 = rng.uniform(-offset, offset, 2)
         heading = np.arctan2(y1 - y0, 2 * distance) + rng.uniform(-heading_noise, heading_noise)
-        out.append(Encounter(np.zeros((1, 2)), (-distance, y0, heading), (distance, y1)))
+        out.append(CollisionTrial(np.zeros((1, 2)), (-distance, y0, heading), (distance, y1)))
     return out
 
 
@@ -111,7 +114,7 @@ def random_layout(rng, count, half=7.0, min_gap=0.5, radius=1.8, tries=2000) -> 
     return np.array(out)
 
 
-def layout_encounters(layouts, rng, margin=10.0, offset=None) -> list:
+def layout_trials(layouts, rng, margin=10.0, offset=None) -> list:
     """One approach per layout from a random direction, across it to the far side.
 
     The start is ``margin`` beyond the layout's farthest disc, with a lateral offset
@@ -128,15 +131,15 @@ def layout_encounters(layouts, rng, margin=10.0, offset=None) -> list:
         start = -(extent + margin) * d + b0 * nrm
         goal = (extent + margin) * d + b1 * nrm
         heading = np.arctan2(*(goal - start)[::-1]) + rng.uniform(-0.2, 0.2)
-        out.append(Encounter(discs, (start[0], start[1], heading), tuple(goal), tuple(d)))
+        out.append(CollisionTrial(discs, (start[0], start[1], heading), tuple(goal), tuple(d)))
     return out
 
 
-def run_encounters(encounters, guard, step=0.05, stale_probability=0.0, late_probability=0.0,
-                   config=None, rng=None,
-                   radius=1.8, depth=0.01, deep=0.05, time_limit=30.0, substeps=4,
-                   omega_max=1.0, speed=3.0, gain=2.0) -> EncounterResult:
-    """Run every encounter to its goal line (or the time limit) under ``guard``.
+def run_trials(trials, guard, step=0.05, stale_probability=0.0, late_probability=0.0,
+               config=None, rng=None,
+               radius=1.8, depth=0.01, deep=0.05, time_limit=30.0, substeps=4,
+               omega_max=1.0, speed=3.0, gain=2.0) -> TrialResult:
+    """Run every trial to its goal line (or the time limit) under ``guard``.
 
     ``late_probability``: the filter's reply misses its step (the lockstep moved on
     on an earlier reply), so the robot holds its previous command one step longer.
@@ -147,21 +150,21 @@ def run_encounters(encounters, guard, step=0.05, stale_probability=0.0, late_pro
     rng = rng if rng is not None else np.random.default_rng(0)
     config = config or FilterConfig(speed=speed, omega_max=omega_max)
     car = DubinsCar(speed, omega_max)
-    n = len(encounters)
-    state = np.array([e.start for e in encounters], dtype=float).reshape(n, 3)
-    goal = np.array([e.goal for e in encounters], dtype=float).reshape(n, 2)
-    direction = np.array([e.direction for e in encounters], dtype=float).reshape(n, 2)
+    n = len(trials)
+    state = np.array([e.start for e in trials], dtype=float).reshape(n, 3)
+    goal = np.array([e.goal for e in trials], dtype=float).reshape(n, 2)
+    direction = np.array([e.direction for e in trials], dtype=float).reshape(n, 2)
     filters = [RobotFilter(config, f'robot_{i}') for i in range(n)]
     previous = state.copy()
     applied = np.zeros(n)                           # the command the robot holds
-    width = max(len(e.discs) for e in encounters)
+    width = max(len(e.discs) for e in trials)
     discs = np.full((n, width, 2), 1e9)             # padded: far-away fillers never collide
-    for i, e in enumerate(encounters):
+    for i, e in enumerate(trials):
         discs[i, :len(e.discs)] = e.discs
     inside = np.zeros((n, width), dtype=bool)
     deepest = np.zeros((n, width))
     active = np.ones(n, dtype=bool)
-    res = EncounterResult(encounters=n)
+    res = TrialResult(trials=n)
 
     def close(mask):
         d = deepest[mask]
@@ -186,7 +189,7 @@ def run_encounters(encounters, guard, step=0.05, stale_probability=0.0, late_pro
                 f.update_pose(previous[i], t, stamp=t - step)
             else:
                 f.update_pose(state[i], t, stamp=t)
-            f.update_detections(encounters[i].discs, t)
+            f.update_detections(trials[i].discs, t)
             f.update_command(float(planned[j]), t)
         outs = guard([filters[i] for i in idx], t)
         decided = np.clip(np.array([o.omega for o in outs]), -omega_max, omega_max)
