@@ -161,7 +161,7 @@ def test_scripted_participant_goes_through_phase_two_and_gets_a_fit(tmp_path):
         d.find_element('id', 'start').click()              # "Continue": --stop-after fit ends here
         assert proc.wait(timeout=60) == 0
         # the session's recording holds the person's interventions as the graph carried them
-        from test_recording import read_bag
+        from bag_support import read_bag
         _, _, _, messages = read_bag(tmp_path / '12' / 'recording-1' / 'recording-1_0.mcap')
         frames = [m.header.frame_id for topic, _, _, m, _ in messages if topic == '/interventions']
         assert sorted(frames) == sorted(f'obstacle_{o}' for o in handled)

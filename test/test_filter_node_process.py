@@ -16,7 +16,7 @@ from geometry_msgs.msg import PoseArray, PoseStamped, Twist
 
 from supersafe_ros.ros_io import rosmsg
 
-from filter_learner_support import Spinner, matched, ros_context  # noqa: F401  (fixture)
+from graph_support import Spinner, matched
 
 REPO = Path(__file__).resolve().parents[1]
 CONFIG = REPO / 'config' / 'safety_filter.yaml'

@@ -1,6 +1,6 @@
 """The vectorised ``step_many`` decides exactly as the per-robot implementation it replaced.
 
-``filter_reference_support.step_many_reference`` is the robot-by-robot code of commit
+``filter_oracle.step_many_reference`` is the robot-by-robot code of commit
 003abdd, kept verbatim. Both run on identical fleets (built twice from one seed) over
 several closed-loop ticks: random poses near obstacles, detections with clusters of
 close obstacles (shared arrays, as the fleet node's batched detections, and per-robot
@@ -18,7 +18,7 @@ import math
 import numpy as np
 import pytest
 
-from filter_reference_support import step_many_reference
+from filter_oracle import step_many_reference
 from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore, ClusterValue, solve_cluster
 from supersafe_ros.filter import FilterConfig, RobotFilter, SafeSet, step_many
 from supersafe_ros.reach.dynamics import DubinsCar
@@ -538,10 +538,10 @@ def test_one_robots_pair_values_in_python_floats_equal_numpys(standard, kind):
 
 def test_the_governing_rule_is_the_per_robot_oracles():
     """law.govern and law.smallest pick what the oracle's rule for one robot (Python lists,
-    filter_reference_support.govern_one) picks over the same table: random rows with levels
+    filter_oracle.govern_one) picks over the same table: random rows with levels
     that differ (pairs at alpha, clusters at their own level), sound cluster rows and their
     members, values off the grid, exact ties, overriding or not."""
-    from filter_reference_support import govern_one as _govern_one
+    from filter_oracle import govern_one as _govern_one
     from supersafe_ros.filter.law import ConstraintTable, first_min, govern
     rng = np.random.default_rng(8)
     kinds = set()

@@ -14,8 +14,7 @@ from supersafe_ros.nodes import fleet_safety_filter_node as fleet_module
 from supersafe_ros.nodes.fleet_safety_filter_node import FleetSafetyFilterNode
 from supersafe_ros.ros_io import fleetmsg, rosmsg
 
-from filter_learner_support import Spinner, matched, ros_context  # noqa: F401  (fixture)
-from test_graph_support import Rosout
+from graph_support import Rosout, Spinner, matched
 
 ROBOTS = ['robot_0', 'robot_1', 'robot_2']
 OBSTACLE = (4.0, -2.0)

@@ -16,8 +16,7 @@ from std_msgs.msg import Empty
 from supersafe_ros.ros_io import rosmsg
 from supersafe_ros.nodes.sim_clock_node import SimClockNode, parse_topic_counts
 
-from test_graph_support import (Rosout, Spinner, live_and_read_only, params,  # noqa: F401
-                                ros_context, set_parameters)
+from graph_support import Rosout, Spinner, live_and_read_only, params, set_parameters
 
 
 def ns_of(msg):

@@ -14,8 +14,6 @@ import time
 
 from supersafe_ros import team
 
-from test_graph_support import ros_context  # noqa: F401  (fixture)
-
 # small value-function grids: start-up is the point, not the numerics
 SMALL = {
     'supervisor': {'grid_nxy': 17, 'grid_ntheta': 8},
@@ -122,7 +120,7 @@ def test_the_events_executor_spins_a_node_and_stops_it_quietly(tmp_path, ros_con
     from geometry_msgs.msg import PoseArray, PoseStamped, Twist
     from rclpy.node import Node
     from supersafe_ros.ros_io import rosmsg
-    from test_graph_support import Spinner, matched
+    from graph_support import Spinner, matched
     monkeypatch.setenv('SUPERSAFE_EXECUTOR', 'events')
     p = NodeProcess('safety_filter', 'events_robot', tmp_path)
     driver = Node('events_driver', context=ros_context)

@@ -7,7 +7,6 @@ by bench/bench_learner.py; here the bound is generous, for a loaded CI machine).
 """
 import json
 
-from filter_learner_support import ros_context  # noqa: F401  (fixture)
 from learner_burst_support import run_burst
 
 N = 1000

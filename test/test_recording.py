@@ -1,7 +1,6 @@
 """Recording to rosbag2-layout MCAP bags: the ROS-free writer, message definitions, and
 the graph recorder at topic level (the test publishes, the recorder records, the bag is
 read back with the mcap reader + mcap_ros2 decoder and with rosbags' rosbag2 reader)."""
-from pathlib import Path
 import time
 
 import pytest
@@ -16,21 +15,10 @@ from supersafe_ros.recording import msgdefs
 from supersafe_ros.recording.bag import BagWriter, qos_profile
 from supersafe_ros.ros_io import rosmsg
 
-from test_graph_support import Spinner, matched, ros_context  # noqa: F401
+from bag_support import read_bag
+from graph_support import Spinner, matched
 
 SEP = '=' * 80 + '\n'
-
-
-def read_bag(mcap_path: Path):
-    """(header, summary, metadata records, [(topic, schema, channel, decoded message, log_time)])."""
-    from mcap.reader import make_reader
-    from mcap_ros2.decoder import DecoderFactory
-    with open(mcap_path, 'rb') as f:
-        reader = make_reader(f, decoder_factories=[DecoderFactory()])
-        header, summary = reader.get_header(), reader.get_summary()
-        records = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
-        messages = [(c.topic, s, c, d, m.log_time) for s, c, m, d in reader.iter_decoded_messages()]
-    return header, summary, records, messages
 
 
 # -- message definitions ---------------------------------------------------------------------------

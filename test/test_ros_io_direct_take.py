@@ -10,8 +10,6 @@ from std_msgs.msg import Int32
 from supersafe_ros.ros_io import rosmsg
 from supersafe_ros.ros_io.direct_take import DirectTake
 
-from filter_learner_support import Spinner, matched, ros_context  # noqa: F401  (fixture)
-
 
 def wait(cond, timeout, what):
     deadline = time.monotonic() + timeout

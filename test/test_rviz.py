@@ -18,7 +18,7 @@ from supersafe_ros.interventions import (NoIntervention, intervention_at_point, 
 from supersafe_ros.nodes.markers import level_set_lines, level_set_markers, obstacles_to_markers
 from supersafe_ros.ros_io import rosmsg
 
-from test_graph_support import Rosout, Spinner, matched, ros_context  # noqa: F401
+from graph_support import Rosout, Spinner, matched
 
 OBSTACLES = {2: (0.0, 0.0), 9: (6.0, 3.0)}
 RADIUS = 1.8
