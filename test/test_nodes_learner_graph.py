@@ -5,7 +5,7 @@ sigma 0.3) and the learner (first-passage, robots [robot_0]) as processes; the s
 Phase II conductor sets each scene (/world/set_obstacles, robot_0/initialpose) and
 drives the robot straight. The learner must count one encounter per scene, with an
 intervention exactly where the conductor saw one, and none unmatched. (Recovery
-accuracy is tested on synthetic streams in test_learner_first_passage.py.)
+accuracy is tested on synthetic streams in test_nodes_learner_first_passage.py.)
 """
 import json
 import time
