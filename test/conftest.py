@@ -7,6 +7,10 @@
 * ``ros_context``: each topic-level test module runs its nodes in its own rclpy
   Context (rclpy is imported only when a test asks for it); the plumbing that spins
   them is in graph_support.py.
+* Markers (declared in setup.cfg, ``--strict-markers``): ``ros`` (starts rclpy nodes in
+  this process or node processes), ``browser`` (headless Chromium), ``root`` (network
+  namespaces), ``slow`` (over ~20 s alone). ``pytest -m "not ros and not browser"`` runs
+  the fast ROS-free core; a test that takes ``ros_context`` without ``ros`` is refused.
 """
 import os
 from pathlib import Path
@@ -62,3 +66,13 @@ def ros_context(tmp_path_factory):
     rclpy.init(context=ctx)
     yield ctx
     ctx.try_shutdown()
+
+
+def pytest_collection_modifyitems(config, items):
+    """Refuse a test that starts rclpy nodes (it takes ``ros_context``) but is not marked ``ros``:
+    ``-m "not ros"`` must leave no node behind."""
+    unmarked = [item.nodeid for item in items
+                if 'ros_context' in getattr(item, 'fixturenames', ()) and item.get_closest_marker('ros') is None]
+    if unmarked:
+        raise pytest.UsageError('tests that take ros_context must be marked ros (pytest.mark.ros):\n  '
+                                + '\n  '.join(unmarked))

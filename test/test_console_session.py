@@ -109,6 +109,8 @@ def page(driver):
                 figure: document.getElementById('fit-figure').naturalWidth};""")
 
 
+@pytest.mark.ros
+@pytest.mark.browser
 def test_scripted_participant_goes_through_phase_two_and_gets_a_fit(tmp_path):
     from selenium.webdriver.common.keys import Keys
     port = free_port()
@@ -177,6 +179,9 @@ def test_scripted_participant_goes_through_phase_two_and_gets_a_fit(tmp_path):
         print(proc.stdout.read())
 
 
+@pytest.mark.ros
+@pytest.mark.browser
+@pytest.mark.slow
 def test_scripted_participant_completes_the_whole_protocol(tmp_path):
     """Phase I (arrow keys), Phase II (Space), the fit, three games with clicks and both
     Likert screens, to subject.json; then the researcher's --analyse over it."""

@@ -67,6 +67,8 @@ def nearest(obstacle, robots):
     return min(robots.items(), key=lambda kv: math.dist(kv[1], obstacle))
 
 
+@pytest.mark.ros
+@pytest.mark.browser
 def test_page_shows_ten_obstacles_and_the_moving_robots(console_team, tmp_path):
     driver, monitor, running = console_team
     first = wait_until(lambda: (s := scene(driver)) and len(s['obstacles']) == 10
@@ -110,6 +112,8 @@ def logged(monitor, oid):
     return next((i for i in list(monitor.interventions) if i.get('obstacle') == str(oid)), None)
 
 
+@pytest.mark.ros
+@pytest.mark.browser
 def test_clicking_an_obstacle_removes_it_and_the_world_classifies_the_intervention(console_team):
     driver, monitor, running = console_team
     wait_until(lambda: len(scene(driver)['obstacles']) == 10, 60, 'ten obstacles')

@@ -16,6 +16,8 @@ from supersafe_ros.reach.grid import wrap_angle
 
 from graph_support import ClockDriver, Rosout, Spinner, live_and_read_only, matched, params, set_parameters
 
+pytestmark = pytest.mark.ros   # rclpy nodes in this process
+
 
 class Controller:
     """Plays the safety filter: answers every pose with a cmd_vel of ``self.omega``."""

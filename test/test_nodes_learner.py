@@ -20,6 +20,8 @@ from supersafe_ros.ros_io.vfmsg import msg_to_value_function
 
 from graph_support import Spinner, matched
 
+pytestmark = pytest.mark.ros   # rclpy nodes in this process
+
 OMEGAS = [0.25, 0.5, 1.0, 2.0]
 SHAPE = [41, 41, 24]
 TRUE_OMEGA, MU, SIGMA = 0.5, 0.3, 0.1     # the simulated supervisor

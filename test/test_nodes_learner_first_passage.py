@@ -34,6 +34,8 @@ from supersafe_ros.sim.watcher import Watcher
 
 from graph_support import Spinner, matched
 
+pytestmark = pytest.mark.ros   # rclpy nodes in this process
+
 SHAPE = [41, 41, 24]
 OMEGAS = [float(w) for w in PAPER_OMEGAS]
 W, MU, SIGMA = 0.5, 1.0, 0.3

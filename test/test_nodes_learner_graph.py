@@ -10,8 +10,12 @@ accuracy is tested on synthetic streams in test_nodes_learner_first_passage.py.)
 import json
 import time
 
+import pytest
+
 from supersafe_ros.learning.encounters import EncounterRecord
 from supersafe_ros.team import Team, node_argv, team_env, team_layout
+
+pytestmark = pytest.mark.ros   # node processes
 
 OFFSETS = [-2.25, 0.0, 2.25, -1.0, 2.0]
 STEP = 0.2

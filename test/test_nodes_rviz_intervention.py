@@ -89,6 +89,7 @@ def test_level_sets_around_obstacles_become_line_strip_markers(standard_vf):
 
 
 # -- rviz_intervention_node at topic level ---------------------------------------------------------
+@pytest.mark.ros
 def test_clicks_on_obstacles_become_interventions(ros_context):
     from rclpy.node import Node
     from supersafe_ros.nodes.rviz_intervention_node import QOS_CLICKS, RvizInterventionNode
@@ -143,6 +144,7 @@ def test_clicks_on_obstacles_become_interventions(ros_context):
 
 
 # -- safety_filter_node's level-set markers ----------------------------------------------------------
+@pytest.mark.ros
 def test_filter_node_draws_the_set_in_force_at_the_robot_heading(ros_context, standard_vf):
     from rclpy.node import Node
     from supersafe_ros.nodes.safety_filter_node import SafetyFilterNode

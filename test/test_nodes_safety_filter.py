@@ -14,6 +14,8 @@ from supersafe_ros.reach.value_function import ValueFunction
 from graph_support import Spinner, matched
 from safety_filter_support import NS, OBSTACLE, SHAPE, Driver, state
 
+pytestmark = pytest.mark.ros   # rclpy nodes in this process
+
 
 @pytest.fixture(scope='module', params=[True, False], ids=['direct_take', 'executor_takes'])
 def setup(ros_context, request):

@@ -18,6 +18,8 @@ from supersafe_ros.ros_io import rosmsg
 
 from graph_support import Spinner, matched
 
+pytestmark = pytest.mark.ros   # rclpy nodes in this process and as processes
+
 REPO = Path(__file__).resolve().parents[1]
 CONFIG = REPO / 'config' / 'safety_filter.yaml'
 NS = '/robot_7'

@@ -12,6 +12,8 @@ import sys
 import threading
 import time
 
+import pytest
+
 from supersafe_ros import team
 
 # small value-function grids: start-up is the point, not the numerics
@@ -63,6 +65,8 @@ class NodeProcess:
         return code
 
 
+@pytest.mark.ros
+@pytest.mark.slow
 def test_every_node_stops_quietly_on_a_signal(tmp_path):
     procs = [NodeProcess(kind, ns, tmp_path) for kind, ns in NODES]
     try:
@@ -113,6 +117,7 @@ sys.exit(run_node(Node, ['x']))
     assert not built.exists()
 
 
+@pytest.mark.ros
 def test_the_events_executor_spins_a_node_and_stops_it_quietly(tmp_path, ros_context, monkeypatch):
     """SUPERSAFE_EXECUTOR=events (rclpy's experimental EventsExecutor, which takes no guard
     conditions): the filter's watchdog publishes commands (timers and publishers run), then stops on SIGINT with exit 0

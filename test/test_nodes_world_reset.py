@@ -12,6 +12,8 @@ from supersafe_ros.nodes.world_node import WorldNode
 from graph_support import Rosout, Spinner, matched, params
 from world_support import ROBOTS, Robots
 
+pytestmark = pytest.mark.ros   # rclpy nodes in this process
+
 
 @pytest.fixture(scope='module')
 def rig(ros_context):

@@ -17,6 +17,8 @@ from supersafe_ros.nodes.world_node import WorldNode
 from graph_support import Rosout, Spinner, live_and_read_only, matched, params, set_parameters
 from world_support import ROBOTS, Robots
 
+pytestmark = pytest.mark.ros   # rclpy nodes in this process
+
 
 @pytest.fixture(scope='module')
 def world_rig(ros_context):

@@ -112,6 +112,7 @@ def test_bag_reads_back_through_an_independent_rosbag2_reader(tmp_path):
 
 
 # -- the graph recorder ----------------------------------------------------------------------------
+@pytest.mark.ros
 def test_recorder_records_latched_and_event_topics_and_finds_interventions(ros_context, tmp_path):
     from supersafe_ros.ros_io.bag_recorder import start_recorder
     import rclpy
@@ -155,6 +156,7 @@ def test_recorder_records_latched_and_event_topics_and_finds_interventions(ros_c
 
 
 # -- supersafe team --record -------------------------------------------------------------------------
+@pytest.mark.ros
 def test_team_run_records_every_topic_and_the_interventions_the_world_logged(tmp_path):
     """A short real team (processes, simulated supervisor) with run_team(record=...): the
     bag has every step's pose and exactly the interventions the world accepted."""
@@ -190,6 +192,7 @@ def test_team_run_records_every_topic_and_the_interventions_the_world_logged(tmp
     assert recorded and recorded == logged, (recorded, logged)
 
 
+@pytest.mark.ros
 def test_record_command_records_until_ctrl_c(ros_context, tmp_path):
     """`supersafe record BAG` as a process: records what a node publishes, stops cleanly on SIGINT."""
     import os

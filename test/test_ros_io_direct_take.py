@@ -10,6 +10,8 @@ from std_msgs.msg import Int32
 from supersafe_ros.ros_io import rosmsg
 from supersafe_ros.ros_io.direct_take import DirectTake
 
+pytestmark = pytest.mark.ros   # rclpy nodes in this process
+
 
 def wait(cond, timeout, what):
     deadline = time.monotonic() + timeout

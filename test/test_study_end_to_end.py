@@ -5,8 +5,12 @@ import io
 import json
 import math
 
+import pytest
+
 from supersafe_ros.study import cli
 from supersafe_ros.study.analysis import CONDITIONS, H2_MEASURES
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow]   # the study's graph engine: node processes, ~25 s
 
 
 def test_one_subject_study_through_the_graph(tmp_path):
