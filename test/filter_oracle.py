@@ -93,7 +93,7 @@ def step_many_reference(filters, safe_set: SafeSet, t, clusters=None) -> list:
     for obstacles judged together (None: the process's shared store for the
     robots' configuration; see ``filter.cluster``).
     """
-    n = len(filters)
+    n = len(filters)  # noqa: F841  (unused, kept: the reference is the old code verbatim)
     problems = [f.problem(t) for f in filters]
     usable = []   # robots whose (last valid) state enters the law
     for i, f in enumerate(filters):

@@ -131,6 +131,7 @@ def test_scripted_participant_goes_through_phase_two_and_gets_a_fit(tmp_path):
                    'the Phase II start button')
         d.find_element('id', 'start').click()
         handled = set()
+
         # intervene on every scene but the last, when the robot is 3-5 m before the obstacle
         def step():
             p = page(d)
@@ -244,11 +245,12 @@ def test_scripted_participant_completes_the_whole_protocol(tmp_path):
             wait_until(game_step, 180, f'game {game + 1} to end', period=0.5)
             if game >= 1:
                 wait_until(lambda: page(d)['phase'] == 'likert', 60, 'the Likert screen')
-                for radio in d.execute_script("""
+                fives = d.execute_script("""
                     const seen = new Set(); const out = [];
                     for (const r of document.querySelectorAll('input[data-likert]')) {
                       if (!seen.has(r.name) && r.value === '5') { seen.add(r.name); out.push(r); } }
-                    return out;"""):
+                    return out;""")
+                for radio in fives:
                     radio.click()
                 d.find_element('css selector', 'button[data-action="answers"]').click()
         wait_until(lambda: page(d)['phase'] == 'done', 120, 'the end of the session')

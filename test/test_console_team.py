@@ -152,7 +152,8 @@ def test_clicking_an_obstacle_removes_it_and_the_world_classifies_the_interventi
     wait_until(lambda: str(near) not in scene(driver)['obstacles'], 30, f'obstacle {near} to leave the page')
     wait_until(lambda: int(scene(driver)['stats']['interventions']) == counted + 2, 30,
                lambda: f'the page to count both interventions (counted {counted}, now {scene(driver)["stats"]}, '
-               f'world {monitor.interventions} replies {driver.execute_script("return window.supersafeConsole.replies")})')
+               f'world {monitor.interventions} replies '
+               f'{driver.execute_script("return window.supersafeConsole.replies")})')
 
     # clicking an obstacle that is already gone: a message on the page, nothing breaks
     driver.execute_script(f"window.supersafeSend({{type: 'intervene', obstacle: {near}}});")

@@ -156,7 +156,7 @@ def record(o, f):
     (1, 'solved', 0.0, 'standard'), (2, 'pending', 0.0, 'standard'), (3, 'solved', 0.3, 'learned'),
     (4, 'inline', 0.0, 'standard'), (5, 'pending', -0.2, 'learned')])
 def test_vectorised_step_many_decides_as_the_per_robot_reference(standard, solved_values, seed, store_kind,
-                                                                  alpha, source):
+                                                                 alpha, source):
     safe = SafeSet(standard.vf, alpha, source)
     fleets = [build_fleet(seed, 320) for _ in range(2)]
     stores = [make_store(store_kind, solved_values) for _ in range(2)]
@@ -350,7 +350,6 @@ def test_long_holds_around_solved_clusters_decide_as_the_reference(standard, sol
     grid from outside it make the filter act): the (robot, cluster) instances left out as out
     of reach (``_beyond_grid``) change no decision (kills a reach that does not grow with
     speed x hold)."""
-    rng = np.random.default_rng(31)
     configs = [FilterConfig(lookahead=h, cluster_alpha=4.0) for h in (1.0, 2.0, 2.0)]
     centroids = [LAYOUT[[0, 1]].mean(axis=0), LAYOUT[[3, 4, 5]].mean(axis=0)]
     dets = LAYOUT[[0, 1, 3, 4, 5]].copy()          # the row's pair and the cup, both solved

@@ -41,8 +41,7 @@ def test_hosts_are_isolated_and_removed_on_exit():
                                     capture_output=True, text=True).stdout
             # on-link /24 and multicast only: no default route, nothing else reachable
             assert 'default' not in routes
-            assert sorted(r.split()[0] for r in routes.splitlines()) == ['10.213.0.0/24',
-                                                                        '224.0.0.0/4']
+            assert sorted(r.split()[0] for r in routes.splitlines()) == ['10.213.0.0/24', '224.0.0.0/4']
             addrs = subprocess.run(net.exec_prefix(i) + ['ip', '-o', '-4', 'addr', 'show'],
                                    capture_output=True, text=True).stdout
             assert f'inet {net.address(i)}/24' in addrs and 'inet 127.0.0.1/8' in addrs

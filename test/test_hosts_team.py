@@ -21,7 +21,6 @@
 """
 from collections import Counter
 import json
-import os
 import re
 from pathlib import Path
 import shutil

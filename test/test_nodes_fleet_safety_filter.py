@@ -166,8 +166,8 @@ def batched_tick(d, spin, states, turns, want, what, frame='map'):
     d.fleet_poses.publish(fleet_poses(states, frame))
     spin.until(lambda: d.fleet_out and want(d.fleet_newest()), 10.0, what)
     rows = np.asarray(d.fleet_out[-1].data).reshape(-1, 2)
-    assert rows.shape == (3, 2) and [x.label for x in d.fleet_out[-1].layout.dim] == ['robot',
-                                                                                       'linear_x,angular_z']
+    assert rows.shape == (3, 2)
+    assert [x.label for x in d.fleet_out[-1].layout.dim] == ['robot', 'linear_x,angular_z']
     return rows, d.fleet_newest()
 
 

@@ -1,6 +1,5 @@
 """safety_filter_node as a process with the installed config: stale input without /clock,
 and a 50 MB value function decoded and checked off the control path."""
-import math
 import os
 import re
 import signal

@@ -72,7 +72,7 @@ def test_every_node_stops_quietly_on_a_signal(tmp_path):
     try:
         deadline = time.monotonic() + 90
         while time.monotonic() < deadline and not all(p.logged() or p.proc.poll() is not None
-                                                       for p in procs):
+                                                      for p in procs):
             time.sleep(0.1)
         for p in procs:
             assert p.proc.poll() is None, f'{p.kind} exited early: {"".join(p.stderr)}'

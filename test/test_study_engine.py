@@ -149,7 +149,7 @@ def test_the_core_records_do_not_depend_on_the_number_of_workers(tmp_path):
         recs = run_study(subjects, opts, out=io.StringIO())['records']
         # as JSON text: NaN measures (no trip completed) compare equal there
         runs.append([json.dumps(({c: {k: v for k, v in g.items() if k not in ('wall', 'wall_running', 'cpu_s',
-                                                                             'cpu_by_process')}
+                                                                              'cpu_by_process')}
                                   for c, g in r['games'].items()}, r['states']), sort_keys=True)
                      for r in recs])
     assert runs[0] == runs[1]

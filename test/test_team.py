@@ -132,7 +132,7 @@ def test_team_stops_cleanly_on_ctrl_c(tmp_path):
             lines.append(line)
             if sim_time_runs(line):
                 break
-        assert any(sim_time_runs(l) for l in lines), ''.join(lines)
+        assert any(sim_time_runs(line) for line in lines), ''.join(lines)
         os.kill(proc.pid, signal.SIGINT)
         out, _ = proc.communicate(timeout=30)
     finally:
