@@ -73,8 +73,8 @@ def layouts(args, safe):
     pairs = []
     for _ in range(n):    # two discs farther apart than the link distance: not clustered
         d, a = rng.uniform(9.6, 16.0), rng.uniform(-np.pi, np.pi)
-        pairs.append(np.array([[-0.5, 0.0], [0.5, 0.0]]) * d @ np.array([[np.cos(a), np.sin(a)],
-                                                                      [-np.sin(a), np.cos(a)]]))
+        rotation = np.array([[np.cos(a), np.sin(a)], [-np.sin(a), np.cos(a)]])
+        pairs.append(np.array([[-0.5, 0.0], [0.5, 0.0]]) * d @ rotation)
     sets['pairs beyond the link (9.6-16 m)'] = pairs
     print(f'== layouts: approaches per row as listed, {STALE:.1%} stale decisions ==')
     for step in args.steps:

@@ -147,8 +147,10 @@ def pilot_table(lib, folder) -> str:
         fp, lp = _fp_fit(lib.entries, enc, true)
         fn, ln = _fp_fit(lib.entries, enc, None)
         imp = sorted({c['impossible_interventions'] for c in fn.candidates if c['omega_max'] > 0})
-        cell = lambda r, lapse: (f'{r.omega_max:g}, {r.mu:.2f}, {r.sigma:.2f} [{_margin(r):.1f}]'
-                                 + (f' (lapse {lapse:g})' if lapse else ''))
+
+        def cell(r, lapse):
+            return (f'{r.omega_max:g}, {r.mu:.2f}, {r.sigma:.2f} [{_margin(r):.1f}]'
+                    + (f' (lapse {lapse:g})' if lapse else ''))
         pred = E.predicted_false_positive_fraction(pp.value_function, pp.alpha, s)
         rows.append(f'| {n} | {len(s)} | {cell(pp, 0)} | {cell(pn, 0)} | {cell(fp, lp)} | '
                     f'{cell(fn, ln)} | {"/".join(map(str, imp))} | {pred:.0%} |')

@@ -596,7 +596,8 @@ def _bench_fleet(args, where):
             d.spin_until(lambda: reports and int(reports[-1]['t']) >= int(t1 * 1e9), 30.0, 'a report after the window')
             decided, fail = _window_rates(reports, t0, t1)
             print(f'[fleet] M={m:4d}: fed at {ticks / (t1 - t0):5.1f} Hz per robot; decisions per robot median '
-                  f'{np.median(decided):5.1f}/s, min {decided.min():5.1f}/s; robots failing safe at most {fail} once fed; '
+                  f'{np.median(decided):5.1f}/s, min {decided.min():5.1f}/s; '
+                  f'robots failing safe at most {fail} once fed; '
                   f'fleet process CPU {100 * cpu / (t1 - t0):5.1f} % of its one core; feeder CPU '
                   f'{100 * feeder / (t1 - t0):5.1f} % (load {os.getloadavg()[0]:.1f})')
             _capacity('fleet', m, cpu, _window_rates.ticks)
@@ -640,6 +641,7 @@ def _bench_batched(args, where):
                 p.orientation = rosmsg.yaw_to_quaternion(float(th))
             dets = rosmsg.xy_to_posearray(field)
             cmds = fleetmsg.commands_to_msg(np.tile([3.0, 0.1], (n, 1)))
+
             def feed(seconds):
                 """Poses and commands at 50 Hz (detections at 10 Hz) for ``seconds``: (ticks, the
                 latencies of the replies that came within their tick, the send times)."""
@@ -674,7 +676,8 @@ def _bench_batched(args, where):
             d.spin_until(lambda: reports and int(reports[-1]['t']) >= int(t1 * 1e9), 30.0, 'a report after the window')
             decided, fail = _window_rates(reports, t0, t1)
             print(f'[batched] N={n:5d}: fed at {ticks / (t1 - t0):5.1f} Hz; decisions per robot median '
-                  f'{np.median(decided):5.1f}/s, min {decided.min():5.1f}/s; robots failing safe at most {fail} once fed; '
+                  f'{np.median(decided):5.1f}/s, min {decided.min():5.1f}/s; '
+                  f'robots failing safe at most {fail} once fed; '
                   f'process CPU {100 * cpu / (t1 - t0):5.1f} % of its one core (load {os.getloadavg()[0]:.1f})')
             _capacity('batched', n, cpu, _window_rates.ticks)
             if latency:

@@ -61,12 +61,12 @@ def main():
         hj.sets.Box(np.array([a.grid_min[0], a.grid_min[1], -np.pi]),
                     np.array([a.grid_max[0], a.grid_max[1], np.pi])),
         tuple(a.shape), periodic_dims=2)
-    l = jnp.linalg.norm(grid.states[..., :2], axis=-1) - a.radius
+    target = jnp.linalg.norm(grid.states[..., :2], axis=-1) - a.radius     # l(x): the obstacle's signed distance
     settings = hj.SolverSettings.with_accuracy(
         a.accuracy, hamiltonian_postprocessor=hj.solver.backwards_reachable_tube)
     dynamics = DubinsAvoid(a.speed, a.omega_max)
     t0 = time.perf_counter()
-    values = hj.solve(settings, dynamics, grid, np.array([0.0, -a.horizon]), l, progress_bar=False)
+    values = hj.solve(settings, dynamics, grid, np.array([0.0, -a.horizon]), target, progress_bar=False)
     value = np.asarray(jax.block_until_ready(values[-1]), dtype=np.float32)
     solve_time = time.perf_counter() - t0
 

@@ -4,6 +4,13 @@
   before any test imports rclpy, so runs on one machine cannot hear each other.
 * Value functions are cached under .cache/test-values in the repository (or
   $SUPERSAFE_CACHE), so solving happens once per machine, not once per test.
+* ``ros_context``: each topic-level test module runs its nodes in its own rclpy
+  Context (rclpy is imported only when a test asks for it); the plumbing that spins
+  them is in graph_support.py.
+* Markers (declared in setup.cfg, ``--strict-markers``): ``ros`` (starts rclpy nodes in
+  this process or node processes), ``browser`` (headless Chromium), ``root`` (network
+  namespaces), ``slow`` (over ~20 s alone). ``pytest -m "not ros and not browser"`` runs
+  the fast ROS-free core; a test that takes ``ros_context`` without ``ros`` is refused.
 """
 import os
 from pathlib import Path
@@ -46,3 +53,26 @@ def decision_path(request, monkeypatch):
             return step_many([self, RobotFilter(self.config)], safe_set, t, clusters)[0]
         monkeypatch.setattr(RobotFilter, 'step', step_beside_idle)
     return request.param
+
+
+@pytest.fixture(scope='module')
+def ros_context(tmp_path_factory):
+    """An rclpy Context of the test module's own, initialised on loopback and shut down after it."""
+    ensure_local_ros_env()
+    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    os.environ.setdefault('SUPERSAFE_CACHE', str(tmp_path_factory.getbasetemp() / 'vf-cache'))
+    import rclpy
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    yield ctx
+    ctx.try_shutdown()
+
+
+def pytest_collection_modifyitems(config, items):
+    """Refuse a test that starts rclpy nodes (it takes ``ros_context``) but is not marked ``ros``:
+    ``-m "not ros"`` must leave no node behind."""
+    unmarked = [item.nodeid for item in items
+                if 'ros_context' in getattr(item, 'fixturenames', ()) and item.get_closest_marker('ros') is None]
+    if unmarked:
+        raise pytest.UsageError('tests that take ros_context must be marked ros (pytest.mark.ros):\n  '
+                                + '\n  '.join(unmarked))

@@ -58,7 +58,7 @@ def run_burst(ctx, store, n, burners=2, extra_params=(), timeout=300.0):
     from std_msgs.msg import Float32MultiArray
     from supersafe_ros.nodes.learner_node import FIT_TOPIC, VALUE_FUNCTION_TOPIC, LearnerNode
     from supersafe_ros.ros_io import rosmsg
-    from test_graph_support import Spinner
+    from graph_support import Spinner
     params = dict(store_path=str(store), estimator='paper', library_shape=[41, 41, 24],
                   library_omegas=[0.25, 0.5, 1.0, 2.0])
     params.update(dict(extra_params))

@@ -102,6 +102,7 @@ def page_counts(driver):
         'document.querySelectorAll("[data-obstacle-id]").length, p.errors.slice()];')
 
 
+@pytest.mark.browser
 def test_non_loopback_bind_refuses_requests_without_the_token(browser):
     # the rule is about the bind address: bound to every interface, reached over loopback
     with FedServer('0.0.0.0') as fed:
@@ -125,6 +126,7 @@ def test_non_loopback_bind_refuses_requests_without_the_token(browser):
         assert http_status(f'http://127.0.0.1:{fed.server.port}/') == 200
 
 
+@pytest.mark.browser
 def test_malformed_websocket_message_gets_an_error_and_the_server_keeps_serving(browser):
     with FedServer('127.0.0.1') as fed:
         browser.get(f'http://127.0.0.1:{fed.server.port}/')

@@ -109,6 +109,8 @@ def page(driver):
                 figure: document.getElementById('fit-figure').naturalWidth};""")
 
 
+@pytest.mark.ros
+@pytest.mark.browser
 def test_scripted_participant_goes_through_phase_two_and_gets_a_fit(tmp_path):
     from selenium.webdriver.common.keys import Keys
     port = free_port()
@@ -129,6 +131,7 @@ def test_scripted_participant_goes_through_phase_two_and_gets_a_fit(tmp_path):
                    'the Phase II start button')
         d.find_element('id', 'start').click()
         handled = set()
+
         # intervene on every scene but the last, when the robot is 3-5 m before the obstacle
         def step():
             p = page(d)
@@ -161,7 +164,7 @@ def test_scripted_participant_goes_through_phase_two_and_gets_a_fit(tmp_path):
         d.find_element('id', 'start').click()              # "Continue": --stop-after fit ends here
         assert proc.wait(timeout=60) == 0
         # the session's recording holds the person's interventions as the graph carried them
-        from test_recording import read_bag
+        from bag_support import read_bag
         _, _, _, messages = read_bag(tmp_path / '12' / 'recording-1' / 'recording-1_0.mcap')
         frames = [m.header.frame_id for topic, _, _, m, _ in messages if topic == '/interventions']
         assert sorted(frames) == sorted(f'obstacle_{o}' for o in handled)
@@ -177,6 +180,9 @@ def test_scripted_participant_goes_through_phase_two_and_gets_a_fit(tmp_path):
         print(proc.stdout.read())
 
 
+@pytest.mark.ros
+@pytest.mark.browser
+@pytest.mark.slow
 def test_scripted_participant_completes_the_whole_protocol(tmp_path):
     """Phase I (arrow keys), Phase II (Space), the fit, three games with clicks and both
     Likert screens, to subject.json; then the researcher's --analyse over it."""
@@ -239,11 +245,12 @@ def test_scripted_participant_completes_the_whole_protocol(tmp_path):
             wait_until(game_step, 180, f'game {game + 1} to end', period=0.5)
             if game >= 1:
                 wait_until(lambda: page(d)['phase'] == 'likert', 60, 'the Likert screen')
-                for radio in d.execute_script("""
+                fives = d.execute_script("""
                     const seen = new Set(); const out = [];
                     for (const r of document.querySelectorAll('input[data-likert]')) {
                       if (!seen.has(r.name) && r.value === '5') { seen.add(r.name); out.push(r); } }
-                    return out;"""):
+                    return out;""")
+                for radio in fives:
                     radio.click()
                 d.find_element('css selector', 'button[data-action="answers"]').click()
         wait_until(lambda: page(d)['phase'] == 'done', 120, 'the end of the session')

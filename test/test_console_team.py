@@ -67,6 +67,8 @@ def nearest(obstacle, robots):
     return min(robots.items(), key=lambda kv: math.dist(kv[1], obstacle))
 
 
+@pytest.mark.ros
+@pytest.mark.browser
 def test_page_shows_ten_obstacles_and_the_moving_robots(console_team, tmp_path):
     driver, monitor, running = console_team
     first = wait_until(lambda: (s := scene(driver)) and len(s['obstacles']) == 10
@@ -110,6 +112,8 @@ def logged(monitor, oid):
     return next((i for i in list(monitor.interventions) if i.get('obstacle') == str(oid)), None)
 
 
+@pytest.mark.ros
+@pytest.mark.browser
 def test_clicking_an_obstacle_removes_it_and_the_world_classifies_the_intervention(console_team):
     driver, monitor, running = console_team
     wait_until(lambda: len(scene(driver)['obstacles']) == 10, 60, 'ten obstacles')
@@ -148,7 +152,8 @@ def test_clicking_an_obstacle_removes_it_and_the_world_classifies_the_interventi
     wait_until(lambda: str(near) not in scene(driver)['obstacles'], 30, f'obstacle {near} to leave the page')
     wait_until(lambda: int(scene(driver)['stats']['interventions']) == counted + 2, 30,
                lambda: f'the page to count both interventions (counted {counted}, now {scene(driver)["stats"]}, '
-               f'world {monitor.interventions} replies {driver.execute_script("return window.supersafeConsole.replies")})')
+               f'world {monitor.interventions} replies '
+               f'{driver.execute_script("return window.supersafeConsole.replies")})')
 
     # clicking an obstacle that is already gone: a message on the page, nothing breaks
     driver.execute_script(f"window.supersafeSend({{type: 'intervene', obstacle: {near}}});")

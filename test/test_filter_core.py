@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from supersafe_ros.filter import FAIL_SAFE, FilterConfig, OVERRIDE, PASS, RobotFilter, SafeSet, step_many
+from supersafe_ros.filter import FAIL_SAFE, OVERRIDE, PASS, RobotFilter, SafeSet, step_many
 
 from supersafe_ros.filter.law import evaluate_pairs
 from supersafe_ros.reach.dynamics import DubinsCar
@@ -12,27 +12,15 @@ from supersafe_ros.reach.grid import Grid
 from supersafe_ros.reach.sets import Disc
 from supersafe_ros.reach.solver import solve_avoid
 
+from filter_support import OBSTACLE, at, robot
+
 pytestmark = pytest.mark.usefixtures('decision_path')   # every test: robot alone, and in a fleet
-OBSTACLE = (10.0, 5.0)   # obstacle centre in map (not at the origin: exercises the relative frame)
 
 
 @pytest.fixture(scope='module')
 def standard():
     vf = solve_avoid(Grid((-8, -8), (8, 8), (41, 41, 24)), DubinsCar(3.0, 1.0), Disc(0, 0, 1.8), horizon=3.0)
     return SafeSet(vf, 0.0, 'standard')
-
-
-def robot(t=0.0, pose=(0.0, 0.0, 0.0), detections=(OBSTACLE,), cmd=0.3, **cfg):
-    f = RobotFilter(FilterConfig(**cfg))
-    f.update_pose(pose, t)
-    f.update_detections(np.asarray(detections, dtype=float).reshape(-1, 2), t)
-    if cmd is not None:
-        f.update_command(cmd, t)
-    return f
-
-
-def at(rel_x, rel_y, theta):
-    return (OBSTACLE[0] + rel_x, OBSTACLE[1] + rel_y, theta)
 
 
 def test_far_from_obstacles_passes_the_planner_command(standard):

@@ -19,7 +19,7 @@ from supersafe_ros.reach.grid import Grid
 from supersafe_ros.reach.sets import Disc
 from supersafe_ros.reach.solver import solve_avoid
 
-from test_filter_core import OBSTACLE, at, robot as _robot  # noqa: F401  (the same helpers)
+from filter_support import OBSTACLE, at, robot as _robot
 
 pytestmark = pytest.mark.usefixtures('decision_path')   # every test: robot alone, and in a fleet
 T = 10.0          # a clock that does not start at 0 (t0 = 0 hides sign errors in time differences)
@@ -32,7 +32,7 @@ def standard():
 
 
 def robot(t=T, **kw):
-    """test_filter_core's robot, on a clock that starts at T."""
+    """filter_support's robot (as test_filter_core.py uses it), on a clock that starts at T."""
     return _robot(t=t, **kw)
 
 

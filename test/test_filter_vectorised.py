@@ -1,6 +1,6 @@
 """The vectorised ``step_many`` decides exactly as the per-robot implementation it replaced.
 
-``filter_reference_support.step_many_reference`` is the robot-by-robot code of commit
+``filter_oracle.step_many_reference`` is the robot-by-robot code of commit
 003abdd, kept verbatim. Both run on identical fleets (built twice from one seed) over
 several closed-loop ticks: random poses near obstacles, detections with clusters of
 close obstacles (shared arrays, as the fleet node's batched detections, and per-robot
@@ -18,7 +18,7 @@ import math
 import numpy as np
 import pytest
 
-from filter_reference_support import step_many_reference
+from filter_oracle import step_many_reference
 from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore, ClusterValue, solve_cluster
 from supersafe_ros.filter import FilterConfig, RobotFilter, SafeSet, step_many
 from supersafe_ros.reach.dynamics import DubinsCar
@@ -156,7 +156,7 @@ def record(o, f):
     (1, 'solved', 0.0, 'standard'), (2, 'pending', 0.0, 'standard'), (3, 'solved', 0.3, 'learned'),
     (4, 'inline', 0.0, 'standard'), (5, 'pending', -0.2, 'learned')])
 def test_vectorised_step_many_decides_as_the_per_robot_reference(standard, solved_values, seed, store_kind,
-                                                                  alpha, source):
+                                                                 alpha, source):
     safe = SafeSet(standard.vf, alpha, source)
     fleets = [build_fleet(seed, 320) for _ in range(2)]
     stores = [make_store(store_kind, solved_values) for _ in range(2)]
@@ -350,7 +350,6 @@ def test_long_holds_around_solved_clusters_decide_as_the_reference(standard, sol
     grid from outside it make the filter act): the (robot, cluster) instances left out as out
     of reach (``_beyond_grid``) change no decision (kills a reach that does not grow with
     speed x hold)."""
-    rng = np.random.default_rng(31)
     configs = [FilterConfig(lookahead=h, cluster_alpha=4.0) for h in (1.0, 2.0, 2.0)]
     centroids = [LAYOUT[[0, 1]].mean(axis=0), LAYOUT[[3, 4, 5]].mean(axis=0)]
     dets = LAYOUT[[0, 1, 3, 4, 5]].copy()          # the row's pair and the cup, both solved
@@ -538,10 +537,10 @@ def test_one_robots_pair_values_in_python_floats_equal_numpys(standard, kind):
 
 def test_the_governing_rule_is_the_per_robot_oracles():
     """law.govern and law.smallest pick what the oracle's rule for one robot (Python lists,
-    filter_reference_support.govern_one) picks over the same table: random rows with levels
+    filter_oracle.govern_one) picks over the same table: random rows with levels
     that differ (pairs at alpha, clusters at their own level), sound cluster rows and their
     members, values off the grid, exact ties, overriding or not."""
-    from filter_reference_support import govern_one as _govern_one
+    from filter_oracle import govern_one as _govern_one
     from supersafe_ros.filter.law import ConstraintTable, first_min, govern
     rng = np.random.default_rng(8)
     kinds = set()

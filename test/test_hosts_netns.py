@@ -29,6 +29,7 @@ def root_view():
             for a in (('link', 'show'), ('addr', 'show'), ('route', 'show'))]
 
 
+@pytest.mark.root
 @needs_root
 def test_hosts_are_isolated_and_removed_on_exit():
     before = root_view()
@@ -40,8 +41,7 @@ def test_hosts_are_isolated_and_removed_on_exit():
                                     capture_output=True, text=True).stdout
             # on-link /24 and multicast only: no default route, nothing else reachable
             assert 'default' not in routes
-            assert sorted(r.split()[0] for r in routes.splitlines()) == ['10.213.0.0/24',
-                                                                        '224.0.0.0/4']
+            assert sorted(r.split()[0] for r in routes.splitlines()) == ['10.213.0.0/24', '224.0.0.0/4']
             addrs = subprocess.run(net.exec_prefix(i) + ['ip', '-o', '-4', 'addr', 'show'],
                                    capture_output=True, text=True).stdout
             assert f'inet {net.address(i)}/24' in addrs and 'inet 127.0.0.1/8' in addrs
@@ -59,6 +59,7 @@ def test_hosts_are_isolated_and_removed_on_exit():
     assert root_view() == before
 
 
+@pytest.mark.root
 @needs_root
 def test_hosts_removed_after_an_exception_inside():
     with pytest.raises(RuntimeError):
@@ -84,6 +85,7 @@ time.sleep(60)
 """
 
 
+@pytest.mark.root
 @needs_root
 def test_a_process_entering_while_its_host_is_removed_is_killed_too():
     """`ip netns exec` opens the namespace, then enters it: a process started just before
@@ -104,6 +106,7 @@ def test_a_process_entering_while_its_host_is_removed_is_killed_too():
     assert our_namespaces(os.getpid()) == []
 
 
+@pytest.mark.root
 @needs_root
 def test_stale_namespaces_of_dead_runs_are_removed():
     dead = subprocess.Popen(['true'])
@@ -131,6 +134,8 @@ def cli(*args):
     return [sys.executable, '-m', 'supersafe_ros.cli', 'team', *args]
 
 
+@pytest.mark.root
+@pytest.mark.ros
 @needs_root
 @pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
 def test_cli_removes_its_namespaces_on_a_signal(tmp_path, sig):
@@ -180,6 +185,7 @@ def test_print_argv_places_shared_nodes_on_host_zero_and_deals_robots():
             assert placed[f'robot_{i}/{kind}'] == 1 + i % 2
 
 
+@pytest.mark.root
 @pytest.mark.skipif(shutil.which('setpriv') is None, reason='needs setpriv (util-linux)')
 def test_without_net_admin_it_says_so_and_exits_nonzero(tmp_path):
     # drop CAP_NET_ADMIN (and run as nobody when root): the plumbing must refuse clearly
@@ -193,6 +199,7 @@ def test_without_net_admin_it_says_so_and_exits_nonzero(tmp_path):
     assert 'Traceback' not in proc.stderr
 
 
+@pytest.mark.root
 @needs_root
 def test_subnet_discovery_is_kept_only_inside_the_named_namespace():
     from supersafe_ros.rosenv import ensure_local_ros_env

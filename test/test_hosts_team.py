@@ -21,7 +21,6 @@
 """
 from collections import Counter
 import json
-import os
 import re
 from pathlib import Path
 import shutil
@@ -33,8 +32,9 @@ from supersafe_ros import team
 from supersafe_ros.hosts import netns
 from supersafe_ros.hosts.harness import HostsTeam, missing_from, team_graph
 
-pytestmark = pytest.mark.skipif(not netns.has_net_admin() or shutil.which('ip') is None,
-                                reason='needs root (CAP_NET_ADMIN) and iproute2')
+pytestmark = [pytest.mark.root, pytest.mark.ros, pytest.mark.slow,     # teams in namespaces, 30-40 s each
+              pytest.mark.skipif(not netns.has_net_admin() or shutil.which('ip') is None,
+                                 reason='needs root (CAP_NET_ADMIN) and iproute2')]
 
 # coarse value-function grids: the runs test the distribution, not the numerics
 FAST = {

@@ -186,10 +186,6 @@ def test_library_cache_loads_what_it_solved(tmp_path):
     assert [e.from_cache for e in again.entries] == [False, False]
 
 
-
-
-
-
 def test_cli_reach_writes_the_documented_file(tmp_path):
     out = tmp_path / 'v.npz'
     r = subprocess.run([sys.executable, '-m', 'supersafe_ros.cli', 'reach', '--speed', '3',
@@ -206,16 +202,6 @@ def test_cli_reach_writes_the_documented_file(tmp_path):
     r = subprocess.run([sys.executable, '-m', 'supersafe_ros.cli', 'reach', '--speed', '3',
                         '--omega-max', '1', '--out', str(out)], capture_output=True, text=True)
     assert r.returncode == 2 and '--radius' in r.stderr
-
-
-
-
-
-
-
-
-
-
 
 
 def _save_many(path, seed, count):

@@ -58,7 +58,8 @@ def test_no_read_is_below_the_radial_minimum_of_its_band(solved):
         # not vacuous: the bound is finite, and within the values' spread of what is read
         assert np.all(np.isfinite(exact))
         assert np.median(v - exact) < 0.5 * (vf.values.max() - vf.values.min())
-        beyond = (np.hypot(*np.abs([g.lo[:2], g.hi[:2]]).max(axis=0)) + 2 * np.hypot(*g.spacing[:2])) / (1 - g.spacing[2])
+        beyond = ((np.hypot(*np.abs([g.lo[:2], g.hi[:2]]).max(axis=0)) + 2 * np.hypot(*g.spacing[:2]))
+                  / (1 - g.spacing[2]))
         assert np.all(vf.radial_minimum(np.full(3, beyond), np.full(3, beyond + 1)) == np.inf)
 
 

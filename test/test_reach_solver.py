@@ -50,13 +50,13 @@ def test_straight_only_matches_closed_form():
 
 def test_value_never_exceeds_distance_and_equals_it_heading_away(standard):
     X, Y, TH = GRID.mesh()
-    l = np.hypot(X, Y) - 1.8
-    assert np.all(standard.values <= l + 1e-5)
+    distance = np.hypot(X, Y) - 1.8          # l: the signed distance to the disc
+    assert np.all(standard.values <= distance + 1e-5)
     # heading straight away from the obstacle: the start is the closest point
     away = standard.value(np.stack([X[:, :, 0], Y[:, :, 0], np.arctan2(Y[:, :, 0], X[:, :, 0])], -1))
     r = np.hypot(X[:, :, 0], Y[:, :, 0])
     ring = (r > 2.0) & (r < 6.0)
-    assert np.max(np.abs(away - l[:, :, 0])[ring]) < 0.05
+    assert np.max(np.abs(away - distance[:, :, 0])[ring]) < 0.05
 
 
 def test_more_agile_cars_and_shorter_horizons_are_safer():

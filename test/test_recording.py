@@ -1,7 +1,6 @@
 """Recording to rosbag2-layout MCAP bags: the ROS-free writer, message definitions, and
 the graph recorder at topic level (the test publishes, the recorder records, the bag is
 read back with the mcap reader + mcap_ros2 decoder and with rosbags' rosbag2 reader)."""
-from pathlib import Path
 import time
 
 import pytest
@@ -16,21 +15,10 @@ from supersafe_ros.recording import msgdefs
 from supersafe_ros.recording.bag import BagWriter, qos_profile
 from supersafe_ros.ros_io import rosmsg
 
-from test_graph_support import Spinner, matched, ros_context  # noqa: F401
+from bag_support import read_bag
+from graph_support import Spinner, matched
 
 SEP = '=' * 80 + '\n'
-
-
-def read_bag(mcap_path: Path):
-    """(header, summary, metadata records, [(topic, schema, channel, decoded message, log_time)])."""
-    from mcap.reader import make_reader
-    from mcap_ros2.decoder import DecoderFactory
-    with open(mcap_path, 'rb') as f:
-        reader = make_reader(f, decoder_factories=[DecoderFactory()])
-        header, summary = reader.get_header(), reader.get_summary()
-        records = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
-        messages = [(c.topic, s, c, d, m.log_time) for s, c, m, d in reader.iter_decoded_messages()]
-    return header, summary, records, messages
 
 
 # -- message definitions ---------------------------------------------------------------------------
@@ -124,6 +112,7 @@ def test_bag_reads_back_through_an_independent_rosbag2_reader(tmp_path):
 
 
 # -- the graph recorder ----------------------------------------------------------------------------
+@pytest.mark.ros
 def test_recorder_records_latched_and_event_topics_and_finds_interventions(ros_context, tmp_path):
     from supersafe_ros.ros_io.bag_recorder import start_recorder
     import rclpy
@@ -167,6 +156,7 @@ def test_recorder_records_latched_and_event_topics_and_finds_interventions(ros_c
 
 
 # -- supersafe team --record -------------------------------------------------------------------------
+@pytest.mark.ros
 def test_team_run_records_every_topic_and_the_interventions_the_world_logged(tmp_path):
     """A short real team (processes, simulated supervisor) with run_team(record=...): the
     bag has every step's pose and exactly the interventions the world accepted."""
@@ -202,6 +192,7 @@ def test_team_run_records_every_topic_and_the_interventions_the_world_logged(tmp
     assert recorded and recorded == logged, (recorded, logged)
 
 
+@pytest.mark.ros
 def test_record_command_records_until_ctrl_c(ros_context, tmp_path):
     """`supersafe record BAG` as a process: records what a node publishes, stops cleanly on SIGINT."""
     import os

@@ -10,7 +10,7 @@ from std_msgs.msg import Int32
 from supersafe_ros.ros_io import rosmsg
 from supersafe_ros.ros_io.direct_take import DirectTake
 
-from filter_learner_support import Spinner, matched, ros_context  # noqa: F401  (fixture)
+pytestmark = pytest.mark.ros   # rclpy nodes in this process
 
 
 def wait(cond, timeout, what):

@@ -5,8 +5,12 @@ import io
 import json
 import math
 
+import pytest
+
 from supersafe_ros.study import cli
 from supersafe_ros.study.analysis import CONDITIONS, H2_MEASURES
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow]   # the study's graph engine: node processes, ~25 s
 
 
 def test_one_subject_study_through_the_graph(tmp_path):
@@ -52,7 +56,7 @@ def test_one_subject_study_through_the_graph(tmp_path):
     assert fp['estimator'] == 'first-passage'
     n_int = sum(s['intervened'] for s in subj['phase2']['scenes'])
     # at least one encounter per scene; a scene reset can add one that ends at the teleport
-    # (a 'jump', as specified; see test_learner_graph)
+    # (a 'jump', as specified; see test_nodes_learner_graph)
     assert fp['encounters'] >= 3 and fp['interventions'] == n_int
     assert fp['unmatched_interventions'] == 0
     assert subj['phase2']['offline_first_passage']['encounters'] == 3      # the runner's cross-check

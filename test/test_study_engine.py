@@ -73,7 +73,7 @@ def test_the_filter_prevents_the_crashes_that_happen_without_it(core):
 
 
 def test_phase2_first_passage_recovers_the_supervisor_and_the_paper_estimator_does_not(core):
-    """w 0.5, mu 1.0, sigma 0.3 over 8 ladders of Phase II scenes (as test_learner_first_passage
+    """w 0.5, mu 1.0, sigma 0.3 over 8 ladders of Phase II scenes (as test_nodes_learner_first_passage
     feeds the learner node): first-passage picks w_max 0.5 exactly and mu within 0.05 in at
     least 9 of 10 seeds; the paper's estimator, from the same scenes' interventions, rarely."""
     opts = StudyOptions(step=0.2, phase2_offsets=tuple(np.tile(PHASE2_OFFSETS, 8)))
@@ -149,7 +149,7 @@ def test_the_core_records_do_not_depend_on_the_number_of_workers(tmp_path):
         recs = run_study(subjects, opts, out=io.StringIO())['records']
         # as JSON text: NaN measures (no trip completed) compare equal there
         runs.append([json.dumps(({c: {k: v for k, v in g.items() if k not in ('wall', 'wall_running', 'cpu_s',
-                                                                             'cpu_by_process')}
+                                                                              'cpu_by_process')}
                                   for c, g in r['games'].items()}, r['states']), sort_keys=True)
                      for r in recs])
     assert runs[0] == runs[1]

@@ -218,7 +218,7 @@ def test_phase2_graph_runs_a_first_passage_learner_on_its_own_topics_and_store(t
     from supersafe_ros.team import process_name
     subject = Subject(0, 0.5, 1.0, 0.2, 100)
     argvs = graph_phase2.phase2_argvs(subject, protocol.StudyOptions(), tmp_path / 'i.jsonl', 0.0,
-                                tmp_path / 'fp' / 'i.jsonl')
+                                      tmp_path / 'fp' / 'i.jsonl')
     learners = {process_name(a): a for a in argvs if 'supersafe_ros.nodes.learner_node' in a}
     assert set(learners) == {'learner', 'learner_fp'}        # two processes, two logs
 
@@ -259,6 +259,6 @@ def test_learned_fp_is_the_first_passage_learner_message_with_its_newest_counts(
     assert (fit['interventions'], fit['encounters'], fit['sigma'], fit['mu']) == (2, 3, 0.3, 0.9)
     assert graph_phase2.first_passage_learner_fit(None, status) is None
     p2 = protocol.Phase2Result([], np.zeros((0, 3)), 'paper-msg', {'estimator': 'paper'}, 0.0, 0.0,
-                             fp_msg=msg, fp_fit=fit)
+                               fp_msg=msg, fp_fit=fit)
     sets = fits.learned_sets(p2, ('learned', 'learned_fp'))
     assert sets['learned'] == ('paper-msg', {'estimator': 'paper'}) and sets['learned_fp'] == (msg, fit)

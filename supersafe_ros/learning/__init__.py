@@ -37,7 +37,8 @@ def __getattr__(name):
 
 
 __all__ = [
-    'Encounter', 'EncounterBuilder', 'EncounterRecord', 'phase2_events', 'FitResult', 'NoisySupervisor', 'admissible_mask', 'alpha_for_fp_rate',
+    'Encounter', 'EncounterBuilder', 'EncounterRecord', 'phase2_events', 'FitResult', 'NoisySupervisor',
+    'admissible_mask', 'alpha_for_fp_rate',
     'encounters_from_phase2_interventions', 'fit_first_passage', 'fit_paper',
     'intervention_states', 'phase2_encounters', 'predicted_false_positive_fraction',
     'read_encounters_csv', 'read_interventions_csv', 'write_encounters_csv',

@@ -9,7 +9,8 @@ the origin, axes as the map), the unit the first-passage estimator scores
   while the robot approaches (the distance to the centre is not growing);
 * it **ends**
   - at an intervention on that obstacle (``intervention``): its frames are those
-    stamped strictly before the intervention, then the robot's first pose at or after the intervention (the pose judged unsafe);
+    stamped strictly before the intervention, then the robot's first pose at or after the
+    intervention (the pose judged unsafe);
   - when the robot has passed the obstacle (the distance grows:
     rel . (cos theta, sin theta) > 0), the frame where that is first seen included;
   - when the pair leaves the grid;

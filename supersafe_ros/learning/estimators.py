@@ -440,7 +440,7 @@ def maximise_first_passage(iv: EncounterIntervals, lapse=0.0, rows=None, method=
             return ll, np.where(bad[:, None], 0.0, np.stack([de, dt], axis=1))
 
         x, ll = newton_maximise(fun, x0.copy(),
-                                        lower=np.array([0.0, _TAU_MIN]), upper=np.array([np.inf, _TAU_MAX]))
+                                lower=np.array([0.0, _TAU_MIN]), upper=np.array([np.inf, _TAU_MAX]))
     elif method == 'lbfgsb':
         x = np.empty_like(x0)
         scale = float(iv.lo.shape[1])          # keep the objective O(1) for the tolerances

@@ -18,9 +18,10 @@ Each step integrates the exact arc from the previous step time under the command
 in force, but never more than ``max_step`` (default: one period, 1/rate): when sim
 time jumps (the clock went on without this robot, e.g. its link was down) the rest
 of the jump is a pause (see sim.dubins_sim: no motion, logged), so no command moves
-the robot further than the one control period the filter judged it for. Lockstep: after publishing the pose of step t the robot acknowledges t
-on ``step_done`` once a command has arrived in reply (or at once when it has no
-live controller: parked or timed out), so the clock never outruns the control loop.
+the robot further than the one control period the filter judged it for. Lockstep: after
+publishing the pose of step t the robot acknowledges t on ``step_done`` once a command
+has arrived in reply (or at once when it has no live controller: parked or timed out),
+so the clock never outruns the control loop.
 """
 from __future__ import annotations
 

@@ -4,7 +4,7 @@
 defaults of ``FilterConfig``'s fields (speed, omega_max, radius, the timeouts,
 margins, lookahead, control period) are read from ``FilterConfig`` itself, so they
 have one source; config/safety_filter.yaml and config/fleet_safety_filter.yaml
-repeat every default (test/test_filter_parameters.py fails when they drift).
+repeat every default (test/test_nodes_filter_parameters.py fails when they drift).
 
 ``FilterParameters(node)`` declares them and holds their values (the config, the
 standard set's grid, the levels, rates and limits). ``keep_current(lock, effects)``

@@ -28,8 +28,9 @@ poses, then one per period). Per-robot topics, fleet/detections and fleet/cmd_ve
 are not taken through the executor one message at a time: their subscriptions belong to a
 helper node that is never spun, and each tick drains them: every batched message waiting,
 in order (decoded by rclpy); the newest sample of each per-robot topic (serialized,
-decoded with ``ros_io.cdr``: light views read by the same validators). Each robot's cmd_vel is published serialized, so the cost per
-robot is a few takes and one publish, not a callback and a message object per sample.
+decoded with ``ros_io.cdr``: light views read by the same validators). Each robot's cmd_vel
+is published serialized, so the cost per robot is a few takes and one publish, not a
+callback and a message object per sample.
 A per-robot decision therefore waits for the next tick (at most 1/rate s).
 
 Bad batched input (wrong frame or size, NaN rows) is rejected with a logged reason:

@@ -60,7 +60,7 @@ from ..ros_io import cdr, rosmsg
 from ..ros_io.direct_take import DirectTake
 from .common import ParameterSpec, declare_all, run_node
 from .filter_state import StateThrottle
-from .filter_wiring import VALUE_FUNCTION_TOPIC, FilterWiring
+from .filter_wiring import VALUE_FUNCTION_TOPIC, FilterWiring  # noqa: F401  (the topic, re-exported for tests)
 from .markers import LevelSetMarkerPublisher
 
 # this node's own parameters (the filter's are in filter_parameters), in the order declared

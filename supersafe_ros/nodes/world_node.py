@@ -71,20 +71,20 @@ class WorldNode(Node):
             n_obstacles=p('n_obstacles', d.n_obstacles, 'number of obstacles', 0, 1000),
             radius=p('radius', d.radius, 'obstacle radius [m]', 0.01, 100.0),
             crash_tolerance=live('crash_tolerance', d.crash_tolerance,
-                              'a robot this close to the rim, inside, only grazes: not a crash [m]',
-                              0.0, 10.0),
+                                 'a robot this close to the rim, inside, only grazes: not a crash [m]',
+                                 0.0, 10.0),
             spacing=p('spacing', d.spacing, 'least gap between obstacle discs [m]', 0.0, 100.0),
             goal_margin=p('goal_margin', d.goal_margin,
                           'obstacle centres stay this far inside the goal lines [m]', 0.0, 1e3),
             respawn_clearance=live('respawn_clearance', d.respawn_clearance,
-                                'a new obstacle appears at least this far from every robot [m]',
-                                0.0, 1e3),
+                                   'a new obstacle appears at least this far from every robot [m]',
+                                   0.0, 1e3),
             near_distance=live('near_distance', d.near_distance,
-                            'robots within this distance of a removed obstacle decide whether the '
-                            'intervention was a false positive [m]', 0.01, 1e3),
+                               'robots within this distance of a removed obstacle decide whether the '
+                               'intervention was a false positive [m]', 0.01, 1e3),
             detection_tolerance=live('detection_tolerance', d.detection_tolerance,
-                                  'a detection this close to a centre names that obstacle [m]',
-                                  0.001, 100.0),
+                                     'a detection this close to a centre names that obstacle [m]',
+                                     0.001, 100.0),
             trip_reward=p('trip_reward', d.trip_reward, 'score per completed trip', 0.0, 1e6),
             crash_penalty=p('crash_penalty', d.crash_penalty, 'score lost per crash', 0.0, 1e6),
             intervention_penalty=p('intervention_penalty', d.intervention_penalty,
@@ -96,8 +96,8 @@ class WorldNode(Node):
         stats_period = live('stats_period', 1.0, 'sim seconds between /world/stats messages; live',
                             0.01, 1e4)
         self.match_tolerance = live('robot_match_tolerance', 1.0,
-                                 'an intervention pose names the robot within this distance [m]',
-                                 0.001, 100.0)
+                                    'an intervention pose names the robot within this distance [m]',
+                                    0.001, 100.0)
         self.respawn = live('respawn', True, 'an intervention spawns a replacement obstacle '
                             '(false: it only removes, as in the Phase II scenes); live')
         self.world = World(cfg, self.robots, seed=None if seed < 0 else seed)

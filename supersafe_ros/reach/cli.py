@@ -114,4 +114,3 @@ def run_convert(args) -> int:
     _save_any(vf, args.dst)
     print(f'wrote {args.dst} ({vf.grid.shape})')
     return 0
-

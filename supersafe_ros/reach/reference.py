@@ -16,7 +16,7 @@ How it is computed
 * Control family: "turn at the full rate w in direction d in {-1, +1} for a time s,
   then drive straight". This is the classical optimal structure for escaping a disc
   (the switching function of the maximum principle vanishes only on the radial line,
-  which makes the straight part the singular arc); ``test/test_reference.py`` checks
+  which makes the straight part the singular arc); ``test/test_reach_reference.py`` checks
   empirically that random piecewise-constant controls with several switches and any
   |u| <= w never do better. V = max over d and s in [0, S] of f_d(s), with
   S = min(T, 2 pi / w) (turning a full circle more only adds path) and s = 0 the

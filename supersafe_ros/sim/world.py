@@ -38,6 +38,7 @@ import numpy as np
 from .dubins_sim import base_seed, keyed_rng
 from .efficiency import OVERRIDE, EfficiencyMeter, team_efficiency
 
+
 @dataclass(frozen=True)
 class WorldConfig:
     half_width: float = 20.0
@@ -192,7 +193,7 @@ class World:
                                    self.config.radius)
         if len(ids):
             inside_now = set(ids[np.hypot(*(xy - s[:2]).T)
-                                    < self.config.radius - self.config.crash_tolerance].tolist())
+                                 < self.config.radius - self.config.crash_tolerance].tolist())
             for oid in sorted(inside_now - r.inside):
                 r.crashes += 1
                 events['crashed'].append(int(oid))

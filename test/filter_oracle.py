@@ -1,6 +1,7 @@
-"""The per-robot implementation of ``filter.step_many`` before it was vectorised
-(commit 003abdd), kept verbatim as the reference the vectorised one must equal decision
-for decision (test_filter_vectorised.py). Only the imports differ, the control
+"""The filter's equivalence oracle (not a test module): the per-robot implementation of
+``filter.step_many`` before it was vectorised (commit 003abdd), kept verbatim as the
+reference the vectorised one must equal decision for decision (test_filter_vectorised.py),
+and ``govern_one``, the per-robot rule the fleet's ``law.govern`` replaced. Only the imports differ, the control
 period is computed from the filter's interval deques here (as it was), not from its cache,
 and propagate_poses wraps theta when no robot has an arc (as filter.propagation does since: a
 robot's state must not depend on the other robots' plans).
@@ -92,7 +93,7 @@ def step_many_reference(filters, safe_set: SafeSet, t, clusters=None) -> list:
     for obstacles judged together (None: the process's shared store for the
     robots' configuration; see ``filter.cluster``).
     """
-    n = len(filters)
+    n = len(filters)  # noqa: F841  (unused, kept: the reference is the old code verbatim)
     problems = [f.problem(t) for f in filters]
     usable = []   # robots whose (last valid) state enters the law
     for i, f in enumerate(filters):

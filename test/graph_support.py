@@ -1,33 +1,19 @@
-"""Plumbing of the sim-graph topic-level tests (no tests here).
+"""Plumbing of the topic-level tests (not a test module).
 
-Nodes run in-process in the module's own rclpy Context, spun by hand with
-deadlines; the session's ROS_DOMAIN_ID and loopback discovery come from conftest.
+Nodes run in-process in the module's own rclpy Context (conftest's ``ros_context``),
+spun by hand with deadlines (``Spinner``); the session's ROS_DOMAIN_ID and loopback
+discovery come from conftest.
 """
 from __future__ import annotations
 
-import os
 import time
 
-import pytest
 from rclpy.parameter import Parameter
 
 from rcl_interfaces.msg import Log
 from rosgraph_msgs.msg import Clock
 
 from supersafe_ros.ros_io import rosmsg
-from supersafe_ros.rosenv import ensure_local_ros_env
-
-
-@pytest.fixture(scope='module')
-def ros_context(tmp_path_factory):
-    ensure_local_ros_env()
-    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    os.environ.setdefault('SUPERSAFE_CACHE', str(tmp_path_factory.getbasetemp() / 'vf-cache'))
-    import rclpy
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx)
-    yield ctx
-    ctx.try_shutdown()
 
 
 def params(**values):

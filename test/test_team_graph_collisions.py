@@ -17,7 +17,11 @@ those; cache files are no longer written through one shared temporary name.
 """
 import os
 
+import pytest
+
 from supersafe_ros.team import run_team, team_processes
+
+pytestmark = pytest.mark.ros   # node processes
 
 
 def test_team_at_a_coarse_step_never_enters_a_detected_obstacle(tmp_path):

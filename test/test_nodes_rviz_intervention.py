@@ -18,7 +18,7 @@ from supersafe_ros.interventions import (NoIntervention, intervention_at_point, 
 from supersafe_ros.nodes.markers import level_set_lines, level_set_markers, obstacles_to_markers
 from supersafe_ros.ros_io import rosmsg
 
-from test_graph_support import Rosout, Spinner, matched, ros_context  # noqa: F401
+from graph_support import Rosout, Spinner, matched
 
 OBSTACLES = {2: (0.0, 0.0), 9: (6.0, 3.0)}
 RADIUS = 1.8
@@ -89,6 +89,7 @@ def test_level_sets_around_obstacles_become_line_strip_markers(standard_vf):
 
 
 # -- rviz_intervention_node at topic level ---------------------------------------------------------
+@pytest.mark.ros
 def test_clicks_on_obstacles_become_interventions(ros_context):
     from rclpy.node import Node
     from supersafe_ros.nodes.rviz_intervention_node import QOS_CLICKS, RvizInterventionNode
@@ -143,6 +144,7 @@ def test_clicks_on_obstacles_become_interventions(ros_context):
 
 
 # -- safety_filter_node's level-set markers ----------------------------------------------------------
+@pytest.mark.ros
 def test_filter_node_draws_the_set_in_force_at_the_robot_heading(ros_context, standard_vf):
     from rclpy.node import Node
     from supersafe_ros.nodes.safety_filter_node import SafetyFilterNode

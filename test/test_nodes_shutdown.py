@@ -12,9 +12,9 @@ import sys
 import threading
 import time
 
-from supersafe_ros import team
+import pytest
 
-from test_graph_support import ros_context  # noqa: F401  (fixture)
+from supersafe_ros import team
 
 # small value-function grids: start-up is the point, not the numerics
 SMALL = {
@@ -65,12 +65,14 @@ class NodeProcess:
         return code
 
 
+@pytest.mark.ros
+@pytest.mark.slow
 def test_every_node_stops_quietly_on_a_signal(tmp_path):
     procs = [NodeProcess(kind, ns, tmp_path) for kind, ns in NODES]
     try:
         deadline = time.monotonic() + 90
         while time.monotonic() < deadline and not all(p.logged() or p.proc.poll() is not None
-                                                       for p in procs):
+                                                      for p in procs):
             time.sleep(0.1)
         for p in procs:
             assert p.proc.poll() is None, f'{p.kind} exited early: {"".join(p.stderr)}'
@@ -115,6 +117,7 @@ sys.exit(run_node(Node, ['x']))
     assert not built.exists()
 
 
+@pytest.mark.ros
 def test_the_events_executor_spins_a_node_and_stops_it_quietly(tmp_path, ros_context, monkeypatch):
     """SUPERSAFE_EXECUTOR=events (rclpy's experimental EventsExecutor, which takes no guard
     conditions): the filter's watchdog publishes commands (timers and publishers run), then stops on SIGINT with exit 0
@@ -122,7 +125,7 @@ def test_the_events_executor_spins_a_node_and_stops_it_quietly(tmp_path, ros_con
     from geometry_msgs.msg import PoseArray, PoseStamped, Twist
     from rclpy.node import Node
     from supersafe_ros.ros_io import rosmsg
-    from test_graph_support import Spinner, matched
+    from graph_support import Spinner, matched
     monkeypatch.setenv('SUPERSAFE_EXECUTOR', 'events')
     p = NodeProcess('safety_filter', 'events_robot', tmp_path)
     driver = Node('events_driver', context=ros_context)

@@ -92,6 +92,7 @@ def children_alive(log_dir: Path):
     return alive
 
 
+@pytest.mark.ros
 def test_team_runs_to_duration_and_children_exit_cleanly(tmp_path):
     proc = team_cli(tmp_path, '--duration', '6', '--timeout', '120')
     try:
@@ -118,6 +119,7 @@ def sim_time_runs(line: str) -> bool:
         return False
 
 
+@pytest.mark.ros
 def test_team_stops_cleanly_on_ctrl_c(tmp_path):
     proc = team_cli(tmp_path, '--timeout', '120')
     lines = []
@@ -130,7 +132,7 @@ def test_team_stops_cleanly_on_ctrl_c(tmp_path):
             lines.append(line)
             if sim_time_runs(line):
                 break
-        assert any(sim_time_runs(l) for l in lines), ''.join(lines)
+        assert any(sim_time_runs(line) for line in lines), ''.join(lines)
         os.kill(proc.pid, signal.SIGINT)
         out, _ = proc.communicate(timeout=30)
     finally:
@@ -249,6 +251,7 @@ def test_config_files_run_on_the_wall_clock_and_the_team_sets_sim_time():
     assert files[1] == '/x.yaml' and argv.index('/x.yaml') < argv.index('use_sim_time:=true')
 
 
+@pytest.mark.ros
 def test_children_die_with_a_killed_runner(tmp_path):
     proc = team_cli(tmp_path, '--no-learner', '--no-supervisor', '--timeout', '120')
     try:
@@ -272,6 +275,8 @@ def test_children_die_with_a_killed_runner(tmp_path):
                 os.kill(pid, signal.SIGKILL)
 
 
+@pytest.mark.ros
+@pytest.mark.slow
 def test_team_with_filter_and_perfect_detection_never_crashes(tmp_path):
     """The whole graph as processes, no supervisor, sensors that never miss: the
     filter alone keeps both robots out of every obstacle while they make trips."""

@@ -13,8 +13,10 @@ from rclpy.parameter import Parameter
 from supersafe_ros.filter import default_cluster_store
 from supersafe_ros.nodes.safety_filter_node import SafetyFilterNode
 
-from filter_learner_support import Spinner, matched, ros_context  # noqa: F401  (fixture)
-from test_filter_node import NS, SHAPE, Driver
+from graph_support import Spinner, matched
+from safety_filter_support import NS, SHAPE, Driver
+
+pytestmark = pytest.mark.ros   # rclpy nodes in this process
 
 # two discs 4.5 m apart: one cluster (rims closer than a turning diameter)
 PAIR = ((4.0, -2.0), (8.5, -2.0))

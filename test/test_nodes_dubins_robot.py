@@ -14,8 +14,9 @@ from supersafe_ros.nodes.markers import obstacles_to_markers
 from supersafe_ros.reach.dynamics import DubinsCar
 from supersafe_ros.reach.grid import wrap_angle
 
-from test_graph_support import (ClockDriver, Rosout, Spinner, live_and_read_only, matched,  # noqa: F401
-                                params, ros_context, set_parameters)
+from graph_support import ClockDriver, Rosout, Spinner, live_and_read_only, matched, params, set_parameters
+
+pytestmark = pytest.mark.ros   # rclpy nodes in this process
 
 
 class Controller:

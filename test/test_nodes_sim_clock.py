@@ -6,6 +6,8 @@ seconds): the assertions are about order and bounds, not about exact wall times.
 import time
 
 import numpy as np
+
+import pytest
 from rclpy.logging import LoggingSeverity
 from rclpy.node import Node
 
@@ -16,8 +18,7 @@ from std_msgs.msg import Empty
 from supersafe_ros.ros_io import rosmsg
 from supersafe_ros.nodes.sim_clock_node import SimClockNode, parse_topic_counts
 
-from test_graph_support import (Rosout, Spinner, live_and_read_only, params,  # noqa: F401
-                                ros_context, set_parameters)
+from graph_support import Rosout, Spinner, live_and_read_only, params, set_parameters
 
 
 def ns_of(msg):
@@ -71,6 +72,7 @@ def test_parse_topic_counts():
     assert parse_topic_counts(['/a=2', '/b', '']) == [('/a', 2), ('/b', 1)]
 
 
+@pytest.mark.ros
 def test_clock_waits_for_graph_then_steps_in_lockstep(ros_context):
     step_ns = 50_000_000
     clock = SimClockNode(context=ros_context, parameter_overrides=params(
@@ -112,6 +114,7 @@ def test_clock_waits_for_graph_then_steps_in_lockstep(ros_context):
         driver.destroy_node()
 
 
+@pytest.mark.ros
 def test_clock_keeps_observers_within_their_lag(ros_context):
     step_ns, lag = 50_000_000, 2
     clock = SimClockNode(context=ros_context, parameter_overrides=params(
@@ -158,6 +161,7 @@ def test_clock_keeps_observers_within_their_lag(ros_context):
         driver.destroy_node()
 
 
+@pytest.mark.ros
 def test_clock_rate_factor_changes_at_run_time_and_read_only_sets_are_refused(ros_context):
     """`ros2 param set /sim_clock rate_factor 1.0`: sim time then runs no faster than the
     wall clock; `step` (the robots' rate depends on it) is refused and stays."""

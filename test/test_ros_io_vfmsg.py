@@ -8,7 +8,7 @@ import pytest
 from supersafe_ros.reach.grid import Grid
 from supersafe_ros.reach.value_function import ValueFunction
 from supersafe_ros.ros_io.vfmsg import (ValueFunctionMessageError, msg_metadata, msg_to_value_function,
-                                 value_function_to_msg)
+                                        value_function_to_msg)
 
 
 def make_vf(shape=(9, 7, 6)):

@@ -14,8 +14,7 @@ from supersafe_ros.nodes import fleet_safety_filter_node as fleet_module
 from supersafe_ros.nodes.fleet_safety_filter_node import FleetSafetyFilterNode
 from supersafe_ros.ros_io import fleetmsg, rosmsg
 
-from filter_learner_support import Spinner, matched, ros_context  # noqa: F401  (fixture)
-from test_graph_support import Rosout
+from graph_support import Rosout, Spinner, matched
 
 ROBOTS = ['robot_0', 'robot_1', 'robot_2']
 OBSTACLE = (4.0, -2.0)
@@ -86,6 +85,7 @@ def setup(ros_context):
     driver.node.destroy_node()
 
 
+@pytest.mark.ros
 def test_per_robot_topics_are_a_drop_in_with_one_step_per_tick(setup, monkeypatch):
     node, d, spin = setup
     calls = []
@@ -112,6 +112,7 @@ def test_per_robot_topics_are_a_drop_in_with_one_step_per_tick(setup, monkeypatc
     assert calls and set(calls) == {3}
 
 
+@pytest.mark.ros
 def test_per_robot_bad_input_is_rejected_with_the_reason(setup):
     """Per-robot topics are taken serialized and read by ros_io.cdr: a bad pose (wrong frame,
     NaN) fails that robot safe with the validator's reason, a bad command keeps the last one."""
@@ -165,8 +166,8 @@ def batched_tick(d, spin, states, turns, want, what, frame='map'):
     d.fleet_poses.publish(fleet_poses(states, frame))
     spin.until(lambda: d.fleet_out and want(d.fleet_newest()), 10.0, what)
     rows = np.asarray(d.fleet_out[-1].data).reshape(-1, 2)
-    assert rows.shape == (3, 2) and [x.label for x in d.fleet_out[-1].layout.dim] == ['robot',
-                                                                                       'linear_x,angular_z']
+    assert rows.shape == (3, 2)
+    assert [x.label for x in d.fleet_out[-1].layout.dim] == ['robot', 'linear_x,angular_z']
     return rows, d.fleet_newest()
 
 
@@ -174,6 +175,7 @@ def actions(*wanted):
     return lambda st: all(st.get(f'/{r}', {}).get('action') == a for r, a in zip(ROBOTS, wanted))
 
 
+@pytest.mark.ros
 def test_batched_poses_commands_and_states(setup):
     node, d, spin = setup
     rows, st = batched_tick(d, spin, [FAR, INTO, FAR], [0.3, -0.4, -0.2], actions('pass', 'override', 'pass'),
@@ -183,6 +185,7 @@ def test_batched_poses_commands_and_states(setup):
     assert st['/robot_1']['obstacle_index'] == '0'
 
 
+@pytest.mark.ros
 def test_batched_bad_input_is_rejected_with_a_reason_and_fails_the_robots_safe(setup):
     node, d, spin = setup
     batched_tick(d, spin, [FAR, FAR, FAR], [0.3, 0.3, 0.3], actions('pass', 'pass', 'pass'), 'all passing')
@@ -219,6 +222,7 @@ def test_batched_bad_input_is_rejected_with_a_reason_and_fails_the_robots_safe(s
     assert np.asarray(d.fleet_out[-1].data).reshape(-1, 2)[:, 1] == pytest.approx([0.3, 0.3, 0.3])
 
 
+@pytest.mark.ros
 def test_poses_that_wait_are_superseded_by_the_newest(setup, ros_context, monkeypatch):
     """Five fleet/poses messages waiting at once (the filter busy): it decides on the newest,
     once or a few times but fewer than five, counts the rest as superseded and says so; every
@@ -259,6 +263,7 @@ def test_poses_that_wait_are_superseded_by_the_newest(setup, ros_context, monkey
     spin.until(lambda: d.rosout.has('fleet_safety_filter', 'fleet/poses', 'superseded'), 5.0, 'the warning')
 
 
+@pytest.mark.ros
 def test_robots_parameter_is_read_only_and_must_name_distinct_robots(setup, ros_context):
     node, d, spin = setup
     result = node.set_parameters([Parameter('robots', value=['robot_9'])])[0]
@@ -294,6 +299,7 @@ def test_fleet_throttle_publishes_as_a_throttle_per_robot():
     assert kinds == {True, False}       # some ticks with a few robots due, some with all or none
 
 
+@pytest.mark.ros
 def test_fleet_story_tells_each_kind_of_change_once_per_tick(ros_context, monkeypatch):
     """The fleet's INFO/ERROR story: quiet while robots start failing safe, one line for the robots
     whose inputs became valid, one for those that failed safe (with the first one's reason), one
@@ -332,6 +338,7 @@ def test_fleet_story_tells_each_kind_of_change_once_per_tick(ros_context, monkey
         node.destroy_node()
 
 
+@pytest.mark.ros
 def test_flowing_poses_keep_the_timer_quiet_and_a_pause_wakes_it(setup, monkeypatch):
     """While fleet/poses come faster than the rate, the decisions are theirs and the timer does
     not even wake (each batched tick restarts it); when they pause, the timer decides at the
@@ -361,6 +368,7 @@ def test_flowing_poses_keep_the_timer_quiet_and_a_pause_wakes_it(setup, monkeypa
     assert len(calls) >= 4
 
 
+@pytest.mark.ros
 def test_batched_commands_waiting_for_a_tick_are_each_applied_in_order(setup):
     """Commands that wait for the tick are taken in order, each as its own callback would: a
     bad row of the newest falls back to that robot's row of the message before (not to an

@@ -5,13 +5,17 @@ sigma 0.3) and the learner (first-passage, robots [robot_0]) as processes; the s
 Phase II conductor sets each scene (/world/set_obstacles, robot_0/initialpose) and
 drives the robot straight. The learner must count one encounter per scene, with an
 intervention exactly where the conductor saw one, and none unmatched. (Recovery
-accuracy is tested on synthetic streams in test_learner_first_passage.py.)
+accuracy is tested on synthetic streams in test_nodes_learner_first_passage.py.)
 """
 import json
 import time
 
+import pytest
+
 from supersafe_ros.learning.encounters import EncounterRecord
 from supersafe_ros.team import Team, node_argv, team_env, team_layout
+
+pytestmark = pytest.mark.ros   # node processes
 
 OFFSETS = [-2.25, 0.0, 2.25, -1.0, 2.0]
 STEP = 0.2

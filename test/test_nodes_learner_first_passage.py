@@ -32,7 +32,9 @@ from supersafe_ros.ros_io import rosmsg
 from supersafe_ros.ros_io.vfmsg import msg_metadata
 from supersafe_ros.sim.watcher import Watcher
 
-from filter_learner_support import Spinner, matched, ros_context  # noqa: F401  (fixture)
+from graph_support import Spinner, matched
+
+pytestmark = pytest.mark.ros   # rclpy nodes in this process
 
 SHAPE = [41, 41, 24]
 OMEGAS = [float(w) for w in PAPER_OMEGAS]

@@ -7,8 +7,11 @@ by bench/bench_learner.py; here the bound is generous, for a loaded CI machine).
 """
 import json
 
-from filter_learner_support import ros_context  # noqa: F401  (fixture)
+import pytest
+
 from learner_burst_support import run_burst
+
+pytestmark = pytest.mark.ros   # rclpy nodes in this process
 
 N = 1000
 

@@ -18,7 +18,9 @@ from supersafe_ros.nodes.learner_node import FIT_TOPIC, VALUE_FUNCTION_TOPIC, Le
 from supersafe_ros.reach.library import LibrarySpec, load_or_build_library
 from supersafe_ros.ros_io.vfmsg import msg_to_value_function
 
-from filter_learner_support import Spinner, matched, ros_context  # noqa: F401  (fixture)
+from graph_support import Spinner, matched
+
+pytestmark = pytest.mark.ros   # rclpy nodes in this process
 
 OMEGAS = [0.25, 0.5, 1.0, 2.0]
 SHAPE = [41, 41, 24]

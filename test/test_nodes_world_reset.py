@@ -9,8 +9,10 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from supersafe_ros.ros_io import rosmsg
 from supersafe_ros.nodes.world_node import WorldNode
 
-from test_graph_support import Rosout, Spinner, matched, params, ros_context  # noqa: F401
-from test_graph_world import ROBOTS, Robots
+from graph_support import Rosout, Spinner, matched, params
+from world_support import ROBOTS, Robots
+
+pytestmark = pytest.mark.ros   # rclpy nodes in this process
 
 
 @pytest.fixture(scope='module')

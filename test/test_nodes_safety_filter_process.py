@@ -1,6 +1,5 @@
 """safety_filter_node as a process with the installed config: stale input without /clock,
 and a 50 MB value function decoded and checked off the control path."""
-import math
 import os
 import re
 import signal
@@ -16,7 +15,9 @@ from geometry_msgs.msg import PoseArray, PoseStamped, Twist
 
 from supersafe_ros.ros_io import rosmsg
 
-from filter_learner_support import Spinner, matched, ros_context  # noqa: F401  (fixture)
+from graph_support import Spinner, matched
+
+pytestmark = pytest.mark.ros   # rclpy nodes in this process and as processes
 
 REPO = Path(__file__).resolve().parents[1]
 CONFIG = REPO / 'config' / 'safety_filter.yaml'
