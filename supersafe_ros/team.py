@@ -170,16 +170,15 @@ def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
             'seed': seed * 1000 + i + 1, 'rate': 1.0 / step})
         add('planner', name, sim, coarse if with_filter else {**coarse, 'cmd_vel_nav': 'cmd_vel'})
         if with_filter:
-            # each command holds for one step; a decision on the step before's pose (its
-            # pose and cmd_vel_nav callbacks race) is propagated from the pose's stamp, and
-            # a reply that misses its step holds for one more: look ahead two steps
-            # (see filter.propagation and filter.law: delay compensation, lookahead). A lockstepped robot does not
-            # move while /clock waits (a busy machine, a slow rate factor), so the filter
-            # counts a stopped /clock as lost only after 20 s (docs/filter_node.md).
             # lockstep: the filter answers each pose once, on that pose (the robot's step
-            # acknowledgement), and holds that answer while a cluster's union value is being
-            # solved: sim time waits for the solve instead of a fallback (docs/graph_safety.md)
-            add('safety_filter', name, {**sim, 'control_period': step, 'lookahead': 2.0 * step,
+            # acknowledgement), so each command holds exactly one step: the look-ahead is
+            # max(the step, the config's lookahead of 0.1 s), the shortest hold that keeps the
+            # promise (docs/filter_learner.md, "How far from alpha"). It holds that answer while
+            # a cluster's union value is being solved: sim time waits for the solve instead of a
+            # fallback (docs/graph_safety.md). A lockstepped robot does not move while /clock
+            # waits (a busy machine, a slow rate factor), so the filter counts a stopped /clock
+            # as lost only after 20 s (docs/filter_node.md).
+            add('safety_filter', name, {**sim, 'control_period': step,
                                         'clock_stall_timeout': CLUSTER_HOLD_TIMEOUT + 5.0,
                                         'lockstep': True, 'lockstep_silence': CLUSTER_HOLD_TIMEOUT + 5.0,
                                         'cluster_hold_timeout': CLUSTER_HOLD_TIMEOUT})

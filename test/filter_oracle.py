@@ -282,8 +282,11 @@ def _add_cluster_constraints(c: _Constraints, f, state, horizon, t, store) -> No
     speed = np.full(3, cfg.speed)
     hold = np.full(3, horizon)
     ahead = arc_flow(state[None], speed[:1], np.array([u]), hold[:1])[0]
+    # (added later: the turn's bangs are held at least st.turn_hold, one heading cell of the
+    # cluster grid: a shorter hold's two ends read alike between its nodes)
+    turn_hold = max(horizon, st.turn_hold)
     points = arc_flow(np.stack([state, state, ahead, ahead]), np.full(4, cfg.speed),
-                      np.array([w, -w, w, -w]), np.full(4, horizon))
+                      np.array([w, -w, w, -w]), np.array([turn_hold, turn_hold, horizon, horizon]))
     for gi, (g, (key, origin, angle, centres)) in enumerate(zip(groups, frames)):
         group = ('cluster', gi)
         for j in g:                 # the members' own constraints belong to the cluster

@@ -211,3 +211,45 @@ def test_the_disk_cache_of_cluster_values_stays_within_its_bound(tmp_path, monke
     again = ClusterStore(settings, background=False)
     again.request(keys[1][0], keys[1][1])
     assert again.get(keys[1][0]).solve_time > 0.0
+
+
+# the cup that a robot entered 9.8 cm deep at the team's step (0.05 s, look-ahead 0.1 s): the
+# cluster value's two bang ends after a 0.1 s hold lay within one heading cell of its grid and
+# read alike (a tie, turned left into the cup); the avoid turn's bangs are now held at least
+# ClusterSettings.turn_hold (bench/bench_onset.py: trial 785 of its cups row)
+CUP_ENTERED = (np.array([[3.14090601, 0.0], [-3.14090601, 3.48206514], [-3.14090601, -3.48206514]]),
+               (-16.425712329916696, 2.0184082641057812, 0.1470473272338894), (17.408509021600732, 2.652614331936953),
+               (0.9785741250204102, -0.20589483199084582))
+
+
+def test_a_cluster_turn_is_chosen_over_a_hold_its_grid_resolves(monkeypatch):
+    from supersafe_ros.filter.trials import CollisionTrial
+    from supersafe_ros.reach.library import load_or_solve
+    standard = SafeSet(load_or_solve(Grid((-8, -8), (8, 8), (65, 65, 42)), 3.0, 1.0, 1.8, 3.0), 0.0)
+    trial = CollisionTrial(*CUP_ENTERED)
+    lockstep = FilterConfig(control_period=0.05, lookahead=0.1)
+    store = ClusterStore(ClusterSettings(disk_cache=False), background=False)
+    after = run_trials([trial], cluster_guard(standard, store), step=0.05, config=lockstep)
+    assert after.collisions == 0 and after.trapped == 0, after.summary()
+    assert ClusterSettings().turn_hold == pytest.approx(2 * np.pi / 32)
+    # the turn read over the look-ahead's own hold, as before: the robot enters the cup
+    monkeypatch.setattr(ClusterSettings, 'turn_hold', property(lambda self: 0.0))
+    store = ClusterStore(ClusterSettings(disk_cache=False), background=False)
+    before = run_trials([trial], cluster_guard(standard, store), step=0.05, config=lockstep)
+    assert before.collisions == 1 and before.max_depth > 0.05
+
+
+@pytest.mark.parametrize('layout', ['row', 'cup', 'random'])
+def test_the_lockstep_look_ahead_of_one_study_step_never_collides(standard, store, layout):
+    """The study's step (0.2 s) with the lockstep team's look-ahead: one step (max(0.1 s, the
+    step)), no stale pose, no late reply. Robots override closer to the level (V - alpha
+    at onset: bench/bench_onset.py) and still never enter a detected disc."""
+    rng = np.random.default_rng(21)
+    lays = {'row': [row_layout(4.5)] * 60, 'cup': [cup_layout(rng) for _ in range(60)],
+            'random': [random_layout(rng, int(rng.integers(3, 7)), half=6.0, min_gap=0.3) for _ in range(60)]}[layout]
+    config = FilterConfig(control_period=0.2, lookahead=0.1)
+    assert RobotFilter(config).lookahead() == 0.2
+    r = run_trials(layout_trials(lays, np.random.default_rng(22)), cluster_guard(standard, store), step=0.2,
+                   config=config, rng=np.random.default_rng(23))
+    assert r.collisions == 0 and r.trapped == 0, r.summary()
+    assert r.overrides > 0

@@ -83,6 +83,14 @@ class ClusterSettings:
     def turning_radius(self) -> float:
         return self.speed / max(self.omega_max, 1e-9)
 
+    @property
+    def turn_hold(self) -> float:
+        """The shortest hold over which a cluster value tells the two bangs apart: their ends
+        are one heading cell (2 pi / headings) apart at full turn rate. The avoid turn is the
+        bang whose hold ends at the larger V; over a shorter hold both ends read the same
+        between grid nodes (a tie, turned left whichever side is safe)."""
+        return 2.0 * math.pi / self.headings / max(self.omega_max, 1e-9)
+
 
 def components(centres, link: float) -> list:
     """Index arrays of the clusters (connected within ``link``), singletons included."""

@@ -156,17 +156,20 @@ def cluster_rows(filters, configs, states, planned, horizon, speed, bang, cluste
             f_turn[sel] = u[0]
     keep = ok | (f_value[0] > 0.0)
     kept = np.flatnonzero(keep)
+    turn_hold = np.array([store.settings.turn_hold for store in fc.stores])[inst_store]
 
     def turns_of(r) -> np.ndarray:
         """The unit avoid turn of the returned rows ``r``: with a union value in force, the bang
         (+-w_max) whose hold from the state now ends at the larger V (ties left, within the
-        value's tie tolerance); with the fallback, its loiter circle's turn."""
+        value's tie tolerance), held at least the store's ``turn_hold`` (a shorter hold's ends
+        are closer than the grid resolves); with the fallback, its loiter circle's turn."""
         i = kept[np.asarray(r, dtype=np.intp)]
         out = f_turn[i]
         u = i[ok[i]]
         if len(u):
             robot = inst_row[u]
-            ends = bang_ends(state[u], speed[robot], bang[robot], horizon[robot]).reshape(2, len(u), 3)
+            hold = py_max(horizon[robot], turn_hold[u])
+            ends = bang_ends(state[u], speed[robot], bang[robot], hold).reshape(2, len(u), 3)
             (left, right), tie = read(u, ends)
             out[ok[i]] = better_bang(left, right, tie)
         return out
