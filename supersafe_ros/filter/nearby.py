@@ -64,7 +64,8 @@ class DetectionIndex:
     def pick(self, near, resolution):
         """(the detections a robot judges: ``near`` and every member of their clusters,
         ascending; its clusters of more than one member, as positions in it, in the order of
-        their first members; each one's canonical frame, None for the oversize group)."""
+        their first members; each one's canonical frame, for the members of clusters too large
+        to solve (one group, of those in ``near``) the frame of ``cluster_rows.cluster_frame``)."""
         if self.link is None:
             return near, [], []
         for i in near[self.label[near] == UNSEEN].tolist():
@@ -79,9 +80,9 @@ class DetectionIndex:
                 groups.append(np.searchsorted(picked, self.members[k]))
                 canon.append(self._canonical(k, resolution))
         over = near[label == OVERSIZE]
-        if len(over) > 1:
+        if len(over) > 1:          # never solved, so no canonical frame (cluster_rows.cluster_frame's)
             groups.append(np.searchsorted(picked, over))
-            canon.append(None)
+            canon.append((None, self.det[over].mean(axis=0), 0.0, None))
         order = sorted(range(len(groups)), key=lambda g: groups[g][0])
         return picked, [groups[g] for g in order], [canon[g] for g in order]
 
