@@ -215,12 +215,12 @@ class FleetSafetyFilterNode(Node):
         """One throttled line for the robots whose new commands were beyond their limits (clipped:
         the first one's raw values), one for those whose detections were cut to max_detections."""
         complain = self.wiring.complain
-        if clipped:
-            complain('cmd clipped', f'{commands} beyond the robot\'s limits for {len(clipped)} robot(s); '
+        if clipped:         # (a kind per topic: one does not silence the other)
+            complain(f'{commands} clipped', f'{commands} beyond the robot\'s limits for {len(clipped)} robot(s); '
                      f'{clipped[0].name}: {clipped[0].command.note}')
         if dropped:
             shown = next((f for f in dropped if not f.detections.dropped_safely), dropped[0])    # an unsafe one first
-            complain('detections dropped', f'{detections} of {len(dropped)} robot(s) cut; {shown.name}: '
+            complain(f'{detections} dropped', f'{detections} of {len(dropped)} robot(s) cut; {shown.name}: '
                      f'{shown.detections.note}', level='error' if not shown.detections.dropped_safely else 'warn')
 
     # -- batched topics ---------------------------------------------------------------------------------
@@ -251,7 +251,7 @@ class FleetSafetyFilterNode(Node):
         update_detections_all(w.filters, xy, t, w.safe_set)     # one array shared by every robot
         d = w.filters[0].detections if w.filters else None
         if d is not None and d.dropped:
-            w.complain('detections dropped', f'fleet/detections: {d.note}',
+            w.complain('fleet/detections dropped', f'fleet/detections: {d.note}',
                        level='warn' if d.dropped_safely else 'error')
 
     def on_fleet_commands(self, msg: Float64MultiArray):

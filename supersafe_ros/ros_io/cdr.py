@@ -7,7 +7,8 @@ sample of each is decoded, into light views with the message's attribute names
 (``header.stamp.sec``, ``pose.position.x``, ``angular.z``, ...), so the validators of
 ``rosmsg`` read them exactly as they read the messages (same values bit for bit, same
 errors). ``pose_array_xy`` reads a PoseArray's positions as one numpy array (detections of
-any size: bounded work, no object per pose). ``twist_bytes`` serializes a Twist.
+any size: bounded work, no object per pose). ``pose_array_bytes`` and ``twist_bytes``
+serialize a PoseArray of positions and a Twist.
 
 Layout (little-endian CDR, ``encapsulation`` = 00 01 00 00; offsets count from the end
 of those 4 bytes, each primitive aligned to its size): Header = int32 sec, uint32
@@ -180,6 +181,22 @@ def twist(data):
         return Twist(_TWIST.unpack_from(b, 0))
     except struct.error as exc:
         raise MessageError(f'command is not a serialized Twist ({exc})') from None
+
+
+def pose_array_bytes(xy, frame_id: str = 'map', sec: int = 0, nanosec: int = 0) -> bytes:
+    """A serialized PoseArray of positions ``xy`` (N, 2) (z 0, identity orientations), for
+    ``publish``: written from one numpy array (a detector's thousands of points, or a test's
+    100,000, without an object per pose)."""
+    xy = np.asarray(xy, dtype=float).reshape(-1, 2)
+    name = frame_id.encode('utf-8') + b'\0'
+    out = bytearray(_STAMP_LEN.pack(sec, nanosec, len(name)) + name)
+    out += bytes(_align(len(out), 4) - len(out)) + _COUNT.pack(len(xy))
+    if len(xy):
+        out += bytes(_align(len(out), 8) - len(out))
+        poses = np.zeros((len(xy), 7), dtype='<f8')
+        poses[:, :2], poses[:, 6] = xy, 1.0
+        out += poses.tobytes()
+    return ENCAPSULATION + bytes(out)
 
 
 def twist_bytes(linear_x: float, angular_z: float) -> bytes:
