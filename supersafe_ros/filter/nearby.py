@@ -139,27 +139,35 @@ def narrow(filters, configs, dets, states, horizon, speed, margin, safe_set, sto
         return None
     out = Narrowed()
     out.dets, out.frames, out.counts = list(dets), [None] * len(dets), counts
-    position = [np.arange(n) for n in counts.tolist()]
+    position = [None if n > NEAR_QUERY_MIN else np.arange(n) for n in counts.tolist()]      # (big: below)
     names = list(position)
-    shared = {}
-    for i in big.tolist():
+    shared, radii, found = {}, {}, {}
+    for i in big.tolist():       # each robot's index, store and radius (robots of a fleet share them)
         f, cfg, det = filters[i], configs[i], dets[i]
         store = (store_arg if store_arg is not None else default_cluster_store(cfg)) if cfg.clusters else None
         st = store.settings if store is not None else settings_of(cfg)
         index = _index(f, det, st.link_distance if store is not None else None, shared)
-        radius = float(judged_radius(safe_set.vf.grid, speed[i], horizon[i], margin[i], st))
-        near = index.within(states[i, :2].reshape(1, 2), radius)[0]
-        picked, groups, canon = index.pick(near, st.key_resolution)
-        memo = f.__dict__.get('_near_pick')      # the last decision's, kept while the same are picked
-        if (memo is None or memo[0] is not det or memo[1] is not store or len(memo[2]) != len(picked)
-                or not np.array_equal(memo[2], picked)):
-            sub = det[picked]
-            memo = f._near_pick = (det, store, picked, sub,
-                                   ClusterFrames(sub, store, groups, canon) if store is not None else None)
-        out.dets[i], out.frames[i] = memo[3], memo[4]
-        position[i] = picked
-        kept = f.detections.kept if f.detections.value is det else None
-        names[i] = kept[picked] if kept is not None else picked
+        key = (st, float(speed[i]), float(horizon[i]), float(margin[i]))
+        radius = radii.get(key)
+        if radius is None:
+            radius = radii[key] = float(judged_radius(safe_set.vf.grid, *key[1:], st))
+        found.setdefault(id(index), (index, []))[1].append((i, store, st, radius))
+    for index, robots in found.values():      # one query of the tree for its robots
+        rows = [i for i, _, _, _ in robots]
+        near_all = index.within(states[rows, :2], np.array([r for _, _, _, r in robots]))
+        for (i, store, st, _), near in zip(robots, near_all):
+            f, det = filters[i], dets[i]
+            picked, groups, canon = index.pick(near, st.key_resolution)
+            memo = f.__dict__.get('_near_pick')      # the last decision's, kept while the same are picked
+            if (memo is None or memo[0] is not det or memo[1] is not store or len(memo[2]) != len(picked)
+                    or not np.array_equal(memo[2], picked)):
+                sub = det[picked]
+                memo = f._near_pick = (det, store, picked, sub,
+                                       ClusterFrames(sub, store, groups, canon) if store is not None else None)
+            out.dets[i], out.frames[i] = memo[3], memo[4]
+            position[i] = picked
+            kept = f.detections.kept if f.detections.value is det else None
+            names[i] = kept[picked] if kept is not None else picked
     out.position, out.names = np.concatenate(position), np.concatenate(names)
     return out
 
