@@ -10,7 +10,8 @@ Topics (relative; run it in the robot's namespace such as /robot_0):
                                                             ERROR fail_safe; values: action, reason,
                                                             obstacle_index/x/y, value, alpha,
                                                             omega_max, source, cmd_*, set_update,
-                                                            set_update_reason, time_base
+                                                            set_update_reason, time_base, cmd_clipped,
+                                                            detections_dropped(_reason)
   pub  safety_filter/level_set  visualization_msgs/MarkerArray  the set in force at the robot's
                                                             heading around each detection (RViz;
                                                             level_set_markers, level_set_rate)
