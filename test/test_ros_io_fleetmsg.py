@@ -183,11 +183,14 @@ def test_pose_array_positions_read_as_one_array_and_written_back():
     from geometry_msgs.msg import PoseArray
     from supersafe_ros.ros_io import cdr
     rng = np.random.default_rng(13)
-    for n in (0, 1, 2, 7, 100_000):
-        for frame in FRAMES:
+    for n in (0, 1, 2, 7, 2000, 100_000):
+        for frame in (FRAMES if n < 100_000 else FRAMES[:1]):
             xy = rng.uniform(-1e4, 1e4, (n, 2))
             msg = rosmsg.xy_to_posearray(xy[:50], frame=frame) if n <= 50 else None
             data = cdr.pose_array_bytes(xy, frame, 12, 345)
+            if n == 100_000:        # (rclpy takes seconds to build 100,000 poses: read back by ours only)
+                assert np.array_equal(cdr.pose_array_xy(data)[1], xy)
+                continue
             back = deserialize_message(data, PoseArray)
             assert (back.header.frame_id, back.header.stamp.sec, back.header.stamp.nanosec) == (frame, 12, 345)
             assert len(back.poses) == n

@@ -109,8 +109,7 @@ class RobotFilter:
             reason = f'detections must be finite (N, 2) centres, got shape {np.shape(centres)}'
             self.detections.reject(reason, t)
             raise ValueError(reason)
-        posed = [self] if self.pose.value is not None else []
-        c, kept, dropped, (note, safe) = _limited(c, posed, t, safe_set, self.config)
+        c, kept, dropped, (note, safe) = _limited(c, [self], t, safe_set, self.config)
         inp = self.detections
         inp.accept(c, t)
         inp.kept, inp.dropped, inp.note, inp.dropped_safely = kept, dropped, note, safe
@@ -300,8 +299,7 @@ def update_detections_all(filters, centres, t, safe_set=None) -> None:
     if c is None:
         raise ValueError(f'detections must be finite (N, 2) centres, got shape {np.shape(centres)}')
     t = float(t)
-    posed = [f for f in filters if f.pose.value is not None]
-    c, kept, dropped, (note, safe) = _limited(c, posed, t, safe_set, filters[0].config if filters else None)
+    c, kept, dropped, (note, safe) = _limited(c, filters, t, safe_set, filters[0].config if filters else None)
     for f in filters:
         inp = f.detections
         inp.accept(c, t)
@@ -318,13 +316,14 @@ def _checked_centres(centres):
     return c
 
 
-def _limited(c, posed, t, safe_set, cfg):
+def _limited(c, robots, t, safe_set, cfg):
     """(the centres kept, their indices in the message or None if all, how many were dropped,
     why: ``nearby.drop_note``): at most ``cfg.max_detections``, the nearest to the poses of
-    the robots ``posed`` (none: the first)."""
+    the ``robots`` (none with a pose: the first)."""
     limit = cfg.max_detections if cfg is not None else len(c)
     if len(c) <= limit:
         return c, None, 0, ('', True)
+    posed = [f for f in robots if f.pose.value is not None]
     kept, dropped_from = within_limit(c, [f.pose.value[:2] for f in posed], limit)
     reach = None
     if safe_set is not None and posed:
