@@ -31,7 +31,8 @@ DEPLOYMENT_VALUES = {
 LIVE = {
     'safety_filter.yaml': {'standard_alpha', 'alpha_offset', 'use_learned', 'pose_timeout', 'detections_timeout',
                            'hold_timeout', 'cmd_timeout', 'clear_margin', 'lookahead', 'control_period', 'rate',
-                           'state_rate', 'max_value_function_bytes', 'clock_stall_timeout', 'publish_on_pose'},
+                           'state_rate', 'max_value_function_bytes', 'clock_stall_timeout', 'publish_on_pose',
+                           'max_detections'},
 }
 LIVE['fleet_safety_filter.yaml'] = LIVE['safety_filter.yaml'] - {'publish_on_pose'}
 
@@ -59,7 +60,8 @@ def test_filter_config_fields_take_their_defaults_from_filter_config():
     from_config = [p for p in FILTER_PARAMETERS if p.name in config_defaults]
     assert {p.name for p in from_config} == {'speed', 'omega_max', 'radius', *(p.name for p in CONFIG_PARAMETERS)}
     for p in from_config:
-        assert p.default == config_defaults[p.name] and isinstance(p.default, float), p.name
+        kind = int if p.name == 'max_detections' else float      # a count: an integer parameter
+        assert p.default == config_defaults[p.name] and type(p.default) is kind, p.name
 
 
 @pytest.mark.parametrize('name', sorted(NODES))

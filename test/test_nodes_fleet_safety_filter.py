@@ -387,3 +387,88 @@ def test_batched_commands_waiting_for_a_tick_are_each_applied_in_order(setup):
     assert np.asarray(d.fleet_out[-1].data).reshape(-1, 2)[:, 1] == pytest.approx([0.2, 0.3, 0.2])
     spin.until(lambda: d.rosout.has('fleet_safety_filter', 'fleet/cmd_vel_nav rejected', '4 values for 3 robots'),
                5.0, 'the rejection of the waiting message logged')
+
+
+def big_detections(close_at, entries=100_000):
+    """Serialized detections of ``entries`` centres 100 m to 3 km from OBSTACLE, and OBSTACLE
+    itself at index ``close_at``."""
+    from supersafe_ros.ros_io import cdr
+    rng = np.random.default_rng(close_at)
+    phi, r = rng.uniform(-math.pi, math.pi, entries - 1), rng.uniform(100.0, 3000.0, entries - 1)
+    far = np.column_stack([OBSTACLE[0] + r * np.cos(phi), OBSTACLE[1] + r * np.sin(phi)])
+    return cdr.pose_array_bytes(np.concatenate([far[:close_at], [OBSTACLE], far[close_at:]]))
+
+
+@pytest.mark.ros
+def test_100000_detections_on_both_interfaces_keep_every_tick_answered(setup):
+    """Three fleet/detections messages of 100,000 (one array for every robot; the shipped
+    max_detections keeps the 10,000 nearest to any robot), then three of robot_1's own: each
+    message is seen judged when robot_1 overrides toward safety at its one close obstacle,
+    named by its index in that message, every poses message is answered, and the state says
+    what was dropped and that it was safe."""
+    node, d, spin = setup
+    # the robots' poses first: a message beyond max_detections keeps the nearest to them
+    batched_tick(d, spin, [FAR, INTO, FAR], [0.3, -0.4, -0.2], actions('pass', 'override', 'pass'), 'poses known')
+
+    def avoiding(st, close):
+        return st.get('obstacle_index') == str(close) and st.get('action') == 'override'
+    for k in range(3):
+        close = 50_000 + 1000 * k
+        d.fleet_det.publish(big_detections(close))
+        d.fleet_cmd.publish(fleetmsg.commands_to_msg([(3.0, 0.3), (3.0, -0.4), (3.0, -0.2)]))
+        replies, ticks = len(d.fleet_out), 0
+        while not avoiding(d.fleet_newest().get('/robot_1', {}), close):
+            assert ticks < 500, f'fleet/detections {k} not judged after {ticks} poses'
+            d.fleet_poses.publish(fleet_poses([FAR, INTO, FAR]))
+            ticks += 1
+            spin.until(lambda: len(d.fleet_out) >= replies + ticks, 30.0, f'the reply to poses {ticks}')
+        st = d.fleet_newest()['/robot_1']
+        assert float(st['cmd_angular_z']) == 1.0, st
+        assert st['detections_dropped'] == '90000' and 'safe to drop' in st['detections_dropped_reason'], st
+        assert np.asarray(d.fleet_out[-1].data).reshape(-1, 2)[1] == pytest.approx([3.0, 1.0])
+    spin.until(lambda: d.rosout.has('fleet_safety_filter', 'fleet/detections: 90000 of 100000 detections dropped',
+                                    'safe to drop'), 10.0, 'the WARN naming what was dropped')
+    r = 'robot_1'
+    for k in range(3):
+        close = 20_000 + 1000 * k
+        d.det[r].publish(big_detections(close))
+        answers = 0
+        while not avoiding(d.newest(r), close):
+            assert answers < 500, f'{r}/detections {k} not judged after {answers} commands'
+            before = len(d.out[r])
+            d.pose[r].publish(rosmsg.state_to_pose(INTO))
+            d.cmd[r].publish(rosmsg.turn_rate_to_twist(-0.4, 3.0))
+            answers += 1
+            spin.until(lambda: len(d.out[r]) > before, 30.0, f'a cmd_vel after command {answers}')
+        st = d.newest(r)
+        assert float(st['cmd_angular_z']) == 1.0, st
+        assert st['detections_dropped'] == '90000' and 'safe to drop' in st['detections_dropped_reason'], st
+    d.det[r].publish(rosmsg.xy_to_posearray([OBSTACLE]))
+    d.fleet_det.publish(rosmsg.xy_to_posearray([OBSTACLE]))
+
+
+@pytest.mark.ros
+def test_commands_beyond_the_robots_limits_are_clipped_and_said_on_both_interfaces(setup):
+    node, d, spin = setup
+    rows, st = batched_tick(d, spin, [FAR, FAR, FAR], [0.1, 0.1, 0.1], actions('pass', 'pass', 'pass'), 'passing')
+    d.fleet_cmd.publish(fleetmsg.commands_to_msg([(3.0, 1e30), (0.5, 0.2), (3.0, -0.1)]))
+    spin.spin_for(0.05)
+    d.fleet_out.clear()
+    d.fleet_poses.publish(fleet_poses([FAR, FAR, FAR]))
+    said = lambda st: 'angular.z=1e+30' in st.get('/robot_0', {}).get('cmd_clipped', '')  # noqa: E731
+    spin.until(lambda: d.fleet_out and said(d.fleet_newest()), 10.0, 'the batched clip said')
+    assert np.asarray(d.fleet_out[-1].data) == pytest.approx([3.0, 1.0, 3.0, 0.2, 3.0, -0.1])
+    st = d.fleet_newest()
+    assert st['/robot_0']['cmd_clipped'] == 'angular.z=1e+30 beyond w_max=1: clipped to 1'
+    assert st['/robot_1']['cmd_clipped'] == "linear.x=0.5 is not the robot's speed 3: it drives at 3"
+    assert st['/robot_2']['cmd_clipped'] == ''
+    spin.until(lambda: d.rosout.has('fleet_safety_filter', "fleet/cmd_vel_nav beyond the robot's limits for 2 "
+                                    'robot(s)', 'angular.z=1e+30'), 10.0, 'the batched WARN')
+    # per-robot topics
+    r = 'robot_2'
+    d.pose[r].publish(rosmsg.state_to_pose(FAR))
+    d.cmd[r].publish(rosmsg.turn_rate_to_twist(-1e30, 3.0))
+    spin.until(lambda: 'angular.z=-1e+30' in d.newest(r).get('cmd_clipped', ''), 10.0, f'{r}: the clip said')
+    assert d.newest(r)['cmd_angular_z'] == '-1'
+    spin.until(lambda: d.rosout.has('fleet_safety_filter', "cmd_vel_nav beyond the robot's limits for 1 robot(s)",
+                                    '/robot_2: angular.z=-1e+30'), 10.0, 'the per-robot WARN')

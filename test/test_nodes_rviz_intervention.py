@@ -86,6 +86,14 @@ def test_level_sets_around_obstacles_become_line_strip_markers(standard_vf):
         v = standard_vf.value(np.column_stack([pts, np.full(len(pts), state[2])]))
         assert np.abs(v).max() < 0.02
     assert level_sets_around(standard_vf, state, np.zeros((0, 2)), 0.0) == []
+    # a lidar's thousands of points: drawn around the nearest only, in their order
+    many = np.random.default_rng(0).uniform(-500, 500, (5000, 2))
+    near = level_sets_around(standard_vf, state, many, 0.0, nearest=64)
+    dist = np.hypot(*(many - state[:2]).T)
+    nearest = np.sort(np.argsort(dist)[:64])
+    assert len(near) == 64
+    assert [tuple(np.round(c[0][0] - contours[0][0][0] + centres[0], 9)) for c in near] == [
+        tuple(np.round(many[i], 9)) for i in nearest]
 
 
 # -- rviz_intervention_node at topic level ---------------------------------------------------------

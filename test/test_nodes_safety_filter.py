@@ -342,3 +342,30 @@ def test_every_parameter_is_declared_from_its_table_live_or_read_only(setup):
         else:
             assert not ranges, spec.name
     assert node.wiring.live.names == {p.name for p in specs if p.live} | {'use_sim_time'}
+
+
+def test_a_command_beyond_the_robots_limits_is_clipped_and_said(setup):
+    """angular.z = +-1e30 goes out as +-w_max (as before), and the state's cmd_clipped and a
+    WARN name the raw value; a linear.x that is not the robot's speed is said too."""
+    from graph_support import Rosout
+    node, driver, spin = setup
+    rosout = Rosout(driver.node)
+    for raw, sent in ((1e30, 1.0), (-1e30, -1.0)):
+        out, st, msg = exchange(driver, spin, state(-7.5, 7.0, 0.0), raw, want=passing(sent))
+        assert out.angular.z == sent and out.linear.x == 3.0
+        assert st['cmd_clipped'] == f'angular.z={raw:.6g} beyond w_max=1: clipped to {sent:g}'
+    # the WARN (throttled: said again while the commands keep coming until /rosout is matched)
+    said = lambda: rosout.has('safety_filter', "cmd_vel_nav beyond the robot's limits", 'angular.z=-1e+30')  # noqa
+    for _ in range(100):
+        driver.send(pose=state(-7.5, 7.0, 0.0), detections=(OBSTACLE,), cmd=-1e30)
+        try:
+            spin.until(said, 0.5, 'the clipped command logged')
+            break
+        except AssertionError:
+            continue
+    assert said()
+    driver.cmd.publish(rosmsg.turn_rate_to_twist(0.2, 0.5))     # a speed the robot does not drive
+    spin.until(lambda: driver.states and "linear.x=0.5 is not the robot's speed 3" in driver.last_state().get(
+        'cmd_clipped', ''), 5.0, 'the linear.x said')
+    out, st, msg = exchange(driver, spin, state(-7.5, 7.0, 0.0), 0.3, want=passing(0.3))
+    assert st['cmd_clipped'] == '' and st['detections_dropped'] == '0' and st['detections_dropped_reason'] == ''

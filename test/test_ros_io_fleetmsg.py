@@ -174,3 +174,37 @@ def test_views_reject_truncated_bytes_and_read_other_encodings():
     assert rosmsg.twist_turn_rate(cdr.twist(big)) == -0.5
     assert isinstance(cdr.pose_stamped(data), cdr.PoseStamped)
     assert not isinstance(cdr.pose_stamped(data), PoseStamped)
+
+
+def test_pose_array_positions_read_as_one_array_and_written_back():
+    """``cdr.pose_array_xy`` reads a PoseArray's positions as rclpy does (truncated bytes are
+    refused, other encodings handed to rclpy); ``cdr.pose_array_bytes`` writes one that rclpy
+    reads back (100,000 poses: no object per pose either way)."""
+    from geometry_msgs.msg import PoseArray
+    from supersafe_ros.ros_io import cdr
+    rng = np.random.default_rng(13)
+    for n in (0, 1, 2, 7, 2000, 100_000):
+        for frame in (FRAMES if n < 100_000 else FRAMES[:1]):
+            xy = rng.uniform(-1e4, 1e4, (n, 2))
+            msg = rosmsg.xy_to_posearray(xy[:50], frame=frame) if n <= 50 else None
+            data = cdr.pose_array_bytes(xy, frame, 12, 345)
+            if n == 100_000:        # (rclpy takes seconds to build 100,000 poses: read back by ours only)
+                assert np.array_equal(cdr.pose_array_xy(data)[1], xy)
+                continue
+            back = deserialize_message(data, PoseArray)
+            assert (back.header.frame_id, back.header.stamp.sec, back.header.stamp.nanosec) == (frame, 12, 345)
+            assert len(back.poses) == n
+            if n:
+                i = int(rng.integers(n))
+                p = back.poses[i]
+                assert (p.position.x, p.position.y, p.position.z, p.orientation.w) == (*xy[i], 0.0, 1.0)
+            header, got = cdr.pose_array_xy(data)
+            assert header.frame_id == frame and np.array_equal(got, xy) and got.flags.writeable
+            if msg is not None:
+                header, got = cdr.pose_array_xy(serialize_message(msg))
+                assert np.array_equal(got, rosmsg.posearray_to_xy(msg, None))
+    with pytest.raises(MessageError, match='detections is not a serialized PoseArray'):
+        cdr.pose_array_xy(cdr.pose_array_bytes(np.ones((3, 2)))[:-8], 'detections')
+    import struct
+    big_endian = b'\x00\x00\x00\x00' + struct.pack('>iII', 0, 0, 4) + b'map\x00' + struct.pack('>I', 0)
+    assert cdr.pose_array_xy(big_endian)[1].shape == (0, 2)

@@ -13,6 +13,7 @@ frames; robots sent equal arrays share them by content (``cluster_frames``).
 """
 from __future__ import annotations
 
+from collections import OrderedDict
 import itertools
 import math
 
@@ -28,16 +29,21 @@ from .types import FilterConfig
 class ClusterFrames:
     """The clusters (>1 member) of one detections array and their canonical frames, as arrays
     (computed once per detections array and store settings; robots given the same array, as
-    the fleet node's batched detections, share them)."""
+    the fleet node's batched detections, share them). ``groups`` and their ``canon``
+    (``cluster_frame``'s, None: compute it), if given, are the clusters (a robot's detections
+    within reach, ``filter.nearby``). A cluster of more than ``cluster.SOLVE_MEMBERS_MAX``
+    has no key (never solved) and no canonical frame: its fallback is read in the map frame."""
 
-    def __init__(self, det, store):
+    def __init__(self, det, store, groups=None, canon=None):
         st = store.settings
-        groups = [g for g in cluster.components(det, st.link_distance) if len(g) > 1]
+        if groups is None:
+            groups = [g for g in cluster.components(det, st.link_distance) if len(g) > 1]
         self.n = len(groups)
         self.keys, self.centres = [], []
         origin, angle, cs, sn = [], [], [], []
-        for g in groups:
-            key, o, a, c = cluster.canonical(det[g], st.key_resolution)
+        for gi, g in enumerate(groups):
+            given = canon[gi] if canon is not None else None
+            key, o, a, c = given if given is not None else cluster_frame(det[g], st)
             self.keys.append(key)
             self.centres.append(c)
             origin.append(o)
@@ -51,22 +57,40 @@ class ClusterFrames:
         self.members = np.column_stack([member, det[member]])
 
 
-_FRAMES_BY_CONTENT: dict = {}      # (link, resolution, shape, bytes) -> _ClusterFrames
+def cluster_frame(centres, settings):
+    """``cluster.canonical`` of a cluster's centres, or for a cluster too large to be solved
+    (more than ``cluster.SOLVE_MEMBERS_MAX``) (None, its centroid, 0, None), without the
+    all-pairs search of its farthest pair."""
+    if len(centres) > cluster.SOLVE_MEMBERS_MAX:
+        return None, centres.mean(axis=0), 0.0, None
+    return cluster.canonical(centres, settings.key_resolution)
+
+
+_FRAMES_BY_CONTENT: OrderedDict = OrderedDict()      # (link, resolution, shape, bytes) -> _ClusterFrames
 _FRAMES_KEPT = 4096
+_FRAMES_BYTES_KEPT = 32 * 1024 * 1024     # and at most this many bytes of detections in the keys
+_frames_bytes = 0
 
 
 def cluster_frames(det, store) -> ClusterFrames:
     """The cluster frames of a detections array, shared by content: robots sent equal
     detections in separate messages (per-robot topics) compute them once. Bounded: the
     oldest entries go first."""
+    global _frames_bytes
     st = store.settings
     key = (st.link_distance, st.key_resolution, det.shape, det.tobytes())
     got = _FRAMES_BY_CONTENT.get(key)
     if got is None:
+        if not _FRAMES_BY_CONTENT:
+            _frames_bytes = 0
         if len(_FRAMES_BY_CONTENT) >= _FRAMES_KEPT:
             for old in list(_FRAMES_BY_CONTENT)[:_FRAMES_KEPT // 4]:
+                _frames_bytes -= len(old[3])
                 del _FRAMES_BY_CONTENT[old]
+        while _FRAMES_BY_CONTENT and _frames_bytes + len(key[3]) > _FRAMES_BYTES_KEPT:
+            _frames_bytes -= len(_FRAMES_BY_CONTENT.popitem(last=False)[0][3])
         got = _FRAMES_BY_CONTENT[key] = ClusterFrames(det, store)
+        _frames_bytes += len(key[3])
         got.frames.flags.writeable = got.members.flags.writeable = False
     return got
 
@@ -80,7 +104,7 @@ _NO_CLUSTERS = dict(robot=_NONE_I, index=_NONE_I, value=_NONE_F, level=_NONE_F,
 
 
 def cluster_rows(filters, configs, states, planned, horizon, speed, bang, cluster_alpha, dets, start,
-                 store_arg) -> dict:
+                 store_arg, frames=None) -> dict:
     """The cluster constraints of every robot, as table columns (see ``law.ConstraintTable``).
 
     A robot with clusters enabled and more than one detection gets, per cluster of its
@@ -99,11 +123,13 @@ def cluster_rows(filters, configs, states, planned, horizon, speed, bang, cluste
     Either way the cluster's members' own rows join the cluster's group. All (robot,
     cluster) instances are evaluated together: one arc_flow for the holds, one value
     read per distinct cluster value, one fallback evaluation per store. The rows' turns
-    are read on demand (``turns_of``, for the rows robots avoid by).
+    are read on demand (``turns_of``, for the rows robots avoid by). ``frames``: per robot,
+    its ``ClusterFrames`` when given (a robot's detections within reach, ``filter.nearby``;
+    None: those of its detections array).
     """
     m = len(filters)
     solving = np.zeros(m, dtype=np.intp)
-    entries = _entries(filters, configs, dets, store_arg)
+    entries = _entries(filters, configs, dets, store_arg, frames)
     if not entries:
         return dict(_NO_CLUSTERS, solving=solving)
     fc = _FrameColumns(entries)
@@ -182,7 +208,7 @@ def cluster_rows(filters, configs, states, planned, horizon, speed, bang, cluste
                 member_pairs=member_pairs, member_groups=member_inst, n_groups=n_inst, solving=solving)
 
 
-def _entries(filters, configs, dets, store_arg) -> list:
+def _entries(filters, configs, dets, store_arg, frames=None) -> list:
     """[(ClusterFrames, store, robot rows)] of the robots with clusters: robots with one
     detections array and configuration share an entry (a batched fleet: one); each robot
     keeps its frames (``_cluster_cache``) while its detections array is the same."""
@@ -210,13 +236,15 @@ def _entries(filters, configs, dets, store_arg) -> list:
             store = stores.get(id(cfg))
             if store is None:
                 store = stores[id(cfg)] = default_cluster_store(cfg)
-        cache = f.__dict__.get('_cluster_cache')
-        if cache is None or cache[0] is not det:
-            got = shared.get((id(det), id(store)))
-            if got is None:
-                got = shared[(id(det), id(store))] = cluster_frames(det, store)
-            cache = f._cluster_cache = (det, got)
-        fr = cache[1]
+        fr = frames[row] if frames is not None else None
+        if fr is None:
+            cache = f.__dict__.get('_cluster_cache')
+            if cache is None or cache[0] is not det:
+                got = shared.get((id(det), id(store)))
+                if got is None:
+                    got = shared[(id(det), id(store))] = cluster_frames(det, store)
+                cache = f._cluster_cache = (det, got)
+            fr = cache[1]
         if fr.n:
             entry = entries.get((id(fr), id(store)))
             if entry is None:
@@ -236,8 +264,11 @@ def _lookups(entries) -> dict:
     known = {}
     for _, gi, e in firsts:
         fr, store, _ = entries[e]
-        sk = (id(store), fr.keys[gi])
+        sk = _known_key(store, fr.keys[gi], e, gi)
         if sk in known:
+            continue
+        if fr.keys[gi] is None:      # too large to be solved: never requested, the fallback judges it
+            known[sk] = [None, False, None, False, (e, gi)]
             continue
         before = store.get(fr.keys[gi])
         if before is None:
@@ -248,6 +279,12 @@ def _lookups(entries) -> dict:
         else:
             known[sk] = [before, False, before, False, (e, gi)]
     return known
+
+
+def _known_key(store, key, e, gi):
+    """``_lookups``' key of entry e's cluster gi: its store and geometry (a cluster without a key,
+    too large to be solved, is its own)."""
+    return (id(store), key) if key is not None else (id(store), None, e, gi)
 
 
 class _FrameColumns:
@@ -278,7 +315,7 @@ class _FrameColumns:
         val, busy, self.first_inst = [], [], []
         for e, (fr, store, _) in enumerate(entries):
             for gi, key in enumerate(fr.keys):
-                b, bb, a, ab, first = known[(id(store), key)]
+                b, bb, a, ab, first = known[_known_key(store, key, e, gi)]
                 val.append(value_index(a))
                 busy.append(ab)
                 if first == (e, gi):      # the first robot of this entry is the first to meet the key

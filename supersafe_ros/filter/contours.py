@@ -40,11 +40,17 @@ def level_set_contour(vf: ValueFunction, theta: float, alpha: float, refine: int
     return [np.asarray(line, dtype=float) for line in gen.lines(float(alpha)) if len(line) >= 2]
 
 
-def level_sets_around(vf: ValueFunction, state, obstacles_xy, alpha: float, refine: int = 2) -> list[list]:
+def level_sets_around(vf: ValueFunction, state, obstacles_xy, alpha: float, refine: int = 2,
+                      nearest: int | None = None) -> list[list]:
     """For each obstacle centre (N, 2): the contour at the robot's heading state[2], in map
-    coordinates (one contour computation, translated per obstacle)."""
+    coordinates (one contour computation, translated per obstacle); with ``nearest``, only
+    around that many nearest to the robot (in their order: a lidar's thousands of points
+    would make a million marker points)."""
     centres = np.asarray(obstacles_xy, dtype=float).reshape(-1, 2)
     if len(centres) == 0:
         return []
+    if nearest is not None and len(centres) > nearest:
+        d = np.hypot(centres[:, 0] - float(state[0]), centres[:, 1] - float(state[1]))
+        centres = centres[np.sort(np.argpartition(d, nearest - 1)[:nearest])]
     lines = level_set_contour(vf, float(state[2]), alpha, refine)
     return [[line + c for line in lines] for c in centres]

@@ -6,7 +6,8 @@ robots, a robot's own filter being the case of one (``RobotFilter.step``).
    (``propagation``);
 3. its constraints, rows of one ``law.ConstraintTable``: one per detected obstacle
    (``pairs``: V now and after the planner's hold) and one per cluster of close
-   obstacles (``cluster_rows``);
+   obstacles (``cluster_rows``), of the detections within its reach when it has many
+   (``nearby``: the others cannot constrain it);
 4. the law over the table (``law.decide_rows``) and what it sends and says (``outputs``).
 
 A lone robot's pairs are read in Python floats (numpy's cost per call would be most of its
@@ -20,6 +21,7 @@ import numpy as np
 from .cluster_rows import cluster_rows
 from .gather import gather, gather_one, judged
 from .law import ConstraintTable
+from .nearby import NEAR_QUERY_MIN, narrow
 from .outputs import Decisions, outputs
 from .pairs import FEW_PAIRS, pair_reads, pair_turns, pair_values, robot_pair_values
 from .propagation import follow
@@ -45,6 +47,11 @@ def step_many(filters, safe_set: SafeSet, t, clusters=None) -> Decisions:
     states = follow(rb.poses, rb.omega_arcs, rb.dt_arcs, rb.speed)
     horizon, planned, speed, bang, dets = rb.horizon, rb.planned, rb.speed, rb.bang, rb.dets
     counts = np.fromiter(map(len, dets), dtype=np.intp, count=m)
+    narrowed = None
+    if m and counts.max() > NEAR_QUERY_MIN:
+        narrowed = narrow(rb.filters, rb.configs, dets, states, horizon, speed, rb.margin, safe_set, clusters)
+        dets = narrowed.dets
+        counts = np.fromiter(map(len, dets), dtype=np.intp, count=m)
     n_pairs = int(counts.sum())
     start = np.concatenate(([0], np.cumsum(counts)[:-1])).astype(np.intp) if m else np.zeros(0, np.intp)
     pair_robot = np.repeat(np.arange(m), counts)
@@ -64,9 +71,14 @@ def step_many(filters, safe_set: SafeSet, t, clusters=None) -> Decisions:
         return pair_turns(safe_set.vf, rel[p], value[p], horizon[r], speed[r], bang[r])
 
     cl = cluster_rows(rb.filters, rb.configs, states, planned, horizon, speed, bang, rb.cluster_alpha, dets, start,
-                      clusters)
-    tab, n_groups = constraint_table(pair_robot, np.arange(n_pairs) - start[pair_robot], counts, value, value_next,
-                                     centres, float(safe_set.alpha), cl, pair_turns_of)
+                      clusters, narrowed.frames if narrowed is not None else None)
+    if narrowed is None:
+        tab, n_groups = constraint_table(pair_robot, np.arange(n_pairs) - start[pair_robot], counts, value,
+                                         value_next, centres, float(safe_set.alpha), cl, pair_turns_of)
+    else:
+        tab, n_groups = constraint_table(pair_robot, narrowed.position, narrowed.counts, value, value_next, centres,
+                                         float(safe_set.alpha), cl, pair_turns_of)
+        narrowed.rename(tab, start, cl)
     return outputs(filters, rb, safe_set, t, tab, n_groups, cl['solving'])
 
 
@@ -77,6 +89,11 @@ def decide_one(f, problem, safe_set: SafeSet, t, clusters) -> Decisions:
     rb, (x, y, th) = gather_one(f, problem, t)
     horizon, planned, speed, bang = (float(a[0]) for a in (rb.horizon, rb.planned, rb.speed, rb.bang))
     det = f.detections.value
+    narrowed = None
+    if len(det) > NEAR_QUERY_MIN:
+        narrowed = narrow(rb.filters, rb.configs, [det], np.array([[x, y, th]]), rb.horizon, rb.speed, rb.margin,
+                          safe_set, clusters)
+        det = narrowed.dets[0]
     n_pairs = len(det)
     pairs = robot_pair_values(safe_set.vf, x, y, th, det.tolist(), planned, horizon, speed, bang, FEW_PAIRS)
     if pairs is None:
@@ -88,10 +105,16 @@ def decide_one(f, problem, safe_set: SafeSet, t, clusters) -> Decisions:
                                               np.full(n_pairs, speed), np.full(n_pairs, bang))
     else:
         value, turn, value_next = (np.array(a, dtype=float) for a in pairs)
+    start = np.zeros(1, np.intp)
     cl = cluster_rows([f], rb.configs, np.array([[x, y, th]]), rb.planned, rb.horizon, rb.speed, rb.bang,
-                      rb.cluster_alpha, [det], np.zeros(1, np.intp), clusters)
-    tab, n_groups = constraint_table(np.zeros(n_pairs, np.intp), np.arange(n_pairs), np.array([n_pairs]), value,
-                                     value_next, det, float(safe_set.alpha), cl, lambda p: turn[p])
+                      rb.cluster_alpha, [det], start, clusters, narrowed.frames if narrowed is not None else None)
+    if narrowed is None:
+        tab, n_groups = constraint_table(np.zeros(n_pairs, np.intp), np.arange(n_pairs), np.array([n_pairs]), value,
+                                         value_next, det, float(safe_set.alpha), cl, lambda p: turn[p])
+    else:
+        tab, n_groups = constraint_table(np.zeros(n_pairs, np.intp), narrowed.position, narrowed.counts, value,
+                                         value_next, det, float(safe_set.alpha), cl, lambda p: turn[p])
+        narrowed.rename(tab, start, cl)
     return outputs([f], rb, safe_set, t, tab, n_groups, cl['solving'])
 
 

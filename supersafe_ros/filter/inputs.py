@@ -21,6 +21,7 @@ import numpy as np
 
 from .decide import step_many
 from .gather import clip
+from .nearby import drop_note, message_reach, within_limit
 from .types import FilterConfig, FilterOutput, SafeSet
 
 PERIOD_SAMPLES = 16    # intervals in the median that measures the control period
@@ -35,9 +36,13 @@ class _Input:
     stamp: float = -math.inf      # the time it describes (its header stamp; arrival if unstamped)
     rejected: str = ''            # reason the newest sample was rejected ('' if it was valid)
     rejected_t: float = -math.inf
+    note: str = ''                # what was made of the newest sample (a command clipped, detections dropped)
+    kept: object = None           # detections: the message's indices of those kept (None: all)
+    dropped: int = 0              # detections: how many of the message were dropped
+    dropped_safely: bool = True   # detections: all of them beyond any robot's reach (nearby.drop_note)
 
     def accept(self, value, t, stamp=None):
-        self.value, self.t, self.rejected = value, float(t), ''
+        self.value, self.t, self.rejected, self.note = value, float(t), '', ''
         self.stamp = float(t) if stamp is None else float(stamp)
 
     def age(self, t) -> float:
@@ -92,29 +97,42 @@ class RobotFilter:
         """Record a pose message the caller could not convert (wrong frame, bad quaternion)."""
         self.pose.reject(reason, t)
 
-    def update_detections(self, centres, t) -> None:
-        """Obstacle centres (N, 2) in map, N >= 0; raises ValueError if malformed."""
-        c = np.asarray(centres, dtype=float)
-        if c.size == 0:
-            c = np.zeros((0, 2))
-        if c.ndim != 2 or c.shape[1] != 2 or not np.all(np.isfinite(c)):
-            reason = f'detections must be finite (N, 2) centres, got shape {c.shape}'
+    def update_detections(self, centres, t, safe_set=None) -> None:
+        """Obstacle centres (N, 2) in map, N >= 0; raises ValueError if malformed.
+
+        More than ``max_detections``: the nearest to the robot's pose are kept, the rest
+        dropped, and ``detections.note`` says whether that is safe (they are farther than
+        any can constrain the robot while judged, by ``safe_set``'s grid; unknown without).
+        """
+        c = _checked_centres(centres)
+        if c is None:
+            reason = f'detections must be finite (N, 2) centres, got shape {np.shape(centres)}'
             self.detections.reject(reason, t)
             raise ValueError(reason)
-        self.detections.accept(c, t)
+        c, kept, dropped, (note, safe) = _limited(c, [self], t, safe_set, self.config)
+        inp = self.detections
+        inp.accept(c, t)
+        inp.kept, inp.dropped, inp.note, inp.dropped_safely = kept, dropped, note, safe
 
     def reject_detections(self, reason, t) -> None:
         self.detections.reject(reason, t)
 
-    def update_command(self, omega, t) -> None:
-        """The planner's turn rate; a non-finite one is rejected and the previous kept."""
+    def update_command(self, omega, t, linear=None) -> None:
+        """The planner's turn rate (and ``linear.x``, if given); a non-finite turn rate is
+        rejected and the previous kept. ``command.note`` says what was beyond the robot's
+        limits (``command_excess``): the decision clips the turn rate and drives at the
+        robot's speed."""
         w = float(omega)
         if not math.isfinite(w):
             reason = f'planner command is not finite ({w})'
             self.command.reject(reason, t)
+            self.command.note = f'angular.z={w} is not finite: rejected, the previous command kept'
             raise ValueError(reason)
         previous = self.command.t if self.command.value is not None else None
         self.command.accept(w, t)
+        excess = command_excess(w, linear, self.config)
+        if excess:
+            self.command.note = excess
         if previous is not None and t > previous:
             self._command_intervals = self._command_intervals.then(t - previous)
 
@@ -204,16 +222,47 @@ def update_poses(filters, states, t, stamp=None, skip=None) -> None:
     _accept_rows(filters, 'pose', s, take, t, stamp)
 
 
-def update_commands(filters, omegas, t, skip=None) -> None:
-    """``filters[i].update_command(omegas[i], t)`` for every robot whose ``skip[i]`` is falsy
-    (the fleet node's batched commands). Raises ValueError before updating anyone if a turn
-    rate to take is not finite."""
-    w = np.asarray(omegas, dtype=float).reshape(len(filters))
+def update_commands(filters, omegas, t, skip=None, linears=None) -> list:
+    """``filters[i].update_command(omegas[i], t, linears[i])`` for every robot whose ``skip[i]``
+    is falsy (the fleet node's batched commands; ``linears``: their linear.x, None: not
+    judged); the rows beyond their robot's limits (``command.note`` says how). Raises
+    ValueError before updating anyone if a turn rate to take is not finite."""
+    n = len(filters)
+    w = np.asarray(omegas, dtype=float).reshape(n)
     take = _taken(filters, skip)
     if not np.all(np.isfinite(w[take])):
         raise ValueError('planner commands are not finite')
     t = float(t)
     _accept_rows(filters, 'command', w.tolist(), take, t, t)
+    # the rows beyond their robot's limits get a note (the few: the rest were cleared above)
+    bound = np.fromiter((f.config.omega_max for f in filters), dtype=float, count=n)
+    off = (w > bound) | (w < -bound)
+    if linears is not None:
+        speed = np.fromiter((f.config.speed for f in filters), dtype=float, count=n)
+        off |= ~(np.abs(np.asarray(linears, dtype=float).reshape(n) - speed) <= _SPEED_TOLERANCE * np.maximum(
+            1.0, speed))
+    beyond = np.flatnonzero(off & take).tolist()
+    for i in beyond:
+        f = filters[i]
+        f.command.note = command_excess(w[i], None if linears is None else float(linears[i]), f.config)
+    return beyond
+
+
+_SPEED_TOLERANCE = 1e-9     # a linear.x this close (relatively) to the robot's speed is its speed
+
+
+def command_excess(omega, linear, cfg) -> str:
+    """What of a planner command (turn rate ``omega``, ``linear``.x or None) is beyond the
+    robot's limits ('' if nothing): a turn rate beyond +-omega_max (the decision clips it), a
+    linear.x that is not the robot's speed (a Dubins robot drives at its speed whatever the
+    planner asks; the filter sends its speed, or 0 for the stop-turn)."""
+    bound, speed = cfg.omega_max, cfg.speed
+    parts = []
+    if omega > bound or omega < -bound:
+        parts.append(f'angular.z={omega:.6g} beyond w_max={bound:g}: clipped to {clip(omega, bound):g}')
+    if linear is not None and not abs(linear - speed) <= _SPEED_TOLERANCE * max(1.0, speed):
+        parts.append(f'linear.x={linear:.6g} is not the robot\'s speed {speed:g}: it drives at {speed:g}')
+    return '; '.join(parts)
 
 
 def _taken(filters, skip) -> np.ndarray:
@@ -232,7 +281,7 @@ def _accept_rows(filters, name, rows, take, t, stamp) -> None:
             continue
         inp = f.pose if name == 'pose' else f.command
         previous = inp.stamp if inp.value is not None else None
-        inp.value, inp.t, inp.rejected, inp.stamp = row, t, '', stamp
+        inp.value, inp.t, inp.rejected, inp.stamp, inp.note = row, t, '', stamp, ''
         if previous is not None and stamp > previous:
             before = getattr(f, windows)
             after = made.get((before, previous))
@@ -241,17 +290,47 @@ def _accept_rows(filters, name, rows, take, t, stamp) -> None:
             setattr(f, windows, after)
 
 
-def update_detections_all(filters, centres, t) -> None:
-    """``update_detections(centres, t)`` for every robot, with one array shared by all (the
-    fleet node's batched detections; robots that share it share its cluster frames)."""
+def update_detections_all(filters, centres, t, safe_set=None) -> None:
+    """``update_detections(centres, t, safe_set)`` for every robot, with one array shared by all
+    (the fleet node's batched detections; robots that share it share its cluster frames and
+    spatial index). Beyond ``max_detections`` (the first robot's) the nearest to any robot's
+    pose are kept."""
+    c = _checked_centres(centres)
+    if c is None:
+        raise ValueError(f'detections must be finite (N, 2) centres, got shape {np.shape(centres)}')
+    t = float(t)
+    c, kept, dropped, (note, safe) = _limited(c, filters, t, safe_set, filters[0].config if filters else None)
+    for f in filters:
+        inp = f.detections
+        inp.accept(c, t)
+        inp.kept, inp.dropped, inp.note, inp.dropped_safely = kept, dropped, note, safe
+
+
+def _checked_centres(centres):
+    """``centres`` as finite (N, 2) floats, or None if they are not."""
     c = np.asarray(centres, dtype=float)
     if c.size == 0:
-        c = np.zeros((0, 2))
+        return np.zeros((0, 2))
     if c.ndim != 2 or c.shape[1] != 2 or not np.all(np.isfinite(c)):
-        raise ValueError(f'detections must be finite (N, 2) centres, got shape {c.shape}')
-    t = float(t)
-    for f in filters:
-        f.detections.accept(c, t)
+        return None
+    return c
+
+
+def _limited(c, robots, t, safe_set, cfg):
+    """(the centres kept, their indices in the message or None if all, how many were dropped,
+    why: ``nearby.drop_note``): at most ``cfg.max_detections``, the nearest to the poses of
+    the ``robots`` (none with a pose: the first)."""
+    limit = cfg.max_detections if cfg is not None else len(c)
+    if len(c) <= limit:
+        return c, None, 0, ('', True)
+    posed = [f for f in robots if f.pose.value is not None]
+    kept, dropped_from = within_limit(c, [f.pose.value[:2] for f in posed], limit)
+    reach = None
+    if safe_set is not None and posed:
+        # how far the robots' poses may be from where a detection can still constrain them
+        reach = message_reach(cfg, safe_set.vf.grid, max(f.lookahead() for f in posed),
+                              max(f.pose.age(t) for f in posed))
+    return c[kept], kept, len(c) - limit, drop_note(len(c), limit, dropped_from, reach, len(posed))
 
 
 class _Intervals:

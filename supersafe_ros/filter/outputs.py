@@ -76,10 +76,17 @@ def outputs(filters, rb, safe_set, t, tab, n_groups, solving) -> Decisions:
     def describe(i) -> FilterOutput:
         row = rows[i]
         if row < 0:
-            return explain(problems[i], configs[i], omega[i], linear[i], action[i], common, None, -1, 0, False,
-                           0.0, 0.0, 0, True)
-        return explain(problems[i], configs[i], omega[i], linear[i], action[i], common, tab, named[row], kind[row],
-                       fresh[row], float(horizon[row]), float(ages[row]), int(solving[row]), False)
+            out = explain(problems[i], configs[i], omega[i], linear[i], action[i], common, None, -1, 0, False,
+                          0.0, 0.0, 0, True)
+        else:
+            out = explain(problems[i], configs[i], omega[i], linear[i], action[i], common, tab, named[row],
+                          kind[row], fresh[row], float(horizon[row]), float(ages[row]), int(solving[row]), False)
+        # the inputs' notes as when read (the nodes read them before new inputs come)
+        f = filters[i]
+        out.detections_dropped, out.detections_note = f.detections.dropped, f.detections.note
+        if row >= 0 and fresh[row]:      # what of the planner's command was beyond the robot's limits
+            out.cmd_clipped = f.command.note
+        return out
 
     return Decisions(omega, linear, action, describe)
 

@@ -17,6 +17,9 @@ PASS = 'pass'
 OVERRIDE = 'override'
 FAIL_SAFE = 'fail_safe'
 
+# max_detections is at least this (more than filter.nearby.NEAR_QUERY_MIN: a message it cut is narrowed)
+MAX_DETECTIONS_LEAST = 100
+
 # diagnostic_msgs/DiagnosticStatus levels, by action
 LEVEL_OK, LEVEL_WARN, LEVEL_ERROR = 0, 1, 2
 LEVEL_OF_ACTION = {PASS: LEVEL_OK, OVERRIDE: LEVEL_WARN, FAIL_SAFE: LEVEL_ERROR}
@@ -45,6 +48,8 @@ class FilterConfig:
     radius: float = 1.8              # obstacle radius (cluster values)
     cluster_link: float = 0.0
     cluster_alpha: float = 0.0       # the union's level (the standard set's alpha)
+    # a detections message keeps at most this many, the nearest to the robot (filter.nearby)
+    max_detections: int = 10000
 
     def __post_init__(self):
         for name in ('speed', 'omega_max', 'pose_timeout', 'detections_timeout', 'hold_timeout',
@@ -57,6 +62,10 @@ class FilterConfig:
         if not math.isfinite(self.cluster_alpha):
             raise ValueError(f'cluster_alpha must be finite, got {self.cluster_alpha}')
         object.__setattr__(self, 'cluster_alpha', float(self.cluster_alpha))
+        m = self.max_detections
+        if not (math.isfinite(m) and m == int(m) and m >= MAX_DETECTIONS_LEAST):
+            raise ValueError(f'max_detections must be an integer >= {MAX_DETECTIONS_LEAST}, got {self.max_detections}')
+        object.__setattr__(self, 'max_detections', int(self.max_detections))
 
     @property
     def sent_kept(self) -> float:
@@ -103,6 +112,9 @@ class FilterOutput:
     pose_age: float = 0.0        # seconds the pose was propagated over before judging
     lookahead: float = 0.0       # hold time the planner's command was judged over [s]
     clusters_solving: int = 0    # clusters near the robot whose union value is still being solved
+    cmd_clipped: str = ''        # what of the planner's command was beyond the robot's limits ('' if none)
+    detections_dropped: int = 0  # detections of the last message beyond max_detections, not judged
+    detections_note: str = ''    # which were dropped and whether that is safe ('' if none)
 
     @property
     def level(self) -> int:
@@ -125,4 +137,7 @@ class FilterOutput:
             'pose_age': f'{self.pose_age:.6g}',
             'lookahead': f'{self.lookahead:.6g}',
             'clusters_solving': str(self.clusters_solving),
+            'cmd_clipped': self.cmd_clipped,
+            'detections_dropped': str(self.detections_dropped),
+            'detections_dropped_reason': self.detections_note,
         }

@@ -18,6 +18,7 @@ from __future__ import annotations
 from dataclasses import fields, replace
 
 from ..filter import FilterConfig
+from ..filter.types import MAX_DETECTIONS_LEAST
 from ..ros_io import rosmsg
 from .common import LiveParameters, ParameterSpec, declare_all
 
@@ -43,6 +44,11 @@ CONFIG_PARAMETERS = (
                      'V <= alpha; never less than the control period [s]', 0.0, 10.0, live=True),
     config_parameter('control_period', 'the robot\'s command hold time [s]; 0 = measure it from pose stamps '
                      'and planner commands', 0.0, 10.0, live=True),
+    # an integer (rclpy refuses 10000.0 for it): FilterConfig takes either
+    ParameterSpec('max_detections', _CONFIG_DEFAULTS['max_detections'], 'a detections message keeps at most this '
+                  'many, the nearest to the robot (to any robot: fleet/detections); the state and a WARN say how '
+                  'many were dropped and whether all were beyond the filter\'s reach (else ERROR)',
+                  MAX_DETECTIONS_LEAST, 10_000_000, live=True),
 )
 LIVE_CONFIG_FIELDS = tuple(p.name for p in CONFIG_PARAMETERS)
 
@@ -151,6 +157,6 @@ class FilterParameters:
 
     def _config_setter(self, name, effect):
         def apply(value):
-            self.config = replace(self.config, **{name: float(value)})
+            self.config = replace(self.config, **{name: float(value)})     # (max_detections: made an int)
             effect(self.config)
         return apply

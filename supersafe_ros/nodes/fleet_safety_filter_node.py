@@ -97,10 +97,10 @@ def take_newest(sub):
 
 
 def take_all(sub) -> list:
-    """Every sample waiting on ``sub``, decoded, oldest first."""
-    out, handle, msg_type = [], sub.handle, sub.msg_type
+    """Every sample waiting on ``sub``, oldest first (decoded, or serialized if ``sub`` is raw)."""
+    out, handle, msg_type, raw = [], sub.handle, sub.msg_type, sub.raw
     while True:
-        got = handle.take_message(msg_type, False)
+        got = handle.take_message(msg_type, raw)
         if got is None:
             return out
         out.append(got[0])
@@ -149,7 +149,7 @@ class FleetSafetyFilterNode(Node):
             # of their own: the poses tick, and the timer while they pause)
             noop = lambda msg: None  # noqa: E731
             self.fleet_detections_sub = self.io.create_subscription(PoseArray, 'fleet/detections', noop,
-                                                                    rosmsg.QOS_STREAM)
+                                                                    rosmsg.QOS_STREAM, raw=True)
             self.fleet_commands_sub = self.io.create_subscription(Float64MultiArray, 'fleet/cmd_vel_nav', noop,
                                                                   rosmsg.QOS_STREAM)
             # raw: the poses are read straight from the CDR buffer (fleetmsg.posearray_cdr_to_states)
@@ -176,6 +176,7 @@ class FleetSafetyFilterNode(Node):
     def _drain(self, t):
         w = self.wiring
         frame = w.frame
+        clipped, dropped = [], []        # robots whose new command was beyond limits, whose detections were cut
         for f, topics in zip(w.filters, self.topics):
             data = take_newest(topics.pose)
             if data is not None:
@@ -188,18 +189,39 @@ class FleetSafetyFilterNode(Node):
             data = take_newest(topics.detections)
             if data is not None:
                 try:
-                    f.update_detections(rosmsg.posearray_to_xy(cdr.pose_array(data), frame), t)
+                    f.update_detections(rosmsg.checked_xy(*cdr.pose_array_xy(data, 'detections'), frame), t,
+                                        w.safe_set)
                 except ValueError as exc:
                     f.reject_detections(str(exc), t)
                     w.complain(f'det {f.name}', f'{f.name}: detections rejected: {exc}; failing safe',
                                level='error')
+                else:
+                    if f.detections.dropped:
+                        dropped.append(f)
             data = take_newest(topics.command)
             if data is not None:
                 try:
-                    f.update_command(rosmsg.twist_turn_rate(cdr.twist(data)), t)
+                    msg = cdr.twist(data)
+                    f.update_command(rosmsg.twist_turn_rate(msg), t, msg.linear.x)
                 except ValueError as exc:
                     w.complain(f'cmd {f.name}', f'{f.name}: cmd_vel_nav rejected: {exc}; keeping the '
                                f'previous command')
+                else:
+                    if f.command.note:
+                        clipped.append(f)
+        self._tell_excess(clipped, dropped, 'cmd_vel_nav', 'detections')
+
+    def _tell_excess(self, clipped, dropped, commands, detections):
+        """One throttled line for the robots whose new commands were beyond their limits (clipped:
+        the first one's raw values), one for those whose detections were cut to max_detections."""
+        complain = self.wiring.complain
+        if clipped:         # (a kind per topic: one does not silence the other)
+            complain(f'{commands} clipped', f'{commands} beyond the robot\'s limits for {len(clipped)} robot(s); '
+                     f'{clipped[0].name}: {clipped[0].command.note}')
+        if dropped:
+            shown = next((f for f in dropped if not f.detections.dropped_safely), dropped[0])    # an unsafe one first
+            complain(f'{detections} dropped', f'{detections} of {len(dropped)} robot(s) cut; {shown.name}: '
+                     f'{shown.detections.note}', level='error' if not shown.detections.dropped_safely else 'warn')
 
     # -- batched topics ---------------------------------------------------------------------------------
     def _drain_batched(self):
@@ -213,17 +235,24 @@ class FleetSafetyFilterNode(Node):
         for msg in take_all(self.fleet_commands_sub):
             self.on_fleet_commands(msg)
 
-    def on_fleet_detections(self, msg: PoseArray):
+    def on_fleet_detections(self, msg):
+        """A serialized PoseArray (the raw subscription's; a PoseArray is taken too), read as one
+        array; at most ``max_detections`` kept, the nearest to the robots."""
         w = self.wiring
         t = w.now()
         try:
-            xy = rosmsg.posearray_to_xy(msg, w.frame)
+            xy = (rosmsg.posearray_to_xy(msg, w.frame) if isinstance(msg, PoseArray) else
+                  rosmsg.checked_xy(*cdr.pose_array_xy(msg, 'fleet detections'), w.frame))
         except ValueError as exc:
             for f in w.filters:
                 f.reject_detections(str(exc), t)
             w.complain('fleet detections', f'fleet/detections rejected: {exc}; failing safe', level='error')
             return
-        update_detections_all(w.filters, xy, t)     # one array shared by every robot
+        update_detections_all(w.filters, xy, t, w.safe_set)     # one array shared by every robot
+        d = w.filters[0].detections if w.filters else None
+        if d is not None and d.dropped:
+            w.complain('fleet/detections dropped', f'fleet/detections: {d.note}',
+                       level='warn' if d.dropped_safely else 'error')
 
     def on_fleet_commands(self, msg: Float64MultiArray):
         w = self.wiring
@@ -236,9 +265,12 @@ class FleetSafetyFilterNode(Node):
             return
         for f, why in zip(w.filters, bad):
             if why:
+                f.command.note = f'{why}: rejected, the previous command kept'
                 w.complain(f'cmd {f.name}', f'{f.name}: fleet/cmd_vel_nav row rejected: {why}; keeping the '
                            f'previous command', level='error')
-        update_commands(w.filters, commands[:, 1], t, skip=bad)    # the good rows, validated at once
+        # the good rows, validated at once; those beyond their robot's limits said
+        beyond = update_commands(w.filters, commands[:, 1], t, skip=bad, linears=commands[:, 0])
+        self._tell_excess([w.filters[i] for i in beyond], [], 'fleet/cmd_vel_nav', '')
 
     def on_fleet_poses(self, data: bytes):
         """A serialized PoseArray (raw subscription); a PoseArray object is taken too.

@@ -86,6 +86,7 @@ class ObstacleMarkers:
 # -- the level set in force, around each detected obstacle ---------------------------------------
 LEVEL_SET_NAMESPACE = 'level_set'
 LEVEL_SET_COLORS = {'standard': (0.2, 0.4, 1.0), 'learned': (0.1, 0.8, 0.2)}
+LEVEL_SET_OBSTACLES = 64      # drawn around at most this many detections, the nearest to the robot
 
 
 def level_set_markers(contours, stamp=None, frame=rosmsg.MAP_FRAME, source: str = 'standard',
@@ -128,9 +129,9 @@ def level_set_lines(msg: MarkerArray) -> list[np.ndarray]:
 class LevelSetMarkerPublisher:
     """On a filter node: ``safety_filter/level_set`` (MarkerArray, relative to the node's
     namespace) at ``rate`` Hz on the steady clock, the level set in force at the robot's
-    heading around each detected obstacle. ``snapshot()`` returns (SafeSet, pose (x, y,
-    theta) or None, detections (N, 2) or None). Nothing is computed while no one subscribes,
-    so the control path pays only when an operator watches."""
+    heading around each detected obstacle (the LEVEL_SET_OBSTACLES nearest). ``snapshot()``
+    returns (SafeSet, pose (x, y, theta) or None, detections (N, 2) or None). Nothing is
+    computed while no one subscribes, so the control path pays only when an operator watches."""
 
     TOPIC = 'safety_filter/level_set'
 
@@ -152,7 +153,8 @@ class LevelSetMarkerPublisher:
         contours = []
         if safe_set is not None and pose is not None and detections is not None:
             try:
-                contours = level_sets_around(safe_set.vf, pose, detections, safe_set.alpha, self.refine)
+                contours = level_sets_around(safe_set.vf, pose, detections, safe_set.alpha, self.refine,
+                                             nearest=LEVEL_SET_OBSTACLES)
             except ValueError as exc:
                 self.node.get_logger().error(f'level set markers: {exc}', throttle_duration_sec=5.0)
                 return

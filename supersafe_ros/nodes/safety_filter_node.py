@@ -10,7 +10,8 @@ Topics (relative; run it in the robot's namespace such as /robot_0):
                                                             ERROR fail_safe; values: action, reason,
                                                             obstacle_index/x/y, value, alpha,
                                                             omega_max, source, cmd_*, set_update,
-                                                            set_update_reason, time_base
+                                                            set_update_reason, time_base, cmd_clipped,
+                                                            detections_dropped(_reason)
   pub  safety_filter/level_set  visualization_msgs/MarkerArray  the set in force at the robot's
                                                             heading around each detection (RViz;
                                                             level_set_markers, level_set_rate)
@@ -114,11 +115,11 @@ class SafetyFilterNode(Node):
                 self, lambda: (w.safe_set, self.filter.pose.value, self.filter.detections.value),
                 p['level_set_rate'])
         self.direct = None
-        # (type, topic, callback, raw): pose and command raw, read straight from their CDR bytes
-        # (ros_io.cdr), no message objects built on the path from pose to cmd_vel. Ready together,
+        # (type, topic, callback, raw): all three raw, read straight from their CDR bytes (ros_io.cdr),
+        # no message objects built (on the path from pose to cmd_vel; for detections of any size). Ready together,
         # they are taken in this order (the executor's: the order made), so a command is judged on
         # the detections that came with it.
-        inputs = ((PoseStamped, 'pose', self.on_pose, True), (PoseArray, 'detections', self.on_detections, False),
+        inputs = ((PoseStamped, 'pose', self.on_pose, True), (PoseArray, 'detections', self.on_detections, True),
                   (Twist, 'cmd_vel_nav', self.on_command, True))
         if p['direct_take'] and not self.lockstep:
             self.direct = DirectTake(self, self.lock)
@@ -202,23 +203,34 @@ class SafetyFilterNode(Node):
                              level='info')
         return True
 
-    def on_detections(self, msg: PoseArray):
+    def on_detections(self, data):
+        """A serialized PoseArray (raw subscription): its positions read as one array, and at most
+        ``max_detections`` of them kept (the nearest; the state and a log line say which were dropped)."""
         w = self.wiring
         t = w.now()
         try:
-            self.filter.update_detections(rosmsg.posearray_to_xy(msg, w.frame), t)
+            xy = rosmsg.checked_xy(*cdr.pose_array_xy(data, 'detections'), w.frame)
+            self.filter.update_detections(xy, t, w.safe_set)
         except ValueError as exc:
             self.filter.reject_detections(str(exc), t)
             w.complain('detections', f'detections rejected: {exc}; failing safe', level='error')
+            return
+        d = self.filter.detections
+        if d.dropped:
+            w.complain('detections dropped', d.note, level='warn' if d.dropped_safely else 'error')
 
     def on_command(self, data):
         """A serialized Twist (raw subscription)."""
         w = self.wiring
         t = w.now()
         try:
-            self.filter.update_command(rosmsg.twist_turn_rate(cdr.twist(data)), t)
+            msg = cdr.twist(data)
+            self.filter.update_command(rosmsg.twist_turn_rate(msg), t, msg.linear.x)
         except ValueError as exc:
             w.complain('cmd', f'cmd_vel_nav rejected: {exc}; keeping the previous command')
+        else:
+            if self.filter.command.note:
+                w.complain('cmd clipped', f'cmd_vel_nav beyond the robot\'s limits: {self.filter.command.note}')
         if not self.lockstep:       # in lockstep the next pose's answer judges it
             self.decide(t)
 

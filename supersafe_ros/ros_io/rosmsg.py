@@ -120,9 +120,15 @@ def state_to_pose(state, stamp=None, frame: str = MAP_FRAME) -> PoseStamped:
 
 def posearray_to_xy(msg: PoseArray, frame: str | None = MAP_FRAME) -> np.ndarray:
     """(N, 2) positions of a PoseArray; raises MessageError for non-finite values or a wrong frame."""
-    if frame is not None and msg.header.frame_id != frame:
-        raise MessageError(f"pose array frame is '{msg.header.frame_id}', expected '{frame}'")
-    xy = np.array([(p.position.x, p.position.y) for p in msg.poses], dtype=float).reshape(-1, 2)
+    return checked_xy(msg.header, np.array([(p.position.x, p.position.y) for p in msg.poses],
+                                           dtype=float).reshape(-1, 2), frame)
+
+
+def checked_xy(header, xy, frame: str | None = MAP_FRAME) -> np.ndarray:
+    """``xy`` (N, 2) of a pose array with ``header`` (a serialized one: ``cdr.pose_array_xy``),
+    checked as ``posearray_to_xy`` checks a message."""
+    if frame is not None and header.frame_id != frame:
+        raise MessageError(f"pose array frame is '{header.frame_id}', expected '{frame}'")
     if not np.all(np.isfinite(xy)):
         raise MessageError('pose array contains non-finite positions')
     return xy
