@@ -198,6 +198,9 @@ def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
     publishers = ['/obstacle_markers=1'] + [f'/{r}/cmd_vel=1' for r in robots]
     if with_filter:
         publishers += [f'/{r}/cmd_vel_nav=1' for r in robots]
+        # and every filter has its robot's detections (the robot knows the world and has
+        # looked): the first pose is judged on them, never on "no obstacle" by default
+        publishers += [f'/{r}/safety_filter/ready=1' for r in robots]
     if with_supervisor:
         publishers.append('/interventions=1')
     if with_learner:

@@ -342,3 +342,80 @@ def test_every_parameter_is_declared_from_its_table_live_or_read_only(setup):
         else:
             assert not ranges, spec.name
     assert node.wiring.live.names == {p.name for p in specs if p.live} | {'use_sim_time'}
+
+
+def fresh_filter(ros_context, ns, **values):
+    """A filter node that has never had input, its driver (and a reader of safety_filter/ready)
+    and a spinner: ``(node, driver, ready, spin)``."""
+    from std_msgs.msg import Empty
+    overrides = [Parameter(k, value=v) for k, v in dict(
+        standard_shape=SHAPE, detections_timeout=0.3, pose_timeout=0.3, state_rate=100.0, rate=20.0,
+        **values).items()]
+    node = SafetyFilterNode(namespace=ns, context=ros_context, parameter_overrides=overrides)
+    driver = Driver(ros_context, ns=ns)
+    ready = []
+    driver.ready_sub = driver.node.create_subscription(Empty, 'safety_filter/ready', ready.append,
+                                                       rosmsg.QOS_LATCHED)
+    spin = Spinner(ros_context, node, driver.node)
+    spin.until(lambda: matched(driver.pose, driver.cmd, driver.out_sub, driver.state_sub), 10.0, 'matching')
+    return node, driver, ready, spin
+
+
+def feed(driver, spin, seconds, detections=None):
+    """Pose and planner command (turn 0.3, far from the obstacle) every 20 ms for ``seconds``;
+    the states received meanwhile."""
+    import time
+    driver.states.clear()
+    driver.out.clear()
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        driver.send(pose=state(-7.5, 7.0, 0.0), detections=detections, cmd=0.3)
+        spin.spin_for(0.02)
+    return [rosmsg.diagnostic_values(s) for s in driver.states]
+
+
+def test_a_filter_without_detections_fails_safe_and_is_not_ready_until_they_come(ros_context):
+    """Never a detections message: the planner's commands are not passed (fail safe, saying
+    why) and safety_filter/ready has no publisher; the first message (even an empty one: the
+    sensor looked and saw nothing) makes it ready and it passes; detections that stop are
+    stale and it fails safe again."""
+    node, driver, ready, spin = fresh_filter(ros_context, '/robot_no_sensor_yet')
+    try:
+        states = feed(driver, spin, 1.0)
+        assert states and {s['action'] for s in states} == {'fail_safe'}
+        assert all('no detections received yet' in s['reason'] for s in states), states[-1]
+        assert driver.out and all(o.linear.x == 0.0 for o in driver.out)       # never the planner's 3 m/s
+        assert node.count_publishers(f'{node.get_namespace()}/safety_filter/ready') == 0 and ready == []
+        states = feed(driver, spin, 0.5, detections=[])
+        assert states[-1]['action'] == 'pass' and float(states[-1]['cmd_angular_z']) == pytest.approx(0.3)
+        spin.until(lambda: ready, 5.0, 'safety_filter/ready')
+        states = feed(driver, spin, 0.8)          # detections stop; poses and commands go on
+        assert states[-1]['action'] == 'fail_safe' and 'detections stale' in states[-1]['reason']
+        assert node.ready_pub is not None
+    finally:
+        spin.shutdown()
+        node.destroy_node()
+        driver.node.destroy_node()
+
+
+def test_require_detections_false_is_a_robot_without_an_obstacle_sensor(ros_context):
+    """Opted out: ready at once, no detections subscription, every pose judged with no obstacle
+    (the planner's command passes where the obstacle, if it were seen, would not let it)."""
+    node, driver, ready, spin = fresh_filter(ros_context, '/robot_without_sensor', require_detections=False)
+    try:
+        spin.until(lambda: ready, 5.0, 'safety_filter/ready')
+        driver.states.clear()
+        driver.out.clear()
+        near = state(-3.0, 0.6, 0.0)              # overridden when the obstacle is detected
+        for _ in range(25):
+            driver.send(pose=near, detections=None, cmd=-0.4)
+            spin.spin_for(0.02)
+        last = driver.last_state()
+        assert last['action'] == 'pass' and float(last['cmd_angular_z']) == pytest.approx(-0.4)
+        taken = [sub.topic_name for sub, _ in node.direct._subs] if node.direct else \
+            [sub.topic_name for sub in node.subscriptions]
+        assert not any(t.endswith('/detections') for t in taken), taken
+    finally:
+        spin.shutdown()
+        node.destroy_node()
+        driver.node.destroy_node()
