@@ -288,7 +288,9 @@ def test_inputs_are_taken_by_the_helper_node_or_by_the_filter_node(setup):
         takers = {i.node_name for i in driver.node.get_subscriptions_info_by_topic(f'{NS}/{topic}')}
         assert takers == ({io} if node.direct is not None else {node.get_name()}), (topic, takers)
     takers = {i.node_name for i in driver.node.get_subscriptions_info_by_topic(VALUE_FUNCTION_TOPIC)}
-    assert takers == {node.get_name()}      # value functions stay on the executor (decoded off the path)
+    # value functions: a helper node and thread of their own (taken without the GIL), never the executor
+    assert takers == {f'{node.get_name()}_sets'}
+    assert node.wiring.sets._gil_free, 'rcl not reachable through ctypes: rclpy takes the sets'
 
 
 def test_use_learned_turned_off_while_a_set_is_checked_keeps_the_standard_set(setup, monkeypatch):

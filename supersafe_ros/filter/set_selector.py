@@ -22,7 +22,7 @@ force (the control path reads this one reference); ``set_update`` says what happ
 to the last set ((accepted | rejected | ignored | none, why)), ``set_updates`` counts.
 
 No ROS here: the decoder (``ros_io.vfcdr.serialized_to_value_function``), the level
-of a learned set (``learning.levels.learned_alpha``) and the log (info, error)
+of a learned set (``learning.levels.learned_alpha``) and the log (debug, info, error)
 are given.
 """
 from __future__ import annotations
@@ -73,8 +73,9 @@ class LearnedSetSelector:
             self._reject(f'value function message of {size} bytes exceeds max_value_function_bytes '
                          f'({self.max_bytes}); not decoded')
             return
-        self.log.info(f'value function message received ({size} bytes): decoding and checking it off the '
-                      f'control path')
+        # DEBUG: the set that goes in force (or is rejected) is the line at INFO
+        self.log.debug(f'value function message received ({size} bytes): decoding and checking it off the '
+                       f'control path')
         self._submit((MESSAGE, data))
 
     def set_standard_alpha(self, alpha: float) -> None:

@@ -330,6 +330,7 @@ class SafetyFilterNode(Node):
     def destroy_node(self):
         if self.direct is not None:
             self.direct.close()          # its thread stops before the handles it waits on go
+        self.wiring.sets.close()
         return super().destroy_node()
 
 
