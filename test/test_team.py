@@ -133,7 +133,11 @@ def test_team_stops_cleanly_on_ctrl_c(tmp_path):
             if sim_time_runs(line):
                 break
         assert any(sim_time_runs(line) for line in lines), ''.join(lines)
-        os.kill(proc.pid, signal.SIGINT)
+        # what the nodes started: the filter's cluster worker and multiprocessing's resource tracker
+        nodes = {int(line.split()[0]): line.split()[1]
+                 for line in (tmp_path / 'logs' / 'pids.txt').read_text().splitlines()}
+        spawned = [pid for pid, ppid in process_parents() if ppid in nodes]
+        os.killpg(proc.pid, signal.SIGINT)          # a terminal's Ctrl-C: the runner's process group
         out, _ = proc.communicate(timeout=30)
     finally:
         if proc.poll() is None:
@@ -143,6 +147,28 @@ def test_team_stops_cleanly_on_ctrl_c(tmp_path):
     assert 'team stopped (signal SIGINT)' in out
     assert 'did not exit cleanly' not in out, out
     assert children_alive(tmp_path / 'logs') == []
+    assert len(spawned) >= 2, 'no cluster worker was running: nothing of it was tested'
+    deadline = time.monotonic() + 30
+    while time.monotonic() < deadline and set(spawned) & {pid for pid, _ in process_parents()}:
+        time.sleep(0.1)
+    assert not set(spawned) & {pid for pid, _ in process_parents()}
+    for log in (tmp_path / 'logs').glob('*.log'):       # each child's stdout and stderr
+        text = log.read_text()
+        assert 'Traceback' not in text and 'KeyboardInterrupt' not in text, (log.name, text[-2000:])
+
+
+def process_parents():
+    """(pid, parent pid) of every living process (Linux /proc; zombies left out)."""
+    out = []
+    for d in os.listdir('/proc'):
+        if d.isdigit():
+            try:
+                fields = Path(f'/proc/{d}/stat').read_text().rsplit(')', 1)[1].split()
+            except OSError:
+                continue
+            if fields[0] != 'Z':
+                out.append((int(d), int(fields[1])))
+    return out
 
 
 def load_launch_file(monkeypatch):
@@ -159,18 +185,32 @@ def load_launch_file(monkeypatch):
         def __init__(self, name):
             self.name = name
 
+    class Handler(Recorder):
+        pass
+
+    class ShutdownAction(Recorder):
+        pass
+
+    class Exit(Recorder):
+        pass
+
     launch = types.ModuleType('launch')
     launch.LaunchDescription = lambda actions: actions
     actions = types.ModuleType('launch.actions')
     actions.DeclareLaunchArgument = Recorder
     actions.OpaqueFunction = Recorder
     actions.SetEnvironmentVariable = Recorder
+    actions.RegisterEventHandler = Handler
+    actions.Shutdown = ShutdownAction
+    event_handlers = types.ModuleType('launch.event_handlers')
+    event_handlers.OnProcessExit = Exit
     substitutions = types.ModuleType('launch.substitutions')
     substitutions.LaunchConfiguration = LaunchConfiguration
     launch_ros = types.ModuleType('launch_ros')
     ros_actions = types.ModuleType('launch_ros.actions')
     ros_actions.Node = Recorder
     for name, mod in {'launch': launch, 'launch.actions': actions, 'launch.substitutions': substitutions,
+                      'launch.event_handlers': event_handlers,
                       'launch_ros': launch_ros, 'launch_ros.actions': ros_actions}.items():
         monkeypatch.setitem(sys.modules, name, mod)
     spec = importlib.util.spec_from_file_location('team_launch', REPO / 'launch' / 'team.launch.py')
@@ -181,6 +221,11 @@ def load_launch_file(monkeypatch):
 
 def launch_nodes(description, **arguments):
     """The nodes the launch file asks for with these launch arguments (others: defaults)."""
+    return [a for a in launch_actions(description, **arguments) if 'executable' in a.kwargs]
+
+
+def launch_actions(description, **arguments):
+    """Every action the launch file's OpaqueFunction returns with these launch arguments."""
     defaults = {a.args[0]: a.kwargs['default_value'] for a in description
                 if 'default_value' in a.kwargs}
     unknown = set(arguments) - set(defaults)
@@ -206,8 +251,26 @@ def test_launch_file_builds_the_layout_with_stand_in_launch_modules(monkeypatch)
     assert kinds == expected
     for n, s in zip(nodes, team.team_layout(3)):
         assert n.kwargs['package'] == 'supersafe_ros'
-        assert Path(n.kwargs['parameters'][0]).is_file() and n.kwargs['parameters'][1] == s.params
+        assert Path(n.kwargs['parameters'][0]).is_file()
+        clock = {'exit_at_duration': False} if s.kind == 'sim_clock' else {}
+        assert n.kwargs['parameters'][1] == dict(s.params, **clock)
         assert n.kwargs['remappings'] == list(s.remaps.items())
+
+
+def test_the_launch_ends_when_the_clock_exits_at_its_duration(monkeypatch):
+    """duration:=60 used to stop only the clock: everything else ran on, and 20 s later every
+    filter failed safe on stale poses. Now the clock exits at its duration and its exit shuts
+    the launch down (the clock's own exit is tested in test_nodes_sim_clock.py)."""
+    description = load_launch_file(monkeypatch)
+    for duration, exits in (('60.0', True), ('0.0', False)):
+        actions = launch_actions(description, duration=duration)
+        clock = next(a for a in actions if a.kwargs.get('executable') == 'sim_clock_node')
+        assert clock.kwargs['parameters'][-1]['exit_at_duration'] is exits
+        assert clock.kwargs['parameters'][-1]['duration'] == float(duration)
+        (handler,) = [a for a in actions if type(a).__name__ == 'Handler']
+        (on_exit,) = handler.args
+        assert on_exit.kwargs['target_action'] is clock
+        assert [type(a).__name__ for a in on_exit.kwargs['on_exit']] == ['ShutdownAction']
 
 
 def test_launch_arguments_set_step_overrides_params_file_and_sim_time(monkeypatch, tmp_path):
@@ -219,7 +282,8 @@ def test_launch_arguments_set_step_overrides_params_file_and_sim_time(monkeypatc
                          learner='false')
     expected = team.team_layout(1, rate_factor=0.0, seed=7, step=0.1, with_learner=False,
                                 overrides={'supervisor': {'mu': 1.25}, 'world': {'respawn': False}})
-    assert [n.kwargs['parameters'][-1] for n in nodes] == [s.params for s in expected]
+    assert [n.kwargs['parameters'][-1] for n in nodes] == [
+        dict(s.params, **({'exit_at_duration': False} if s.kind == 'sim_clock' else {})) for s in expected]
     by_kind = {n.kwargs['executable']: n.kwargs['parameters'] for n in nodes}
     assert 'learner_node' not in by_kind
     assert by_kind['sim_clock_node'][-1]['step'] == 0.1

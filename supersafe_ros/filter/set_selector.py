@@ -40,6 +40,11 @@ from .law import evaluate_pairs
 MESSAGE, RESELECT = 'message', 'reselect'    # the worker's jobs: a new message, the same set again
 
 
+def _num(value) -> str:
+    """A number of a set's metadata at 4 significant digits (as sent it has 17); else as it is."""
+    return f'{value:.4g}' if isinstance(value, (int, float)) and not isinstance(value, bool) else str(value)
+
+
 class LearnedSetSelector:
     """The set in force of a filter node, chosen off the control path (see the module)."""
 
@@ -197,11 +202,12 @@ class LearnedSetSelector:
                     self._submit((RESELECT,))
                 return
             self.safe_set = candidate
-        timing = f'decoded in {decode_s:.3f} s, ' if decode_s is not None else ''
+        timing = f'decoded in {decode_s:.3g} s, ' if decode_s is not None else ''
+        m = vf.meta
         self._accept(
-            f'learned set in force: omega_max {vf.meta.get("omega_max")}, alpha {alpha:.4g} '
-            f'(mu {vf.meta.get("mu")}, sigma {vf.meta.get("sigma")}), grid {vf.grid.shape}, '
-            f'{vf.meta.get("interventions", "?")} interventions; {timing}checked in {check_s:.3f} s: '
+            f'learned set in force: omega_max {_num(m.get("omega_max"))}, alpha {alpha:.4g} '
+            f'(mu {_num(m.get("mu"))}, sigma {_num(m.get("sigma"))}), grid {vf.grid.shape}, '
+            f'{m.get("interventions", "?")} interventions; {timing}checked in {check_s:.3g} s: '
             f'{verdict.reason}')
 
     # -- verdicts -------------------------------------------------------------------------------

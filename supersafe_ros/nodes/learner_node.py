@@ -10,7 +10,9 @@ Topics and services:
   sub  /obstacle_markers         visualization_msgs/MarkerArray  first-passage only: obstacle ids, centres
   pub  /safe_set/value_function  std_msgs/Float32MultiArray  latched: the fitted V, exact float32,
                                                              with grid and fit as JSON (ros_io.vfmsg);
-                                                             sent when the chosen entry or level changes
+                                                             sent when the chosen entry changes, or its
+                                                             mu, sigma or alpha by more than
+                                                             republish_level_tolerance
   pub  /safe_set/fit             diagnostic_msgs/DiagnosticStatus  latched: one per refit (and after
                                                              rejections): counts, omega_max, mu, sigma,
                                                              alpha, whether the fit is published and why
@@ -25,7 +27,10 @@ refit timer fsyncs every line appended since the last one before it fits: a grou
 commit). A steady timer (``refit_period``) refits once on everything received so far,
 whatever the number of messages since the last refit, checks the fitted set against the
 standard set (``filter.admissibility.check_learned_set``) and publishes it only if it
-passes and its entry or level changed. Each encounter's values are computed once, when
+passes and its entry changed, or its level (mu, sigma or alpha) moved by more than
+``republish_level_tolerance`` (0.01 m): a refit on one more encounter moves mu in its
+third digit, and resending the 710 KB set for that cost every filter a decode and a check
+and the log two lines each. Each encounter's values are computed once, when
 it arrives, so a refit only maximises.
 
 Estimators (``estimator``): ``first-passage`` (default) builds encounters from the robots'
@@ -130,9 +135,9 @@ class LearnerNode(Node):
                               'an intervention frame is this followed by the obstacle id')
         self.refit_period = p('refit_period', 0.05, 'steady seconds between refits (one refit covers '
                               'everything received since the last)', 0.001, 60.0)
-        self.level_tolerance = p('republish_level_tolerance', 0.0, 'the value function is republished '
-                                 'when the chosen entry changes or alpha moves by more than this', 0.0, 10.0,
-                                 read_only=False)
+        self.level_tolerance = p('republish_level_tolerance', 0.01, 'the value function is republished '
+                                 'when the chosen entry changes, or mu, sigma or alpha moves by more than this '
+                                 '[value units, m]; 0 = any change', 0.0, 10.0, read_only=False)
         self.fit_window = p('fit_window', 5000, 'newest interventions (paper) or encounters '
                             '(first-passage) fitted; older ones stay stored (bounds the refit time)',
                             1, 10_000_000)
@@ -193,7 +198,7 @@ class LearnerNode(Node):
                     PoseStamped, f'/{r}/pose', lambda m, r=r: self.on_pose_msg(r, m), QOS_EVERY_POSE)
 
         self.fit = None
-        self.published = None        # (index, alpha) of the value function in force
+        self.published = None        # (index, alpha, mu, sigma) of the value function in force
         self.counts = {'rejected': 0, 'duplicates': 0, 'refits': 0, 'published': 0, 'refused': 0}
         self.last_rejection = ''
         self.verdict = ''
@@ -482,9 +487,9 @@ class LearnerNode(Node):
             self.get_logger().error(f'fit not published ({summary}): {verdict.reason}')
             self.publish_status(f'fit not published: {verdict.reason}', level=2)
             return fit
-        key = (fit.index, fit.alpha)
+        key = (fit.index, fit.alpha, fit.mu, fit.sigma)
         changed = (self.published is None or key[0] != self.published[0]
-                   or abs(key[1] - self.published[1]) > self.level_tolerance)
+                   or any(abs(a - b) > self.level_tolerance for a, b in zip(key[1:], self.published[1:])))
         if changed:
             t1 = time.perf_counter()
             extra = {k: v for k, v in fit.to_dict().items() if k not in ('candidates', 'notes')}

@@ -74,7 +74,7 @@ from ..filter.lockstep import GIVE_UP, LockstepAnswers
 from ..ros_io import cdr, rosmsg
 from ..ros_io.direct_take import DirectTake
 from .common import ParameterSpec, declare_all, run_node
-from .filter_state import StateThrottle
+from .filter_state import HoldSummary, StateThrottle
 from .filter_wiring import VALUE_FUNCTION_TOPIC, FilterWiring  # noqa: F401  (the topic, re-exported for tests)
 from .markers import LevelSetMarkerPublisher
 
@@ -120,6 +120,7 @@ class SafetyFilterNode(Node):
         self.name = self.get_fully_qualified_name()
         self._last_publish = -1e18     # steady seconds
         self._throttle = StateThrottle()
+        self._holds = HoldSummary(self.get_logger())
         self._failing = None           # the fail-safe story: None (start), True, False
         self._waiting_told = False     # said once why it fails safe while starting
         self.decisions = 0
@@ -292,7 +293,7 @@ class SafetyFilterNode(Node):
         if verdict.action == GIVE_UP:
             w.complain('cluster_hold', f'{verdict.why}: answering with the fallback until it lands', level='warn')
         elif verdict.held_for is not None:
-            self.get_logger().info(f'step held {verdict.held_for:.2f} s until the cluster value was in force')
+            self._holds.held(verdict.held_for)
         self.cmd_pub.publish(cdr.twist_bytes(float(out.linear), float(out.omega)))   # serialized: no Twist built
         now = time.monotonic()
         self._last_publish = now
@@ -325,6 +326,7 @@ class SafetyFilterNode(Node):
     def close(self):
         if self.direct is not None:
             self.direct.close()
+        self._holds.flush()
         self.wiring.close()
 
     def destroy_node(self):
