@@ -25,8 +25,8 @@ ARGUMENTS = [
     ('step', '0.05', 'sim seconds per clock step = 1 / robot rate (0.1 halves the CPU)'),
     ('seed', '0', 'world, sensor and supervisor seed'),
     ('duration', '0.0', 'sim seconds after which the clock stops (0: never)'),
-    ('use_sim_time', 'true', 'every node but the clock follows /clock (the config files alone '
-                             'run on the wall clock)'),
+    ('use_sim_time', 'true', 'every node but the clock follows /clock (the config files alone run '
+                             'the robot, planner, world, supervisor and filters on the wall clock)'),
     ('supervisor', 'true', 'start the simulated supervisor'),
     ('learner', 'true', 'start the learner'),
     ('filter', 'true', 'start the safety filters (false: the planner drives the robot; testing only)'),

@@ -1,6 +1,7 @@
 """learner_node at topic level: interventions from a simulated supervisor in, fits out."""
 import math
 import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -205,6 +206,33 @@ def test_a_fit_is_resent_only_when_its_set_or_level_moves_beyond_the_tolerance(
         node.close()
         node.destroy_node()
         listener.node.destroy_node()
+
+
+def test_a_learner_without_a_store_path_keeps_the_newest_run_folders(ros_context, tmp_path, monkeypatch):
+    """store_path '': a fresh run folder under $XDG_DATA_HOME/supersafe_ros/runs, and the older
+    ones beyond keep_runs go (each launch left one behind, and nothing removed them)."""
+    import subprocess
+    import sys
+    monkeypatch.setenv('XDG_DATA_HOME', str(tmp_path))
+    runs = tmp_path / 'supersafe_ros' / 'runs'
+    gone = subprocess.Popen([sys.executable, '-c', 'pass'])
+    gone.wait()
+    old = []
+    for day in range(1, 5):
+        folder = runs / f'2026010{day}T120000Z-{gone.pid}'
+        folder.mkdir(parents=True)
+        (folder / 'interventions.jsonl').write_text('')
+        old.append(folder)
+    node = LearnerNode(context=ros_context, parameter_overrides=[
+        Parameter('store_path', value=''), Parameter('keep_runs', value=2), Parameter('library_shape', value=SHAPE),
+        Parameter('library_omegas', value=OMEGAS), Parameter('estimator', value='paper')])
+    try:
+        here = Path(node.store.path).parent
+        assert here.parent == runs and here not in old
+        assert sorted(p for p in runs.iterdir()) == sorted([old[-1], here])     # the newest old one and this
+    finally:
+        node.close()
+        node.destroy_node()
 
 
 def test_restart_keeps_the_data_and_republishes_the_fit(running, ros_context):

@@ -40,8 +40,10 @@ finished one in ``<store>.encounters.jsonl``, and fits
 intervention states. Interventions are stored under both.
 
 Store. ``store_path`` '' starts a fresh file for this run under
-$XDG_DATA_HOME/supersafe_ros/runs/ (never the last run's data); a named file that holds
-data is resumed, and the log says so: "resuming N interventions and M encounters from FILE".
+$XDG_DATA_HOME/supersafe_ros/runs/ (never the last run's data), and the newest ``keep_runs``
+run folders stay there: older ones are removed at start (``storage.prune_runs``: never a
+running learner's, never a named store). A named file that holds data is resumed, and the
+log says so: "resuming N interventions and M encounters from FILE".
 """
 from __future__ import annotations
 
@@ -70,6 +72,7 @@ from ..learning.estimators import (admissible_mask, concat_intervals, encounter_
                                    fit_first_passage_intervals, fit_paper_values)
 from ..reach.library import PAPER_OMEGAS, LibrarySpec, load_or_build_library
 from ..ros_io.vfmsg import value_function_to_msg
+from ..storage import new_run_store, prune_runs
 from .common import LiveParameters, declare, run_node
 from .markers import ObstacleMarkers
 
@@ -91,9 +94,7 @@ REJECTION_LOG_BURST = 5        # rejections logged one by one per second; the re
 
 def default_store_path() -> str:
     """A fresh file for this run: $XDG_DATA_HOME (or ~/.local/share)/supersafe_ros/runs/."""
-    base = os.environ.get('XDG_DATA_HOME') or os.path.expanduser('~/.local/share')
-    run = time.strftime('%Y%m%dT%H%M%SZ', time.gmtime()) + f'-{os.getpid()}'
-    return os.path.join(base, 'supersafe_ros', 'runs', run, 'interventions.jsonl')
+    return str(new_run_store())
 
 
 def encounter_store_path(store_path: str) -> str:
@@ -116,6 +117,8 @@ class LearnerNode(Node):
         store_path = p('store_path', '', 'JSON-lines file of accepted interventions (encounters go to '
                        '<file>.encounters.jsonl); a file with data is resumed. "" = a fresh file for '
                        'this run under $XDG_DATA_HOME or ~/.local/share, supersafe_ros/runs/')
+        keep_runs = p('keep_runs', 20, 'with store_path "": the newest run folders kept in supersafe_ros/runs/ '
+                      '(older ones are removed at start, never a running learner\'s); 0 = keep all', 0, 100000)
         self.estimator = p('estimator', 'first-passage', f'estimator, one of {ESTIMATORS}')
         if self.estimator not in ESTIMATORS:
             raise ValueError(f"estimator '{self.estimator}' is not one of {ESTIMATORS}")
@@ -204,7 +207,15 @@ class LearnerNode(Node):
         self.verdict = ''
         self.timing = {}
         self._rejection_window = [0.0, 0, 0]     # window start (monotonic), logged, suppressed
-        self._open_stores(store_path or default_store_path(), resumed=bool(store_path))
+        if not store_path:
+            store_path = default_store_path()
+            gone = prune_runs(keep_runs, current=os.path.dirname(store_path))
+            if gone:
+                self.get_logger().info(f'{len(gone)} old run folders removed from {os.path.dirname(gone[0])} '
+                                       f'(keep_runs {keep_runs})')
+            self._open_stores(store_path, resumed=False)
+        else:
+            self._open_stores(store_path, resumed=True)
         self.create_timer(self.refit_period, self.on_timer,
                           clock=RosClock(clock_type=ClockType.STEADY_TIME))
 
