@@ -363,37 +363,46 @@ def fresh_filter(ros_context, ns, **values):
     return node, driver, ready, spin
 
 
-def feed(driver, spin, seconds, detections=None):
-    """Pose and planner command (turn 0.3, far from the obstacle) every 20 ms for ``seconds``;
-    the states received meanwhile."""
+def feed_until(driver, spin, done, what, detections=None, pose=None, cmd=0.3, timeout=30.0):
+    """Pose and planner command (turn ``cmd``; far from the obstacle unless ``pose``) every 20 ms
+    until ``done(states)`` holds for the states received meanwhile; those states."""
     import time
     driver.states.clear()
     driver.out.clear()
-    end = time.monotonic() + seconds
-    while time.monotonic() < end:
-        driver.send(pose=state(-7.5, 7.0, 0.0), detections=detections, cmd=0.3)
+    deadline = time.monotonic() + timeout
+    while True:
+        states = [rosmsg.diagnostic_values(s) for s in driver.states]
+        if done(states):
+            return states
+        assert time.monotonic() < deadline, f'timed out after {timeout} s waiting for {what}'
+        driver.send(pose=pose or state(-7.5, 7.0, 0.0), detections=detections, cmd=cmd)
         spin.spin_for(0.02)
-    return [rosmsg.diagnostic_values(s) for s in driver.states]
+
+
+def passed(cmd):
+    return lambda states: bool(states) and states[-1]['action'] == 'pass' and \
+        float(states[-1]['cmd_angular_z']) == pytest.approx(cmd)
 
 
 def test_a_filter_without_detections_fails_safe_and_is_not_ready_until_they_come(ros_context):
     """Never a detections message: the planner's commands are not passed (fail safe, saying
     why) and safety_filter/ready has no publisher; the first message (even an empty one: the
     sensor looked and saw nothing) makes it ready and it passes; detections that stop are
-    stale and it fails safe again."""
+    stale and it fails safe again. (Counted in decisions, not seconds.)"""
     node, driver, ready, spin = fresh_filter(ros_context, '/robot_no_sensor_yet')
     try:
-        states = feed(driver, spin, 1.0)
-        assert states and {s['action'] for s in states} == {'fail_safe'}
-        assert all('no detections received yet' in s['reason'] for s in states), states[-1]
+        states = feed_until(driver, spin, lambda st: len(st) >= 20, '20 decisions')
+        assert {s['action'] for s in states} == {'fail_safe'}
+        assert all('no detections received yet' in s['reason'] or 'no pose received yet' in s['reason']
+                   for s in states), states
+        assert 'no detections received yet' in states[-1]['reason']
         assert driver.out and all(o.linear.x == 0.0 for o in driver.out)       # never the planner's 3 m/s
         assert node.count_publishers(f'{node.get_namespace()}/safety_filter/ready') == 0 and ready == []
-        states = feed(driver, spin, 0.5, detections=[])
-        assert states[-1]['action'] == 'pass' and float(states[-1]['cmd_angular_z']) == pytest.approx(0.3)
+        feed_until(driver, spin, passed(0.3), 'a pass once detections come', detections=[])
         spin.until(lambda: ready, 5.0, 'safety_filter/ready')
-        states = feed(driver, spin, 0.8)          # detections stop; poses and commands go on
-        assert states[-1]['action'] == 'fail_safe' and 'detections stale' in states[-1]['reason']
-        assert node.ready_pub is not None
+        # detections stop; poses and commands go on
+        states = feed_until(driver, spin, lambda st: st and st[-1]['action'] == 'fail_safe', 'a fail-safe')
+        assert 'detections stale' in states[-1]['reason'] and node.ready_pub is not None
     finally:
         spin.shutdown()
         node.destroy_node()
@@ -406,14 +415,9 @@ def test_require_detections_false_is_a_robot_without_an_obstacle_sensor(ros_cont
     node, driver, ready, spin = fresh_filter(ros_context, '/robot_without_sensor', require_detections=False)
     try:
         spin.until(lambda: ready, 5.0, 'safety_filter/ready')
-        driver.states.clear()
-        driver.out.clear()
         near = state(-3.0, 0.6, 0.0)              # overridden when the obstacle is detected
-        for _ in range(25):
-            driver.send(pose=near, detections=None, cmd=-0.4)
-            spin.spin_for(0.02)
-        last = driver.last_state()
-        assert last['action'] == 'pass' and float(last['cmd_angular_z']) == pytest.approx(-0.4)
+        states = feed_until(driver, spin, passed(-0.4), 'a pass near the unseen obstacle', pose=near, cmd=-0.4)
+        assert all(s['action'] != 'override' for s in states)
         taken = [sub.topic_name for sub, _ in node.direct._subs] if node.direct else \
             [sub.topic_name for sub in node.subscriptions]
         assert not any(t.endswith('/detections') for t in taken), taken
