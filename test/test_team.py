@@ -267,6 +267,9 @@ def test_the_launch_ends_when_the_clock_exits_at_its_duration(monkeypatch):
         clock = next(a for a in actions if a.kwargs.get('executable') == 'sim_clock_node')
         assert clock.kwargs['parameters'][-1]['exit_at_duration'] is exits
         assert clock.kwargs['parameters'][-1]['duration'] == float(duration)
+        # and it starts only once every filter has its robot's detections (as supersafe team's)
+        assert {f'/robot_{i}/safety_filter/ready=1' for i in range(2)} <= set(
+            clock.kwargs['parameters'][-1]['wait_for_publishers'])
         (handler,) = [a for a in actions if type(a).__name__ == 'Handler']
         (on_exit,) = handler.args
         assert on_exit.kwargs['target_action'] is clock
