@@ -121,21 +121,27 @@ def test_installed_config_fails_safe_when_poses_stop_without_a_clock(driver, tmp
         steady_pass(d, spin)
         # poses stop; detections and planner commands keep coming
         d.states.clear()
+        d.out.clear()
         stopped = d.last_pose
         d.feed_until(spin, lambda: any(s['action'] == 'fail_safe' for _, s in d.states), 10.0,
                      'fail_safe on the state topic', poses=False)
         t_fail, st = next((t, s) for t, s in d.states if s['action'] == 'fail_safe')
         age = float(re.search(r'pose stale \(([0-9.]+) s old > 0.5 s\)', st['reason']).group(1))
         pose_timeout, period = 0.5, 1.0 / 50.0
+        # the machine's own lateness meanwhile: the longest gap between the watchdog's cmd_vel
+        # (every 20 ms when on time) from the last pose to the fail-safe, as the test saw them
+        seen = [t for t in d.out if t <= t_fail]
+        late = max([b - a for a, b in zip(seen, seen[1:])] + [period]) - period
         print(f'use_sim_time={use_sim_time}: fail_safe {t_fail - stopped:.3f} s after the last pose '
-              f'(filter: pose {age:.3f} s old; time base {st["time_base"]})')
+              f'(filter: pose {age:.3f} s old; time base {st["time_base"]}; cmd_vel up to {late * 1e3:.0f} ms '
+              f'late; load {os.getloadavg()[0]:.1f})')
         assert st['time_base'].startswith('wall')
-        # the filter's own account: detected on the first decision after the timeout
-        # (+ 0.1 s for a late timer on a busy machine)
+        # the filter's own account: detected on the first decision after the timeout, which a
+        # busy machine may run late by as much as it delayed any decision meanwhile
         # (the reason gives the age to 3 significant digits: 0.5004 s reads '0.5')
-        assert pose_timeout <= age <= pose_timeout + period + 0.1
+        assert pose_timeout <= age <= pose_timeout + period + late + 0.02
         # end to end, with the deliveries of a loaded machine
-        assert t_fail - stopped <= pose_timeout + period + 0.5
+        assert t_fail - stopped <= pose_timeout + period + late + 0.5
     finally:
         stop(proc)
     log = (tmp_path / 'safety_filter.log').read_text()
