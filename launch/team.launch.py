@@ -8,9 +8,13 @@ use_sim_time, ``set``), which win.
 
 Arguments (``ros2 launch supersafe_ros team.launch.py --show-args``): robots (2),
 rate_factor (10.0), step (0.05), seed (0), duration (0 = run until stopped),
-use_sim_time (true), supervisor / learner / filter (true), learner_store ('' = the
-learner's default), params_file (''), set ('' ; e.g. "supervisor.mu=1.0 world.n_obstacles=6"),
+use_sim_time (true), supervisor / learner / filter (true), learner_store ('' = a fresh
+store for this launch), params_file (''), set ('' ; e.g. "supervisor.mu=1.0 world.n_obstacles=6"),
 discovery_range (LOCALHOST), colorized_output (0).
+
+The launch ends when the clock exits: with a duration, the clock exits (code 0) once it is
+reached (``exit_at_duration``), and OnProcessExit -> Shutdown stops every node (SIGINT;
+each exits 0). A clock that dies ends it too: without it nothing moves.
 Example: ros2 launch supersafe_ros team.launch.py robots:=3 step:=0.1 set:="supervisor.mu=1.0"
 """
 
@@ -21,13 +25,13 @@ ARGUMENTS = [
     ('step', '0.05', 'sim seconds per clock step = 1 / robot rate (0.1 halves the CPU)'),
     ('seed', '0', 'world, sensor and supervisor seed'),
     ('duration', '0.0', 'sim seconds after which the clock stops (0: never)'),
-    ('use_sim_time', 'true', 'every node but the clock follows /clock (the config files alone '
-                             'run on the wall clock)'),
+    ('use_sim_time', 'true', 'every node but the clock follows /clock (the config files alone run '
+                             'the robot, planner, world, supervisor and filters on the wall clock)'),
     ('supervisor', 'true', 'start the simulated supervisor'),
     ('learner', 'true', 'start the learner'),
     ('filter', 'true', 'start the safety filters (false: the planner drives the robot; testing only)'),
-    ('learner_store', '', "the learner's intervention file ('' = its default, shared across "
-                          'launches: give each run its own to start a fresh subject)'),
+    ('learner_store', '', "the learner's intervention file ('' = a fresh file for this launch under "
+                          '$XDG_DATA_HOME/supersafe_ros/runs/; name a file to resume a subject)'),
     ('params_file', '', 'a ROS 2 parameter file applied to every node after its config file '
                         "(the layout's own values still win; change those with the arguments "
                         'above or set)'),
@@ -48,6 +52,8 @@ def _flag(text: str) -> bool:
 
 def _nodes(context):
     # imported here: the module must stay importable (and parseable) without launch_ros
+    from launch.actions import RegisterEventHandler, Shutdown
+    from launch.event_handlers import OnProcessExit
     from launch_ros.actions import Node
 
     from supersafe_ros.team import CONFIG_FILES, config_dir, parse_overrides, team_layout
@@ -67,12 +73,19 @@ def _nodes(context):
     actions = []
     for spec in layout:
         cfg = config / CONFIG_FILES[spec.kind]
-        actions.append(Node(
+        params = dict(spec.params)
+        if spec.kind == 'sim_clock':     # its duration ends the launch (below)
+            params['exit_at_duration'] = float(params.get('duration', 0.0)) > 0.0
+        node = Node(
             package='supersafe_ros', executable=spec.executable,
             namespace=spec.namespace or '',
-            parameters=([str(cfg)] if cfg.is_file() else []) + extra + [spec.params],
+            parameters=([str(cfg)] if cfg.is_file() else []) + extra + [params],
             remappings=list(spec.remaps.items()),
-            output='screen', emulate_tty=True))
+            output='screen', emulate_tty=True)
+        actions.append(node)
+        if spec.kind == 'sim_clock':
+            actions.append(RegisterEventHandler(OnProcessExit(
+                target_action=node, on_exit=[Shutdown(reason='the sim clock exited (its duration reached)')])))
     return actions
 
 

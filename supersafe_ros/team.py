@@ -134,9 +134,11 @@ def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
     ``step``: sim seconds per clock step = 1 / robot rate (None: the override
     sim_clock.step, else 0.05). 0.1 halves the CPU per sim second; the robots then
     move 0.3 m between control decisions instead of 0.15 m.
-    ``use_sim_time``: every node but the clock follows /clock. The config files default
-    to the wall clock (what a real fleet runs); the simulation sets sim time here, for
-    every node it starts, the filters and the learner included.
+    ``use_sim_time``: every node but the clock follows /clock. The config files of the
+    robot, planner, world, supervisor, filters and RViz node default to the wall clock
+    (what a real fleet runs; config/learner.yaml and config/console.yaml set sim time);
+    the simulation sets it here, for every node it starts, the filters and the learner
+    included.
     ``console_port``: also run the supervisor console (web page) on this port.
     """
     if n_robots < 1:
@@ -198,6 +200,9 @@ def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
     publishers = ['/obstacle_markers=1'] + [f'/{r}/cmd_vel=1' for r in robots]
     if with_filter:
         publishers += [f'/{r}/cmd_vel_nav=1' for r in robots]
+        # and every filter has its robot's detections (the robot knows the world and has
+        # looked): the first pose is judged on them, never on "no obstacle" by default
+        publishers += [f'/{r}/safety_filter/ready=1' for r in robots]
     if with_supervisor:
         publishers.append('/interventions=1')
     if with_learner:

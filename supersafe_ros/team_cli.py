@@ -32,8 +32,9 @@ def add_parser(subparsers):
     parser.add_argument('--log-dir', type=Path, default=None,
                         help='per-process logs go here (default $TMPDIR/supersafe-team-<pid>)')
     parser.add_argument('--learner-store', type=Path, default=None,
-                        help="the learner's intervention file (default <log-dir>/interventions.jsonl: "
-                             'a fresh subject per run)')
+                        help="the learner's intervention file (default <log-dir>/interventions.jsonl: a "
+                             'fresh subject per run, as the default log folder is new for each run; a file '
+                             'that holds data, e.g. in a reused --log-dir, is resumed)')
     parser.add_argument('--no-filter', action='store_true',
                         help='wire cmd_vel_nav straight into cmd_vel (testing only)')
     parser.add_argument('--no-learner', action='store_true', help='leave the learner out')

@@ -39,10 +39,11 @@ def state_of(i):
 
 def newest_is(msg, published):
     """Whether a value-function message is the learner's last published fit, by its
-    (library index, alpha) key (``LearnerNode.published``)."""
+    (library index, alpha, mu, sigma) key (``LearnerNode.published``)."""
     from supersafe_ros.ros_io.vfmsg import msg_metadata
     meta = msg_metadata(msg)
-    return published is not None and (meta.get('index'), meta.get('alpha')) == tuple(published)
+    return published is not None and tuple(meta.get(k) for k in ('index', 'alpha', 'mu', 'sigma')) == \
+        tuple(published)
 
 
 def publisher_cmd(n, first_obstacle=1000, stamp0=1000.0):

@@ -26,9 +26,9 @@ def state(rel_x, rel_y, theta):
 class Driver:
     """Plays robot, sensor, planner and learner for one filter; records its outputs."""
 
-    def __init__(self, ctx):
+    def __init__(self, ctx, ns=NS):
         from rclpy.node import Node
-        self.node = Node('filter_test_driver', namespace=NS, context=ctx)
+        self.node = Node('filter_test_driver', namespace=ns, context=ctx)
         n = self.node
         self.pose = n.create_publisher(PoseStamped, 'pose', rosmsg.QOS_STREAM)
         self.det = n.create_publisher(PoseArray, 'detections', rosmsg.QOS_STREAM)

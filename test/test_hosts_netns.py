@@ -185,17 +185,47 @@ def test_print_argv_places_shared_nodes_on_host_zero_and_deals_robots():
             assert placed[f'robot_{i}/{kind}'] == 1 + i % 2
 
 
+NOBODY = ['setpriv', '--reuid=65534', '--regid=65534', '--clear-groups', '--inh-caps=-all', '--bounding-set=-all']
+
+
+@pytest.fixture
+def readable_package():
+    """This checkout's package and config, copied to a folder every user can read: the clone
+    may sit in a folder uid 65534 cannot enter (a 0700 temp folder), where it found no
+    supersafe_ros (or, through an editable install, another checkout's)."""
+    import stat
+    import tempfile
+    base = '/tmp' if os.path.isdir('/tmp') and os.stat('/tmp').st_mode & stat.S_ISVTX else None
+    root = Path(tempfile.mkdtemp(prefix='supersafe-nobody-', dir=base))
+    try:
+        ignore = shutil.ignore_patterns('__pycache__', '*.pyc')
+        for name in ('supersafe_ros', 'config'):
+            shutil.copytree(REPO / name, root / name, ignore=ignore)
+        for folder in [root, *(p for p in root.rglob('*') if p.is_dir())]:
+            folder.chmod(0o755)
+        for f in root.rglob('*'):
+            if f.is_file():
+                f.chmod(0o644)
+        yield root
+    finally:
+        shutil.rmtree(root, ignore_errors=True)
+
+
 @pytest.mark.root
 @pytest.mark.skipif(shutil.which('setpriv') is None, reason='needs setpriv (util-linux)')
-def test_without_net_admin_it_says_so_and_exits_nonzero(tmp_path):
+def test_without_net_admin_it_says_so_and_exits_nonzero(tmp_path, readable_package):
     # drop CAP_NET_ADMIN (and run as nobody when root): the plumbing must refuse clearly
-    proc = subprocess.run(['setpriv', '--reuid=65534', '--regid=65534', '--clear-groups',
-                           '--inh-caps=-all', '--bounding-set=-all', *cli(
-                               '--hosts', '2', '--duration', '1', '--log-dir', str(tmp_path / 'l'))],
-                          capture_output=True, text=True, timeout=120,
-                          env={**os.environ, 'HOME': str(tmp_path)})
+    env = {**os.environ, 'HOME': str(readable_package), 'PYTHONPATH': str(readable_package)}
+    reach = subprocess.run([*NOBODY, sys.executable, '-c', 'import numpy, yaml'], capture_output=True,
+                           text=True, timeout=120, env=env, cwd=readable_package)
+    if reach.returncode != 0:
+        pytest.skip(f'uid 65534 cannot run this interpreter and its packages ({sys.executable}): '
+                    f'{reach.stderr.strip()[-200:]}')
+    proc = subprocess.run([*NOBODY, *cli('--hosts', '2', '--duration', '1', '--log-dir',
+                                         str(readable_package / 'logs'))],
+                          capture_output=True, text=True, timeout=120, env=env, cwd=readable_package)
     assert proc.returncode != 0
-    assert 'CAP_NET_ADMIN' in proc.stderr and 'root' in proc.stderr
+    assert 'CAP_NET_ADMIN' in proc.stderr and 'root' in proc.stderr, proc.stderr
     assert 'Traceback' not in proc.stderr
 
 

@@ -161,6 +161,79 @@ def test_robot_detections_within_range_missed_20_percent_per_trip(ros_context):
         driver.destroy_node()
 
 
+def sensor_rig(ros_context, ns):
+    """A parked robot at the origin (sensor range 6 m, no misses) and a driver in ``ns``."""
+    robot = DubinsRobotNode(context=ros_context, namespace=ns, parameter_overrides=params(
+        use_sim_time=True, initial_x=0.0, initial_y=0.0, initial_theta=0.0, sensor_range=6.0,
+        miss_probability=0.0, seed=5, detections_period=0.25))
+    driver = Node(f'{ns}_world_driver', context=ros_context)
+    ctl = Controller(driver, f'/{ns}')
+    ctl.answer = False                      # no commands: the robot stays parked
+    clock = ClockDriver(driver, [ns])
+    spin = Spinner(ros_context, robot, driver)
+    spin.until(lambda: matched(ctl.det_sub, ctl.pose_sub, clock.pub, *clock.subs), 10.0, 'matching')
+    return robot, driver, ctl, clock, spin
+
+
+CENTRES = np.array([[3.0, 0.0], [0.0, 4.0], [9.0, 0.0]])     # (9, 0) is out of range
+
+
+def test_robot_publishes_no_detections_until_it_knows_the_world(ros_context):
+    """An empty detections message says "nothing near": before the obstacle set has arrived the
+    robot has not looked, so it publishes none, while it steps and after (issue 22: a filter
+    passed the planner into an obstacle on the empty detections of a robot that had not yet
+    received /obstacle_markers)."""
+    robot, driver, ctl, clock, spin = sensor_rig(ros_context, 'robot_3')
+    markers = None
+    try:
+        for _ in range(12):                 # 0.6 s sim, more than two detections periods
+            clock.step(spin)
+        spin.until(lambda: len(ctl.poses) >= 12, 5.0, 'the poses of every step')
+        assert ctl.detections == []
+        markers = driver.create_publisher(MarkerArray, '/obstacle_markers', rosmsg.QOS_LATCHED)
+        markers.publish(obstacles_to_markers(range(20, 23), CENTRES, 1.8))
+        spin.until(lambda: robot.world_known, 10.0, 'the obstacle set to arrive')
+        clock.step(spin)
+        spin.until(lambda: ctl.detections, 5.0, 'detections at the next step')
+        xy = rosmsg.posearray_to_xy(ctl.detections[0])
+        assert sorted(map(tuple, xy.tolist())) == [(0.0, 4.0), (3.0, 0.0)]
+        stamp = ctl.detections[0].header.stamp
+        assert stamp.sec * 10**9 + stamp.nanosec == clock.now_ns        # with that step's pose
+    finally:
+        if markers is not None:
+            driver.destroy_publisher(markers)
+        spin.shutdown()
+        robot.destroy_node()
+        driver.destroy_node()
+
+
+def test_robot_reports_what_it_sees_before_the_clock_starts(ros_context):
+    """Once it knows the world, a robot that has not stepped yet (no /clock) repeats its
+    detections from the initial pose on the steady clock, so its filter can be ready before
+    sim time starts; its first step then sends them with its pose."""
+    robot, driver, ctl, clock, spin = sensor_rig(ros_context, 'robot_4')
+    markers = driver.create_publisher(MarkerArray, '/obstacle_markers', rosmsg.QOS_LATCHED)
+    try:
+        markers.publish(obstacles_to_markers(range(20, 23), CENTRES, 1.8))
+        spin.until(lambda: len(ctl.detections) >= 3, 10.0, 'three detections before any /clock')
+        assert ctl.poses == [] and robot.steps == 0
+        for msg in ctl.detections:
+            assert sorted(map(tuple, rosmsg.posearray_to_xy(msg).tolist())) == [(0.0, 4.0), (3.0, 0.0)]
+        before = len(ctl.detections)
+        clock.step(spin)
+        spin.until(lambda: ctl.poses and len(ctl.detections) > before, 5.0, 'the first step')
+        stamp = ctl.detections[-1].header.stamp
+        assert stamp.sec * 10**9 + stamp.nanosec == clock.now_ns
+        n = len(ctl.detections)
+        spin.spin_for(0.6)                  # no steps: the steady repeats have stopped
+        assert len(ctl.detections) == n
+    finally:
+        driver.destroy_publisher(markers)
+        spin.shutdown()
+        robot.destroy_node()
+        driver.destroy_node()
+
+
 def test_planner_steers_to_its_goal_and_rejects_bad_poses(ros_context):
     from supersafe_ros.nodes.planner_node import PlannerNode
     planner = PlannerNode(context=ros_context, namespace='robot_7',

@@ -273,6 +273,34 @@ def test_robots_parameter_is_read_only_and_must_name_distinct_robots(setup, ros_
                               parameter_overrides=[Parameter('robots', value=['a', '/a/'])])
 
 
+def test_held_steps_are_debug_lines_and_an_info_summary_at_most_every_period():
+    """A team run logged one INFO line per held lockstep step (377 in 3.5 min): each is DEBUG
+    now, with one INFO summary per period that had any (times given: no clock involved)."""
+    from supersafe_ros.nodes.filter_state import HoldSummary
+
+    class Log:
+        def __init__(self):
+            self.lines = []
+
+        def debug(self, text):
+            self.lines.append(('debug', text))
+
+        def info(self, text):
+            self.lines.append(('info', text))
+    log = Log()
+    holds = HoldSummary(log, period=30.0, now=0.0)
+    for t, held in ((1.0, 0.31), (2.0, 0.62), (29.0, 0.1)):
+        holds.held(held, now=t)
+    assert [lv for lv, _ in log.lines] == ['debug'] * 3
+    holds.held(0.2, now=31.0)                     # the period is over: one summary of the four
+    assert log.lines[-1] == ('info', '4 steps held in the last 31 s until a cluster value was in force '
+                                     '(1.23 s in all, longest 0.62 s)')
+    holds.flush(now=40.0)                         # nothing since: nothing said
+    holds.held(0.5, now=45.0)
+    holds.flush(now=50.0)                         # the node stops: what is left is said
+    assert [lv for lv, _ in log.lines].count('info') == 2 and '1 step held in the last 10 s' in log.lines[-1][1]
+
+
 def test_fleet_throttle_publishes_as_a_throttle_per_robot():
     """FleetThrottle (the fleet node's arrays) says the same robots are due, tick by tick, as one
     StateThrottle per robot: on its phase, on a change of action or of the set, and after pauses

@@ -1,6 +1,7 @@
 """learner_node at topic level: interventions from a simulated supervisor in, fits out."""
 import math
 import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -80,7 +81,7 @@ def make_learner(ctx, store, **extra):
 @pytest.fixture(scope='module')
 def running(ros_context, tmp_path_factory, library):
     store = tmp_path_factory.mktemp('learner') / 'subject.jsonl'
-    node = make_learner(ros_context, store)
+    node = make_learner(ros_context, store, republish_level_tolerance=0.0)     # every fit goes out
     listener = Listener(ros_context, 'learner_test_listener')
     spin = Spinner(ros_context, node, listener.node)
     spin.until(lambda: matched(listener.pub, listener.fit_sub, listener.vf_sub), 10.0, 'learner topics')
@@ -168,6 +169,70 @@ def test_bad_interventions_are_rejected_and_the_node_keeps_running(running, bad)
                 'outside': 'outside the library grid', 'nan': 'not finite'}.get(bad)
     if expected:
         assert expected in reason and len(reason) < 300
+
+
+def test_a_fit_is_resent_only_when_its_set_or_level_moves_beyond_the_tolerance(
+        ros_context, tmp_path, supervised_states):
+    """The default republish_level_tolerance (0.01): a refit whose entry is the same and whose
+    mu, sigma and alpha are each within 0.01 of the set in force sends no value function (a
+    710 KB set went out for a change of mu in its 17th digit); the rule, replayed on every
+    refit's status, says when one went out."""
+    node = make_learner(ros_context, tmp_path / 'subject.jsonl')
+    assert node.level_tolerance == 0.01
+    listener = Listener(ros_context, 'learner_tolerance_listener')
+    spin = Spinner(ros_context, node, listener.node)
+    try:
+        spin.until(lambda: matched(listener.pub, listener.fit_sub, listener.vf_sub), 10.0, 'learner topics')
+        refits = []
+        for i, s in enumerate(supervised_states):
+            listener.send(s, i, 100.0 + i)
+            if i >= 2:
+                spin.until(lambda: listener.fit().get('fitted_interventions') == str(i + 1), 10.0, f'refit {i}')
+                refits.append((listener.fits[-1].message, listener.fit()))
+        last, sent = None, 0
+        for message, f in refits:
+            key = (int(f['index']), float(f['alpha']), float(f['mu']), float(f['sigma']))
+            changed = last is None or key[0] != last[0] or any(abs(a - b) > 0.01 for a, b in zip(key[1:], last[1:]))
+            assert message.startswith('fit published' if changed else 'fit unchanged'), (message, key, last)
+            if changed:
+                last, sent = key, sent + 1
+            assert int(f['published']) == sent
+        print(f'{sent} value functions for {len(refits)} refits')
+        assert 1 < sent < len(refits)
+        spin.until(lambda: listener.vfs and msg_to_value_function(listener.vfs[-1]).meta['mu'] == last[2], 10.0,
+                   'the last value function sent')
+    finally:
+        spin.shutdown()
+        node.close()
+        node.destroy_node()
+        listener.node.destroy_node()
+
+
+def test_a_learner_without_a_store_path_keeps_the_newest_run_folders(ros_context, tmp_path, monkeypatch):
+    """store_path '': a fresh run folder under $XDG_DATA_HOME/supersafe_ros/runs, and the older
+    ones beyond keep_runs go (each launch left one behind, and nothing removed them)."""
+    import subprocess
+    import sys
+    monkeypatch.setenv('XDG_DATA_HOME', str(tmp_path))
+    runs = tmp_path / 'supersafe_ros' / 'runs'
+    gone = subprocess.Popen([sys.executable, '-c', 'pass'])
+    gone.wait()
+    old = []
+    for day in range(1, 5):
+        folder = runs / f'2026010{day}T120000Z-{gone.pid}'
+        folder.mkdir(parents=True)
+        (folder / 'interventions.jsonl').write_text('')
+        old.append(folder)
+    node = LearnerNode(context=ros_context, parameter_overrides=[
+        Parameter('store_path', value=''), Parameter('keep_runs', value=2), Parameter('library_shape', value=SHAPE),
+        Parameter('library_omegas', value=OMEGAS), Parameter('estimator', value='paper')])
+    try:
+        here = Path(node.store.path).parent
+        assert here.parent == runs and here not in old
+        assert sorted(p for p in runs.iterdir()) == sorted([old[-1], here])     # the newest old one and this
+    finally:
+        node.close()
+        node.destroy_node()
 
 
 def test_restart_keeps_the_data_and_republishes_the_fit(running, ros_context):

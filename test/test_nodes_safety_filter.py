@@ -288,7 +288,9 @@ def test_inputs_are_taken_by_the_helper_node_or_by_the_filter_node(setup):
         takers = {i.node_name for i in driver.node.get_subscriptions_info_by_topic(f'{NS}/{topic}')}
         assert takers == ({io} if node.direct is not None else {node.get_name()}), (topic, takers)
     takers = {i.node_name for i in driver.node.get_subscriptions_info_by_topic(VALUE_FUNCTION_TOPIC)}
-    assert takers == {node.get_name()}      # value functions stay on the executor (decoded off the path)
+    # value functions: a helper node and thread of their own (taken without the GIL), never the executor
+    assert takers == {f'{node.get_name()}_sets'}
+    assert node.wiring.sets._gil_free, 'rcl not reachable through ctypes: rclpy takes the sets'
 
 
 def test_use_learned_turned_off_while_a_set_is_checked_keeps_the_standard_set(setup, monkeypatch):
@@ -369,3 +371,84 @@ def test_a_command_beyond_the_robots_limits_is_clipped_and_said(setup):
         'cmd_clipped', ''), 5.0, 'the linear.x said')
     out, st, msg = exchange(driver, spin, state(-7.5, 7.0, 0.0), 0.3, want=passing(0.3))
     assert st['cmd_clipped'] == '' and st['detections_dropped'] == '0' and st['detections_dropped_reason'] == ''
+
+
+def fresh_filter(ros_context, ns, **values):
+    """A filter node that has never had input, its driver (and a reader of safety_filter/ready)
+    and a spinner: ``(node, driver, ready, spin)``."""
+    from std_msgs.msg import Empty
+    overrides = [Parameter(k, value=v) for k, v in dict(
+        standard_shape=SHAPE, detections_timeout=0.3, pose_timeout=0.3, state_rate=100.0, rate=20.0,
+        **values).items()]
+    node = SafetyFilterNode(namespace=ns, context=ros_context, parameter_overrides=overrides)
+    driver = Driver(ros_context, ns=ns)
+    ready = []
+    driver.ready_sub = driver.node.create_subscription(Empty, 'safety_filter/ready', ready.append,
+                                                       rosmsg.QOS_LATCHED)
+    spin = Spinner(ros_context, node, driver.node)
+    spin.until(lambda: matched(driver.pose, driver.cmd, driver.out_sub, driver.state_sub), 10.0, 'matching')
+    return node, driver, ready, spin
+
+
+def feed_until(driver, spin, done, what, detections=None, pose=None, cmd=0.3, timeout=30.0):
+    """Pose and planner command (turn ``cmd``; far from the obstacle unless ``pose``) every 20 ms
+    until ``done(states)`` holds for the states received meanwhile; those states."""
+    import time
+    driver.states.clear()
+    driver.out.clear()
+    deadline = time.monotonic() + timeout
+    while True:
+        states = [rosmsg.diagnostic_values(s) for s in driver.states]
+        if done(states):
+            return states
+        assert time.monotonic() < deadline, f'timed out after {timeout} s waiting for {what}'
+        driver.send(pose=pose or state(-7.5, 7.0, 0.0), detections=detections, cmd=cmd)
+        spin.spin_for(0.02)
+
+
+def passed(cmd):
+    return lambda states: bool(states) and states[-1]['action'] == 'pass' and \
+        float(states[-1]['cmd_angular_z']) == pytest.approx(cmd)
+
+
+def test_a_filter_without_detections_fails_safe_and_is_not_ready_until_they_come(ros_context):
+    """Never a detections message: the planner's commands are not passed (fail safe, saying
+    why) and safety_filter/ready has no publisher; the first message (even an empty one: the
+    sensor looked and saw nothing) makes it ready and it passes; detections that stop are
+    stale and it fails safe again. (Counted in decisions, not seconds.)"""
+    node, driver, ready, spin = fresh_filter(ros_context, '/robot_no_sensor_yet')
+    try:
+        states = feed_until(driver, spin, lambda st: len(st) >= 20, '20 decisions')
+        assert {s['action'] for s in states} == {'fail_safe'}
+        assert all('no detections received yet' in s['reason'] or 'no pose received yet' in s['reason']
+                   for s in states), states
+        assert 'no detections received yet' in states[-1]['reason']
+        assert driver.out and all(o.linear.x == 0.0 for o in driver.out)       # never the planner's 3 m/s
+        assert node.count_publishers(f'{node.get_namespace()}/safety_filter/ready') == 0 and ready == []
+        feed_until(driver, spin, passed(0.3), 'a pass once detections come', detections=[])
+        spin.until(lambda: ready, 5.0, 'safety_filter/ready')
+        # detections stop; poses and commands go on
+        states = feed_until(driver, spin, lambda st: st and st[-1]['action'] == 'fail_safe', 'a fail-safe')
+        assert 'detections stale' in states[-1]['reason'] and node.ready_pub is not None
+    finally:
+        spin.shutdown()
+        node.destroy_node()
+        driver.node.destroy_node()
+
+
+def test_require_detections_false_is_a_robot_without_an_obstacle_sensor(ros_context):
+    """Opted out: ready at once, no detections subscription, every pose judged with no obstacle
+    (the planner's command passes where the obstacle, if it were seen, would not let it)."""
+    node, driver, ready, spin = fresh_filter(ros_context, '/robot_without_sensor', require_detections=False)
+    try:
+        spin.until(lambda: ready, 5.0, 'safety_filter/ready')
+        near = state(-3.0, 0.6, 0.0)              # overridden when the obstacle is detected
+        states = feed_until(driver, spin, passed(-0.4), 'a pass near the unseen obstacle', pose=near, cmd=-0.4)
+        assert all(s['action'] != 'override' for s in states)
+        taken = [sub.topic_name for sub, _ in node.direct._subs] if node.direct else \
+            [sub.topic_name for sub in node.subscriptions]
+        assert not any(t.endswith('/detections') for t in taken), taken
+    finally:
+        spin.shutdown()
+        node.destroy_node()
+        driver.node.destroy_node()

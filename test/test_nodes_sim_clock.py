@@ -203,3 +203,31 @@ def test_clock_rate_factor_changes_at_run_time_and_read_only_sets_are_refused(ro
         spin.shutdown()
         clock.destroy_node()
         driver.destroy_node()
+
+
+@pytest.mark.ros
+def test_the_clock_process_exits_at_its_duration_with_exit_at_duration(tmp_path):
+    """exit_at_duration: the clock (a process, as the launch file starts it) exits with code 0 and
+    nothing on stderr once its duration is reached; without it, it runs on (the team runner and
+    the study's games stop it themselves)."""
+    import os
+    import signal
+    import subprocess
+    from supersafe_ros import team
+    env = dict(os.environ, RCUTILS_LOGGING_USE_STDOUT='1', RCUTILS_COLORIZED_OUTPUT='0')
+    # no robots to wait for: start_timeout 0 starts it at once (it says what it did not wait for)
+    common = {'lockstep': False, 'rate_factor': 0.0, 'step': 0.05, 'duration': 0.5, 'start_timeout': 0.0}
+    procs = {exits: subprocess.Popen(team.node_argv('sim_clock', None, dict(common, exit_at_duration=exits)),
+                                     env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                     start_new_session=True)
+             for exits in (True, False)}
+    try:
+        out, err = procs[True].communicate(timeout=120)
+        assert procs[True].returncode == 0 and err == '', err
+        assert 'duration reached at sim time 0.500; exiting' in out, out
+        assert procs[False].poll() is None             # the same clock without it runs on
+    finally:
+        for p in procs.values():
+            if p.poll() is None:
+                os.killpg(p.pid, signal.SIGKILL)
+                p.wait()

@@ -123,6 +123,21 @@ def test_gradient_of_a_linear_function():
     assert np.allclose(g, [[3.0, -2.0, 0.0]] * 2, atol=1e-5)
 
 
+def test_theta_gradient_alone_is_the_full_gradients_theta_component_bit_for_bit():
+    """The filter builds only dV/dtheta of a received set (a 50 MB set: 0.9 s instead of 6.7 s);
+    it must be the theta component of node_gradient exactly, in any row chunking, whichever
+    of the two is built first."""
+    from supersafe_ros.reach.grid import node_gradient, theta_node_gradient
+    values = np.random.default_rng(3).normal(size=GRID.shape).astype(np.float32)
+    full = node_gradient(GRID, values).astype(np.float32)[..., 2]
+    for rows in (1, 5, 16, 100):
+        assert np.array_equal(theta_node_gradient(GRID, values, rows=rows), full)
+    alone, both = ValueFunction(GRID, values), ValueFunction(GRID, values)
+    both.node_gradient()
+    assert np.array_equal(alone.theta_gradient(), full) and alone._grad is None
+    assert np.array_equal(both.theta_gradient(), full)
+
+
 def test_flow_composes_and_goes_straight_without_turning():
     car = DubinsCar(3.0, 1.0)
     s = np.array([1.0, -2.0, 0.4])

@@ -318,6 +318,7 @@ class ClusterStore:
         # the solves run in a worker process when one can be started: the solver's
         # Python steps then never hold this process's GIL against the control path
         pool = None
+        _block_stop_signals()
         try:
             import concurrent.futures
             import multiprocessing
@@ -449,6 +450,20 @@ def cache_path(settings: ClusterSettings, key):
     blob = json.dumps({'key': [list(k) for k in key], 'settings': asdict(settings),
                        'solver': SOLVER_VERSION, 'version': CACHE_VERSION}, sort_keys=True)
     return default_cache_dir() / 'clusters' / f'cluster-{hashlib.sha256(blob.encode()).hexdigest()[:24]}.npz'
+
+
+def _block_stop_signals() -> None:
+    """Block SIGINT and SIGTERM in this thread (never the main thread, where Python handles them),
+    before it spawns the worker: a spawned process keeps the signal mask of the thread that
+    started it. A Ctrl-C in a terminal (or ``ros2 launch``) signals the whole process group;
+    the worker then stops with its filter (the pool's shutdown at exit, or ``_exit_with_parent``)
+    instead of printing a KeyboardInterrupt traceback from its queue read."""
+    import signal
+    from multiprocessing import resource_tracker
+    if threading.current_thread() is not threading.main_thread():
+        # first: starting the tracker unblocks both signals in the thread that starts it
+        resource_tracker.ensure_running()
+        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
 
 
 def _exit_with_parent(parent_pid: int) -> None:

@@ -83,7 +83,7 @@ def tie_tolerance(vf: ValueFunction) -> float:
     """
     tol = getattr(vf, '_tie_tolerance', None)
     if tol is None:
-        tol = TIE_RELATIVE * float(np.max(np.abs(vf.node_gradient()[..., 2])))
+        tol = TIE_RELATIVE * float(np.max(np.abs(vf.theta_gradient())))
         vf._tie_tolerance = tol
     return tol
 

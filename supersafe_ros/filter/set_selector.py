@@ -22,7 +22,7 @@ force (the control path reads this one reference); ``set_update`` says what happ
 to the last set ((accepted | rejected | ignored | none, why)), ``set_updates`` counts.
 
 No ROS here: the decoder (``ros_io.vfcdr.serialized_to_value_function``), the level
-of a learned set (``learning.levels.learned_alpha``) and the log (info, error)
+of a learned set (``learning.levels.learned_alpha``) and the log (debug, info, error)
 are given.
 """
 from __future__ import annotations
@@ -38,6 +38,11 @@ from .types import SafeSet
 from .law import evaluate_pairs
 
 MESSAGE, RESELECT = 'message', 'reselect'    # the worker's jobs: a new message, the same set again
+
+
+def _num(value) -> str:
+    """A number of a set's metadata at 4 significant digits (as sent it has 17); else as it is."""
+    return f'{value:.4g}' if isinstance(value, (int, float)) and not isinstance(value, bool) else str(value)
 
 
 class LearnedSetSelector:
@@ -73,8 +78,9 @@ class LearnedSetSelector:
             self._reject(f'value function message of {size} bytes exceeds max_value_function_bytes '
                          f'({self.max_bytes}); not decoded')
             return
-        self.log.info(f'value function message received ({size} bytes): decoding and checking it off the '
-                      f'control path')
+        # DEBUG: the set that goes in force (or is rejected) is the line at INFO
+        self.log.debug(f'value function message received ({size} bytes): decoding and checking it off the '
+                       f'control path')
         self._submit((MESSAGE, data))
 
     def set_standard_alpha(self, alpha: float) -> None:
@@ -196,11 +202,12 @@ class LearnedSetSelector:
                     self._submit((RESELECT,))
                 return
             self.safe_set = candidate
-        timing = f'decoded in {decode_s:.3f} s, ' if decode_s is not None else ''
+        timing = f'decoded in {decode_s:.3g} s, ' if decode_s is not None else ''
+        m = vf.meta
         self._accept(
-            f'learned set in force: omega_max {vf.meta.get("omega_max")}, alpha {alpha:.4g} '
-            f'(mu {vf.meta.get("mu")}, sigma {vf.meta.get("sigma")}), grid {vf.grid.shape}, '
-            f'{vf.meta.get("interventions", "?")} interventions; {timing}checked in {check_s:.3f} s: '
+            f'learned set in force: omega_max {_num(m.get("omega_max"))}, alpha {alpha:.4g} '
+            f'(mu {_num(m.get("mu"))}, sigma {_num(m.get("sigma"))}), grid {vf.grid.shape}, '
+            f'{m.get("interventions", "?")} interventions; {timing}checked in {check_s:.3g} s: '
             f'{verdict.reason}')
 
     # -- verdicts -------------------------------------------------------------------------------

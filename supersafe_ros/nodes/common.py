@@ -73,6 +73,7 @@ class StopSignals:
     def _handler(self, signum, frame):      # main thread, between bytecodes
         self.requested.set()
         if self.state == 'constructing':
+            self.state = 'interrupted'          # once: a second signal must not interrupt the clean-up
             raise KeyboardInterrupt
 
     def _wait(self, read_fd):
@@ -91,8 +92,16 @@ class StopSignals:
         return not self.requested.is_set()
 
     def stopping(self):
+        """The stop is under way (main thread): further SIGINT/SIGTERM are ignored from here on.
+        A terminal's Ctrl-C reaches every process of the group and ``ros2 launch`` then signals
+        each node again; Python restores the default handlers while it finalizes, so a second
+        signal there killed the node (exit code -2, "process has died") after a clean stop.
+        Ignored signals stay ignored through finalization; a stop that hangs is left to the
+        caller's SIGKILL."""
         with self._lock:
             self.state = 'stopping'
+        for s in self.SIGNALS:
+            signal.signal(s, signal.SIG_IGN)
 
 
 def freeze_startup_objects() -> None:
@@ -109,6 +118,9 @@ def run_node(node_class, args=None, executor_class=None) -> int:
     threads and timers), ``destroy_node()`` and the context's shutdown, in that order, so
     nothing publishes or logs into a context that is gone. Exit code 0 on a stop asked for,
     1 if the node failed to start or crashed (with the traceback on stderr).
+
+    A node that ends by itself (sim_clock at its duration, with ``exit_at_duration``) calls
+    ``node.stop_process()``, which is set here (from any thread): the same orderly stop.
     """
     ensure_local_ros_env()
     import rclpy
@@ -133,17 +145,18 @@ def run_node(node_class, args=None, executor_class=None) -> int:
             on_stop, poll = node.create_guard_condition(stopping.set).trigger, None
         else:   # the EventsExecutor takes no guard conditions: the loop looks for the stop 10 times a second
             on_stop, poll = stopping.set, 0.1
+        node.stop_process = on_stop
         if signals is None or signals.spinning(on_stop):
             while not stopping.is_set() and rclpy.ok():
                 executor.spin_once(timeout_sec=poll)
-        if signals is not None:
-            signals.stopping()
     except KeyboardInterrupt:
         pass
     except Exception:  # a node that cannot start or crashes: say why, exit non-zero
         traceback.print_exc()
         code = 1
     finally:
+        if signals is not None:
+            signals.stopping()
         if node is not None:
             try:
                 close = getattr(node, 'close', None)

@@ -10,7 +10,8 @@ Topics (relative; run it in a namespace such as /robot_0):
                                                      a new trip (misses redrawn)
   pub  pose               geometry_msgs/PoseStamped  frame map, every step
   pub  detections         geometry_msgs/PoseArray    frame map, obstacle centres seen; on every
-                                                     change and every detections_period
+                                                     change and every detections_period, and
+                                                     none before the robot knows the world
   pub  step_done          rosgraph_msgs/Clock        lockstep acknowledgement (see sim_clock_node)
 
 Steps run on a timer of the node's clock: with use_sim_time they follow /clock.
@@ -22,11 +23,21 @@ the robot further than the one control period the filter judged it for. Lockstep
 publishing the pose of step t the robot acknowledges t on ``step_done`` once a command
 has arrived in reply (or at once when it has no live controller: parked or timed out),
 so the clock never outruns the control loop.
+
+Detections mean "I have looked". The simulated sensor looks at the world's obstacle set
+(``/obstacle_markers``); until that set has arrived the robot publishes no detections at
+all, because an empty message would tell its filter "no obstacle near" (a filter cannot
+tell that from a sensor that has not looked yet, and passed the planner into an obstacle at
+start-up: issue 22). Once the set is known and before the first step (sim time not started),
+the robot repeats its detections from the initial pose every ``detections_period`` (at
+least 4 times a second) on the steady clock, so its filter has them, and says it is ready,
+before the clock starts (``supersafe_ros.team``).
 """
 from __future__ import annotations
 
 import math
 
+from rclpy.clock import Clock as RosClock, ClockType
 from rclpy.node import Node
 
 from geometry_msgs.msg import PoseArray, PoseStamped, PoseWithCovarianceStamped, Twist
@@ -77,6 +88,7 @@ class DubinsRobotNode(Node):
                               max_step=max_step if max_step > 0 else 1.0 / rate)
         self.sensor = LossySensor(sensor_range=rng_, miss_probability=miss, seed=seed)
         self.obstacles = ObstacleMarkers()
+        self.world_known = False    # the obstacle set has arrived: the sensor can look
         self.pending_ack = None     # sim time (ns) of a step awaiting its command
         self.last_seen = None       # ids in the last detections message
         self.last_detections_t = -float('inf')
@@ -92,9 +104,26 @@ class DubinsRobotNode(Node):
         self.create_subscription(PoseWithCovarianceStamped, 'initialpose', self.on_initialpose,
                                  rosmsg.QOS_EVENTS)
         self.timer = self.create_timer(1.0 / rate, self.step)
+        # before the first step: detections from the initial pose, on the steady clock (sim
+        # time may not run yet), so the filter knows what the robot sees before it moves
+        self.start_timer = self.create_timer(
+            self.start_period(), self.announce_before_start, clock=RosClock(clock_type=ClockType.STEADY_TIME))
         self.get_logger().info(
             f'robot at ({x0:.2f}, {y0:.2f}, {th0:.2f}) speed {speed} w_max {w_max} rate {rate} Hz, '
             f'sensor range {rng_} m, miss p {miss}, fail-safe {behavior} after {timeout} s')
+
+    def start_period(self) -> float:
+        """Steady seconds between detections before the first step."""
+        return min(self.detections_period, 0.25) if self.detections_period > 0 else 0.25
+
+    def announce_before_start(self):
+        if self.steps > 0:
+            self.start_timer.cancel()      # stepping: detections go with the poses
+            return
+        if self.world_known:
+            ids, xy = self.obstacles.arrays()
+            _, seen = self.sensor.sense(self.robot.state[:2], ids, xy)
+            self.det_pub.publish(rosmsg.xy_to_posearray(seen, self.get_clock().now().to_msg(), self.frame))
 
     def now_s(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9
@@ -129,6 +158,12 @@ class DubinsRobotNode(Node):
             self.obstacles.update(msg)
         except ValueError as exc:
             self.get_logger().error(f'/obstacle_markers rejected: {exc}')
+            return
+        if not self.world_known:
+            self.world_known = True
+            self.get_logger().info(f'obstacle set received ({len(self.obstacles.centres)} obstacles): '
+                                   'publishing detections')
+            self.announce_before_start()
 
     def ack(self, t_ns: int):
         self.pending_ack = None
@@ -146,10 +181,19 @@ class DubinsRobotNode(Node):
                 f'{self.robot.max_step:.3f} s, paused for {self.robot.last_pause:.3f} s '
                 f'({self.robot.paused:.3f} s paused in all)', throttle_duration_sec=1.0)
         self.steps += 1
-        ids, xy = self.obstacles.arrays()
-        seen_ids, seen = self.sensor.sense(state[:2], ids, xy)
         msg_stamp = stamp.to_msg()
         self.pose_pub.publish(rosmsg.state_to_pose(state, msg_stamp, self.frame))
+        if self.world_known:
+            self.publish_detections(state, now, msg_stamp)
+        if self.lockstep:
+            if self.robot.mode(now) == 'commanded':
+                self.pending_ack = stamp.nanoseconds   # acknowledged when the reply arrives
+            else:
+                self.ack(stamp.nanoseconds)
+
+    def publish_detections(self, state, now, msg_stamp):
+        ids, xy = self.obstacles.arrays()
+        seen_ids, seen = self.sensor.sense(state[:2], ids, xy)
         # detections change rarely: send them on change and as a heartbeat, which keeps
         # every consumer fresh at a fraction of the per-step traffic
         seen_key = tuple(seen_ids.tolist())
@@ -160,11 +204,6 @@ class DubinsRobotNode(Node):
             self.det_pub.publish(rosmsg.xy_to_posearray(seen, msg_stamp, self.frame))
             self.last_seen = seen_key
             self.last_detections_t = now
-        if self.lockstep:
-            if self.robot.mode(now) == 'commanded':
-                self.pending_ack = stamp.nanoseconds   # acknowledged when the reply arrives
-            else:
-                self.ack(stamp.nanoseconds)
 
 
 def main(args=None):

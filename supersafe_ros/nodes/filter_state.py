@@ -7,7 +7,9 @@
 * ``StateThrottle`` / ``FleetThrottle``: when a robot's state is due (every change of
   action or set update, else at ``state_rate`` on a fixed phase);
 * ``Complaints.complain(kind, text)``: the same kind of complaint logged at most every
-  ``LOG_THROTTLE_S``.
+  ``LOG_THROTTLE_S``;
+* ``HoldSummary``: lockstep answers held for a cluster solve, one INFO line every
+  ``HOLD_SUMMARY_S`` (each hold is a DEBUG line: a 3.5 min team run logged 377 of them).
 """
 from __future__ import annotations
 
@@ -21,6 +23,7 @@ from ..filter import default_cluster_store
 from ..ros_io import rosmsg
 
 LOG_THROTTLE_S = 2.0   # the same kind of complaint at most this often
+HOLD_SUMMARY_S = 30.0  # steady seconds between summaries of held steps
 
 
 class Complaints:
@@ -42,6 +45,33 @@ class Complaints:
                 self.log.info(text)
             else:
                 self.log.warn(text)
+
+
+class HoldSummary:
+    """Held lockstep answers: each one at DEBUG, and a summary at INFO at most every
+    ``period`` steady seconds (when there were any), and what is left at ``flush``."""
+
+    def __init__(self, log, period=HOLD_SUMMARY_S, now=None):
+        self.log, self.period = log, float(period)
+        self._since = time.monotonic() if now is None else now
+        self.count, self.total, self.longest = 0, 0.0, 0.0
+
+    def held(self, seconds: float, now=None) -> None:
+        now = time.monotonic() if now is None else now
+        self.log.debug(f'step held {seconds:.3g} s until the cluster value was in force')
+        self.count += 1
+        self.total += seconds
+        self.longest = max(self.longest, seconds)
+        if now - self._since >= self.period:
+            self.flush(now)
+
+    def flush(self, now=None) -> None:
+        now = time.monotonic() if now is None else now
+        if self.count:
+            steps = f'{self.count} step{"s" if self.count != 1 else ""}'
+            self.log.info(f'{steps} held in the last {now - self._since:.0f} s until a cluster value was in '
+                          f'force ({self.total:.3g} s in all, longest {self.longest:.3g} s)')
+        self._since, self.count, self.total, self.longest = now, 0, 0.0, 0.0
 
 
 class StateReporter:

@@ -6,10 +6,12 @@
 * one ``RobotFilter`` per robot name, all sharing the live ``FilterConfig``;
 * the standard set (true dynamics, from the cache or solved at start);
 * the set in force (``filter.set_selector``): ``/safe_set/value_function`` is taken as
-  serialized bytes (so an oversize message is refused by its length before anything
-  is decoded), then decoded and checked for admissibility on a worker thread, off the
-  control path; the state messages say what became of each set (``set_update``,
-  ``set_update_reason``);
+  serialized bytes by a thread of its own on a helper node ``<name>_sets``, with the GIL
+  released while the bytes are copied (``ros_io.direct_take``, ``gil_free``: rclpy's take
+  held it for the whole copy, 0.2-0.8 s for 50 MB, and the control path stood still), so
+  an oversize message is refused by its length before anything is decoded; then it is
+  decoded and checked for admissibility on a worker thread, off the control path; the
+  state messages say what became of each set (``set_update``, ``set_update_reason``);
 * the filter's time base (``filter.timebase.FilterTime``): ages on sim time while
   /clock advances, on the steady clock when ``use_sim_time`` is false or ROS time
   stands still (no /clock), so a stale input is detected either way;
@@ -19,7 +21,8 @@ from __future__ import annotations
 
 import time
 
-from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from contextlib import nullcontext
+
 from rclpy.clock import Clock, ClockType
 from std_msgs.msg import Float32MultiArray
 
@@ -28,6 +31,7 @@ from ..filter.set_selector import LearnedSetSelector
 from ..filter.timebase import FilterTime
 from ..learning.levels import learned_alpha
 from ..ros_io import rosmsg
+from ..ros_io.direct_take import DirectTake
 from ..ros_io.vfcdr import serialized_to_value_function
 from .filter_parameters import FilterParameters
 from .filter_state import Complaints, StateReporter
@@ -78,9 +82,15 @@ class FilterWiring:
         self.complain = Complaints(self.log).complain
         self._reporter = StateReporter(self.log, self.selector, self.time, lambda: self.params.config)
         self.state_message = self._reporter.state_message
-        # its own callback group: a multi-threaded executor may take it in parallel
-        node.create_subscription(Float32MultiArray, VALUE_FUNCTION_TOPIC, self.selector.offer,
-                                 rosmsg.QOS_LATCHED, raw=True, callback_group=MutuallyExclusiveCallbackGroup())
+        # a thread of its own, never the executor's: a 50 MB message is copied there without the GIL
+        self.sets = DirectTake(node, nullcontext(), suffix='_sets')
+        try:
+            self.sets.add(Float32MultiArray, VALUE_FUNCTION_TOPIC, self.selector.offer, rosmsg.QOS_LATCHED,
+                          raw=True, gil_free=True)
+        except BaseException:
+            self.sets.close()
+            raise
+        self.sets.start()
         # held while parameters change (the node's callbacks hold it too)
         self.live = p.keep_current(lock, {
             'config': self._use_config,
@@ -137,4 +147,5 @@ class FilterWiring:
         return self.time.stamp_to_tau(stamp_s, ros, tau)
 
     def close(self):
+        self.sets.close()
         self.selector.close()

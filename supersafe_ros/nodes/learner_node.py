@@ -10,7 +10,9 @@ Topics and services:
   sub  /obstacle_markers         visualization_msgs/MarkerArray  first-passage only: obstacle ids, centres
   pub  /safe_set/value_function  std_msgs/Float32MultiArray  latched: the fitted V, exact float32,
                                                              with grid and fit as JSON (ros_io.vfmsg);
-                                                             sent when the chosen entry or level changes
+                                                             sent when the chosen entry changes, or its
+                                                             mu, sigma or alpha by more than
+                                                             republish_level_tolerance
   pub  /safe_set/fit             diagnostic_msgs/DiagnosticStatus  latched: one per refit (and after
                                                              rejections): counts, omega_max, mu, sigma,
                                                              alpha, whether the fit is published and why
@@ -25,7 +27,10 @@ refit timer fsyncs every line appended since the last one before it fits: a grou
 commit). A steady timer (``refit_period``) refits once on everything received so far,
 whatever the number of messages since the last refit, checks the fitted set against the
 standard set (``filter.admissibility.check_learned_set``) and publishes it only if it
-passes and its entry or level changed. Each encounter's values are computed once, when
+passes and its entry changed, or its level (mu, sigma or alpha) moved by more than
+``republish_level_tolerance`` (0.01 m): a refit on one more encounter moves mu in its
+third digit, and resending the 710 KB set for that cost every filter a decode and a check
+and the log two lines each. Each encounter's values are computed once, when
 it arrives, so a refit only maximises.
 
 Estimators (``estimator``): ``first-passage`` (default) builds encounters from the robots'
@@ -35,8 +40,10 @@ finished one in ``<store>.encounters.jsonl``, and fits
 intervention states. Interventions are stored under both.
 
 Store. ``store_path`` '' starts a fresh file for this run under
-$XDG_DATA_HOME/supersafe_ros/runs/ (never the last run's data); a named file that holds
-data is resumed, and the log says so: "resuming N interventions and M encounters from FILE".
+$XDG_DATA_HOME/supersafe_ros/runs/ (never the last run's data), and the newest ``keep_runs``
+run folders stay there: older ones are removed at start (``storage.prune_runs``: never a
+running learner's, never a named store). A named file that holds data is resumed, and the
+log says so: "resuming N interventions and M encounters from FILE".
 """
 from __future__ import annotations
 
@@ -65,6 +72,7 @@ from ..learning.estimators import (admissible_mask, concat_intervals, encounter_
                                    fit_first_passage_intervals, fit_paper_values)
 from ..reach.library import PAPER_OMEGAS, LibrarySpec, load_or_build_library
 from ..ros_io.vfmsg import value_function_to_msg
+from ..storage import new_run_store, prune_runs
 from .common import LiveParameters, declare, run_node
 from .markers import ObstacleMarkers
 
@@ -86,9 +94,7 @@ REJECTION_LOG_BURST = 5        # rejections logged one by one per second; the re
 
 def default_store_path() -> str:
     """A fresh file for this run: $XDG_DATA_HOME (or ~/.local/share)/supersafe_ros/runs/."""
-    base = os.environ.get('XDG_DATA_HOME') or os.path.expanduser('~/.local/share')
-    run = time.strftime('%Y%m%dT%H%M%SZ', time.gmtime()) + f'-{os.getpid()}'
-    return os.path.join(base, 'supersafe_ros', 'runs', run, 'interventions.jsonl')
+    return str(new_run_store())
 
 
 def encounter_store_path(store_path: str) -> str:
@@ -111,6 +117,8 @@ class LearnerNode(Node):
         store_path = p('store_path', '', 'JSON-lines file of accepted interventions (encounters go to '
                        '<file>.encounters.jsonl); a file with data is resumed. "" = a fresh file for '
                        'this run under $XDG_DATA_HOME or ~/.local/share, supersafe_ros/runs/')
+        keep_runs = p('keep_runs', 20, 'with store_path "": the newest run folders kept in supersafe_ros/runs/ '
+                      '(older ones are removed at start, never a running learner\'s); 0 = keep all', 0, 100000)
         self.estimator = p('estimator', 'first-passage', f'estimator, one of {ESTIMATORS}')
         if self.estimator not in ESTIMATORS:
             raise ValueError(f"estimator '{self.estimator}' is not one of {ESTIMATORS}")
@@ -130,9 +138,9 @@ class LearnerNode(Node):
                               'an intervention frame is this followed by the obstacle id')
         self.refit_period = p('refit_period', 0.05, 'steady seconds between refits (one refit covers '
                               'everything received since the last)', 0.001, 60.0)
-        self.level_tolerance = p('republish_level_tolerance', 0.0, 'the value function is republished '
-                                 'when the chosen entry changes or alpha moves by more than this', 0.0, 10.0,
-                                 read_only=False)
+        self.level_tolerance = p('republish_level_tolerance', 0.01, 'the value function is republished '
+                                 'when the chosen entry changes, or mu, sigma or alpha moves by more than this '
+                                 '[value units, m]; 0 = any change', 0.0, 10.0, read_only=False)
         self.fit_window = p('fit_window', 5000, 'newest interventions (paper) or encounters '
                             '(first-passage) fitted; older ones stay stored (bounds the refit time)',
                             1, 10_000_000)
@@ -193,13 +201,21 @@ class LearnerNode(Node):
                     PoseStamped, f'/{r}/pose', lambda m, r=r: self.on_pose_msg(r, m), QOS_EVERY_POSE)
 
         self.fit = None
-        self.published = None        # (index, alpha) of the value function in force
+        self.published = None        # (index, alpha, mu, sigma) of the value function in force
         self.counts = {'rejected': 0, 'duplicates': 0, 'refits': 0, 'published': 0, 'refused': 0}
         self.last_rejection = ''
         self.verdict = ''
         self.timing = {}
         self._rejection_window = [0.0, 0, 0]     # window start (monotonic), logged, suppressed
-        self._open_stores(store_path or default_store_path(), resumed=bool(store_path))
+        if not store_path:
+            store_path = default_store_path()
+            gone = prune_runs(keep_runs, current=os.path.dirname(store_path))
+            if gone:
+                self.get_logger().info(f'{len(gone)} old run folders removed from {os.path.dirname(gone[0])} '
+                                       f'(keep_runs {keep_runs})')
+            self._open_stores(store_path, resumed=False)
+        else:
+            self._open_stores(store_path, resumed=True)
         self.create_timer(self.refit_period, self.on_timer,
                           clock=RosClock(clock_type=ClockType.STEADY_TIME))
 
@@ -482,9 +498,9 @@ class LearnerNode(Node):
             self.get_logger().error(f'fit not published ({summary}): {verdict.reason}')
             self.publish_status(f'fit not published: {verdict.reason}', level=2)
             return fit
-        key = (fit.index, fit.alpha)
+        key = (fit.index, fit.alpha, fit.mu, fit.sigma)
         changed = (self.published is None or key[0] != self.published[0]
-                   or abs(key[1] - self.published[1]) > self.level_tolerance)
+                   or any(abs(a - b) > self.level_tolerance for a, b in zip(key[1:], self.published[1:])))
         if changed:
             t1 = time.perf_counter()
             extra = {k: v for k, v in fit.to_dict().items() if k not in ('candidates', 'notes')}

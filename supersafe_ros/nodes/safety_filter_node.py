@@ -15,6 +15,18 @@ Topics (relative; run it in the robot's namespace such as /robot_0):
   pub  safety_filter/level_set  visualization_msgs/MarkerArray  the set in force at the robot's
                                                             heading around each detection (RViz;
                                                             level_set_markers, level_set_rate)
+  pub  safety_filter/ready      std_msgs/Empty              latched; the publisher appears once the
+                                                            filter has valid detections (at once with
+                                                            require_detections false)
+
+Before its first valid detections, and whenever they are stale, the filter fails safe: a
+detections message means "the sensor has looked", and none (or an old one) means nothing
+is known about the obstacles. A robot without an obstacle sensor opts out with
+``require_detections`` false: the filter then takes "no obstacle" with every pose and does
+not subscribe to ``detections``. ``safety_filter/ready`` lets a lockstep clock start only
+once every filter can judge (``supersafe_ros.team``); the pose is not part of it, since a
+lockstepped robot publishes its first pose at the first step, parked until the filter
+answers it.
 
 The decision is ``supersafe_ros.filter`` (law, hysteresis, fail safe, delay
 compensation; see there). When it is made: on every planner command (and, with
@@ -54,13 +66,16 @@ from rclpy.node import Node
 
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseArray, PoseStamped, Twist
+from std_msgs.msg import Empty
+
+import numpy as np
 
 from ..filter import FAIL_SAFE
 from ..filter.lockstep import GIVE_UP, LockstepAnswers
 from ..ros_io import cdr, rosmsg
 from ..ros_io.direct_take import DirectTake
 from .common import ParameterSpec, declare_all, run_node
-from .filter_state import StateThrottle
+from .filter_state import HoldSummary, StateThrottle
 from .filter_wiring import VALUE_FUNCTION_TOPIC, FilterWiring  # noqa: F401  (the topic, re-exported for tests)
 from .markers import LevelSetMarkerPublisher
 
@@ -82,7 +97,11 @@ PARAMETERS = (
     ParameterSpec('level_set_rate', 2.0, 'rate of safety_filter/level_set markers [Hz, steady clock]', 0.1, 50.0),
     ParameterSpec('level_set_markers', True, 'publish the level set in force at the robot\'s heading around '
                   'each detected obstacle on safety_filter/level_set (LINE_STRIPs, for RViz)'),
+    ParameterSpec('require_detections', True, 'fail safe until detections arrive and whenever they are stale; '
+                  'false = a robot without an obstacle sensor: every pose comes with "no obstacle" and '
+                  'detections is not subscribed'),
 )
+NO_DETECTIONS = np.zeros((0, 2))
 
 
 class SafetyFilterNode(Node):
@@ -102,8 +121,13 @@ class SafetyFilterNode(Node):
         self.name = self.get_fully_qualified_name()
         self._last_publish = -1e18     # steady seconds
         self._throttle = StateThrottle()
+        self._holds = HoldSummary(self.get_logger())
         self._failing = None           # the fail-safe story: None (start), True, False
+        self._waiting_told = False     # said once why it fails safe while starting
         self.decisions = 0
+        self.require_detections = p['require_detections']
+        self.ready_pub = None          # safety_filter/ready: made once the filter can judge
+        self._inputs_ready = not self.require_detections
 
         self.cmd_pub = self.create_publisher(Twist, 'cmd_vel', rosmsg.QOS_STREAM)
         self.state_pub = self.create_publisher(DiagnosticStatus, 'safety_filter/state', rosmsg.QOS_STREAM)
@@ -121,6 +145,8 @@ class SafetyFilterNode(Node):
         # the detections that came with it.
         inputs = ((PoseStamped, 'pose', self.on_pose, True), (PoseArray, 'detections', self.on_detections, True),
                   (Twist, 'cmd_vel_nav', self.on_command, True))
+        if not self.require_detections:
+            inputs = tuple(i for i in inputs if i[1] != 'detections')
         if p['direct_take'] and not self.lockstep:
             self.direct = DirectTake(self, self.lock)
             try:
@@ -135,8 +161,19 @@ class SafetyFilterNode(Node):
             # clock has passed is known as such (_clock_passed); a thread of its own would not be
             for msg_type, topic, callback, raw in inputs:
                 self.create_subscription(msg_type, topic, self._locked(callback), rosmsg.QOS_STREAM, raw=raw)
-        self.get_logger().info('filtering cmd_vel_nav -> cmd_vel; waiting for the first pose and detections '
-                               '(failing safe until then)')
+        if self.require_detections:
+            self.get_logger().info('filtering cmd_vel_nav -> cmd_vel; waiting for the first pose and detections '
+                                   '(failing safe until then)')
+        else:
+            self._say_ready()
+            self.get_logger().info('filtering cmd_vel_nav -> cmd_vel; require_detections false: no obstacle '
+                                   'sensor, every pose is judged with no obstacle; waiting for the first pose')
+
+    def _say_ready(self):
+        """Make the latched safety_filter/ready publisher (once; on the executor's thread)."""
+        if self.ready_pub is None:
+            self.ready_pub = self.create_publisher(Empty, 'safety_filter/ready', rosmsg.QOS_LATCHED)
+            self.ready_pub.publish(Empty())
 
     def _locked(self, callback):
         def locked(*args):
@@ -178,6 +215,8 @@ class SafetyFilterNode(Node):
         try:
             msg = cdr.pose_stamped(data)
             self.filter.update_pose(rosmsg.pose_to_state(msg, w.frame), t, stamp=w.stamp(msg.header.stamp, t))
+            if not self.require_detections:
+                self.filter.update_detections(NO_DETECTIONS, t)
         except ValueError as exc:   # MessageError is a ValueError
             self.filter.reject_pose(str(exc), t)
             w.complain('pose', f'pose rejected: {exc}; failing safe', level='error')
@@ -211,6 +250,7 @@ class SafetyFilterNode(Node):
         try:
             xy = rosmsg.checked_xy(*cdr.pose_array_xy(data, 'detections'), w.frame)
             self.filter.update_detections(xy, t, w.safe_set)
+            self._inputs_ready = True      # the watchdog (executor thread) says so
         except ValueError as exc:
             self.filter.reject_detections(str(exc), t)
             w.complain('detections', f'detections rejected: {exc}; failing safe', level='error')
@@ -235,6 +275,8 @@ class SafetyFilterNode(Node):
             self.decide(t)
 
     def on_watchdog(self):
+        if self._inputs_ready and self.ready_pub is None:
+            self._say_ready()
         now = time.monotonic()
         held = self.answers.held_pose_time
         if held is not None:
@@ -263,7 +305,7 @@ class SafetyFilterNode(Node):
         if verdict.action == GIVE_UP:
             w.complain('cluster_hold', f'{verdict.why}: answering with the fallback until it lands', level='warn')
         elif verdict.held_for is not None:
-            self.get_logger().info(f'step held {verdict.held_for:.2f} s until the cluster value was in force')
+            self._holds.held(verdict.held_for)
         self.cmd_pub.publish(cdr.twist_bytes(float(out.linear), float(out.omega)))   # serialized: no Twist built
         now = time.monotonic()
         self._last_publish = now
@@ -282,6 +324,10 @@ class SafetyFilterNode(Node):
             if not failing:
                 self._failing = False
                 self.get_logger().info(f'inputs valid: filtering ({out.action}: {out.reason})')
+            elif not self._waiting_told and self.filter.pose.value is not None:
+                # a pose to answer, but not yet what it takes: say why once (the state says it always)
+                self._waiting_told = True
+                self.get_logger().info(f'failing safe until the inputs are valid: {out.reason}')
         elif failing and not self._failing:
             self._failing = True
             self.get_logger().error(f'failing safe: {out.reason}')
@@ -292,11 +338,13 @@ class SafetyFilterNode(Node):
     def close(self):
         if self.direct is not None:
             self.direct.close()
+        self._holds.flush()
         self.wiring.close()
 
     def destroy_node(self):
         if self.direct is not None:
             self.direct.close()          # its thread stops before the handles it waits on go
+        self.wiring.sets.close()
         return super().destroy_node()
 
 

@@ -23,6 +23,11 @@ take their event times from message stamps; `supersafe team` remaps their /clock
 to it) and /sim/clock_status (DiagnosticStatus:
 sim_time, steps, achieved real-time factor, late steps) every ``status_period``
 sim seconds. This node itself always runs on the wall clock.
+
+At ``duration`` the clock stops advancing; with ``exit_at_duration`` (the launch file sets
+it when a duration is given) the node then exits with code 0, and the launch file's
+OnProcessExit ends the launch: without a clock nothing moves, and the rest of the graph
+would only fail safe on stale poses 20 s later.
 """
 from __future__ import annotations
 
@@ -78,6 +83,8 @@ class SimClockNode(Node):
                                 'wall seconds to wait for every robot to appear before starting',
                                 0.0, 3600.0)
         self.start_ns = int(round(ro('start_time', 0.0, 'sim time of the first step [s]', 0.0, 1e9) * 1e9))
+        self.exit_at_duration = ro('exit_at_duration', False, 'exit (code 0) once duration is reached: '
+                                   'the launch file then shuts the launch down')
         self.wait_publishers = parse_topic_counts(ro(
             'wait_for_publishers', [''],
             "before the first step, wait until each 'topic=count' has that many publishers "
@@ -231,7 +238,11 @@ class SimClockNode(Node):
                 next_status = self.now_ns + int(self.status_period * 1e9)
             if self.duration > 0 and self.now_ns >= first_ns + int(round(self.duration * 1e9)):
                 self.publish_status()
-                self.get_logger().info(f'duration reached at sim time {self.now_ns * 1e-9:.3f}')
+                stop_process = getattr(self, 'stop_process', None) if self.exit_at_duration else None
+                self.get_logger().info(f'duration reached at sim time {self.now_ns * 1e-9:.3f}'
+                                       + ('; exiting' if stop_process is not None else ''))
+                if stop_process is not None:
+                    stop_process()
                 return
             self.now_ns += self.step_ns
             self.pace_step()

@@ -115,9 +115,9 @@ class SupervisorNode(Node):
         self.watcher = Watcher(self.vf, mu=q['mu'], sigma=q['sigma'], pending_timeout=q['pending_timeout'],
                                seed=None if q['seed'] < 0 else q['seed'])
         self.watcher.pending = pending
-        self.get_logger().info(f"supervisor: V_S with w_max={q['w_max']}, speed={q['speed']}, "
-                               f"radius={q['radius']}, horizon={q['horizon']}; mu={q['mu']}, "
-                               f"sigma={q['sigma']}, seed={q['seed']}")
+        self.get_logger().info(f"supervisor: V_S with w_max={q['w_max']:.4g}, speed={q['speed']:.4g}, "
+                               f"radius={q['radius']:.4g}, horizon={q['horizon']:.4g}; mu={q['mu']:.4g}, "
+                               f"sigma={q['sigma']:.4g}, seed={q['seed']}")
 
     def on_reset(self, msg: DiagnosticStatus):
         """A new subject or game: these beliefs and noise, and no encounter or pending removal
@@ -140,8 +140,8 @@ class SupervisorNode(Node):
         self.watcher = None
         self.rebuild(changed)
         self.watcher.obstacles_changed(self.obstacles.arrays()[0])
-        self.get_logger().info(f"supervisor reset: w_max={new['w_max']}, mu={new['mu']}, "
-                               f"sigma={new['sigma']}, seed={new['seed']}")
+        self.get_logger().info(f"supervisor reset: w_max={new['w_max']:.4g}, mu={new['mu']:.4g}, "
+                               f"sigma={new['sigma']:.4g}, seed={new['seed']}")
 
     def on_markers(self, msg: MarkerArray):
         try:

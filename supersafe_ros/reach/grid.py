@@ -216,3 +216,15 @@ def node_gradient(grid: Grid, values: np.ndarray) -> np.ndarray:
     gy = np.gradient(v, dy, axis=1)
     gth = (np.roll(v, -1, axis=2) - np.roll(v, 1, axis=2)) / (2.0 * dth)
     return np.stack([gx, gy, gth], axis=-1)
+
+
+def theta_node_gradient(grid: Grid, values: np.ndarray, rows: int = 16) -> np.ndarray:
+    """``node_gradient(grid, values)[..., 2].astype(float32)``, bit for bit, without the x and y
+    components: the same float64 arithmetic, ``rows`` x-rows at a time (a 50 MB value function
+    took 5 s and 450 MB for the full gradient, which the filter does not need)."""
+    dth = grid.spacing[2]
+    out = np.empty(grid.shape, dtype=np.float32)
+    for i in range(0, grid.shape[0], rows):
+        v = np.asarray(values[i:i + rows], dtype=float)
+        out[i:i + rows] = (np.roll(v, -1, axis=2) - np.roll(v, 1, axis=2)) / (2.0 * dth)
+    return out

@@ -23,7 +23,7 @@ import zipfile
 
 import numpy as np
 
-from .grid import Grid, TWO_PI, node_gradient
+from .grid import Grid, TWO_PI, node_gradient, theta_node_gradient
 
 
 @dataclass
@@ -184,7 +184,8 @@ class ValueFunction:
         """dV/dtheta at the nodes (``node_gradient()[..., 2]``), contiguous: the filter
         interpolates it at every robot-obstacle pair."""
         if self._grad_theta is None:
-            self._grad_theta = np.ascontiguousarray(self.node_gradient()[..., 2])
+            self._grad_theta = (np.ascontiguousarray(self._grad[..., 2]) if self._grad is not None
+                                else theta_node_gradient(self.grid, self.values))
         return self._grad_theta
 
     def gradient(self, states) -> np.ndarray:

@@ -15,6 +15,13 @@ subscribes to the names the owner resolves, so the owner's remaps apply.
 
 ``rclpy.wait_for_message`` waits on such a wait set the same way (the ``_rclpy.WaitSet`` it
 uses is rclpy's own binding, not public API: this module is the one place that touches it).
+
+``add(..., gil_free=True)`` (raw subscriptions): the message is taken by rcl through ctypes
+with the GIL released (``ros_io.gil_free_take``) and handed over as a numpy uint8 array,
+so that a large message (a 50 MB value function) does not stop the process's other
+threads while it is copied; rclpy's take holds the GIL for the whole copy. Such a
+subscription gets a DirectTake of its own (``suffix``), so its copy never delays the
+others.
 """
 from __future__ import annotations
 
@@ -32,12 +39,13 @@ class DirectTake:
     traceback, once per kind of error) and the thread goes on; if the waiting itself fails
     the thread says so and ends (the owner's inputs then go stale: its watchdog fails safe)."""
 
-    def __init__(self, node: Node, lock):
+    def __init__(self, node: Node, lock, suffix: str = '_io'):
         self.node = node
         self.lock = lock
-        self.io = Node(f'{node.get_name()}_io', namespace=node.get_namespace(), context=node.context,
+        self.io = Node(f'{node.get_name()}{suffix}', namespace=node.get_namespace(), context=node.context,
                        start_parameter_services=False, use_global_arguments=False)
         self._subs = []                      # (subscription, callback)
+        self._gil_free = {}                  # subscription -> GilFreeTaker (or None: rclpy takes)
         self._stop = self.io.create_guard_condition(lambda: None)
         self._closing = False
         self._closed = False
@@ -47,13 +55,21 @@ class DirectTake:
         self.taken = 0
         node.context.on_shutdown(self._on_shutdown)
 
-    def add(self, msg_type, topic, callback, qos, raw=False):
-        """Subscribe to ``topic`` as the owner resolves it (its namespace and remaps)."""
+    def add(self, msg_type, topic, callback, qos, raw=False, gil_free=False):
+        """Subscribe to ``topic`` as the owner resolves it (its namespace and remaps);
+        ``gil_free`` (with ``raw``): taken without the GIL, as a numpy uint8 array."""
         if self._started:
             raise RuntimeError('DirectTake.add after start: the wait set is sized at start')
         sub = self.io.create_subscription(msg_type, self.node.resolve_topic_name(topic), lambda msg: None,
                                           qos, raw=raw)
         self._subs.append((sub, callback))
+        if gil_free and raw:
+            from .gil_free_take import GilFreeTaker
+            try:
+                self._gil_free[sub] = GilFreeTaker()
+            except (OSError, AttributeError) as exc:
+                self.node.get_logger().warn(f'{sub.topic_name}: rcl not reachable through ctypes ({exc}); '
+                                            'rclpy takes it (holding the GIL while it copies)')
         return sub
 
     def start(self):
@@ -88,19 +104,31 @@ class DirectTake:
                                              f'taken (the watchdog fails safe on them): {traceback.format_exc()}')
 
     def _take(self, sub, callback):
-        taken = sub.handle.take_message(sub.msg_type, sub.raw)
-        if taken is None:
+        taker = self._gil_free.get(sub)
+        try:
+            if taker is not None:
+                message = taker.take(sub)
+            else:
+                taken = sub.handle.take_message(sub.msg_type, sub.raw)
+                message = None if taken is None else taken[0]
+        except (RuntimeError, MemoryError) as exc:    # rcl failed to take: nothing was taken
+            self._said(sub, exc, 'take failed')
+            return
+        if message is None:
             return
         self.taken += 1
         try:
             with self.lock:
-                callback(taken[0])
+                callback(message)
         except Exception as exc:   # noqa: BLE001  keep serving: the watchdog still stands
-            kind = (sub.topic_name, type(exc).__name__)
-            if kind not in self._errors:
-                self._errors.add(kind)
-                self.node.get_logger().error(f'{sub.topic_name} callback failed (said once per kind): '
-                                             f'{traceback.format_exc()}')
+            self._said(sub, exc, 'callback failed')
+
+    def _said(self, sub, exc, what):
+        kind = (sub.topic_name, what, type(exc).__name__)
+        if kind not in self._errors:
+            self._errors.add(kind)
+            self.node.get_logger().error(f'{sub.topic_name} {what} (said once per kind): '
+                                         f'{traceback.format_exc()}')
 
     def _on_shutdown(self):
         self._closing = True

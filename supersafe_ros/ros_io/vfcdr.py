@@ -46,14 +46,15 @@ class _Reader:
         return s
 
 
-def serialized_to_value_function(data: bytes):
-    """ValueFunction from the serialized bytes of a /safe_set/value_function message."""
+def serialized_to_value_function(data):
+    """ValueFunction from the serialized bytes of a /safe_set/value_function message (bytes, or
+    a numpy uint8 array as ``ros_io.gil_free_take`` gives; the values are a view of it)."""
     if len(data) < 8:
         raise ValueFunctionMessageError(f'serialized value function of {len(data)} bytes is too short')
     if bytes(data[:2]) != _CDR_LE:
         from rclpy.serialization import deserialize_message
         from std_msgs.msg import Float32MultiArray
-        return msg_to_value_function(deserialize_message(data, Float32MultiArray))
+        return msg_to_value_function(deserialize_message(bytes(data), Float32MultiArray))
     r = _Reader(data)
     n_dims = r.u32()
     if n_dims > 16:

@@ -52,7 +52,9 @@ def phase2_argvs(subject: Subject, opts: StudyOptions, store: Path, first_offset
     layout = team_layout(1, opts.rate_factor, seed=subject.seed % 1_000_000, step=opts.step,
                          with_filter=False, learner_store=store,
                          overrides={'world': {'respawn': False, 'robots': ['robot_0'], 'n_obstacles': 0},
-                                    'learner': {'estimator': 'paper', 'alpha_k': 0.0},
+                                    # every fit as a message: the study reads each fit from it
+                                    'learner': {'estimator': 'paper', 'alpha_k': 0.0,
+                                                'republish_level_tolerance': 0.0},
                                     'supervisor': sup})
     argvs = []
     for spec in layout:
