@@ -225,6 +225,7 @@ def test_scripted_participant_completes_the_whole_protocol_on_a_laptop_screen(tm
         person.check('done')
         output = proc.communicate(timeout=60)[0]
         assert proc.returncode == 0, output
+        assert 'Traceback' not in output and 'Task was destroyed' not in output, output
     finally:
         if browser:
             browser.close()

@@ -406,6 +406,14 @@ def test_page_keeps_keyboard_focus_marks_crashes_answers_empty_clicks_and_shows_
         mark = wait_until(lambda: browser.find_elements('css selector', '[data-crash]'), 30, 'a crash mark')
         assert mark[0].get_attribute('transform') == 'translate(2.5 -4)'
         assert browser.find_element('id', 'message').text == 'Crash: the orange robot hit an obstacle.'
+        # a robot driven off the field (Phase I) stays in sight at the field's edge, faded
+        fed.stop.set()
+        fed.thread.join()
+        fed.state.set_pose('robot_0', 30.0, -2.0, 0.0, 10 ** 9)
+        robot = wait_until(lambda: (r := browser.find_element('css selector', '[data-robot="robot_0"]'))
+                           .get_attribute('data-x') == '30' and r, 30, 'the off-field pose')
+        assert robot.get_attribute('transform').startswith('translate(19.4 -2)')
+        assert 'off-field' in robot.get_attribute('class')
         # the console goes away: a banner that says what happened and what to do
         fed.__exit__(None, None, None)
         banner = wait_until(lambda: (b := browser.find_element('id', 'banner')).is_displayed() and b, 30,

@@ -186,3 +186,42 @@ def test_fit_screen_says_earlier_or_later_in_words_and_keeps_the_numbers_for_the
     page, researcher = fit_view([{'intervened': False, 'state': None}], None, None, standard)
     assert page['change'] == 'none' and 'nothing to learn' in page['sentence']
     assert page['drawing']['now'] == page['drawing']['before']
+
+
+async def start_for_another_screen(port):
+    """A Start meant for another screen (a late double click) starts nothing."""
+    import aiohttp
+    async with aiohttp.ClientSession() as session:
+        async with session.ws_connect(f'http://127.0.0.1:{port}/ws') as ws:
+            hello = json.loads((await ws.receive(timeout=30)).data)
+            assert hello['session']['phase'] == 'phase1' and hello['session']['waiting']
+            await ws.send_str(json.dumps({'type': 'start', 'phase': 'phase2'}))
+            reply = json.loads((await ws.receive(timeout=30)).data)
+            assert reply == {'type': 'error', 'message': 'nothing to start now'}
+
+
+def test_sigint_and_sigterm_before_any_phase_end_the_session_cleanly(tmp_path):
+    """Waiting for the participant's Start (no graph yet): either signal ends the command
+    at once, says how to resume, leaves no traceback and no empty bag."""
+    import asyncio
+    import signal
+    from console_support import free_port, wait_for_server
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        port = free_port()
+        proc = subprocess.Popen([sys.executable, '-m', 'supersafe_ros.cli', 'session', '--participant', 's1',
+                                 '--out', str(tmp_path), '--port', str(port)],
+                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+        try:
+            wait_for_server(f'http://127.0.0.1:{port}/', timeout=60)
+            if sig == signal.SIGINT:
+                asyncio.run(start_for_another_screen(port))
+            proc.send_signal(sig)
+            out = proc.communicate(timeout=60)[0]
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+        assert proc.returncode == 128 + sig, out
+        assert 'interrupted: resume with the same command' in out and 'Traceback' not in out, out
+        assert 'Task was destroyed' not in out, out
+        assert json.loads((tmp_path / 's1' / 'session.json').read_text())['scenes'] == []
+        assert not list((tmp_path / 's1').glob('recording-*'))

@@ -114,6 +114,7 @@ class ConsoleServer:
         self.files_dir = None               # /files/<name> serves from here when set
         self.hello_extra = None             # fn() -> dict merged into each page's hello
         self.clients: dict = {}             # ws -> Client
+        self.watchers: dict = {}            # the clients that asked for updates (an update visits only these)
         self.sent_updates = 0
         self.refused = {'host': 0, 'origin': 0, 'token': 0, 'full': 0}
         self._loop = None
@@ -313,6 +314,7 @@ class ConsoleServer:
             pass            # the page went away, or the server is stopping
         finally:
             self.clients.pop(ws, None)
+            self.watchers.pop(ws, None)
         return ws
 
     def _handle(self, client: Client, text):
@@ -327,6 +329,7 @@ class ConsoleServer:
             return {'type': 'pong', 'ref': msg['ref'], 'time': time.time()}
         if msg['type'] == 'watch':
             client.watching = client.needs_full = True
+            self.watchers[client.ws] = client
             self.notify('obstacles')
             return None
         if msg['type'] in self.extra_handlers:
@@ -364,12 +367,11 @@ class ConsoleServer:
                 await asyncio.wait_for(ws.send_str(text), timeout=2.0)
             except Exception:     # closed or hopelessly slow page: it reconnects
                 self.clients.pop(ws, None)
+                self.watchers.pop(ws, None)
 
     async def _broadcast(self, delta: dict, full_snapshot):
         texts = {}
-        for ws, client in list(self.clients.items()):
-            if not client.watching:
-                continue
+        for ws, client in list(self.watchers.items()):
             if client.backed_up():      # not reading: skip it, it gets everything once it drains
                 client.needs_full = True
                 continue
@@ -381,6 +383,7 @@ class ConsoleServer:
                 await ws.send_str(texts[kind])
             except Exception:
                 self.clients.pop(ws, None)
+                self.watchers.pop(ws, None)
 
     async def _send_loop(self):
         last = 0.0
@@ -403,7 +406,7 @@ class ConsoleServer:
                 self._pending = False
                 self._urgent = False
             versions = self.state.versions()
-            watchers = [c for c in self.clients.values() if c.watching]
+            watchers = list(self.watchers.values())
             if versions == self._sent_versions and not any(c.needs_full for c in watchers):
                 continue
             sent = self._sent_versions or (-1,) * len(versions)

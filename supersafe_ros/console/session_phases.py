@@ -18,7 +18,6 @@ from .phase_graph import SET_GATE_TOPIC, PhaseGraph, PhaseNode, add_clock_gate, 
 from .session import LIKERT_ITEMS, LIKERT_POINTS, intervention_states, participant_number
 
 GAME_LABELS = ('Game 1', 'Game 2', 'Game 3')
-ROBOT_COLOURS = ('blue', 'orange')        # the page's first two robot colours (console.js)
 SCENE_PAUSE = 3.0                          # wall s between calibration scenes
 
 
@@ -97,7 +96,7 @@ class SessionPhases:
                         'robot_0/planner', 'supervisor')
         # pose readers: the world and this session (no planner)
         set_clock_param(argvs, 'wait_for_subscriptions', ['/robot_0/pose=2', '/clock=1'])
-        self.show('phase1', seconds=seconds, running=False, robots=list(ROBOT_COLOURS[:1]))
+        self.show('phase1', seconds=seconds, running=False)
         node = PhaseNode(self.env, self.state, ['robot_0'], drive_robot='robot_0', keys=lambda: self.keys,
                          on_first_pose=self._running, record_path=True)
         path = node.path
@@ -282,8 +281,7 @@ class SessionPhases:
                              overrides={'safety_filter': {'use_learned': True, 'alpha_offset': 0.0}})
         argvs = without([node_argv(n.kind, n.namespace, n.params, n.remaps) for n in layout], 'supervisor')
         add_clock_gate(argvs, SET_GATE_TOPIC)
-        self.show('game', game=GAME_LABELS[i], number=i + 1, seconds=seconds, running=False,
-                  robots=list(ROBOT_COLOURS))
+        self.show('game', game=GAME_LABELS[i], number=i + 1, seconds=seconds, running=False)
         node = PhaseNode(self.env, self.state, ['robot_0', 'robot_1'], set_msg=msg, on_first_pose=self._running)
         self.interventions_open = True
         try:

@@ -94,7 +94,8 @@ class Session(SessionPhases):
         self.show(phase, waiting=False, **fields)
 
     def on_start(self, msg):
-        if not self.view.get('waiting'):
+        # a Start for another screen (a late double click) starts nothing
+        if not self.view.get('waiting') or msg.get('phase', self.view['phase']) != self.view['phase']:
             return {'type': 'error', 'message': 'nothing to start now'}
         self.started.set()
         return {'type': 'session_ack', 'ok': True}
@@ -189,7 +190,7 @@ class Session(SessionPhases):
         data = self.store.data
         a = self.args
         if data['phase1'] is None and a.phase1_seconds > 0:
-            self.wait_for_start('phase1', seconds=a.phase1_seconds, robots=['blue'])
+            self.wait_for_start('phase1', seconds=a.phase1_seconds)
             self.phase1()
         if self.store.remaining_offsets():
             self.wait_for_start('phase2', scenes=len(data['offsets']), done=len(data['scenes']))
@@ -209,8 +210,7 @@ class Session(SessionPhases):
         pairs = game_pairs(order)
         for i, cond in enumerate(order):
             if cond not in data['games']:
-                self.wait_for_start('game', game=GAME_LABELS[i], number=i + 1, seconds=a.game_seconds,
-                                    robots=['blue', 'orange'])
+                self.wait_for_start('game', game=GAME_LABELS[i], number=i + 1, seconds=a.game_seconds)
                 self.game(i, cond)
             if i >= 1 and len(data['answers']) < i:
                 self.ask(i, pairs[i - 1])

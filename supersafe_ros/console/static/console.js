@@ -107,7 +107,11 @@
       if (!robotEls[name]) robotElement(name, i++);
       const [x, y, th] = p;
       const g = robotEls[name];
-      g.setAttribute('transform', `translate(${x} ${y}) rotate(${(th * 180 / Math.PI).toFixed(1)})`);
+      // a robot that has driven off the field (Phase I's free driving) stays in sight at its edge
+      const w = field ? field.half_width - 0.6 : Infinity, h = field ? field.half_height - 0.6 : Infinity;
+      const cx = Math.max(-w, Math.min(w, x)), cy = Math.max(-h, Math.min(h, y));
+      g.classList.toggle('off-field', cx !== x || cy !== y);
+      g.setAttribute('transform', `translate(${cx} ${cy}) rotate(${(th * 180 / Math.PI).toFixed(1)})`);
       g.setAttribute('data-x', x); g.setAttribute('data-y', y); g.setAttribute('data-theta', th);
       const t = trails[name];
       const last = t[t.length - 1];

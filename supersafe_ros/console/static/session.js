@@ -27,7 +27,8 @@
     phase1: (v) => ['Part 1 of 3: drive a robot', [
       `For ${duration(v.seconds)} you drive the blue robot. It always moves forward: you only steer.`,
       'Hold the ← key to turn left and the → key to turn right.',
-      'Try to drive around the red discs: they are obstacles.']],
+      'Try to drive around the red discs: they are obstacles. Stay on the field: if the robot ' +
+      'leaves it, it is shown faded at the edge until you turn it back.']],
     phase2: (v) => ['Part 2 of 3: when would you step in?', [
       'A robot drives straight towards an obstacle. It does not turn by itself.',
       'If you think it is going to hit the obstacle, press the Space bar (or click the field) to stop it: ' +
@@ -187,6 +188,7 @@
     renderLegend(v.phase);
     const start = el('start');
     start.hidden = !v.waiting;
+    start.disabled = false;
     start.textContent = v.phase === 'fit' ? 'Continue' : 'Start';
     renderFitDrawing(v.phase === 'fit' ? v.drawing : null);
     const likert = el('likert');
@@ -208,7 +210,11 @@
       : 'The connection to the study computer is lost. The page keeps trying to reconnect; ' +
         'if this message stays, please tell the researcher.');
 
-  el('start').addEventListener('click', () => send({ type: 'start' }));
+  // one Start per screen: a double click must not start the next phase unseen
+  el('start').addEventListener('click', () => {
+    el('start').disabled = true;
+    send({ type: 'start', phase: view.phase });
+  });
 
   function interveneOnTheObstacle() {
     const o = document.querySelector('[data-obstacle-id]');
