@@ -225,3 +225,15 @@ def test_sigint_and_sigterm_before_any_phase_end_the_session_cleanly(tmp_path):
         assert 'Task was destroyed' not in out, out
         assert json.loads((tmp_path / 's1' / 'session.json').read_text())['scenes'] == []
         assert not list((tmp_path / 's1').glob('recording-*'))
+
+
+def test_a_port_in_use_is_said_plainly(tmp_path):
+    import socket
+    with socket.socket() as taken:
+        taken.bind(('127.0.0.1', 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        r = subprocess.run([sys.executable, '-m', 'supersafe_ros.cli', 'session', '--participant', 'p2',
+                            '--out', str(tmp_path), '--port', str(port)], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and f'cannot serve the console on port {port}' in r.stderr, r
+    assert 'Traceback' not in r.stderr + r.stdout

@@ -148,7 +148,12 @@ class Session(SessionPhases):
         try:
             try:
                 outcome = None
-                port = self.server.start()
+                try:
+                    port = self.server.start()
+                except OSError as exc:       # the port is taken (another session?)
+                    print(f'session: cannot serve the console on port {self.args.port}: {exc.strerror or exc}; '
+                          'stop the other program or choose another --port', file=sys.stderr)
+                    return 2
                 self.say(f'console: http://127.0.0.1:{port}/   (open it on the participant\'s screen)')
                 self.say(f'participant {self.store.pid}: {"resuming" if self.store.resumed else "new"}, '
                          f'results in {self.store.dir}')
