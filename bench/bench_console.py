@@ -8,13 +8,20 @@ Part 1, a real team (2 robots, 10 obstacles, no simulated supervisor, real time)
   * --clicks clicks on obstacles: click -> the world's /world/intervention_log record
     ("removed in the world", received here) and click -> the obstacle's element leaving
     the page (measured in the page). Median and p99.
+  * the console's CPU with --idle (50) idle WebSockets open beside the page (connected,
+    never asking for updates), and with as many watching sockets that read every update
+    (for comparison); then --attempts (1000) connection attempts against the cap
+    (max_connections 8 by default: the rest are refused).
 Part 2, 50 robots: a feed in this process publishes 50 robots' poses at 20 Hz, ten
 obstacle markers and stats (the console cannot tell it from a team); page updates per
 second and the console's CPU.
 
     .venv/bin/python bench/bench_console.py [--window 10] [--clicks 20] [--robots-many 50]
+                                            [--idle 50] [--attempts 1000] [--parts team,many]
 """
 import argparse
+import asyncio
+import json
 import math
 import os
 from pathlib import Path
@@ -60,7 +67,8 @@ def pct(values):
 def part_team(args, env):
     port = free_port()
     argvs = team.team_processes(2, rate_factor=1.0, seed=5, step=0.05, with_learner=False,
-                                with_supervisor=False, console_port=port)
+                                with_supervisor=False, console_port=port,
+                                overrides={'supervisor_console': {'max_connections': min(1000, args.idle + 8)}})
     running = team.Team(argvs, env, Path(tempfile.mkdtemp(prefix='bench-console-'))).start()
     monitor = browser = None
     try:
@@ -87,8 +95,10 @@ def part_team(args, env):
             120, 'two robots on the page')
         time.sleep(2.0)   # past the start
         renders, messages, cpu = measure_rates(d, pid, args.window)
+        clock = monitor.snapshot()[1]
         print(f'2 robots / 10 obstacles (real team, real time): page updates {renders:.1f}/s '
-              f'(server messages {messages:.1f}/s); console CPU {cpu:.1f}% of a core', flush=True)
+              f'(server messages {messages:.1f}/s); console CPU {cpu:.1f}% of a core; the team ran at '
+              f'{clock.get("rate_factor_achieved", "?")}x real time', flush=True)
 
         clicked = []
         for _ in range(args.clicks):
@@ -107,6 +117,7 @@ def part_team(args, env):
         page = [removals[o] for o in clicked]
         print(f'click -> removed in the world: {pct(world)}')
         print(f'click -> removed on the page:  {pct(page)}', flush=True)
+        connections(args, port, pid)
         return renders, cpu
     finally:
         if browser:
@@ -114,6 +125,81 @@ def part_team(args, env):
         if monitor:
             monitor.close()
         running.stop()
+
+
+def cpu_over(pid, window) -> float:
+    c0, t0 = proc_cpu(pid), time.monotonic()
+    time.sleep(window)
+    return 100.0 * (proc_cpu(pid) - c0) / (time.monotonic() - t0)
+
+
+def connections(args, port, pid):
+    """The console's CPU with idle sockets, with reading watchers, and under a connection storm."""
+    import aiohttp
+    url = f'http://127.0.0.1:{port}/ws'
+    result = {}
+
+    async def hold(n, watch):
+        async with aiohttp.ClientSession(connector=aiohttp.TCPConnector(limit=0)) as session:
+            sockets = [await session.ws_connect(url) for _ in range(n)]
+            readers = []
+            for ws in sockets:
+                await ws.receive()                          # hello
+                if watch:
+                    await ws.send_str(json.dumps({'type': 'watch'}))
+
+                    async def read(ws=ws):
+                        async for _ in ws:
+                            pass
+                    readers.append(asyncio.ensure_future(read()))
+            await asyncio.sleep(1.0)
+            result['cpu'] = await asyncio.get_running_loop().run_in_executor(None, cpu_over, pid, args.window)
+            for r in readers:
+                r.cancel()
+            for ws in sockets:
+                await ws.close()
+
+    base = cpu_over(pid, args.window)
+    asyncio.run(hold(args.idle, watch=False))
+    idle = result['cpu']
+    asyncio.run(hold(args.idle, watch=True))
+    watching = result['cpu']
+    again = cpu_over(pid, args.window)       # the baseline once more: how much is noise
+    print(f'console CPU, 2 robots and one page: {base:.1f}% (again after: {again:.1f}%); with {args.idle} idle '
+          f'sockets as well: {idle:.1f}%; with {args.idle} sockets reading every update instead: {watching:.1f}% '
+          'of a core', flush=True)
+    return base, idle, watching
+
+
+def storm(args):
+    """--attempts WebSocket connections against a console with the default cap (no team)."""
+    import aiohttp
+    from supersafe_ros.console.server import ConsoleServer
+    from supersafe_ros.console.state import ConsoleState
+    server = ConsoleServer(ConsoleState(['robot_0']), lambda oid: {'ok': False}, port=free_port(),
+                           log=lambda *a: None)
+    server.start()
+
+    async def attack():
+        async with aiohttp.ClientSession() as session:
+            held, refused = [], 0
+            for _ in range(args.attempts):
+                try:
+                    held.append(await session.ws_connect(f'http://127.0.0.1:{server.port}/ws'))
+                except aiohttp.WSServerHandshakeError:
+                    refused += 1
+            c0, t0 = time.process_time(), time.monotonic()
+            await asyncio.sleep(args.window)
+            cpu = 100.0 * (time.process_time() - c0) / (time.monotonic() - t0)
+            for ws in held:
+                await ws.close()
+            return len(held), refused, cpu
+    try:
+        held, refused, cpu = asyncio.run(attack())
+    finally:
+        server.stop()
+    print(f'{args.attempts} connection attempts against max_connections {server.max_connections}: {held} open, '
+          f'{refused} refused (503); this process (client and server) then used {cpu:.1f}% of a core', flush=True)
 
 
 class ManyRobotFeed:
@@ -195,13 +281,21 @@ def main():
     ap.add_argument('--clicks', type=int, default=20)
     ap.add_argument('--click-gap', type=float, default=0.3, help='wall seconds between clicks')
     ap.add_argument('--robots-many', type=int, default=50)
+    ap.add_argument('--idle', type=int, default=50, help='idle WebSockets beside the page (part team)')
+    ap.add_argument('--attempts', type=int, default=1000, help='connection attempts against the cap')
+    ap.add_argument('--parts', default='team,many,storm', help='comma-separated: team, many, storm')
     ap.add_argument('--domain-id', type=int, default=None)
     args = ap.parse_args()
     env = team.team_env(args.domain_id)
     os.environ['ROS_DOMAIN_ID'] = env['ROS_DOMAIN_ID']
     print(f'load before: {open("/proc/loadavg").read().strip()}  cores {os.cpu_count()}', flush=True)
-    part_team(args, env)
-    part_many(args, env)
+    parts = args.parts.split(',')
+    if 'team' in parts:
+        part_team(args, env)
+    if 'many' in parts:
+        part_many(args, env)
+    if 'storm' in parts:
+        storm(args)
     print(f'load after: {open("/proc/loadavg").read().strip()}')
 
 

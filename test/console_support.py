@@ -18,13 +18,19 @@ CHROMIUM = os.environ.get('SUPERSAFE_CHROMIUM', '/usr/bin/chromium')
 CHROMEDRIVER = os.environ.get('SUPERSAFE_CHROMEDRIVER', '/usr/bin/chromedriver')
 FLAGS = ['--headless', '--no-sandbox', '--disable-gpu', '--disable-quic', '--no-first-run',
          '--disable-background-networking', '--disable-component-update', '--disable-sync',
-         '--disable-dev-shm-usage', '--window-size=1200,760']
+         '--disable-dev-shm-usage']
+# screens a participant's page must fit: a 1280x800 laptop and a 1920x1080 screen. Headless
+# Chromium's window keeps 143 px for its bars, as a desktop browser does: the page gets
+# 1280x657 and 1920x937 (window.innerWidth x innerHeight).
+LAPTOP = (1280, 800)
+DESKTOP = (1920, 1080)
 
 
 class Browser:
-    """A headless Chromium with a fresh profile; ``driver`` is the selenium WebDriver."""
+    """A headless Chromium with a fresh profile; ``driver`` is the selenium WebDriver.
+    ``size``: the window, which headless Chromium makes the viewport (innerWidth x innerHeight)."""
 
-    def __init__(self):
+    def __init__(self, size=(1200, 760)):
         from selenium import webdriver
         from selenium.webdriver.chrome.service import Service
         for path in (CHROMIUM, CHROMEDRIVER):
@@ -34,7 +40,7 @@ class Browser:
         self.profile = tempfile.mkdtemp(prefix='supersafe-chromium-')
         options = webdriver.ChromeOptions()
         options.binary_location = CHROMIUM
-        for flag in FLAGS + [f'--user-data-dir={self.profile}']:
+        for flag in FLAGS + [f'--user-data-dir={self.profile}', f'--window-size={size[0]},{size[1]}']:
             options.add_argument(flag)
         self.driver = webdriver.Chrome(service=Service(CHROMEDRIVER), options=options)
 

@@ -170,3 +170,80 @@ def test_team_layout_with_the_console():
     assert 'port:=9123' in console and 'robots:=[robot_0,robot_1,robot_2]' in console
     assert any(a.endswith('config/console.yaml') for a in console)
     assert 'supervisor_console' not in [team.process_name(a) for a in team.team_processes(2)]
+
+
+@pytest.mark.ros
+@pytest.mark.browser
+def test_a_click_flood_is_limited_and_each_click_gets_the_worlds_answer(console_team):
+    """The issue's flood (817 clicks/s for 5 s put 228 interventions and 1,915 ERROR lines
+    into the world): here two seconds of clicks on every obstacle, as fast as the page
+    sends them. At most interventions_per_second (3) reach the world in any second, never
+    one the world must reject, and every click is answered: removed (with the robot the
+    world named), or why not."""
+    driver, monitor, running = console_team
+    wait_until(lambda: len(scene(driver)['obstacles']) == 10, 60, 'ten obstacles')
+    before = len(list(monitor.interventions))
+    replies0 = driver.execute_script('return window.supersafeConsole.replies.length')
+    flood = driver.execute_async_script("""
+        const done = arguments[arguments.length - 1];
+        const t0 = Date.now(); let clicks = 0;
+        const timer = setInterval(() => {
+          for (const o of document.querySelectorAll('[data-obstacle-id]')) {
+            o.dispatchEvent(new MouseEvent('click', {bubbles: true})); clicks++; }
+          if (Date.now() - t0 >= 2000) { clearInterval(timer); done({clicks, seconds: (Date.now() - t0) / 1000}); }
+        }, 1);""")
+    assert flood['clicks'] >= 200, flood
+    replies = wait_until(
+        lambda: (r := driver.execute_script('return window.supersafeConsole.replies.slice(arguments[0])', replies0))
+        and len(r) >= flood['clicks'] and r, 60, 'an answer to every click')
+    ok = [r for r in replies if r['ok']]
+    assert 1 <= len(ok) <= 3 * (flood['seconds'] + 1), (len(ok), flood)
+    assert len({r['obstacle'] for r in ok}) == len(ok)
+    records = wait_until(lambda: len(list(monitor.interventions)) >= before + len(ok)
+                         and list(monitor.interventions)[before:], 30, "the world's records")
+    assert len(records) == len(ok)
+    world = {int(r['obstacle']): r['robot'] for r in records}
+    assert {r['obstacle']: r['robot'] for r in ok} == world       # the answer is what the world did
+    assert {r['message'] for r in replies if not r['ok']} <= {
+        'That obstacle is already gone.', 'That obstacle is already being removed.',
+        'Too many clicks: wait a moment, then click again.'}
+    world_log = (running.log_dir / 'world.log').read_text()
+    assert 'intervention rejected' not in world_log
+    assert not running.dead()
+
+
+@pytest.mark.ros
+@pytest.mark.browser
+def test_crashes_are_marked_on_the_field_and_the_parameters_are_the_yaml(console_team):
+    """The robots' sensors miss every obstacle here, so the team crashes: each crash the
+    world reports appears as a mark on the field. And the console's declared parameters
+    are config/console.yaml's."""
+    driver, monitor, running = console_team
+    marks = wait_until(lambda: driver.execute_script(
+        'return [...document.querySelectorAll("[data-crash]")].map(e => e.getAttribute("transform"))'),
+        180, 'a crash mark on the page')
+    crashes = [e for e in list(monitor.events) if e['event'] == 'crash']
+    # where the world says a robot crashed (the page rounds to cm)
+    assert set(marks) <= {f'translate({round(float(e["x"]), 2):g} {round(float(e["y"]), 2):g})' for e in crashes}, (
+        marks, crashes)
+    import yaml
+    from rcl_interfaces.srv import GetParameters, ListParameters
+    from rclpy.parameter import parameter_value_to_python
+    (declared,) = yaml.safe_load((REPO / 'config' / 'console.yaml').read_text()).values()
+    node = monitor.node
+    names_client = node.create_client(ListParameters, '/supervisor_console/list_parameters')
+    values_client = node.create_client(GetParameters, '/supervisor_console/get_parameters')
+    assert names_client.wait_for_service(timeout_sec=30) and values_client.wait_for_service(timeout_sec=30)
+
+    def call(client, request):
+        future = client.call_async(request)
+        return wait_until(lambda: future.done() and future.result(), 30, 'a parameter service answer')
+    names = [n for n in call(names_client, ListParameters.Request()).result.names
+             if n not in ('use_sim_time', 'start_type_description_service') and not n.startswith('qos_overrides')]
+    values = call(values_client, GetParameters.Request(names=names)).values
+    live = {n: parameter_value_to_python(v) for n, v in zip(names, values)}
+    # the team sets robots and port for its run; every other value is the YAML's default
+    assert set(live) == set(declared['ros__parameters']) - {'use_sim_time'}
+    for name, value in declared['ros__parameters'].items():
+        if name not in ('use_sim_time', 'robots', 'port'):
+            assert live[name] == value, name

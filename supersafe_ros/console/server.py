@@ -6,41 +6,43 @@ Hand-off between the two threads:
               which wakes the loop with ``call_soon_threadsafe`` at most once per
               pending batch (a flag, not one wake-up per pose).
   web -> ROS: a click calls ``intervene(obstacle_id)`` (publishing from this thread is
-              thread-safe in rclpy), which returns at once.
+              thread-safe in rclpy), which returns at once: a dict (nothing published,
+              and why) or a Future of the world's answer, awaited here without holding
+              up the page's other messages.
 Updates are batched: at most ``update_rate`` state messages per second, each with every
-robot's newest pose; a change of the obstacles goes out at once (a click's result).
+robot's newest pose; a change of the obstacles or a crash goes out at once.
 
-Access: bound to a loopback address, no token is needed. Bound to any other address,
-every request (page, static files, WebSocket) must carry the token (``?token=``, the
-cookie the page sets, or ``Authorization: Bearer``), else 403. A WebSocket whose Origin
-is another site is refused too, so a web page elsewhere cannot drive the console.
+Connections: at most ``max_connections`` WebSockets (more get 503). A page receives state
+updates only after it asks (``{"type": "watch"}``, which the console's pages send), so a
+connection that only holds a socket open costs nothing but its heartbeat; a watcher that
+does not read (its send buffer is backed up) is skipped until it drains, then gets a
+full snapshot.
+
+Access (``access.py``): the Host header must name the console (DNS rebinding), a
+browser's Origin must be a page of the console, and a non-loopback bind needs the token
+(``?token=``, the cookie the page sets, or ``Authorization: Bearer``), else 403.
 """
 from __future__ import annotations
 
 import asyncio
+from concurrent.futures import Future
 import hmac
-import ipaddress
 import json
 from pathlib import Path
 import secrets
 import threading
 import time
-from urllib.parse import urlsplit
 
 from aiohttp import WSMsgType, web
 
-from .state import ClientMessageError, ConsoleState, parse_client_message
+from .access import HostRules, is_loopback
+from .state import MAX_MESSAGE_CHARS, ClientMessageError, ConsoleState, parse_client_message
+
+__all__ = ['ConsoleServer', 'is_loopback', 'new_token', 'static_dir']
 
 TOKEN_COOKIE = 'supersafe_console_token'
-
-
-def is_loopback(host: str) -> bool:
-    if host == 'localhost':
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
+BACKLOG_BYTES = 16 * 1024     # a watcher with more than this unsent is skipped until it drains
+CLOSE_TIMEOUT = 0.5           # s a page gets to answer the close frame at shutdown
 
 
 def new_token() -> str:
@@ -59,45 +61,74 @@ def static_dir() -> Path:
     return Path(__file__).resolve().parent / 'static'
 
 
+class Client:
+    """One open WebSocket: whether it asked for updates, and whether it missed some."""
+
+    __slots__ = ('ws', 'transport', 'watching', 'needs_full')
+
+    def __init__(self, ws, transport):
+        self.ws, self.transport = ws, transport
+        self.watching = False
+        self.needs_full = True
+
+    def backed_up(self) -> bool:
+        t = self.transport
+        return t is None or t.is_closing() or t.get_write_buffer_size() > BACKLOG_BYTES
+
+
 class ConsoleServer:
     """Serves the page and one WebSocket per open page.
 
-    ``intervene(obstacle_id) -> dict`` is called for a click; its dict ({'ok': bool,
-    'message': str, ...}) is sent back to that page. ``extra_handlers``: {type: fn(msg)
-    -> dict} for other page messages (the participant session uses this)."""
+    ``intervene(obstacle_id)`` is called for a click: a dict ({'ok': bool, 'message': str,
+    ...}) is sent back to that page at once; a Future is awaited for at most
+    ``confirm_timeout`` s, then ``unanswered(obstacle_id, future) -> dict`` gives the
+    reply. ``extra_handlers``: {type: fn(msg) -> dict} for other page messages (the
+    participant session uses this)."""
 
     def __init__(self, state: ConsoleState, intervene, host: str = '127.0.0.1', port: int = 8765,
                  token: str = '', update_rate: float = 30.0, log=print, extra_handlers=None,
-                 static: Path | None = None, page_config: dict | None = None):
+                 static: Path | None = None, page_config: dict | None = None,
+                 max_connections: int = 8, confirm_timeout: float = 3.0, unanswered=None):
         if not (update_rate > 0):
             raise ValueError('update_rate must be positive')
+        if int(max_connections) < 1:
+            raise ValueError('max_connections must be at least 1')
         self.state = state
         self.intervene = intervene
+        self.unanswered = unanswered or (lambda oid, fut: {
+            'ok': False, 'message': 'The robots did not confirm the removal; try again.'})
+        self.confirm_timeout = float(confirm_timeout)
         self.host = host
         self.port = int(port)
         self.loopback = is_loopback(host)
+        self.rules = HostRules(host)
         # a non-loopback bind always needs a token: make one if none was given
         self.token = token or ('' if self.loopback else new_token())
         self.min_interval = 1.0 / float(update_rate)
+        self.max_connections = int(max_connections)
         self.log = log
         self.extra_handlers = dict(extra_handlers or {})
         self.static = Path(static or static_dir())
         self.page_config = dict(page_config or {})
         self.index_page = 'index.html'      # the participant session serves session.html
-        self.files_dir = None               # /files/<name> serves from here when set (figures)
+        self.files_dir = None               # /files/<name> serves from here when set
         self.hello_extra = None             # fn() -> dict merged into each page's hello
-        self.clients: set = set()
+        self.clients: dict = {}             # ws -> Client
+        self.watchers: dict = {}            # the clients that asked for updates (an update visits only these)
         self.sent_updates = 0
+        self.refused = {'host': 0, 'origin': 0, 'token': 0, 'full': 0}
         self._loop = None
         self._thread = None
         self._runner = None
+        self._sender = None
+        self._tasks: set = set()
         self._ready = threading.Event()
         self._error = None
         self._wake = None
         self._urgent = False
         self._pending = False
         self._pending_lock = threading.Lock()
-        self._sent_versions = (-1, -1, -1)
+        self._sent_versions = None
         state.changed = self.notify
 
     # ----- thread hand-off --------------------------------------------------------------
@@ -122,7 +153,7 @@ class ConsoleServer:
         loop = self._loop
         if loop is not None:
             try:
-                asyncio.run_coroutine_threadsafe(self._broadcast(json.dumps(message)), loop)
+                asyncio.run_coroutine_threadsafe(self._send_all(json.dumps(message)), loop)
             except RuntimeError:
                 pass
 
@@ -144,18 +175,22 @@ class ConsoleServer:
         suffix = f'?token={self.token}' if self.token else ''
         return f'http://{h}:{self.port}/{suffix}'
 
-    def stop(self) -> None:
+    def stop(self, timeout: float = 1.5) -> None:
+        """Close every page's socket and the listener; returns within about ``timeout`` s."""
         loop = self._loop
         if loop is None:
             return
         fut = asyncio.run_coroutine_threadsafe(self._shutdown(), loop)
         try:
-            fut.result(timeout=5.0)
+            fut.result(timeout=timeout)
         except Exception:
             pass
-        loop.call_soon_threadsafe(loop.stop)
+        try:
+            loop.call_soon_threadsafe(loop.stop)
+        except RuntimeError:
+            pass
         if self._thread is not None:
-            self._thread.join(timeout=5.0)
+            self._thread.join(timeout=timeout)
 
     def _run(self):
         loop = asyncio.new_event_loop()
@@ -169,8 +204,8 @@ class ConsoleServer:
             loop.close()
             return
         self._loop = loop
-        self._ready.set()
         self._sender = loop.create_task(self._send_loop())
+        self._ready.set()
         try:
             loop.run_forever()
         finally:
@@ -178,20 +213,25 @@ class ConsoleServer:
             loop.close()
 
     async def _serve(self):
-        app = web.Application(middlewares=[self._auth])
+        app = web.Application(middlewares=[self._access])
         app.router.add_get('/', self._index)
         app.router.add_get('/ws', self._ws)
         app.router.add_get('/files/{name}', self._file)
         app.router.add_static('/static/', self.static, follow_symlinks=False)
-        self._runner = web.AppRunner(app, access_log=None, handle_signals=False)
+        self._runner = web.AppRunner(app, access_log=None, handle_signals=False, shutdown_timeout=0.5)
         await self._runner.setup()
         site = web.TCPSite(self._runner, self.host, self.port)
         await site.start()
         self.port = site._server.sockets[0].getsockname()[1]
 
     async def _shutdown(self):
-        for ws in list(self.clients):
-            await ws.close()
+        for task in [self._sender, *self._tasks]:
+            if task is not None:
+                task.cancel()
+        await asyncio.gather(*(asyncio.wait_for(ws.close(code=1001, message=b'console stopped'), CLOSE_TIMEOUT)
+                               for ws in list(self.clients)), return_exceptions=True)
+        if self._sender is not None:
+            await asyncio.gather(self._sender, return_exceptions=True)
         if self._runner is not None:
             await self._runner.cleanup()
 
@@ -204,10 +244,20 @@ class ConsoleServer:
                  or (auth[7:] if auth.startswith('Bearer ') else ''))
         return hmac.compare_digest(given.encode(), self.token.encode())
 
+    def _refuse(self, why: str, text: str):
+        self.refused[why] += 1
+        return web.Response(status=403, text=text)
+
     @web.middleware
-    async def _auth(self, request, handler):
+    async def _access(self, request, handler):
+        host = request.headers.get('Host')
+        if not self.rules.host_ok(host):
+            return self._refuse('host', '403: this console answers only to its own address '
+                                '(127.0.0.1, localhost, [::1] or the address it is bound to)\n')
+        if not self.rules.origin_ok(request.headers.get('Origin'), host):
+            return self._refuse('origin', '403: a page of another site may not use this console\n')
         if not self._token_ok(request):
-            return web.Response(status=403, text='403: this console needs its token (?token=...)\n')
+            return self._refuse('token', '403: this console needs its token (?token=...)\n')
         response = await handler(request)
         if self.token and request.query.get('token') and isinstance(response, web.StreamResponse):
             response.set_cookie(TOKEN_COOKIE, self.token, httponly=True, samesite='Strict')
@@ -226,12 +276,6 @@ class ConsoleServer:
             raise web.HTTPNotFound()
         return web.FileResponse(path, headers={'Cache-Control': 'no-store'})
 
-    def _origin_ok(self, request) -> bool:
-        origin = request.headers.get('Origin')
-        if not origin:
-            return True            # not a browser page (scripts, tests)
-        return urlsplit(origin).netloc == request.host
-
     # ----- WebSocket ------------------------------------------------------------------------
     def hello(self) -> dict:
         snap = self.state.snapshot()
@@ -242,56 +286,104 @@ class ConsoleServer:
         return out
 
     async def _ws(self, request):
-        if not self._origin_ok(request):
-            return web.Response(status=403, text='403: cross-origin WebSocket refused\n')
-        ws = web.WebSocketResponse(heartbeat=20.0, max_msg_size=64 * 1024)
+        if len(self.clients) >= self.max_connections:
+            self.refused['full'] += 1
+            return web.Response(status=503, text=f'503: {self.max_connections} pages are open already; '
+                                'close one (max_connections)\n')
+        ws = web.WebSocketResponse(heartbeat=20.0, max_msg_size=MAX_MESSAGE_CHARS * 4, compress=False,
+                                   timeout=CLOSE_TIMEOUT)
         await ws.prepare(request)
-        await ws.send_str(json.dumps(self.hello()))
-        self.clients.add(ws)
+        client = Client(ws, request.transport)
+        self.clients[ws] = client
         try:
+            await ws.send_str(json.dumps(self.hello()))
             async for msg in ws:
                 if msg.type == WSMsgType.TEXT:
-                    reply = self._handle(msg.data)
+                    reply = self._handle(client, msg.data)
                 elif msg.type == WSMsgType.BINARY:
                     reply = {'type': 'error', 'message': 'binary messages are not understood; send JSON text'}
                 else:
                     break
-                if reply is not None:
+                if isinstance(reply, tuple):      # (message, Future): answered when the world is
+                    task = asyncio.get_running_loop().create_task(self._answer(ws, *reply))
+                    self._tasks.add(task)
+                    task.add_done_callback(self._tasks.discard)
+                elif reply is not None:
                     await ws.send_str(json.dumps(reply))
+        except (ConnectionError, RuntimeError):
+            pass            # the page went away, or the server is stopping
         finally:
-            self.clients.discard(ws)
+            self.clients.pop(ws, None)
+            self.watchers.pop(ws, None)
         return ws
 
-    def _handle(self, text) -> dict | None:
+    def _handle(self, client: Client, text):
         try:
             msg = parse_client_message(text, extra_types=tuple(self.extra_handlers))
         except ClientMessageError as exc:
             return {'type': 'error', 'message': str(exc)}
+        except Exception as exc:     # whatever a message does, the page gets an answer
+            self.log(f'console: message not understood: {exc!r}')
+            return {'type': 'error', 'message': 'message not understood'}
         if msg['type'] == 'ping':
             return {'type': 'pong', 'ref': msg['ref'], 'time': time.time()}
+        if msg['type'] == 'watch':
+            client.watching = client.needs_full = True
+            self.watchers[client.ws] = client
+            self.notify('obstacles')
+            return None
         if msg['type'] in self.extra_handlers:
             try:
-                out = self.extra_handlers[msg['type']](msg)
+                return self.extra_handlers[msg['type']](msg)
             except Exception as exc:   # keep serving whatever a handler does
                 self.log(f'console: handler for {msg["type"]} failed: {exc!r}')
                 return {'type': 'error', 'message': f'{msg["type"]} failed: {exc}'}
-            return out
         try:
             result = self.intervene(msg['obstacle'])
         except Exception as exc:
             self.log(f'console: intervention on {msg["obstacle"]} failed: {exc!r}')
             result = {'ok': False, 'message': f'intervention failed: {exc}'}
+        if isinstance(result, Future):
+            return (msg, result)
         return {'type': 'intervention', 'obstacle': msg['obstacle'], 'ref': msg['ref'], **result}
 
-    async def _broadcast(self, text: str):
-        dead = []
-        for ws in list(self.clients):
+    async def _answer(self, ws, msg, future):
+        try:
+            result = await asyncio.wait_for(asyncio.wrap_future(future), self.confirm_timeout)
+        except asyncio.TimeoutError:
+            result = self.unanswered(msg['obstacle'], future)
+        try:
+            await ws.send_str(json.dumps({'type': 'intervention', 'obstacle': msg['obstacle'],
+                                          'ref': msg['ref'], **result}))
+        except (ConnectionError, RuntimeError):
+            pass
+
+    async def _send_all(self, text: str):
+        """A session message to every page (watching or not), with a bound on slow ones."""
+        for ws, client in list(self.clients.items()):
+            if client.backed_up():
+                continue
             try:
                 await asyncio.wait_for(ws.send_str(text), timeout=2.0)
-            except Exception:     # closed or hopelessly slow page: drop it
-                dead.append(ws)
-        for ws in dead:
-            self.clients.discard(ws)
+            except Exception:     # closed or hopelessly slow page: it reconnects
+                self.clients.pop(ws, None)
+                self.watchers.pop(ws, None)
+
+    async def _broadcast(self, delta: dict, full_snapshot):
+        texts = {}
+        for ws, client in list(self.watchers.items()):
+            if client.backed_up():      # not reading: skip it, it gets everything once it drains
+                client.needs_full = True
+                continue
+            kind = 'full' if client.needs_full else 'delta'
+            if kind not in texts:
+                texts[kind] = json.dumps(full_snapshot() if kind == 'full' else delta, separators=(',', ':'))
+            client.needs_full = False
+            try:
+                await ws.send_str(texts[kind])
+            except Exception:
+                self.clients.pop(ws, None)
+                self.watchers.pop(ws, None)
 
     async def _send_loop(self):
         last = 0.0
@@ -314,12 +406,14 @@ class ConsoleServer:
                 self._pending = False
                 self._urgent = False
             versions = self.state.versions()
-            if versions == self._sent_versions:
+            watchers = list(self.watchers.values())
+            if versions == self._sent_versions and not any(c.needs_full for c in watchers):
                 continue
-            snap = self.state.snapshot(with_obstacles=versions[1] != self._sent_versions[1],
-                                       with_stats=versions[2] != self._sent_versions[2])
+            sent = self._sent_versions or (-1,) * len(versions)
+            delta = self.state.snapshot(with_obstacles=versions[1] != sent[1], with_stats=versions[2] != sent[2],
+                                        with_events=versions[3] != sent[3])
             self._sent_versions = versions
             last = loop.time()
-            if self.clients:
-                await self._broadcast(json.dumps(snap, separators=(',', ':')))
+            if watchers:
+                await self._broadcast(delta, self.state.snapshot)
                 self.sent_updates += 1

@@ -14,8 +14,9 @@ they are and keeps the record:
   game that was running. A complete participant is never overwritten.
 * ``subject_record`` / ``write_subject`` / ``load_subject``: the same record a
   simulated subject of ``supersafe study`` has (subject, phase2, fit, states,
-  learned_vf, games), plus the answers, in <dir>/subject.json and <dir>/learned_vf.npz,
-  so ``study.summary.summarize`` runs over any mix of human and simulated subjects.
+  learned_vf, games), plus Phase I (with the driven path) and the answers, in
+  <dir>/subject.json and <dir>/learned_vf.npz, so ``study.summary.summarize`` runs
+  over any mix of human and simulated subjects.
 """
 from __future__ import annotations
 
@@ -51,11 +52,12 @@ LIKERT_ITEMS = (
     ('preference', 'I would like to work with these robots again.'),
 )
 LIKERT_POINTS = 7
-ID_PATTERN = re.compile(r'^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$')
+ID_PATTERN = re.compile(r'[A-Za-z0-9][A-Za-z0-9_.-]{0,63}')
 
 
 def check_participant_id(pid: str) -> str:
-    if not ID_PATTERN.match(pid or ''):
+    # fullmatch: with match() and '$', 'a\n' would pass (and make a folder with a newline)
+    if not isinstance(pid, str) or not ID_PATTERN.fullmatch(pid):
         raise ValueError(f'participant ID {pid!r}: use 1-64 letters, digits, _ . - (a file name)')
     return pid
 
@@ -155,6 +157,7 @@ def subject_record(data: dict, learned_vf=None, estimator: str = 'paper') -> dic
     scenes = data['scenes']
     return {
         'subject': {'index': pid, 'kind': 'human', 'participant': pid, 'order': data['order']},
+        'phase1': data.get('phase1'),
         'phase2': {'scenes': [{k: v for k, v in s.items() if k != 'frames'} for s in scenes],
                    'interventions': int(sum(1 for s in scenes if s['intervened']))},
         'fit': (data.get('fit') or {}).get(estimator.replace('-', '_')),

@@ -1,4 +1,4 @@
-"""What the console shows, without ROS: robots, obstacles and the world's counts.
+"""What the console shows, without ROS: robots, obstacles, the world's counts and crashes.
 
 ROS callbacks write into a ``ConsoleState`` from the executor's thread; the web
 server reads ``snapshot()`` from its asyncio thread. Every access holds one lock,
@@ -9,12 +9,15 @@ must infer from the motion whether a robot has seen an obstacle.
 """
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 import json
 import math
 import threading
 
 STATS = ('score', 'trips', 'crashes', 'interventions')
+MAX_MESSAGE_CHARS = 4096
+RECENT_EVENTS = 20       # crashes kept for the page (it draws the recent ones)
 
 
 @dataclass(frozen=True)
@@ -51,12 +54,14 @@ def parse_client_message(text, extra_types=()) -> dict:
     in ``extra_types`` is returned as it came (its handler checks the rest)."""
     if not isinstance(text, str):
         raise ClientMessageError('messages must be JSON text')
-    if len(text) > 4096:
+    if len(text) > MAX_MESSAGE_CHARS:
         raise ClientMessageError('message too long')
     try:
         msg = json.loads(text)
     except ValueError as exc:
         raise ClientMessageError(f'not JSON: {exc}') from None
+    except RecursionError:     # '[' * 4000: the decoder recurses once per level
+        raise ClientMessageError('not JSON this console accepts: nested too deeply') from None
     if not isinstance(msg, dict) or not isinstance(msg.get('type'), str):
         raise ClientMessageError('a message is a JSON object with a string "type"')
     kind = msg['type']
@@ -72,7 +77,9 @@ def parse_client_message(text, extra_types=()) -> dict:
         return {'type': 'intervene', 'obstacle': oid, 'ref': ref}
     if kind == 'ping':
         return {'type': 'ping', 'ref': msg.get('ref')}
-    known = ', '.join(('intervene', 'ping') + tuple(extra_types))
+    if kind == 'watch':
+        return {'type': 'watch'}
+    known = ', '.join(('intervene', 'ping', 'watch') + tuple(extra_types))
     raise ClientMessageError(f'unknown message type {kind!r} (known: {known})')
 
 
@@ -87,10 +94,13 @@ class ConsoleState:
         self._poses: dict[str, tuple] = {}        # robot -> (x, y, theta, stamp_ns)
         self._obstacles: dict[int, tuple] = {}    # id -> (x, y, radius)
         self._stats: dict[str, float] = {s: 0 for s in STATS}
+        self._events = deque(maxlen=RECENT_EVENTS)   # crashes, newest last
+        self._event_count = 0
         self._sim_time = 0.0
         self.pose_version = 0
         self.obstacle_version = 0
         self.stats_version = 0
+        self.event_version = 0
         self.changed = None          # callable(kind) run after each change (outside the lock)
 
     def _notify(self, kind):
@@ -106,9 +116,12 @@ class ConsoleState:
             self._poses = {}
             self._obstacles = {}
             self._stats = {s: 0 for s in STATS}
+            self._events.clear()
+            self._sim_time = 0.0
             self.pose_version += 1
             self.obstacle_version += 1
             self.stats_version += 1
+            self.event_version += 1
         self._notify('obstacles')
 
     def set_pose(self, robot: str, x: float, y: float, theta: float, stamp_ns: int) -> None:
@@ -118,6 +131,8 @@ class ConsoleState:
             raise ValueError(f'pose of {robot} is not finite')
         with self._lock:
             self._poses[robot] = (float(x), float(y), float(theta), int(stamp_ns))
+            # the newest pose's time: the page's countdown follows sim time
+            self._sim_time = max(self._sim_time, stamp_ns * 1e-9)
             self.pose_version += 1
         self._notify('pose')
 
@@ -143,7 +158,9 @@ class ConsoleState:
         with self._lock:
             if 'sim_time' in values:
                 try:
-                    self._sim_time = float(values['sim_time'])
+                    t = float(values['sim_time'])
+                    if math.isfinite(t):
+                        self._sim_time = max(self._sim_time, t)
                 except ValueError:
                     pass
             if all(self._stats.get(k) == v for k, v in stats.items()):
@@ -152,23 +169,42 @@ class ConsoleState:
             self.stats_version += 1
         self._notify('stats')
 
+    def add_crash(self, values: dict) -> None:
+        """A /world/events 'crash' (robot, obstacle, time, x, y as strings): the page marks it.
+        Raises ValueError for a record without a finite position."""
+        x, y, t = (float(values.get(k, 'nan')) for k in ('x', 'y', 'time'))
+        if not all(math.isfinite(v) for v in (x, y, t)):
+            raise ValueError(f'crash event without a finite x, y, time: {values}')
+        with self._lock:
+            self._event_count += 1
+            self._events.append({'id': self._event_count, 'kind': 'crash',
+                                 'robot': str(values.get('robot', '')), 'obstacle': str(values.get('obstacle', '')),
+                                 'x': round(x, 2), 'y': round(y, 2), 'time': round(t, 3)})
+            self.event_version += 1
+        self._notify('obstacles')     # at once, like a removal
+
     # ----- readers ----------------------------------------------------------------------
     def versions(self) -> tuple:
         with self._lock:
-            return self.pose_version, self.obstacle_version, self.stats_version
+            return self.pose_version, self.obstacle_version, self.stats_version, self.event_version
 
-    def snapshot(self, with_obstacles: bool = True, with_stats: bool = True) -> dict:
-        """A JSON-ready view: robots [x, y, theta] rounded to cm / mrad."""
+    def snapshot(self, with_obstacles: bool = True, with_stats: bool = True,
+                 with_events: bool = True) -> dict:
+        """A JSON-ready view: robots [x, y, theta] rounded to cm / mrad; ``events``: the
+        recent crashes ({id, kind, robot, obstacle, x, y, time})."""
         with self._lock:
             out = {'type': 'state', 'sim_time': round(self._sim_time, 3),
                    'robots': {r: [round(p[0], 2), round(p[1], 2), round(p[2], 3)]
                               for r, p in self._poses.items()},
-                   'versions': [self.pose_version, self.obstacle_version, self.stats_version]}
+                   'versions': [self.pose_version, self.obstacle_version, self.stats_version,
+                                self.event_version]}
             if with_obstacles:
                 out['obstacles'] = [[i, round(o[0], 3), round(o[1], 3), round(o[2], 3)]
                                     for i, o in sorted(self._obstacles.items())]
             if with_stats:
                 out['stats'] = dict(self._stats)
+            if with_events:
+                out['events'] = list(self._events)
         return out
 
     def has_obstacle(self, obstacle_id: int) -> bool:

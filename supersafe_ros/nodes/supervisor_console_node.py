@@ -8,6 +8,8 @@ detection state is not shown (as in the paper).
   sub  /<robot>/pose          geometry_msgs/PoseStamped  newest pose of each robot
   sub  /obstacle_markers      visualization_msgs/MarkerArray  latched, ids and centres
   sub  /world/stats           diagnostic_msgs/DiagnosticStatus  latched, the counts
+  sub  /world/intervention_log  diagnostic_msgs/DiagnosticStatus  the world's answer to a click
+  sub  /world/events          diagnostic_msgs/DiagnosticStatus  crashes, marked on the page
   pub  /interventions         geometry_msgs/PoseStamped  on a click: the nearest robot's pose
                               relative to the obstacle (obstacle at the origin, axes as map),
                               frame obstacle_<id>, stamp = that pose's stamp
@@ -37,6 +39,11 @@ class SupervisorConsoleNode(Node):
                   'for any other address')
         rate = p('update_rate', 30.0, 'most state updates per second sent to each page', 1.0, 120.0)
         trail = p('trail_length', 40, 'positions in the trail drawn behind each robot', 0, 1000)
+        max_connections = p('max_connections', 8, 'most pages (WebSockets) open at once; more get 503',
+                            1, 1000)
+        per_second = p('interventions_per_second', 3.0, 'most interventions published in any one second '
+                       '(and one per obstacle until the world answers); more clicks are refused', 1.0, 100.0)
+        confirm = p('confirm_timeout', 3.0, "wall seconds a click waits for the world's answer", 0.1, 60.0)
         self.robots = [r.strip('/') for r in p('robots', ['robot_0', 'robot_1'],
                                                'robot namespaces to show')]
         field = Field(
@@ -44,10 +51,11 @@ class SupervisorConsoleNode(Node):
             half_height=p('half_height', 12.0, "the world's field: y in +-half_height [m]", 1.0, 1e4),
             goal_x=p('goal_x', 16.0, "the world's goal lines at x = +-goal_x [m]", 0.1, 1e4))
         self.state = ConsoleState(self.robots, field)
-        self.bridge = ConsoleBridge(self, self.state)
+        self.bridge = ConsoleBridge(self, self.state, per_second=per_second, confirm_timeout=confirm)
         self.server = ConsoleServer(self.state, self.bridge.intervene, host=host, port=port, token=token,
                                     update_rate=rate, log=self.get_logger().info,
-                                    page_config={'trail_length': trail})
+                                    page_config={'trail_length': trail}, max_connections=max_connections,
+                                    confirm_timeout=confirm, unanswered=self.bridge.unanswered)
         bound = self.server.start()
         # the URL (with the token when one is needed) is the one thing the operator needs
         self.get_logger().info(f'console: {self.server.url()}  (robots {self.robots}, port {bound})')

@@ -2,29 +2,38 @@
 // obstacles into interventions. No framework, no build step.
 //
 // Hooks for tests, screen readers and scripts (stable):
-//   [data-obstacle-id="<id>"]  one element per obstacle (click = intervention)
-//   [data-robot="<ns>"]        one element per robot (data-x, data-y, data-theta: its pose)
+//   [data-obstacle-id="<id>"]  one element per obstacle (click, Enter or Space = intervention)
+//   [data-robot="<ns>"]        one element per robot (data-x, data-y, data-theta: its pose;
+//                              data-colour: its colour's name)
+//   [data-crash="<n>"]         a crash mark on the field (recent crashes)
 //   [data-stat="score|trips|crashes|interventions"]  text = the number
-//   window.supersafeConsole    counters: messages, renders, removals (click -> gone, ms)
+//   #message                   the line that answers every click
+//   body[data-connected]       'true' while the page's WebSocket is open
+//   window.supersafeConsole    counters: messages, renders, removals (click -> gone, ms), simTime
 'use strict';
 (function () {
   const SVG = 'http://www.w3.org/2000/svg';
   const COLORS = ['#1f5fa8', '#e08a00', '#6a3d9a', '#1b9e77', '#d95f02', '#7570b3',
                   '#e7298a', '#66a61e', '#a6761d', '#444444'];
+  const COLOUR_NAMES = ['blue', 'orange', 'purple', 'green', 'red', 'violet', 'pink', 'lime',
+                        'brown', 'grey'];
+  const CRASH_SHOWN_S = 6.0;          // sim seconds a crash mark stays on the field
   const perf = {
     messages: 0, renders: 0, errors: [], replies: [],
     clicks: {},        // obstacle id -> Date.now() of the click
     removals: {},      // obstacle id -> ms from click to the element leaving the page
-    connected: false,
+    connected: false, simTime: 0,
   };
   window.supersafeConsole = perf;
 
   const el = (id) => document.getElementById(id);
   let field = null, trailLength = 40, ws = null;
   let pending = null;                 // newest state not drawn yet
+  let lastCrash = null;               // newest crash id announced on the message line
   const trails = {};                  // robot -> [[x, y], ...]
   const robotEls = {}, trailEls = {};
   const obstacleEls = new Map();
+  const crashEls = new Map();
 
   function svg(tag, attrs) {
     const node = document.createElementNS(SVG, tag);
@@ -32,11 +41,28 @@
     return node;
   }
 
-  function say(text, isError) {
+  function colourIndex(name, fallback) {
+    const m = /_(\d+)$/.exec(name);
+    return m ? parseInt(m[1], 10) : fallback;
+  }
+  function colourName(name) {
+    return COLOUR_NAMES[colourIndex(name, Object.keys(robotEls).indexOf(name)) % COLOUR_NAMES.length];
+  }
+  window.supersafeColourName = colourName;
+  window.supersafeColours = { COLORS, COLOUR_NAMES };
+
+  let sayTimer = null;
+  function say(text, kind) {
     const m = el('message');
     m.textContent = text;
-    m.classList.toggle('error', !!isError);
+    if (!text) { m.classList.remove('error', 'crash', 'fresh'); return; }
+    m.classList.toggle('error', kind === 'error');
+    m.classList.toggle('crash', kind === 'crash');
+    m.classList.add('fresh');
+    clearTimeout(sayTimer);
+    sayTimer = setTimeout(() => m.classList.remove('fresh'), 1500);
   }
+  window.supersafeSay = say;
 
   function setupField(f) {
     field = f;
@@ -52,9 +78,12 @@
   }
 
   function robotElement(name, index) {
-    const color = COLORS[index % COLORS.length];
-    const g = svg('g', { class: 'robot', 'data-robot': name, 'aria-label': name });
-    const title = svg('title'); title.textContent = name; g.appendChild(title);
+    const ci = colourIndex(name, index);
+    const color = COLORS[ci % COLORS.length];
+    const cname = COLOUR_NAMES[ci % COLOUR_NAMES.length];
+    const g = svg('g', { class: 'robot', 'data-robot': name, 'data-colour': cname,
+                         'aria-label': `${cname} robot` });
+    const title = svg('title'); title.textContent = `${cname} robot (${name})`; g.appendChild(title);
     // an arrow pointing along +x (the heading), about a robot's size
     g.appendChild(svg('polygon', { class: 'robot-body', points: '0.9,0 -0.6,0.55 -0.3,0 -0.6,-0.55', fill: color }));
     el('robots').appendChild(g);
@@ -78,7 +107,11 @@
       if (!robotEls[name]) robotElement(name, i++);
       const [x, y, th] = p;
       const g = robotEls[name];
-      g.setAttribute('transform', `translate(${x} ${y}) rotate(${(th * 180 / Math.PI).toFixed(1)})`);
+      // a robot that has driven off the field (Phase I's free driving) stays in sight at its edge
+      const w = field ? field.half_width - 0.6 : Infinity, h = field ? field.half_height - 0.6 : Infinity;
+      const cx = Math.max(-w, Math.min(w, x)), cy = Math.max(-h, Math.min(h, y));
+      g.classList.toggle('off-field', cx !== x || cy !== y);
+      g.setAttribute('transform', `translate(${cx} ${cy}) rotate(${(th * 180 / Math.PI).toFixed(1)})`);
       g.setAttribute('data-x', x); g.setAttribute('data-y', y); g.setAttribute('data-theta', th);
       const t = trails[name];
       const last = t[t.length - 1];
@@ -100,20 +133,53 @@
       if (!c) {
         c = svg('circle', { class: 'obstacle', 'data-obstacle-id': id, tabindex: 0, role: 'button',
                             'aria-label': `obstacle ${id}: remove` });
-        c.addEventListener('click', () => intervene(id));
-        c.addEventListener('keydown', (e) => { if (e.key === 'Enter') intervene(id); });
+        c.addEventListener('click', (e) => { e.stopPropagation(); intervene(id); });
+        c.addEventListener('keydown', (e) => {
+          if (e.key === 'Enter' || e.key === ' ') { e.preventDefault(); e.stopPropagation(); intervene(id); }
+        });
         el('obstacles').appendChild(c);
         obstacleEls.set(id, c);
       }
       c.setAttribute('cx', x); c.setAttribute('cy', y); c.setAttribute('r', r);
     }
+    let focusLost = false;
     for (const [id, c] of obstacleEls) {
       if (!seen.has(id)) {
+        focusLost = focusLost || document.activeElement === c;
         c.remove();
         obstacleEls.delete(id);
         if (perf.clicks[id] !== undefined) perf.removals[id] = Date.now() - perf.clicks[id];
       }
     }
+    if (focusLost) {
+      // keyboard users keep their place: the next obstacle (or the field) takes the focus
+      const next = obstacleEls.values().next().value;
+      (next || el('field')).focus();
+    }
+  }
+
+  function drawCrashes(events) {
+    const keep = new Set();
+    const shown = !window.supersafeShowCrashes || window.supersafeShowCrashes();
+    for (const ev of events) {
+      if (!shown || ev.kind !== 'crash' || perf.simTime - ev.time > CRASH_SHOWN_S) continue;
+      keep.add(ev.id);
+      if (!crashEls.has(ev.id)) {
+        const g = svg('g', { class: 'crash-mark', 'data-crash': ev.id, transform: `translate(${ev.x} ${ev.y})`,
+                             'aria-label': `crash of the ${colourName(ev.robot)} robot` });
+        g.appendChild(svg('circle', { r: 1.1 }));
+        g.appendChild(svg('path', { d: 'M -0.8 -0.8 L 0.8 0.8 M -0.8 0.8 L 0.8 -0.8' }));
+        el('marks').appendChild(g);
+        crashEls.set(ev.id, g);
+      }
+      if (lastCrash !== null && ev.id > lastCrash) {
+        say(`Crash: the ${colourName(ev.robot)} robot hit an obstacle.`, 'crash');
+      }
+    }
+    for (const [id, g] of crashEls) {
+      if (!keep.has(id)) { g.remove(); crashEls.delete(id); }
+    }
+    lastCrash = events.reduce((m, ev) => Math.max(m, ev.id), lastCrash === null ? 0 : lastCrash);
   }
 
   function drawStats(stats) {
@@ -123,22 +189,27 @@
     }
   }
 
+  let events = [];
   function render() {
     const s = pending;
     pending = null;
     if (!s) return;
+    if (s.sim_time !== undefined) perf.simTime = s.sim_time;
     if (s.obstacles) drawObstacles(s.obstacles);
     if (s.robots) drawRobots(s.robots);
     if (s.stats) drawStats(s.stats);
+    if (s.events) events = s.events;
+    drawCrashes(events);
     perf.renders++;
   }
 
   function schedule(state) {
-    // several messages between two frames: keep the newest poses, and any obstacle or
-    // stats part (a later message may carry none)
+    // several messages between two frames: keep the newest poses, and any obstacle,
+    // stats or events part (a later message may carry none)
     if (pending) {
       state.obstacles = state.obstacles || pending.obstacles;
       state.stats = state.stats || pending.stats;
+      state.events = state.events || pending.events;
     }
     const first = !pending;
     pending = state;
@@ -146,10 +217,16 @@
   }
 
   function intervene(id) {
-    if (!ws || ws.readyState !== WebSocket.OPEN) { say('not connected to the team', true); return; }
+    if (!ws || ws.readyState !== WebSocket.OPEN) { say('Not connected: the click was not sent.', 'error'); return; }
     perf.clicks[id] = Date.now();
     ws.send(JSON.stringify({ type: 'intervene', obstacle: id, ref: perf.clicks[id] }));
   }
+
+  el('field').addEventListener('click', (e) => {
+    if (e.target.hasAttribute && e.target.hasAttribute('data-obstacle-id')) return;
+    if (window.supersafeEmptyClick && window.supersafeEmptyClick(e)) return;
+    say('That was not an obstacle: click on a red disc to remove it.');
+  });
 
   function onMessage(ev) {
     let msg;
@@ -159,18 +236,34 @@
       setupField(msg.field);
       if (msg.config && msg.config.trail_length !== undefined) trailLength = msg.config.trail_length;
       msg.robots.forEach((r, i) => { if (!robotEls[r]) robotElement(r, i); });
+      lastCrash = (msg.state.events || []).reduce((m, e) => Math.max(m, e.id), 0);
       schedule(msg.state);
     } else if (msg.type === 'state') {
       schedule(msg);
     } else if (msg.type === 'intervention') {
       perf.replies.push(msg);
-      if (msg.ok) say(`Intervention on obstacle ${msg.obstacle} sent (nearest robot: ${msg.robot}).`);
-      else say(msg.message, true);
+      if (msg.ok) {
+        const who = msg.robot && msg.robot !== 'unknown' ? ` (the ${colourName(msg.robot)} robot was nearest)` : '';
+        say(`Obstacle removed${who}.`);
+      } else say(msg.message, 'error');
     } else if (msg.type === 'error') {
       perf.errors.push(msg.message);
-      say(`server: ${msg.message}`, true);
+      say(`The page sent something the console did not accept: ${msg.message}`, 'error');
     }
     document.dispatchEvent(new CustomEvent('supersafe-message', { detail: msg }));
+  }
+
+  function banner(show) {
+    let b = el('banner');
+    if (!b) {
+      b = document.createElement('div');
+      b.id = 'banner'; b.className = 'banner'; b.setAttribute('role', 'alert');
+      document.body.prepend(b);
+    }
+    b.textContent = window.supersafeBannerText ? window.supersafeBannerText() :
+      'The connection to the study computer is lost. The page keeps trying to reconnect; ' +
+      'if this message stays, please tell the researcher.';
+    b.hidden = !show;
   }
 
   function connect() {
@@ -179,15 +272,24 @@
       (token ? `?token=${encodeURIComponent(token)}` : '');
     ws = new WebSocket(url);
     perf.ws = ws;
-    ws.onopen = () => { perf.connected = true; const c = el('connection'); c.textContent = 'live'; c.classList.add('live'); };
+    ws.onopen = () => {
+      perf.connected = true;
+      document.body.dataset.connected = 'true';
+      ws.send(JSON.stringify({ type: 'watch' }));
+      banner(false);
+      const c = el('connection'); c.textContent = 'connected'; c.classList.add('live');
+    };
     ws.onmessage = onMessage;
     ws.onclose = () => {
       perf.connected = false;
-      const c = el('connection'); c.textContent = 'disconnected: retrying…'; c.classList.remove('live');
+      document.body.dataset.connected = 'false';
+      banner(true);
+      const c = el('connection'); c.textContent = 'not connected'; c.classList.remove('live');
       setTimeout(connect, 1000);
     };
   }
 
   window.supersafeSend = (obj) => ws && ws.readyState === WebSocket.OPEN && ws.send(JSON.stringify(obj));
+  document.body.dataset.connected = 'false';
   connect();
 })();

@@ -1,49 +1,115 @@
-// The participant session page: instructions per phase, the arrow keys (Phase I),
-// Space or a click to intervene (Phase II), the fit, and the questionnaires.
-// The drawing and the WebSocket are console.js's; this listens to its messages.
+// The participant session page: instructions per phase in plain words, the arrow keys
+// (Phase I), Space or a click to intervene (Phase II), the fit in words and a drawing,
+// the questionnaires, countdowns. The drawing and the WebSocket are console.js's.
+//
+// Hooks (stable, a test contract): body[data-phase] (welcome, phase1, phase2, fitting, fit,
+// game, likert, done, stopped), body[data-waiting], body[data-running], #start, #field,
+// #message, #clock (the countdown), #overlay (the pause between scenes),
+// input[data-likert], button[data-action="answers"].
 'use strict';
 (function () {
   const el = (id) => document.getElementById(id);
   const send = (obj) => window.supersafeSend(obj);
+  const SVG = 'http://www.w3.org/2000/svg';
   let view = { phase: 'welcome' };
+  let pauseEnds = 0;                          // Date.now() when the scene pause ends
   const keys = { left: false, right: false };
 
-  const TEXT = {
-    welcome: ['Welcome', 'Waiting for the session to start…'],
-    phase1: ['Phase I: free driving', (v) => `Drive the robot with the left and right arrow keys for ` +
-             `${v.seconds} s. It always moves forward; the arrows turn it.`],
-    phase2: ['Phase II: calibration', (v) => `A robot drives straight at an obstacle. Press Space (or ` +
-             `click the field) when you would stop it: the obstacle is removed. If you would let it ` +
-             `pass, do nothing. Scene ${Math.min((v.done || 0) + 1, v.scenes)} of ${v.scenes}.`],
-    fitting: ['Fitting', 'Learning your safe set from your interventions…'],
-    fit: ['Your learned safe set', (v) => `From ${v.interventions} interventions in ${v.scenes} scenes. ` +
-          'The figure shows the set learned from you (dashed) over the Standard (black) and ' +
-          'Conservative (orange) sets.'],
-    game: ['Phase III', (v) => `${v.game}: two robots cross the field for ${v.seconds} s. Click an ` +
-           'obstacle to remove it when you believe a robot is about to hit it. Each removal costs ' +
-           'half a crash.'],
-    likert: ['Questions', (v) => `Compare ${v.pair[0]} and ${v.pair[1]}: 1 = much more in ${v.pair[0]}, ` +
-             `4 = the same, ${v.points} = much more in ${v.pair[1]}.`],
-    done: ['Thank you', 'The session is complete. You may close this page.'],
+  const minutes = (s) => {
+    s = Math.max(0, Math.ceil(s));
+    return `${Math.floor(s / 60)}:${String(s % 60).padStart(2, '0')}`;
   };
+  const duration = (s) => (s >= 60 && s % 60 === 0 ? `${s / 60} minute${s === 60 ? '' : 's'}` : `${s} seconds`);
+
+  const COPY = {
+    welcome: () => ['Welcome', ['Thank you for taking part. The study has three parts.',
+      'Please wait: the researcher is starting it.']],
+    phase1: (v) => ['Part 1 of 3: drive a robot', [
+      `For ${duration(v.seconds)} you drive the blue robot. It always moves forward: you only steer.`,
+      'Hold the ← key to turn left and the → key to turn right.',
+      'Try to drive around the red discs: they are obstacles. Stay on the field: if the robot ' +
+      'leaves it, it is shown faded at the edge until you turn it back.']],
+    phase2: (v) => ['Part 2 of 3: when would you step in?', [
+      'A robot drives straight towards an obstacle. It does not turn by itself.',
+      'If you think it is going to hit the obstacle, press the Space bar (or click the field) to stop it: ' +
+      'the obstacle disappears.',
+      'If you think it will pass by safely, do nothing.',
+      `There are ${v.scenes} short scenes, with a pause of 3 seconds between them.`]],
+    fitting: () => ['Please wait', ['The robots are learning from your answers. This takes a few seconds.']],
+    fit: (v) => ['The robots have learned from you', [v.summary, v.sentence,
+      'The drawing shows one obstacle, the places where you stopped the robot, and where a robot ' +
+      'coming from the left starts to turn away: before, and from now on.']],
+    game: (v) => [`Part 3 of 3: ${v.game} of 3`, [
+      `Two robots, a blue one and an orange one, drive back and forth across the field for ${duration(v.seconds)}. ` +
+      'They steer around the obstacles they notice, but they may miss one.',
+      'If you think a robot is about to hit an obstacle, click that obstacle to remove it.',
+      'Points: +10 each time a robot crosses the field, −20 for each crash, −10 for each obstacle you remove.']],
+    likert: (v) => ['Questions', [`Compare ${v.pair[0]} and ${v.pair[1]}. For each sentence, choose 1 if it ` +
+      `was much more true in ${v.pair[0]}, 4 if there was no difference, ${v.points} if it was much more ` +
+      `true in ${v.pair[1]}.`]],
+    done: () => ['Thank you!', ['The study is complete. You may close this page.']],
+    stopped: () => ['The study is paused', ['The researcher has stopped the program. ' +
+      'Please wait: it will go on from where it stopped.']],
+  };
+
+  const LEGENDS = {
+    phase1: [['swatch', 'var(--blue)', 'your robot (blue)'], ['swatch', 'var(--obstacle)', 'obstacle']],
+    phase2: [['swatch', 'var(--blue)', 'the robot'], ['swatch', 'var(--obstacle)', 'obstacle']],
+    game: [['swatch', 'var(--blue)', 'blue robot'], ['swatch', 'var(--orange)', 'orange robot'],
+           ['swatch', 'var(--obstacle)', 'obstacle (click to remove)']],
+    fit: [['swatch dot', '', 'where you stopped the robot'],
+          ['swatch line dashed', '#777', 'where robots turned away before'],
+          ['swatch line', 'var(--blue)', 'where robots turn away now']],
+  };
+
+  function renderLegend(phase) {
+    const ul = el('legend');
+    ul.innerHTML = '';
+    (LEGENDS[phase] || []).forEach(([cls, colour, text]) => {
+      const li = document.createElement('li');
+      const s = document.createElement('span');
+      s.className = cls;
+      if (cls.includes('line')) s.style.borderTopColor = colour; else if (colour) s.style.background = colour;
+      li.appendChild(s); li.appendChild(document.createTextNode(text));
+      ul.appendChild(li);
+    });
+  }
 
   function renderLikert(v) {
     const form = el('likert');
     form.innerHTML = '';
+    const table = document.createElement('table');
+    const cols = document.createElement('colgroup');
+    const itemCol = document.createElement('col'); itemCol.className = 'item'; cols.appendChild(itemCol);
+    for (let k = 1; k <= v.points; k++) cols.appendChild(document.createElement('col'));
+    table.appendChild(cols);
+    const head = document.createElement('thead');
+    const hr = document.createElement('tr');
+    hr.appendChild(document.createElement('th'));
+    for (let k = 1; k <= v.points; k++) {
+      const th = document.createElement('th');
+      th.textContent = k === 1 ? `1: much more ${v.pair[0]}` : k === v.points ? `${k}: much more ${v.pair[1]}`
+        : k === (v.points + 1) / 2 ? `${k}: same` : String(k);
+      hr.appendChild(th);
+    }
+    head.appendChild(hr); table.appendChild(head);
+    const body = document.createElement('tbody');
     v.items.forEach((item) => {
-      const fs = document.createElement('fieldset');
-      const lg = document.createElement('legend'); lg.textContent = item.text; fs.appendChild(lg);
+      const tr = document.createElement('tr');
+      const th = document.createElement('th'); th.className = 'item'; th.scope = 'row'; th.textContent = item.text;
+      tr.appendChild(th);
       for (let k = 1; k <= v.points; k++) {
-        const lab = document.createElement('label');
+        const td = document.createElement('td');
         const r = document.createElement('input');
         r.type = 'radio'; r.name = item.key; r.value = k; r.dataset.likert = item.key;
-        lab.appendChild(r); lab.appendChild(document.createTextNode(' ' + k));
-        fs.appendChild(lab);
+        r.setAttribute('aria-label', `${item.text}: ${k}`);
+        td.appendChild(r); tr.appendChild(td);
       }
-      form.appendChild(fs);
+      body.appendChild(tr);
     });
+    table.appendChild(body); form.appendChild(table);
     const b = document.createElement('button');
-    b.type = 'submit'; b.textContent = 'Submit answers'; b.dataset.action = 'answers';
+    b.type = 'submit'; b.textContent = 'Send answers'; b.dataset.action = 'answers';
     form.appendChild(b);
     form.onsubmit = (e) => {
       e.preventDefault();
@@ -52,43 +118,118 @@
         const c = form.querySelector(`input[name="${item.key}"]:checked`);
         if (c) values[item.key] = parseInt(c.value, 10);
       });
+      const left = v.items.length - Object.keys(values).length;
+      if (left) { window.supersafeSay(`Please answer every sentence (${left} left).`, 'error'); return; }
       send({ type: 'answers', values });
     };
   }
 
+  function svg(tag, attrs) {
+    const node = document.createElementNS(SVG, tag);
+    for (const [k, val] of Object.entries(attrs || {})) node.setAttribute(k, val);
+    return node;
+  }
+
+  // one Phase II scene, enlarged: the obstacle at the origin, the robot's approach from the left
+  function renderFitDrawing(d) {
+    const g = el('fit-drawing');
+    g.innerHTML = '';
+    if (!d) return;
+    const scale = 2.6;     // drawn in the scene's metres, enlarged: widths are in those metres
+    g.setAttribute('transform', `scale(${scale}) translate(3 0)`);
+    const [ox, oy, r] = d.obstacle;
+    g.appendChild(svg('line', { class: 'path', x1: -10.5, y1: 0, x2: 3, y2: 0, 'stroke-width': 0.03 }));
+    g.appendChild(svg('polygon', { class: 'arrow', points: '-10.6,0.35 -9.9,0 -10.6,-0.35' }));
+    g.appendChild(svg('circle', { class: 'fit-obstacle', cx: ox, cy: oy, r }));
+    const line = (pts, cls) => pts.length && g.appendChild(svg('polyline', {
+      class: cls, points: pts.map((p) => p.join(',')).join(' '), 'stroke-width': 0.07 }));
+    line(d.before, 'before');
+    line(d.now, 'now');
+    d.stops.forEach(([x, y]) => g.appendChild(svg('circle', { class: 'stop', cx: x, cy: y, r: 0.16 })));
+  }
+
+  function updateClock() {
+    const c = el('clock');
+    let text = '';
+    const sim = (window.supersafeConsole || {}).simTime || 0;
+    if (view.phase === 'phase1' || view.phase === 'game') {
+      text = view.running ? `${minutes(view.seconds - sim)} left` : minutes(view.seconds);
+    } else if (view.phase === 'phase2' && view.scenes) {
+      text = `Scene ${Math.min((view.done || 0) + 1, view.scenes)} of ${view.scenes}`;
+    }
+    if (c.textContent !== text) c.textContent = text;
+    const o = el('overlay');
+    const left = (pauseEnds - Date.now()) / 1000;
+    const showPause = view.phase === 'phase2' && left > 0;
+    if (showPause) {
+      const t = `Next scene in ${Math.ceil(left)} s`;
+      if (o.textContent !== t) o.textContent = t;
+    }
+    if (o.hidden === showPause) o.hidden = !showPause;
+  }
+  setInterval(updateClock, 200);
+
   function show(v) {
-    if (v.phase !== view.phase) el('message').textContent = '';
+    if (v.phase !== view.phase) window.supersafeSay('');
     view = v;
     document.body.dataset.phase = v.phase;
     document.body.dataset.waiting = v.waiting ? 'true' : 'false';
     document.body.dataset.running = v.running ? 'true' : 'false';
-    const t = TEXT[v.phase] || [v.phase, ''];
-    el('phase-title').textContent = t[0];
-    el('phase-text').textContent = typeof t[1] === 'function' ? t[1](v) : t[1];
+    if (v.phase === 'phase2') pauseEnds = Date.now() + 1000 * (v.pause || 0);
+    const [title, paragraphs] = (COPY[v.phase] || (() => [v.phase, []]))(v);
+    el('phase-title').textContent = title;
+    const text = el('phase-text');
+    text.innerHTML = '';
+    paragraphs.concat(v.waiting ? [v.phase === 'fit' ? 'Press Continue when you are ready for the games.'
+      : 'Press Start when you are ready.'] : []).forEach((p) => {
+      if (!p) return;
+      const para = document.createElement('p'); para.textContent = p; text.appendChild(para);
+    });
+    renderLegend(v.phase);
     const start = el('start');
     start.hidden = !v.waiting;
+    start.disabled = false;
     start.textContent = v.phase === 'fit' ? 'Continue' : 'Start';
-    const fit = v.phase === 'fit';
-    el('fit-figure').hidden = !fit;
-    if (fit && v.figure) el('fit-figure').src = `${v.figure}?t=${Date.now()}`;
-    el('fit-lines').innerHTML = '';
-    if (fit) (v.fits || []).forEach((line) => {
-      const li = document.createElement('li'); li.textContent = line; el('fit-lines').appendChild(li);
-    });
+    renderFitDrawing(v.phase === 'fit' ? v.drawing : null);
     const likert = el('likert');
     likert.hidden = v.phase !== 'likert';
-    if (v.phase === 'likert') renderLikert(v);
+    // once per questionnaire: a reconnect (which shows the view again) keeps the choices made
+    if (v.phase !== 'likert') delete likert.dataset.pair;
+    else if (likert.dataset.pair !== String(v.pair)) { renderLikert(v); likert.dataset.pair = String(v.pair); }
+    if (v.waiting) start.focus();
+    updateClock();
   }
 
-  el('start').addEventListener('click', () => send({ type: 'start' }));
+  // crashes are marked in Phase I and the games; a calibration scene lets the robot through
+  window.supersafeShowCrashes = () => view.phase === 'phase1' || view.phase === 'game';
+
+  window.supersafeBannerText = () => (view.phase === 'done'
+    ? 'The study is complete and the program has ended. You may close this page.'
+    : view.phase === 'stopped'
+      ? 'The study is paused: the researcher has stopped the program. Please wait; this page reconnects by itself.'
+      : 'The connection to the study computer is lost. The page keeps trying to reconnect; ' +
+        'if this message stays, please tell the researcher.');
+
+  // one Start per screen: a double click must not start the next phase unseen
+  el('start').addEventListener('click', () => {
+    el('start').disabled = true;
+    send({ type: 'start', phase: view.phase });
+  });
 
   function interveneOnTheObstacle() {
     const o = document.querySelector('[data-obstacle-id]');
     if (o) o.dispatchEvent(new MouseEvent('click', { bubbles: true }));
+    return !!o;
   }
-  el('field').addEventListener('click', (e) => {
-    if (view.phase === 'phase2' && !e.target.hasAttribute('data-obstacle-id')) interveneOnTheObstacle();
-  });
+  // Phase II: a click anywhere on the field is the Space bar
+  window.supersafeEmptyClick = () => {
+    if (view.phase === 'phase2') {
+      if (!interveneOnTheObstacle()) window.supersafeSay('No obstacle right now: wait for the next scene.');
+      return true;
+    }
+    if (view.phase !== 'game') return true;     // nothing to click in the other phases
+    return false;
+  };
 
   function setKey(e, down) {
     if (view.phase === 'phase1' && (e.key === 'ArrowLeft' || e.key === 'ArrowRight')) {
@@ -96,18 +237,21 @@
       const k = e.key === 'ArrowLeft' ? 'left' : 'right';
       if (keys[k] !== down) { keys[k] = down; send({ type: 'keys', left: keys.left, right: keys.right }); }
     }
-    if (down && view.phase === 'phase2' && (e.key === ' ' || e.code === 'Space')) {
+    if (down && view.phase === 'phase2' && !view.waiting && (e.key === ' ' || e.code === 'Space')) {
       e.preventDefault();
-      if (!e.repeat) interveneOnTheObstacle();
+      if (!e.repeat && !interveneOnTheObstacle()) window.supersafeSay('No obstacle right now: wait for the next scene.');
     }
   }
   document.addEventListener('keydown', (e) => setKey(e, true));
   document.addEventListener('keyup', (e) => setKey(e, false));
+  window.addEventListener('blur', () => {        // a key held while the window loses focus
+    if (keys.left || keys.right) { keys.left = keys.right = false; send({ type: 'keys', left: false, right: false }); }
+  });
 
   document.addEventListener('supersafe-message', (e) => {
     const msg = e.detail;
     if (msg.type === 'hello' && msg.session) show(msg.session);
     else if (msg.type === 'session') show(msg);
-    else if (msg.type === 'session_ack' && view.phase === 'likert') el('message').textContent = 'Thank you.';
+    else if (msg.type === 'session_ack' && view.phase === 'likert') window.supersafeSay('Thank you.');
   });
 })();

@@ -1,0 +1,169 @@
+"""`supersafe session --analyse DIR...`: the researcher's view of a study's folders.
+
+1. Every participant found (a folder with session.json or subject.json) with its state:
+   complete, or incomplete and the phase it reached.
+2. The complete ones (human and simulated alike) through the study's ``summarize``; from
+   its result only ``table1``, ``conditions`` and ``anova`` are read. A descriptive table
+   always; the repeated-measures ANOVA only with at least MIN_SUBJECTS_FOR_TESTS subjects,
+   else a plain statement that no test is meaningful (and no test's warnings).
+3. ``--csv``: one row per participant and condition (counts, H2 measures, the Likert
+   answers) for R or SPSS; ``--json``: the summary, the answers and the listing.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import math
+from pathlib import Path
+import sys
+import warnings
+
+import numpy as np
+
+from .session import LIKERT_ITEMS, load_subject
+
+MIN_SUBJECTS_FOR_TESTS = 3
+COUNTS = ('false_positives', 'interventions', 'crashes', 'trips')
+MEASURES = ('path_per_trip', 'avoidance_length', 'override_fraction', 'min_clearance')
+
+
+def phase_reached(data: dict) -> str:
+    """Where an unfinished session.json stopped, in words."""
+    scenes, offsets = len(data.get('scenes') or []), len(data.get('offsets') or [])
+    games, answers = len(data.get('games') or {}), len(data.get('answers') or [])
+    if not scenes and data.get('phase1') is None:
+        return 'Phase I (not started or interrupted)'
+    if scenes < offsets:
+        return f'Phase II, {scenes} of {offsets} scenes'
+    if data.get('fit') is None:
+        return 'the fit'
+    if games < 3 or answers < 2:
+        return f'Phase III, {games} of 3 games, {answers} of 2 questionnaires'
+    return 'the end (subject.json not written)'
+
+
+def find_participants(dirs) -> list:
+    """[{'dir', 'participant', 'kind', 'state', 'complete'}] for every folder under ``dirs``
+    holding a session.json or a subject.json, sorted by path."""
+    folders = sorted({p.parent for d in dirs for name in ('session.json', 'subject.json')
+                      for p in Path(d).rglob(name)})
+    out = []
+    for folder in folders:
+        entry = {'dir': str(folder), 'participant': folder.name, 'kind': 'simulated', 'complete': False}
+        session = folder / 'session.json'
+        try:
+            data = json.loads(session.read_text()) if session.exists() else None
+        except (OSError, ValueError) as exc:
+            entry.update(kind='human', state=f'unreadable session.json ({exc})')
+            out.append(entry)
+            continue
+        if data is not None:
+            entry.update(kind='human', participant=str(data.get('participant', folder.name)))
+        if (folder / 'subject.json').exists() and (data is None or data.get('complete')):
+            entry.update(state='complete', complete=True)
+        else:
+            entry['state'] = f'incomplete: {phase_reached(data or {})}'
+        out.append(entry)
+    return out
+
+
+def _mean_sd(values) -> str:
+    v = np.array([x for x in values if x is not None], dtype=float)
+    v = v[np.isfinite(v)]
+    if not len(v):
+        return '-'
+    return f'{v.mean():.2f}' + (f' ({v.std(ddof=1):.2f})' if len(v) > 1 else '')
+
+
+def descriptive_table(summary: dict) -> str:
+    """Per condition: the counts' mean (sd) over subjects, and Table 1's pooled Phase II
+    column (interventions the condition's set would leave alone)."""
+    heads = ('False positives', 'Interventions', 'Crashes', 'Trips', 'Phase II in set')
+    lines = [f'{"condition":14s}' + ''.join(f'{h:>17s}' for h in heads)]
+    for c, row in summary['conditions'].items():
+        t1 = summary['table1'].get(c, {})
+        inside = f'{t1.get("inside", 0)} / {t1.get("total", 0)}'
+        lines.append(f'{c:14s}' + ''.join(f'{_mean_sd(row[k]):>17s}' for k in COUNTS) + f'{inside:>17s}')
+    return '\n'.join(lines)
+
+
+def csv_rows(records: list) -> list:
+    """One dict per participant and condition, the Likert answers on every row of the
+    participant (the raw 1-7 value; ``after_gameN_this``: first / second / '' says which
+    side of that comparison this row's condition was)."""
+    rows = []
+    for r in records:
+        subject = r['subject']
+        pid = str(subject.get('participant', subject.get('index')))
+        order = list(subject.get('order') or r['games'])
+        for c, g in r['games'].items():
+            row = {'participant': pid, 'kind': subject.get('kind', 'simulated'), 'condition': c,
+                   'position': order.index(c) + 1 if c in order else '', 'ran': g.get('played', c),
+                   'alpha': g.get('alpha')}
+            row.update({k: g.get(k) for k in COUNTS + ('sim_time',) + MEASURES})
+            for a in r.get('answers') or []:
+                key = f'after_game{a["after_game"]}'
+                pair = list(a.get('pair') or [])
+                row[f'{key}_pair'] = ' vs '.join(pair)
+                row[f'{key}_this'] = ('first' if pair[:1] == [c] else 'second' if pair[1:2] == [c] else '')
+                for item, _ in LIKERT_ITEMS:
+                    row[f'{key}_{item}'] = (a.get('values') or {}).get(item)
+            rows.append({k: ('' if v is None or (isinstance(v, float) and not math.isfinite(v)) else v)
+                         for k, v in row.items()})
+    return rows
+
+
+def write_csv(path, rows: list) -> None:
+    columns = []
+    for row in rows:
+        columns += [k for k in row if k not in columns]
+    with open(path, 'w', newline='') as f:
+        w = csv.DictWriter(f, fieldnames=columns, restval='')
+        w.writeheader()
+        w.writerows(rows)
+
+
+def analyse(dirs, json_path=None, csv_path=None, out=sys.stdout) -> int:
+    from ..study.protocol import reference_sets
+    from ..study.records import jsonable
+    from ..study.summary import summarize
+    found = find_participants(dirs)
+    if not found:
+        print(f'no participant (session.json or subject.json) under {[str(d) for d in dirs]}', file=sys.stderr)
+        return 2
+    print(f'{len(found)} participants:', file=out)
+    for e in found:
+        print(f'  {e["participant"]:16s} {e["kind"]:9s} {e["state"]:50s} {e["dir"]}', file=out)
+    complete = [e for e in found if e['complete']]
+    if not complete:
+        print('no complete participant yet: nothing to analyse', file=out)
+        return 0
+    records = [load_subject(e['dir']) for e in complete]
+    n = len(records)
+    humans = sum(1 for r in records if r['subject'].get('kind') == 'human')
+    standard, conservative = reference_sets()
+    with warnings.catch_warnings(), np.errstate(all='ignore'):
+        if n < MIN_SUBJECTS_FOR_TESTS:     # the tests inside summarize divide by zero; not shown
+            warnings.simplefilter('ignore')
+        summary = summarize(records, standard, conservative)
+    print(f'\n{n} complete ({humans} human, {n - humans} simulated): mean (sd) per subject', file=out)
+    print(descriptive_table(summary), file=out)
+    if n < MIN_SUBJECTS_FOR_TESTS:
+        print(f'\nWith {n} subject{"s" if n != 1 else ""} no statistical test is meaningful (at least '
+              f'{MIN_SUBJECTS_FOR_TESTS} are needed): the table is descriptive only.', file=out)
+    else:
+        a = summary['anova']
+        print(f"\nrepeated-measures ANOVA (false positives, {n} subjects): F({a['df_num']:g}, {a['df_den']:g}) = "
+              f"{a['F']:.3g}, p = {a['p']:.3g}" + (f"  ({a['note']})" if 'note' in a else ''), file=out)
+    if csv_path:
+        rows = csv_rows(records)
+        write_csv(csv_path, rows)
+        print(f'\n{len(rows)} rows (participant x condition) in {csv_path}', file=out)
+    if json_path:
+        doc = {'participants': found, 'table1': summary['table1'], 'conditions': summary['conditions'],
+               'anova': summary['anova'] if n >= MIN_SUBJECTS_FOR_TESTS else None,
+               'tests_meaningful': n >= MIN_SUBJECTS_FOR_TESTS,
+               'answers': {str(r['subject'].get('participant', r['subject'].get('index'))): r['answers']
+                           for r in records if r.get('answers')}}
+        Path(json_path).write_text(json.dumps(jsonable(doc), indent=1))
+    return 0

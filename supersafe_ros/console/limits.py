@@ -1,0 +1,79 @@
+"""Which clicks become interventions, without ROS: a click flood must not flood the world.
+
+A person clicks an obstacle once; a stuck mouse button, a script or an impatient
+double click sends the same obstacle many times before the world's answer arrives, and
+every copy after the first is rejected by the world with an ERROR line. The limiter
+lets through
+
+* one intervention per obstacle at a time: a click on an obstacle whose intervention is
+  on its way (sent, not yet answered by the world, for at most ``confirm_timeout`` s)
+  is refused, and so is a click on an obstacle the world has removed;
+* at most ``per_second`` interventions in any one second (sliding window).
+
+Refused clicks publish nothing and get their reason back. Work per click is O(1) (the
+window holds at most ``per_second`` times).
+"""
+from __future__ import annotations
+
+from collections import deque
+import math
+import threading
+import time
+
+GONE_MEMORY = 1000      # removed obstacle ids remembered (ids grow; old ones never come back)
+
+
+class InterventionLimiter:
+    def __init__(self, per_second: float = 3.0, confirm_timeout: float = 3.0, clock=time.monotonic):
+        if not (per_second >= 1 and math.isfinite(per_second)):
+            raise ValueError('per_second must be a finite number >= 1')
+        if not (confirm_timeout > 0):
+            raise ValueError('confirm_timeout must be positive')
+        self.per_second = int(per_second)
+        self.confirm_timeout = float(confirm_timeout)
+        self.clock = clock
+        self._lock = threading.Lock()
+        self._sent = deque()                 # times of the interventions let through, last second
+        self._pending: dict[int, float] = {}  # obstacle -> time sent, until the world answers
+        self._gone: dict[int, None] = {}     # obstacles the world removed (ordered: oldest first)
+        self.refused = 0
+
+    def admit(self, obstacle_id: int) -> str | None:
+        """None if this click may be published (and it is counted as sent), else the reason
+        it may not, in the participant's words."""
+        now = self.clock()
+        with self._lock:
+            while self._sent and now - self._sent[0] >= 1.0:
+                self._sent.popleft()
+            reason = None
+            if obstacle_id in self._gone:
+                reason = 'That obstacle is already gone.'
+            elif now - self._pending.get(obstacle_id, -math.inf) < self.confirm_timeout:
+                reason = 'That obstacle is already being removed.'
+            elif len(self._sent) >= self.per_second:
+                reason = 'Too many clicks: wait a moment, then click again.'
+            if reason is not None:
+                self.refused += 1
+                return reason
+            self._sent.append(now)
+            self._pending[obstacle_id] = now
+            return None
+
+    def removed(self, obstacle_id: int) -> None:
+        """The world has removed this obstacle (its /world/intervention_log record)."""
+        with self._lock:
+            self._pending.pop(obstacle_id, None)
+            self._gone[obstacle_id] = None
+            while len(self._gone) > GONE_MEMORY:
+                del self._gone[next(iter(self._gone))]
+
+    def forget(self, obstacle_id: int) -> None:
+        """No answer will come for this one (e.g. it was never published): clickable again."""
+        with self._lock:
+            self._pending.pop(obstacle_id, None)
+
+    def reset(self) -> None:
+        """A new world (the session's next phase): obstacle ids start again from 0."""
+        with self._lock:
+            self._pending.clear()
+            self._gone.clear()
