@@ -11,8 +11,9 @@ Table 1 (right, observed): mean false positives per subject in each condition's
 game, and that mean relative to Standard's.
 
 Statistics: one-way repeated-measures ANOVA over the conditions (statsmodels
-AnovaRM, subject as the repeated factor) and Tukey's HSD for all pairs
-(scipy.stats.tukey_hsd), as the paper reports.
+AnovaRM, subject as the repeated factor), as the paper reports. Pairs: the paired tests of
+``posthoc`` (Holm); Tukey's HSD (scipy.stats.tukey_hsd, what the paper reports) treats the
+conditions as independent groups and is kept only as a labelled reference (``tukey_pairs``).
 
 Conditions: Standard, Learned (the paper's estimator, eqs. 3-4, alpha = mu), Learned FP
 (the first-passage estimator, alpha = mu) and Conservative; a study may run any subset

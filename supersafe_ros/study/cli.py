@@ -14,7 +14,8 @@ from pathlib import Path
 import sys
 import time
 
-from .analysis import CONDITIONS, PAPER_STATS, format_h2, format_table1, ordered, significance_stars
+from .analysis import CONDITIONS, LABELS, PAPER_STATS, format_h2, format_table1, ordered
+from .posthoc import format_posthoc
 
 DEMO_SUBJECTS = 3
 DEMO_SEED = 7
@@ -159,10 +160,7 @@ def run(args, out=sys.stdout) -> int:
     print(f"\nrepeated-measures ANOVA (false positives): F({a['df_num']:g}, {a['df_den']:g}) = "
           f"{a['F']:.3g}, p = {a['p']:.3g}" + (f"  ({a['note']})" if 'note' in a else '')
           + f"   [paper: {PAPER_STATS['anova']}]", file=out)
-    for pair, t in summary['tukey'].items():
-        paper = PAPER_STATS['tukey'].get(pair)
-        print(f"Tukey {pair}: mean difference {t['mean_difference']:+.2f}, p = {t['p']:.3g} "
-              f"{significance_stars(t['p'])}" + (f'   [paper: {paper}]' if paper else ''), file=out)
+    print(format_posthoc(summary['posthoc'], LABELS, PAPER_STATS['tukey'], summary['tukey']), file=out)
     print('\nH2, efficiency: mean (sd) over subjects', file=out)
     print(format_h2(summary['h2']), file=out)
     for c, v in summary['conditions'].items():

@@ -24,7 +24,9 @@ def _plt():
     return plt
 
 
-def plot_false_positives(path, fp: dict, tukey: dict) -> None:
+def plot_false_positives(path, fp: dict, pairs: dict) -> None:
+    """Mean FP per set (SEM bars, subjects as dots) with the paired post-hoc tests' stars
+    (Holm-corrected; ``pairs``: posthoc['pairs'])."""
     plt = _plt()
     conds = ordered(fp)
     n = len(conds)
@@ -39,13 +41,13 @@ def plot_false_positives(path, fp: dict, tukey: dict) -> None:
     pairs = [(a, b) for a in range(n) for b in range(a + 1, n)]
     for k, (a, b) in enumerate(pairs):
         key = f'{conds[a]}-{conds[b]}'
-        if key in tukey:
+        if key in pairs:
             y = top * (1 + 0.1 * k)
             ax.plot([a, a, b, b], [y, y * 1.02, y * 1.02, y], color='k', lw=1)
-            ax.text((a + b) / 2, y * 1.03, significance_stars(tukey[key]['p']), ha='center', fontsize=8)
+            ax.text((a + b) / 2, y * 1.03, significance_stars(pairs[key]['p']), ha='center', fontsize=8)
     ax.set_xticks(range(n), [LABELS[c] for c in conds])
     ax.set_ylabel('False positives per game')
-    ax.set_title('False positives per safe set (Tukey HSD)')
+    ax.set_title('False positives per safe set (paired t, Holm)')
     ax.set_ylim(0, top * (1.2 + 0.1 * len(pairs)))
     fig.tight_layout()
     fig.savefig(path, dpi=120)
@@ -174,7 +176,7 @@ def make_plots(out_dir: Path, summary: dict, records: list, standard_vf, conserv
     paths = []
     fp = {c: summary['conditions'][c]['false_positives'] for c in summary['conditions']}
     p = out_dir / 'false_positives.png'
-    plot_false_positives(p, fp, summary['tukey'])
+    plot_false_positives(p, fp, summary['posthoc']['pairs'])
     paths.append(p)
     p = out_dir / 'efficiency.png'
     plot_efficiency(p, summary['conditions'], summary['h2'])

@@ -1,7 +1,8 @@
-"""The study's numbers from its records: Table 1, H2, ANOVA, Tukey, the alpha sweep.
+"""The study's numbers from its records: Table 1, H2, ANOVA, paired post-hoc tests, the alpha sweep.
 
 ``summarize`` pools the per-subject records (``records``) with the statistics of
-``analysis``; a human participant's record (``console.session``) counts like a
+``analysis`` and ``posthoc`` (paired tests; Tukey's independent-groups HSD is kept as a
+labelled reference); a human participant's record (``console.session``) counts like a
 simulated subject's.
 """
 from __future__ import annotations
@@ -11,12 +12,13 @@ import numpy as np
 from ..learning.levels import learned_alpha
 from .analysis import (H2_MEASURES, SetCount, h2_summary, interventions_inside, ordered,
                        repeated_measures_anova, table1, tukey_pairs)
+from .posthoc import TUKEY_REFERENCE, paired_posthoc
 from .protocol import sweep_condition
 from .records import record_learned, stored_measure
 
 
 def summarize(records: list, standard_vf, conservative_vf, sweep_k=(0.0, 1.0, 2.0)) -> dict:
-    """Aggregate per-subject records into the study's JSON (Table 1, H2, ANOVA, Tukey, sweep).
+    """Aggregate per-subject records into the study's JSON (Table 1, H2, ANOVA, post-hoc, sweep).
 
     A record: {'subject', 'states' (Phase II intervention states), 'fits' and 'learned_vfs'
     (learned condition -> fit dict / ValueFunction, or None), 'games': {condition: counts
@@ -73,7 +75,9 @@ def summarize(records: list, standard_vf, conservative_vf, sweep_k=(0.0, 1.0, 2.
         'table1': rows,
         'conditions': out_conditions,
         'anova': repeated_measures_anova(fp),
+        'posthoc': paired_posthoc(fp, conditions),
         'tukey': tukey_pairs(fp),
+        'tukey_method': TUKEY_REFERENCE,
         'h2': h2,
         'alpha_sweep': sweep,
         'subjects': [{'subject': r['subject'],
