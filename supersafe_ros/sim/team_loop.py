@@ -43,6 +43,7 @@ last game's command over for its first step); cluster values are solved inline.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+import functools
 import math
 
 import numpy as np
@@ -213,6 +214,17 @@ class TeamLoop:
 def inline_cluster_store(cfg: FilterConfig) -> ClusterStore:
     """A cluster store for the filter's configuration that solves in the caller's thread
     (values on disk are shared with the graph's filters: ``disk_cache``)."""
-    settings = ClusterSettings(radius=cfg.radius, speed=cfg.speed, omega_max=cfg.omega_max,
-                               link=cfg.cluster_link)
-    return ClusterStore(settings, background=False)
+    return ClusterStore(cluster_settings(cfg), background=False)
+
+
+def cluster_settings(cfg: FilterConfig) -> ClusterSettings:
+    """The cluster settings of a filter configuration (as the filter nodes build them)."""
+    return ClusterSettings(radius=cfg.radius, speed=cfg.speed, omega_max=cfg.omega_max, link=cfg.cluster_link)
+
+
+@functools.lru_cache(maxsize=2)
+def process_cluster_store(settings: ClusterSettings) -> ClusterStore:
+    """One inline store per process and settings, kept across games: a value once loaded
+    (disk cache) or solved is not read and differentiated again in the next game (the
+    values are the same either way; LRU-bounded)."""
+    return ClusterStore(settings, background=False, capacity=192)

@@ -42,7 +42,7 @@ from ..learning.estimators import (admissible_mask, encounter_intervals, fit_fir
 from ..learning.levels import learned_alpha
 from ..reach.grid import Grid
 from ..reach.library import LibrarySpec, load_or_build_library, load_or_solve
-from ..sim.team_loop import RobotParams, TeamLoop
+from ..sim.team_loop import RobotParams, TeamLoop, cluster_settings, process_cluster_store
 from ..sim.watcher import Watcher
 from ..sim.world import WorldConfig
 from ..team import robot_names, start_poses
@@ -252,8 +252,9 @@ class CoreStudy:
         # team_layout(seed=world_seed): robot i's sensor seed is seed * 1000 + i + 1
         seeds = {n: world_seed * 1000 + i + 1 for i, n in enumerate(names)}
         watcher = make_watcher(subject, supervisor_seed(subject, world_seed))
-        loop = TeamLoop(world_config(), world_seed, starts, seeds, robot_params(),
-                        filter_config(opts.step), safe_set, watcher, opts.step, filtered=filtered)
+        cfg = filter_config(opts.step)
+        loop = TeamLoop(world_config(), world_seed, starts, seeds, robot_params(), cfg, safe_set, watcher,
+                        opts.step, filtered=filtered, clusters=process_cluster_store(cluster_settings(cfg)))
         loop.run(opts.game_seconds)
         stats = loop.stats()
         stats['sim_time'] = f'{opts.game_seconds:.3f}'
