@@ -41,10 +41,19 @@ def _add_common(parser, subjects_default):
     parser.add_argument('--sweep-subjects', type=int, default=2,
                         help='observed alpha sweep (extra Learned games at mu+sigma, mu+2sigma) for the '
                              'first k subjects (default 2; 0 = predicted sweep only)')
+    _add_population(parser)
     _add_engine(parser)
     parser.add_argument('--domain-id', type=int, default=None, help='ROS_DOMAIN_ID (graph engine; '
                         'default inherited)')
     parser.add_argument('--no-plots', action='store_true', help='skip the PNG figures')
+
+
+def _add_population(parser):
+    parser.add_argument('--population', default='pilots', metavar='pilots|paper|FILE.json',
+                        help='who the simulated subjects are: pilots (default; the authors\' five pilot '
+                             'supervisors, fitted), paper (calibrated so that Phase II reproduces the paper\'s '
+                             'Table 1 and Fig. 6 mix), or a population file (supersafe population calibrate / '
+                             'from-sessions)')
 
 
 def _add_engine(parser):
@@ -70,11 +79,14 @@ def add_parser(subparsers):
         'demo', help=f'a small study: {DEMO_SUBJECTS} subjects, seed {DEMO_SEED}, out ./study-out',
         description='A small study (3 simulated supervisors); prints Table 1 and where the plots are. '
                     'Builds the value-function cache on first use.')
+    _add_population(demo)
     _add_engine(demo)
     demo.add_argument('--domain-id', type=int, default=None, help='ROS_DOMAIN_ID (graph engine; default '
                       'inherited)')
     demo.add_argument('--out', type=Path, default=Path('study-out'), help='output directory')
     demo.set_defaults(func=run_demo)
+    from .population_cli import add_parser as add_population_parser
+    add_population_parser(subparsers)
     return study
 
 
@@ -110,7 +122,7 @@ def options_from_args(args):
 def run(args, out=sys.stdout) -> int:
     from ..rosenv import ensure_local_ros_env
     ensure_local_ros_env()
-    from .population import draw_subjects, pilot_fits
+    from .population import load_population
     from .plots import make_plots
     from .protocol import reference_sets
     from .records import jsonable
@@ -130,9 +142,18 @@ def run(args, out=sys.stdout) -> int:
     load_or_build_library()          # the learner's library, built once into the cache
     standard_vf, conservative_vf = reference_sets()
     print(f'ready in {time.monotonic() - t0:.1f} s', file=out, flush=True)
-    pilots, population_source = pilot_fits()
-    print(f'population: the five pilots fitted from {population_source}', file=out, flush=True)
-    subjects = draw_subjects(opts.subjects, opts.seed, pilots)
+    try:
+        population = load_population(getattr(args, 'population', 'pilots'))
+    except ValueError as exc:
+        print(f'supersafe study: {exc}', file=sys.stderr)
+        return 2
+    if population.name == 'pilots':
+        print(f'population: the five pilots fitted from {population.source}', file=out, flush=True)
+    else:
+        print(f'population: {population.name} ({population.source}): '
+              + ', '.join(f'{m.name} x{m.weight:g} (w_S {m.omega_max:g}, mu {m.mu:g}, sigma {m.sigma:g})'
+                          for m in population.members), file=out, flush=True)
+    subjects = population.draw(opts.subjects, opts.seed)
     try:
         raw = run_study(subjects, opts, out=out)
     except KeyboardInterrupt:
@@ -145,8 +166,9 @@ def run(args, out=sys.stdout) -> int:
                          'game_wall_s': [g['wall'] for r in raw['records']
                                          for g in list(r['games'].values()) + [v for k, v in r['sweep'].items() if k]],
                          'load_average': list(os.getloadavg())}
-    summary['population'] = {'source': population_source,
-                             'pilots': [dict(vars(p)) for p in pilots]}
+    summary['population'] = population.describe()
+    if population.name == 'pilots':
+        summary['population']['pilots'] = summary['population']['members']
     summary['options'] = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(opts).items()}
     out_dir = Path(opts.out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
