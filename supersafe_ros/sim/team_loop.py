@@ -78,6 +78,7 @@ class _Robot:
     filter: RobotFilter
     goal: np.ndarray | None = None       # the goal the planner knows
     seen_xy: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    seen_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
 
 
 class TeamLoop:
@@ -86,12 +87,15 @@ class TeamLoop:
     ``safe_set``: the set in force in every filter. ``watcher``: the supervisor's rule
     (None: no supervisor). ``robot_seeds``: each robot's sensor seed. ``filtered`` False
     forwards the planner's command unfiltered (an ablation: what the filter prevents).
+    ``observer``: told of every robot's decision (``step(loop, t, name, state, seen_ids,
+    seen_xy, action)``) and intervention (``intervention(loop, decision, record)``), e.g.
+    ``study.game_trace.GameTrace``; it only reads.
     """
 
     def __init__(self, world_config: WorldConfig, world_seed: int, starts: dict, robot_seeds: dict,
                  robot: RobotParams, filter_config: FilterConfig, safe_set: SafeSet,
                  watcher: Watcher | None, step: float, respawn: bool = True, filtered: bool = True,
-                 clusters: ClusterStore | None = None, planner_lag: bool = False):
+                 clusters: ClusterStore | None = None, planner_lag: bool = False, observer=None):
         if not (math.isfinite(step) and step > 0):
             raise ValueError(f'step must be positive, got {step}')
         self.step_s = float(step)
@@ -100,6 +104,7 @@ class TeamLoop:
         self.safe_set = safe_set
         self.respawn = respawn
         self.planner_lag = planner_lag
+        self.observer = observer
         self.filtered = filtered
         self.params = robot
         self.clusters = clusters if clusters is not None else inline_cluster_store(filter_config)
@@ -127,7 +132,7 @@ class TeamLoop:
         states = {}
         for r in self.robots:                                    # 1. integrate and sense
             states[r.name] = r.sim.advance(t).copy()
-            _, r.seen_xy = r.sensor.sense(states[r.name][:2], ids, xy)
+            r.seen_ids, r.seen_xy = r.sensor.sense(states[r.name][:2], ids, xy)
         goals_before = {r.name: r.goal for r in self.robots}
         for r in self.robots:                                    # 2. the world counts
             self.world.update_detections(r.name, r.seen_xy, t)
@@ -157,6 +162,8 @@ class TeamLoop:
             r.sim.command(omega, t)
             self.world.set_filter_action(r.name, action)
             self.decisions[action] = self.decisions.get(action, 0) + 1
+            if self.observer is not None:
+                self.observer.step(self, t, r.name, states[r.name], r.seen_ids, r.seen_xy, action)
         if self.planner_lag:
             self._plan(states, goals_before, t)
         if self.record:
@@ -178,6 +185,8 @@ class TeamLoop:
         robot = self.world.robot_at(centre + d.rel_state[:2], 1.0)
         record, _ = self.world.intervene(d.obstacle_id, d.time, robot, respawn=self.respawn)
         self.interventions.append((d, record))
+        if self.observer is not None:
+            self.observer.intervention(self, d, record)
         self.watcher.obstacles_changed(self.world.obstacle_arrays()[0])
 
     def _solve_clusters(self) -> None:

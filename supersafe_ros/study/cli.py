@@ -16,6 +16,7 @@ import time
 
 from .analysis import CONDITIONS, LABELS, PAPER_STATS, format_h2, format_table1, ordered
 from .posthoc import format_posthoc
+from .validity import format_validity
 
 DEMO_SUBJECTS = 3
 DEMO_SEED = 7
@@ -183,6 +184,8 @@ def run(args, out=sys.stdout) -> int:
           f"{a['F']:.3g}, p = {a['p']:.3g}" + (f"  ({a['note']})" if 'note' in a else '')
           + f"   [paper: {PAPER_STATS['anova']}]", file=out)
     print(format_posthoc(summary['posthoc'], LABELS, PAPER_STATS['tukey'], summary['tukey']), file=out)
+    print('\nmodel validity (95 % CIs; study.validity):', file=out)
+    print(format_validity(summary['validity']), file=out)
     print('\nH2, efficiency: mean (sd) over subjects', file=out)
     print(format_h2(summary['h2']), file=out)
     for c, v in summary['conditions'].items():

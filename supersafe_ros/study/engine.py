@@ -46,6 +46,7 @@ from ..sim.team_loop import RobotParams, TeamLoop, cluster_settings, process_clu
 from ..sim.watcher import Watcher
 from ..sim.world import WorldConfig
 from ..team import robot_names, start_poses
+from .game_trace import GameTrace
 from .protocol import (FP_LEARNER, PHASE2_X0, PHASE2_X_END, SPEED, Phase2Result, config_params,
                        reference_sets, supervisor_seed)
 
@@ -253,8 +254,10 @@ class CoreStudy:
         seeds = {n: world_seed * 1000 + i + 1 for i, n in enumerate(names)}
         watcher = make_watcher(subject, supervisor_seed(subject, world_seed))
         cfg = filter_config(opts.step)
+        trace = GameTrace()
         loop = TeamLoop(world_config(), world_seed, starts, seeds, robot_params(), cfg, safe_set, watcher,
-                        opts.step, filtered=filtered, clusters=process_cluster_store(cluster_settings(cfg)))
+                        opts.step, filtered=filtered, clusters=process_cluster_store(cluster_settings(cfg)),
+                        observer=trace)
         loop.run(opts.game_seconds)
         stats = loop.stats()
         stats['sim_time'] = f'{opts.game_seconds:.3f}'
@@ -265,4 +268,4 @@ class CoreStudy:
         wall = time.monotonic() - t0
         return {'stats': stats, 'interventions': log, 'wall': wall, 'wall_running': wall,
                 'resends': 0, 'cpu_s': cpu, 'cpu_by_process': {f'study ({os.getpid()})': round(cpu, 2)},
-                'decisions': dict(loop.decisions), 'steps': loop.steps}
+                'decisions': dict(loop.decisions), 'steps': loop.steps, 'trace': trace.to_dict()}

@@ -1,6 +1,7 @@
 """The study's figures (PNG): the paper's Figs. 5 (FP per set), 6 (learned sets), 7
-(Phase II interventions over reachable sets), the alpha sweep of Sec. II-D and the H2
-efficiency panel (Sec. V-B); ``make_plots`` draws them all for one study."""
+(Phase II interventions over reachable sets), the model validity of Sec. V-C
+(``validity``), the alpha sweep of Sec. II-D and the H2 efficiency panel (Sec. V-B);
+``make_plots`` draws them all for one study."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -169,6 +170,64 @@ def plot_alpha_sweep(path, sweep: dict) -> None:
     plt.close(fig)
 
 
+def plot_validity(path, validity: dict) -> None:
+    """Model validity: left, observed FP ratio against the predicted share, per subject (small
+    marks) and pooled (large, 95 % CIs; hollow: the prediction from the games' own states);
+    middle, where the FP came from; right, V - alpha at override onsets by bearing."""
+    plt = _plt()
+    fig, (ax, bx, cx) = plt.subplots(1, 3, figsize=(14, 4.4))
+    top = 1.2
+    for c, rows in validity['per_subject'].items():
+        for r in rows:
+            if np.isfinite(r['predicted']) and np.isfinite(r['observed']):
+                ax.plot(r['predicted'], r['observed'], 'o', ms=3.5, alpha=0.45, color=COLORS[c])
+                top = max(top, min(r['observed'], 3.0))
+    for c, p in validity['pooled'].items():
+        if not (np.isfinite(p['predicted']) and np.isfinite(p['observed'])):
+            continue
+        xerr = [[p['predicted'] - p['predicted_ci'][0]], [p['predicted_ci'][1] - p['predicted']]]
+        yerr = [[p['observed'] - p['observed_ci'][0]], [p['observed_ci'][1] - p['observed']]]
+        ax.errorbar(p['predicted'], p['observed'], xerr=xerr, yerr=yerr, fmt='s', ms=9, color=COLORS[c],
+                    capsize=3, label=f'{LABELS[c]} (pooled)')
+        if np.isfinite(p['games_predicted']):
+            ax.plot(p['games_predicted'], p['observed'], 's', ms=9, mfc='none', color=COLORS[c])
+            ax.annotate('', (p['games_predicted'], p['observed']), (p['predicted'], p['observed']),
+                        arrowprops={'arrowstyle': '->', 'color': COLORS[c], 'lw': 0.8})
+    ax.plot([0, top], [0, top], 'k:', lw=1)
+    ax.set_xlim(0, top)
+    ax.set_ylim(0, top)
+    ax.set_xlabel('predicted FP vs Standard (Phase II states inside the set)')
+    ax.set_ylabel('observed FP vs Standard')
+    ax.set_title('Model validity (hollow: predicted from the games\' states)', fontsize=9)
+    ax.legend(fontsize=7, loc='upper left')
+    conds = list(validity['gap'])
+    keys = (('fp_after_override', 'after an override'), ('fp_tangential', 'tangential bearing'),
+            ('fp_inside_set', 'inside the set (predicted)'))
+    width = 0.8 / len(keys)
+    for k, (key, label) in enumerate(keys):
+        bx.bar(np.arange(len(conds)) + (k - 1) * width, [validity['gap'][c][key] for c in conds], width,
+               label=label)
+    bx.set_xticks(range(len(conds)), [f'{LABELS[c]}\n{validity["gap"][c]["false_positives"]} FP' for c in conds],
+                  fontsize=8)
+    bx.set_ylim(0, 1)
+    bx.set_ylabel('share of the false positives')
+    bx.set_title('Where the games\' false positives come from', fontsize=9)
+    bx.legend(fontsize=7)
+    for k, bearing in enumerate(('head-on', 'oblique')):
+        med = [validity['gap'][c]['onset_v_minus_alpha'][bearing] for c in conds]
+        cx.errorbar(np.arange(len(conds)) + (k - 0.5) * 0.3, [m['median'] for m in med],
+                    yerr=[[m['median'] - m['q25'] for m in med], [m['q75'] - m['median'] for m in med]],
+                    fmt='o', capsize=3, label=f'{bearing} (median, IQR)')
+    cx.axhline(0, color='k', lw=0.8)
+    cx.set_xticks(range(len(conds)), [LABELS[c] for c in conds], fontsize=8)
+    cx.set_ylabel('V - alpha where overriding starts [m]')
+    cx.set_title('How far from its level the filter starts to act', fontsize=9)
+    cx.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def make_plots(out_dir: Path, summary: dict, records: list, standard_vf, conservative_vf) -> list:
     """Every figure of a study (``summary.summarize``'s ``summary`` of ``records``) into
     ``out_dir``; returns their paths."""
@@ -193,6 +252,10 @@ def make_plots(out_dir: Path, summary: dict, records: list, standard_vf, conserv
     p = out_dir / 'phase2_interventions.png'
     plot_phase2(p, states, standard_vf, conservative_vf, TRUE_RADIUS)
     paths.append(p)
+    if summary.get('validity', {}).get('pooled'):
+        p = out_dir / 'validity.png'
+        plot_validity(p, summary['validity'])
+        paths.append(p)
     sweep = {label: v for label, v in summary['alpha_sweep'].items() if v['predicted']}
     if sweep:
         p = out_dir / 'alpha_sweep.png'

@@ -183,7 +183,8 @@ def run_subject(i, subject, opts, conditions, progress, phase2, player_for) -> d
             g.update(wall=result['wall'], wall_running=result['wall_running'], cpu_s=result['cpu_s'],
                      cpu_by_process=result['cpu_by_process'],
                      resends=result['resends'], set=ran, engine=opts.engine,
-                     alpha=alpha, complete=g['sim_time'] >= opts.game_seconds - 1e-6)
+                     alpha=alpha, complete=g['sim_time'] >= opts.game_seconds - 1e-6,
+                     trace=result.get('trace'))         # core engine only (study.game_trace)
             if k == 0.0:
                 rec['games'][cond] = g
                 name = f'phase III {cond}'

@@ -15,6 +15,18 @@ from .analysis import (H2_MEASURES, SetCount, h2_summary, interventions_inside, 
 from .posthoc import TUKEY_REFERENCE, paired_posthoc
 from .protocol import sweep_condition
 from .records import record_learned, stored_measure
+from .validity import model_validity
+
+
+def record_sets(r: dict, standard_vf, conservative_vf) -> dict:
+    """condition -> (value function, alpha) of the sets a record's Phase III started with (a
+    learned condition without a fit used the Standard set)."""
+    learned = record_learned(r)
+    sets = {'standard': (standard_vf, 0.0), 'conservative': (conservative_vf, 0.0)}
+    for c in ('learned', 'learned_fp'):
+        vf, fit = learned.get(c, (None, None))
+        sets[c] = (vf, learned_alpha(fit)) if vf is not None else (standard_vf, 0.0)
+    return sets
 
 
 def summarize(records: list, standard_vf, conservative_vf, sweep_k=(0.0, 1.0, 2.0)) -> dict:
@@ -33,10 +45,7 @@ def summarize(records: list, standard_vf, conservative_vf, sweep_k=(0.0, 1.0, 2.
     for r in records:
         states = np.asarray(r['states'], dtype=float).reshape(-1, 3)
         learned = record_learned(r)
-        sets = {'standard': (standard_vf, 0.0), 'conservative': (conservative_vf, 0.0)}
-        for c in ('learned', 'learned_fp'):
-            vf, fit = learned.get(c, (None, None))
-            sets[c] = (vf, learned_alpha(fit)) if vf is not None else (standard_vf, 0.0)
+        sets = record_sets(r, standard_vf, conservative_vf)
         for c in conditions:
             vf, alpha = sets[c]
             n = interventions_inside(vf, alpha, states)
@@ -78,6 +87,7 @@ def summarize(records: list, standard_vf, conservative_vf, sweep_k=(0.0, 1.0, 2.
         'posthoc': paired_posthoc(fp, conditions),
         'tukey': tukey_pairs(fp),
         'tukey_method': TUKEY_REFERENCE,
+        'validity': model_validity(records, lambda r: record_sets(r, standard_vf, conservative_vf), conditions),
         'h2': h2,
         'alpha_sweep': sweep,
         'subjects': [{'subject': r['subject'],
