@@ -100,3 +100,25 @@ def test_study_and_population_commands_refuse_a_bad_population(tmp_path, capsys)
     assert args.func(args) == 2 and 'cannot read' in capsys.readouterr().err
     args = build_parser().parse_args(['population', 'from-sessions', str(tmp_path), '--out', str(tmp_path / 'p.json')])
     assert args.func(args) == 2 and not (tmp_path / 'p.json').exists()
+
+
+def test_the_simulated_supervisor_draws_its_noise_once_per_approach_as_the_paper_models(library):
+    """V_S at the intervention ~ N(mu, sigma^2) (the paper's eq. 2) whatever the pose rate: one
+    w per approach, fixed over its frames (a draw per frame would depend on the frame rate)."""
+    vf = library.entry(1.0)
+    mu, sigma = 0.5, 0.3
+    for step in (0.05, 0.2):
+        frames = C.phase2_frames([0.0], step)[0]
+        values = []
+        for seed in range(120):
+            w = Watcher(vf, mu=mu, sigma=sigma, seed=seed)
+            thresholds = set()
+            for k, x in enumerate(frames):
+                decision = w.judge('r', x, step * k, [0], np.zeros((1, 2)))
+                if decision is not None:
+                    values.append(decision.value)
+                    thresholds.add(decision.threshold)
+                    break
+                thresholds.add(w.thresholds[('r', 0)])
+            assert len(thresholds) == 1
+        assert abs(np.mean(values) - mu) < 0.06 and abs(np.std(values) - sigma) < 0.05
