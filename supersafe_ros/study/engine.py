@@ -10,7 +10,7 @@ the two side by side.
 
 * Phase II (``CoreStudy.phase2``): the scenes of ``conductor.Phase2Conductor`` (one robot
   at (-8, y0, 0) with u = 0 towards one disc at the origin, a new obstacle id per scene,
-  ids from 0 as the graph's world gives them) as ``learning.encounters.phase2_events``
+  ids from 0 as the graph's world gives them) as ``learning.phase2_stream.phase2_events``
   generates them, judged by the supervisor node's own rule (``sim.watcher.Watcher``, the
   subject's w_max, mu, sigma and seed). The two learners fit as the learner node does,
   once on all the data: ``paper`` (``fit_paper_values`` on the intervention states) and
@@ -36,7 +36,8 @@ import numpy as np
 
 from ..filter.admissibility import check_learned_set
 from ..filter import FilterConfig, SafeSet
-from ..learning.encounters import EncounterBuilder, feed, phase2_events
+from ..learning.encounters import EncounterBuilder
+from ..learning.phase2_stream import feed, phase2_events
 from ..learning.estimators import (admissible_mask, encounter_intervals, fit_first_passage_intervals,
                                    fit_paper_values)
 from ..learning.levels import learned_alpha
