@@ -348,14 +348,15 @@ def test_the_pose_after_a_removal_or_a_jump_is_never_the_intervention_frame():
     b.pose('r', 1.6, (-30.0, 0.0, 0.0))
     (r,) = b.pop_finished()
     assert r.frames[-1] == (-5.5, 0.5, 0.0) and list(r.t) == pytest.approx([1.0, 1.2, 1.4, 1.5])
-    # the world's coarse clock stamps the removal before the intervention that caused it: the
-    # pose judged (the first at or after the interpolated crossing) is still the frame
-    for reorder in (0.0, 1.0):
+    # the world's coarse clock stamps the removal before the intervention that caused it, or
+    # an exact clock with the pose judged: that pose (the first at or after the interpolated
+    # crossing) is still the frame
+    for reorder, removal in ((0.0, 1.45), (1.0, 1.45), (1.0, 1.6)):
         b = builder(reorder=reorder)
         b.set_obstacles([1], [(0.0, 0.0)], 1.0)
         drive(b, 'r', 1.0, -7.0, 0.5, 3)                   # 1.0, 1.2, 1.4
         b.intervention(1, 1.5, (-5.5, 0.5, 0.0))           # crossing between 1.4 and 1.6
-        b.set_obstacles([], np.zeros((0, 2)), 1.45)        # removal stamped by a lagging clock
+        b.set_obstacles([], np.zeros((0, 2)), removal)
         drive(b, 'r', 1.6, -5.2, 0.5, 8)
         b.finish_all()
         (r,) = b.pop_finished()

@@ -398,10 +398,12 @@ class EncounterBuilder:
     @staticmethod
     def _after_removal(enc, intervention: float, stamp: float) -> bool:
         """A pose stamped ``stamp`` comes after the obstacle left the set, by a removal
-        stamped after the intervention. (A removal stamped at or before the intervention is
-        the world's coarse clock lagging: the removal the intervention caused cannot precede
-        it, so it says nothing about which pose was judged.)"""
-        return enc.gone_at is not None and intervention + 1e-9 < enc.gone_at <= stamp + 1e-9
+        stamped after the intervention (a pose stamped with the removal itself was seen
+        before it: the world removes on the intervention that pose caused). A removal
+        stamped at or before the intervention is the world's coarse clock lagging: the
+        removal the intervention caused cannot precede it, so it says nothing about which
+        pose was judged."""
+        return enc.gone_at is not None and intervention + 1e-9 < enc.gone_at < stamp - 1e-9
 
     def tick(self, wall: float) -> None:
         """Wall-clock housekeeping: apply obstacle sets that no robot's poses have reached
