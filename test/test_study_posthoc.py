@@ -53,8 +53,9 @@ def test_no_effect_and_degenerate_pairs_are_reported_not_invented():
     assert post['pairs']['standard-learned']['p'] > 0.05
     same = paired_difference(base, base)
     assert same['mean_difference'] == 0 and np.isnan(same['p_unadjusted']) and np.isnan(same['wilcoxon_p'])
-    shifted = paired_difference(base + 1, base)                  # every subject exactly +1
-    assert shifted['p_unadjusted'] == 0.0 and shifted['ci_low'] == shifted['ci_high'] == 1.0
+    shifted = paired_difference(base + 1, base)                  # every subject exactly +1: no variance
+    assert np.isnan(shifted['p_unadjusted']) and shifted['ci_low'] == shifted['ci_high'] == 1.0
+    assert 'not tested' in shifted['note']
     one = paired_difference([1.0, np.nan], [2.0, 3.0])
     assert one['n'] == 1 and np.isnan(one['p_unadjusted'])
     text = format_posthoc(post, {'standard': 'Standard', 'learned': 'Learned'})

@@ -24,7 +24,9 @@ One step at sim time t (``sim_clock_node`` lockstep; the nodes named in brackets
    as the graph's filter holds its answer until the union value is in force
    (``cluster_hold_timeout``);
 6. the robot takes the decision as its command at t, the world the decision's action
-   (H2 meters of the next segment).
+   (H2 meters of the next segment);
+7. an online learner, if any, reads the step and may put a refitted set in force for the
+   next step's decisions (the study's ``learned_online``).
 
 Which planner command a lockstepped filter judges is a race in the graph: it answers a
 pose on arrival, and the planner's answer to the same pose may come before or after
@@ -89,13 +91,17 @@ class TeamLoop:
     forwards the planner's command unfiltered (an ablation: what the filter prevents).
     ``observer``: told of every robot's decision (``step(loop, t, name, state, seen_ids,
     seen_xy, action)``) and intervention (``intervention(loop, decision, record)``), e.g.
-    ``study.game_trace.GameTrace``; it only reads.
+    ``study.game_trace.GameTrace``; it only reads. ``learner``: told of each step's end
+    (``step(loop, t, states)``: the poses, ``loop.interventions``, the world's obstacles);
+    a SafeSet it returns is in force in every filter from the next step (the study's
+    ``learned_online``: ``study.online.OnlineLearner``).
     """
 
     def __init__(self, world_config: WorldConfig, world_seed: int, starts: dict, robot_seeds: dict,
                  robot: RobotParams, filter_config: FilterConfig, safe_set: SafeSet,
                  watcher: Watcher | None, step: float, respawn: bool = True, filtered: bool = True,
-                 clusters: ClusterStore | None = None, planner_lag: bool = False, observer=None):
+                 clusters: ClusterStore | None = None, planner_lag: bool = False, observer=None,
+                 learner=None):
         if not (math.isfinite(step) and step > 0):
             raise ValueError(f'step must be positive, got {step}')
         self.step_s = float(step)
@@ -105,6 +111,7 @@ class TeamLoop:
         self.respawn = respawn
         self.planner_lag = planner_lag
         self.observer = observer
+        self.learner = learner
         self.filtered = filtered
         self.params = robot
         self.clusters = clusters if clusters is not None else inline_cluster_store(filter_config)
@@ -168,6 +175,10 @@ class TeamLoop:
             self._plan(states, goals_before, t)
         if self.record:
             self.trace.append((t, np.array([states[r.name] for r in self.robots])))
+        if self.learner is not None:                             # 7. a learner may refit
+            new = self.learner.step(self, t, states)
+            if new is not None:
+                self.safe_set = new
 
     def _plan(self, states, goals, t) -> None:
         """The planners answer this step's poses with the goals they knew before it."""

@@ -16,7 +16,9 @@ AnovaRM, subject as the repeated factor), as the paper reports. Pairs: the paire
 conditions as independent groups and is kept only as a labelled reference (``tukey_pairs``).
 
 Conditions: Standard, Learned (the paper's estimator, eqs. 3-4, alpha = mu), Learned FP
-(the first-passage estimator, alpha = mu) and Conservative; a study may run any subset
+(the first-passage estimator, alpha = mu), Learned online (Learned FP's set, refitted
+during the game from the team's own encounters: ``online``) and Conservative; a study may
+run any subset
 (``--conditions``), and every function here works on the conditions it is given, in
 ``CONDITIONS`` order.
 
@@ -30,9 +32,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-CONDITIONS = ('standard', 'learned', 'learned_fp', 'conservative')
+CONDITIONS = ('standard', 'learned', 'learned_fp', 'learned_online', 'conservative')
 LABELS = {'standard': 'Standard', 'learned': 'Learned', 'learned_fp': 'Learned FP',
-          'conservative': 'Conservative'}
+          'learned_online': 'Learned online', 'conservative': 'Conservative'}
 H2_MEASURES = ('path_per_trip', 'avoidance_length', 'override_fraction', 'min_clearance')
 
 # The paper's Table 1 (Sec. V, 11 participants) and its statistics, for side-by-side reports.
@@ -133,7 +135,7 @@ def h2_summary(measures: dict) -> dict:
                                   'sd': float(v.std(ddof=1)) if len(v) > 1 else float('nan'),
                                   'n': int(len(v))}
     if 'conservative' in measures:
-        for c in ('learned', 'learned_fp'):
+        for c in ('learned', 'learned_fp', 'learned_online'):
             if c in measures:
                 k, n = shorter_count(measures[c]['avoidance_length'],
                                      measures['conservative']['avoidance_length'])

@@ -16,6 +16,7 @@ import time
 
 from .analysis import CONDITIONS, LABELS, PAPER_STATS, format_h2, format_table1, ordered
 from .posthoc import format_posthoc
+from .online import format_online
 from .validity import format_validity
 
 DEMO_SUBJECTS = 3
@@ -27,10 +28,12 @@ def _add_common(parser, subjects_default):
     parser.add_argument('--seed', type=int, default=0, help='seed of subjects and world layouts')
     parser.add_argument('--out', type=Path, default=Path('study-out'), help='plots, logs and results go here')
     parser.add_argument('--json', type=Path, default=None, help='results JSON (default <out>/study.json)')
-    parser.add_argument('--conditions', type=str, default=','.join(CONDITIONS),
+    parser.add_argument('--conditions', type=str, default=None,
                         help='comma-separated safe sets to play in Phase III, of '
-                             f'{",".join(CONDITIONS)} (default all): learned = the paper\'s estimator '
-                             '(learner node), learned_fp = first-passage (from the recorded approaches)')
+                             f'{",".join(CONDITIONS)} (default all; the graph engine: all but learned_online): '
+                             'learned = the paper\'s estimator (learner node), learned_fp = first-passage (from the '
+                             'recorded approaches), learned_online = learned_fp\'s set refitted during the game from '
+                             'the team\'s own encounters (core engine)')
     parser.add_argument('--step', type=float, default=0.2,
                         help='sim seconds per lockstep step (default 0.2: ~20x real time on 2 cores; '
                              '0.05 is the team default, ~4x slower)')
@@ -93,7 +96,7 @@ def add_parser(subparsers):
 
 def run_demo(args) -> int:
     args.subjects, args.seed, args.json = DEMO_SUBJECTS, DEMO_SEED, None
-    args.conditions = ','.join(CONDITIONS)
+    args.conditions = None           # every condition the engine runs
     args.step, args.rate_factor, args.game_seconds = 0.2, 0.0, 120.0
     args.phase2_offsets, args.sweep_subjects, args.no_plots = None, 1, False
     return run(args)
@@ -109,12 +112,16 @@ def parse_conditions(text: str) -> tuple:
 
 def options_from_args(args):
     from .protocol import StudyOptions
+    engine = getattr(args, 'engine', 'core')
+    conditions = args.conditions or ','.join(c for c in CONDITIONS if engine == 'core' or c != 'learned_online')
     opts = StudyOptions(subjects=args.subjects, seed=args.seed, step=args.step,
                         rate_factor=args.rate_factor, game_seconds=args.game_seconds,
-                        conditions=parse_conditions(args.conditions),
+                        conditions=parse_conditions(conditions),
                         out_dir=Path(args.out), domain_id=args.domain_id,
                         sweep_subjects=max(0, args.sweep_subjects), plots=not args.no_plots,
-                        engine=getattr(args, 'engine', 'core'), workers=max(0, getattr(args, 'workers', 0)))
+                        engine=engine, workers=max(0, getattr(args, 'workers', 0)))
+    if engine == 'graph' and 'learned_online' in opts.conditions:
+        raise ValueError('learned_online runs on the core engine only (--engine core)')
     if args.phase2_offsets:
         opts.phase2_offsets = tuple(float(v) for v in args.phase2_offsets.split(',') if v.strip())
     return opts
@@ -186,6 +193,9 @@ def run(args, out=sys.stdout) -> int:
     print(format_posthoc(summary['posthoc'], LABELS, PAPER_STATS['tukey'], summary['tukey']), file=out)
     print('\nmodel validity (95 % CIs; study.validity):', file=out)
     print(format_validity(summary['validity']), file=out)
+    if summary.get('online'):
+        print('\nlearning from the games (learned_online; study.online):', file=out)
+        print(format_online(summary['online']), file=out)
     print('\nH2, efficiency: mean (sd) over subjects', file=out)
     print(format_h2(summary['h2']), file=out)
     for c, v in summary['conditions'].items():

@@ -15,7 +15,7 @@ from .protocol import TRUE_RADIUS
 from .records import record_learned
 
 COLORS = {'standard': '0.55', 'learned': 'tab:blue', 'learned_fp': 'tab:green',
-          'conservative': 'tab:orange'}
+          'learned_online': 'tab:purple', 'conservative': 'tab:orange'}
 
 
 def _plt():
@@ -228,6 +228,24 @@ def plot_validity(path, validity: dict) -> None:
     plt.close(fig)
 
 
+def plot_online(path, report: dict) -> None:
+    """False positives per quarter of the game, per condition (learned_online learns during it)."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(5.5, 3.8))
+    for c, q in report['fp_per_quarter'].items():
+        ax.plot(range(1, len(q) + 1), q, 'o-', color=COLORS[c], lw=2.5 if c == 'learned_online' else 1.2,
+                label=LABELS[c])
+    ax.set_xticks(range(1, len(q) + 1), [f'Q{k}' for k in range(1, len(q) + 1)])
+    ax.set_xlabel('quarter of the 120 s game')
+    ax.set_ylabel('false positives (mean over subjects)')
+    ax.set_ylim(bottom=0)
+    ax.set_title('Learning from the games: false positives across the game', fontsize=9)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
 def make_plots(out_dir: Path, summary: dict, records: list, standard_vf, conservative_vf) -> list:
     """Every figure of a study (``summary.summarize``'s ``summary`` of ``records``) into
     ``out_dir``; returns their paths."""
@@ -243,7 +261,7 @@ def make_plots(out_dir: Path, summary: dict, records: list, standard_vf, conserv
     learned = []
     for r in records:
         for c, (vf, fit) in record_learned(r).items():
-            if vf is not None:
+            if vf is not None and c != 'learned_online':      # it starts from learned_fp's set
                 learned.append((vf, learned_alpha(fit), f"subject {r['subject']['index']}", c))
     p = out_dir / 'learned_sets.png'
     plot_learned_sets(p, standard_vf, conservative_vf, learned, TRUE_RADIUS)
@@ -255,6 +273,10 @@ def make_plots(out_dir: Path, summary: dict, records: list, standard_vf, conserv
     if summary.get('validity', {}).get('pooled'):
         p = out_dir / 'validity.png'
         plot_validity(p, summary['validity'])
+        paths.append(p)
+    if summary.get('online') and summary['online']['fp_per_quarter']:
+        p = out_dir / 'online.png'
+        plot_online(p, summary['online'])
         paths.append(p)
     sweep = {label: v for label, v in summary['alpha_sweep'].items() if v['predicted']}
     if sweep:

@@ -71,9 +71,8 @@ def paired_difference(a, b, confidence: float = 0.95, wilcoxon: bool = True) -> 
         res = stats.ttest_rel(a, b)
         out['t'], out['p_unadjusted'] = float(res.statistic), float(res.pvalue)
         out['effect_size'] = out['mean_difference'] / sd
-    elif out['mean_difference'] != 0:       # every subject differs by the same amount
-        out['t'], out['p_unadjusted'] = float(np.sign(out['mean_difference']) * np.inf), 0.0
-        out['effect_size'] = float(np.sign(out['mean_difference']) * np.inf)
+    else:       # every subject differs by the same amount: no variance to test against
+        out['note'] = 'the differences do not vary: not tested'
     sd_av = (a.std(ddof=1) + b.std(ddof=1)) / 2
     if sd_av > 0:
         out['hedges_g_av'] = float(out['mean_difference'] / sd_av * (1 - 3 / (4 * (n - 1) - 1)))

@@ -77,14 +77,19 @@ class GraphGames:
 
 
 class CoreGames:
-    """Phase III of one subject in this process (``engine.CoreStudy.play``)."""
+    """Phase III of one subject in this process (``engine.CoreStudy.play``); ``phase2``: its
+    Phase II (the encounters ``learned_online`` goes on learning from)."""
 
-    def __init__(self, core, subject, world_seed: int, opts: StudyOptions):
+    def __init__(self, core, subject, world_seed: int, opts: StudyOptions, phase2=None):
         self.core, self.subject, self.world_seed, self.opts = core, subject, world_seed, opts
+        self.phase2 = phase2
 
     def play(self, condition: str, learned: dict, k: float):
         safe_set, alpha, ran = self.core.safe_set(condition, learned, k)
-        return self.core.play(self.subject, self.world_seed, safe_set, self.opts), alpha, ran
+        online = (self.phase2.fp_records if condition == 'learned_online' and ran == 'learned_online'
+                  and k == 0.0 and self.phase2 is not None else None)
+        return (self.core.play(self.subject, self.world_seed, safe_set, self.opts, online_records=online),
+                alpha, ran)
 
     def close(self):
         pass
@@ -98,6 +103,8 @@ def run_study(subjects: list, opts: StudyOptions, out=sys.stdout) -> dict:
     if opts.engine not in ENGINES:
         raise ValueError(f"engine '{opts.engine}' is not one of {ENGINES}")
     conditions = ordered(opts.conditions)
+    if opts.engine == 'graph' and 'learned_online' in conditions:
+        raise ValueError('learned_online runs on the core engine only (its learner refits inside the game loop)')
     progress = Progress(len(subjects), out)
     t_start = time.monotonic()
     if opts.engine == 'core':
@@ -121,7 +128,7 @@ def run_study(subjects: list, opts: StudyOptions, out=sys.stdout) -> dict:
         env = team_env(domain)
         records = []
         for i, subject in enumerate(subjects):
-            player = lambda world_seed, i=i, subject=subject: GraphGames(  # noqa: E731
+            player = lambda world_seed, p2, i=i, subject=subject: GraphGames(  # noqa: E731
                 subject, world_seed, opts, env, Path(opts.out_dir) / 'logs' / f's{i:02d}-phase3')
             phase2 = lambda subject, i=i: run_phase2(  # noqa: E731
                 subject, opts, domain, Path(opts.out_dir) / 'logs' / f's{i:02d}-phase2', progress)
@@ -144,13 +151,14 @@ def _core_subject(i, subject, opts, conditions, t0, out=None):
     progress.t0 = t0
     core = _core()
     return run_subject(i, subject, opts, conditions, progress,
-                       lambda subject: core.phase2(subject, opts, with_fp='learned_fp' in conditions),
-                       lambda world_seed: CoreGames(core, subject, world_seed, opts))
+                       lambda subject: core.phase2(subject, opts, with_fp=bool({'learned_fp', 'learned_online'}
+                                                                               & set(conditions))),
+                       lambda world_seed, p2: CoreGames(core, subject, world_seed, opts, p2))
 
 
 def run_subject(i, subject, opts, conditions, progress, phase2, player_for) -> dict:
     """Phase II, fits and Phase III of one subject; ``phase2(subject)`` -> Phase2Result,
-    ``player_for(world_seed)`` -> GraphGames | CoreGames."""
+    ``player_for(world_seed, phase2 result)`` -> GraphGames | CoreGames."""
     rec = {'subject': subject.to_dict(), 'games': {}, 'sweep': {}, 'fits': {}, 'learned_vfs': {}}
     progress.line(i, 'phase II', None, f'w_max {subject.omega_max:g} mu {subject.mu:g} '
                   f'sigma {subject.sigma:g}, {len(opts.phase2_offsets)} offsets')
@@ -175,7 +183,7 @@ def run_subject(i, subject, opts, conditions, progress, phase2, player_for) -> d
     swept = sweep_condition(conditions)
     if i < opts.sweep_subjects and swept and rec['fits'].get(swept):
         games += [(swept, k) for k in opts.sweep_k if k != 0.0]
-    player = player_for(world_seed)
+    player = player_for(world_seed, p2)
     try:
         for cond, k in games:
             result, alpha, ran = player.play(cond, learned, k)
@@ -184,7 +192,8 @@ def run_subject(i, subject, opts, conditions, progress, phase2, player_for) -> d
                      cpu_by_process=result['cpu_by_process'],
                      resends=result['resends'], set=ran, engine=opts.engine,
                      alpha=alpha, complete=g['sim_time'] >= opts.game_seconds - 1e-6,
-                     trace=result.get('trace'))         # core engine only (study.game_trace)
+                     trace=result.get('trace'),         # core engine only (study.game_trace)
+                     online=result.get('online'))       # learned_online: its refits (study.online)
             if k == 0.0:
                 rec['games'][cond] = g
                 name = f'phase III {cond}'

@@ -15,6 +15,7 @@ from .analysis import (H2_MEASURES, SetCount, h2_summary, interventions_inside, 
 from .posthoc import TUKEY_REFERENCE, paired_posthoc
 from .protocol import sweep_condition
 from .records import record_learned, stored_measure
+from .online import online_report
 from .validity import model_validity
 
 
@@ -23,7 +24,7 @@ def record_sets(r: dict, standard_vf, conservative_vf) -> dict:
     learned condition without a fit used the Standard set)."""
     learned = record_learned(r)
     sets = {'standard': (standard_vf, 0.0), 'conservative': (conservative_vf, 0.0)}
-    for c in ('learned', 'learned_fp'):
+    for c in ('learned', 'learned_fp', 'learned_online'):
         vf, fit = learned.get(c, (None, None))
         sets[c] = (vf, learned_alpha(fit)) if vf is not None else (standard_vf, 0.0)
     return sets
@@ -88,6 +89,7 @@ def summarize(records: list, standard_vf, conservative_vf, sweep_k=(0.0, 1.0, 2.
         'tukey': tukey_pairs(fp),
         'tukey_method': TUKEY_REFERENCE,
         'validity': model_validity(records, lambda r: record_sets(r, standard_vf, conservative_vf), conditions),
+        'online': online_report(records, conditions) if 'learned_online' in conditions else None,
         'h2': h2,
         'alpha_sweep': sweep,
         'subjects': [{'subject': r['subject'],
