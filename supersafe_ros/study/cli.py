@@ -70,6 +70,10 @@ def _add_engine(parser):
     parser.add_argument('--workers', type=int, default=0,
                         help='core engine: subjects run in this many processes (default 0: one per core); '
                              'the results do not depend on it')
+    parser.add_argument('--scheduler', default='', metavar='ADDRESS',
+                        help='core engine: run the subjects on a Dask distributed cluster, this scheduler\'s '
+                             'address (e.g. tcp://10.0.0.5:8786); its workers need supersafe_ros and '
+                             '$SUPERSAFE_CACHE; the same records as a local run')
 
 
 def add_parser(subparsers):
@@ -119,7 +123,10 @@ def options_from_args(args):
                         conditions=parse_conditions(conditions),
                         out_dir=Path(args.out), domain_id=args.domain_id,
                         sweep_subjects=max(0, args.sweep_subjects), plots=not args.no_plots,
-                        engine=engine, workers=max(0, getattr(args, 'workers', 0)))
+                        engine=engine, workers=max(0, getattr(args, 'workers', 0)),
+                        scheduler=getattr(args, 'scheduler', '') or '')
+    if opts.scheduler and engine != 'core':
+        raise ValueError('--scheduler runs the core engine\'s subjects (--engine core)')
     if engine == 'graph' and 'learned_online' in opts.conditions:
         raise ValueError('learned_online runs on the core engine only (--engine core)')
     if args.phase2_offsets:

@@ -63,6 +63,7 @@ class StudyOptions:
     plots: bool = True
     engine: str = 'core'             # core: in this process (study.engine); graph: the node graph
     workers: int = 0                 # core: subjects run in this many processes (0: one per core)
+    scheduler: str = ''              # core: a Dask distributed scheduler's address: subjects run on its workers
 
 
 ENGINES = ('core', 'graph')

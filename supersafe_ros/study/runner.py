@@ -107,7 +107,9 @@ def run_study(subjects: list, opts: StudyOptions, out=sys.stdout) -> dict:
         raise ValueError('learned_online runs on the core engine only (its learner refits inside the game loop)')
     progress = Progress(len(subjects), out)
     t_start = time.monotonic()
-    if opts.engine == 'core':
+    if opts.engine == 'core' and opts.scheduler:
+        records = on_cluster(subjects, opts, conditions, progress)
+    elif opts.engine == 'core':
         workers = opts.workers or os.cpu_count() or 1
         workers = max(1, min(int(workers), len(subjects)))
         if workers > 1:
@@ -138,6 +140,27 @@ def run_study(subjects: list, opts: StudyOptions, out=sys.stdout) -> dict:
         # (console/session.py), so the analysis can mix the two
         write_subject(Path(opts.out_dir) / 'subjects' / f's{i:02d}', rec)
     return {'records': records, 'wall': time.monotonic() - t_start}
+
+
+def on_cluster(subjects, opts, conditions, progress) -> list:
+    """The core engine's subjects as tasks on a Dask distributed cluster (``opts.scheduler``:
+    its scheduler's address). A subject's record depends on its seeds only, so the records
+    are those of a local run. The workers need this package and its value-function cache
+    (``$SUPERSAFE_CACHE``) as this process has them; each prints its subjects' progress in its
+    own log, and this process one line per finished subject."""
+    from distributed import Client, as_completed
+    records = [None] * len(subjects)
+    with Client(opts.scheduler, timeout=60) as client:
+        futures = {client.submit(_core_subject, i, subject, opts, conditions, progress.t0, pure=False,
+                                 key=f'supersafe-subject-{opts.seed}-{i}-{time.time_ns()}'): i
+                   for i, subject in enumerate(subjects)}
+        for future in as_completed(futures):
+            i = futures[future]
+            records[i] = future.result()
+            games = records[i]['games']
+            progress.line(i, 'done on the cluster', None,
+                          ', '.join(f'{c} FP {g["false_positives"]}' for c, g in games.items()))
+    return records
 
 
 @functools.lru_cache(maxsize=1)
