@@ -199,7 +199,8 @@ def run_subject(i, subject, opts, conditions, progress, phase2, player_for) -> d
     progress.line(i, 'phase II done', p2.sim_time, f'{len(p2.states)} interventions' + ''.join(
         f'; {c}: ' + (f'w {f["omega_max"]:g} mu {f["mu"]:.3g} sigma {f["sigma"]:.3g}' if f
                       else 'no fit (too few interventions): Standard set')
-        for c, f in rec['fits'].items()) + ''.join(f'; {n}' for n in p2.notes))
+        for c, f in rec['fits'].items() if c != 'learned_online')   # it starts from learned_fp's
+        + ''.join(f'; {n}' for n in p2.notes))
     world_seed = opts.seed * 1000 + i
     learned = {c: (rec['learned_vfs'][c], rec['fits'][c]) for c in fits}
     games = [(c, 0.0) for c in conditions]
