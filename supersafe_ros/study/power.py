@@ -113,11 +113,12 @@ def plot_power(path, power: dict, measure: str, n_sim: int) -> None:
 
 def format_power(power: dict) -> str:
     pairs = list(power['posthoc'])
-    head = f'{"N":>4s}{"ANOVA":>8s}' + ''.join(f'{p:>26s}' for p in pairs)
+    w = max([len(p) for p in pairs] + [24]) + 2
+    head = f'{"N":>4s}{"ANOVA":>8s}' + ''.join(f'{p:>{w}s}' for p in pairs)
     lines = [head]
     for k, size in enumerate(power['sizes']):
         lines.append(f'{size:>4d}{power["anova"][k]:>8.2f}'
-                     + ''.join(f'{power["posthoc"][p][k]:>26.2f}' for p in pairs))
+                     + ''.join(f'{power["posthoc"][p][k]:>{w}.2f}' for p in pairs))
     return '\n'.join(lines)
 
 
