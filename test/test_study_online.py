@@ -13,7 +13,7 @@ from supersafe_ros.study.protocol import StudyOptions
 def test_the_online_game_starts_as_learned_fp_and_refits_from_the_teams_own_encounters():
     core = engine.CoreStudy()
     subject = Subject(0, 0.375, 1.3, 0.5, 4321)          # the paper population's conservative-like member
-    opts = StudyOptions(game_seconds=40.0)
+    opts = StudyOptions(game_seconds=25.0)
     p2 = core.phase2(subject, opts)
     assert p2.fp_vf is not None and len(p2.fp_records) == len(opts.phase2_offsets)
     start, _, ran = core.safe_set('learned_online', {'learned_online': (p2.fp_vf, p2.fp_fit)})
@@ -38,14 +38,14 @@ def test_the_online_game_starts_as_learned_fp_and_refits_from_the_teams_own_enco
 def test_the_online_learner_takes_encounters_at_every_bearing():
     core = engine.CoreStudy()
     subject = Subject(0, 1.0, 0.1, 0.5, 99)
-    opts = StudyOptions(game_seconds=30.0)
+    opts = StudyOptions(game_seconds=20.0)
     p2 = core.phase2(subject, opts)
     start, _, _ = core.safe_set('learned_online', {'learned_online': (p2.fp_vf, p2.fp_fit)})
     learner = OnlineLearner(engine.learners(), p2.fp_records, start)
     loop = engine.TeamLoop(engine.world_config(), 2, dict(zip(engine.robot_names(2), engine.start_poses(2))),
                            {n: 2001 + i for i, n in enumerate(engine.robot_names(2))}, engine.robot_params(),
                            engine.filter_config(0.2), start, engine.make_watcher(subject, 7), 0.2, learner=learner)
-    loop.run(30.0)
+    loop.run(20.0)
     records = learner.game_records
     assert learner.game_encounters == len(records) > 5
     bearings = {bearing_class(bearing_deg(r.frames[0])) for r in records}
