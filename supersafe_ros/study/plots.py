@@ -25,9 +25,9 @@ def _plt():
     return plt
 
 
-def plot_false_positives(path, fp: dict, pairs: dict) -> None:
+def plot_false_positives(path, fp: dict, tests: dict) -> None:
     """Mean FP per set (SEM bars, subjects as dots) with the paired post-hoc tests' stars
-    (Holm-corrected; ``pairs``: posthoc['pairs'])."""
+    (Holm-corrected; ``tests``: posthoc['pairs'])."""
     plt = _plt()
     conds = ordered(fp)
     n = len(conds)
@@ -42,10 +42,10 @@ def plot_false_positives(path, fp: dict, pairs: dict) -> None:
     pairs = [(a, b) for a in range(n) for b in range(a + 1, n)]
     for k, (a, b) in enumerate(pairs):
         key = f'{conds[a]}-{conds[b]}'
-        if key in pairs:
+        if key in tests:
             y = top * (1 + 0.1 * k)
             ax.plot([a, a, b, b], [y, y * 1.02, y * 1.02, y], color='k', lw=1)
-            ax.text((a + b) / 2, y * 1.03, significance_stars(pairs[key]['p']), ha='center', fontsize=8)
+            ax.text((a + b) / 2, y * 1.03, significance_stars(tests[key]['p']), ha='center', fontsize=8)
     ax.set_xticks(range(n), [LABELS[c] for c in conds])
     ax.set_ylabel('False positives per game')
     ax.set_title('False positives per safe set (paired t, Holm)')
