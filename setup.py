@@ -34,7 +34,8 @@ setup(
          glob('supersafe_ros/console/static/*')),
     ],
     install_requires=['setuptools', 'numpy', 'scipy', 'matplotlib', 'pyyaml', 'aiohttp'],
-    package_data={'supersafe_ros.console': ['static/*']},
+    # the calibrated paper-like population (supersafe study --population paper)
+    package_data={'supersafe_ros.console': ['static/*'], 'supersafe_ros.study': ['data/*.json']},
     zip_safe=True,
     maintainer='supersafe_ros developers',
     maintainer_email='supersafe@example.org',

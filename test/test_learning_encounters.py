@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from supersafe_ros.learning.data import PHASE2_OFFSETS
-from supersafe_ros.learning.encounters import EncounterBuilder, EncounterRecord, feed, phase2_events
+from supersafe_ros.learning.encounters import EncounterBuilder, EncounterRecord
+from supersafe_ros.learning.phase2_stream import feed, phase2_events
 from supersafe_ros.learning.intervention_store import RecordStore
 from supersafe_ros.reach.library import LibrarySpec, load_or_build_library
 from supersafe_ros.sim.watcher import Watcher
@@ -282,3 +283,94 @@ def test_records_round_trip_through_the_store(tmp_path):
     with pytest.raises(ValueError):
         EncounterRecord.from_json('{"robot": "r", "obstacle": 1, "t": [1.0], "frames": [[NaN, 0, 0]], '
                                   '"intervened": false, "reason": "passed"}')
+
+
+# -- issue 21: an honest stream the learner did not make ---------------------------------------
+def stream_fit(events, lr):
+    from supersafe_ros.learning.estimators import encounter_intervals, fit_first_passage_intervals
+    b = EncounterBuilder(lr.lo, lr.hi, **lr.builder_args)
+    feed(b, events)
+    b.finish_all()
+    records = b.pop_finished()
+    fit = fit_first_passage_intervals(lr.entries, encounter_intervals(lr.entries, [r.to_encounter() for r in records]),
+                                      admissible=lr.admissible)
+    return records, fit, b
+
+
+def test_an_honest_foreign_stream_gives_the_hidden_supervisor_back():
+    """Poses at 20 Hz, each intervention 1 ms after the pose it judged, the obstacle cleared
+    10 ms later, the robot teleported to the next scene 1 s later (test/honest_stream_support):
+    every intervention frame is the pose judged (never the next scene's), whatever the
+    cross-topic order, and the fit finds w 0.5 exactly and mu within 0.1."""
+    from honest_stream_support import MU, W, honest_stream, shuffled_across_topics
+    from supersafe_ros.study.engine import learners
+    lr = learners()                                       # the learner node's library and parameters
+    vf_s = next(e for e in lr.entries if e.meta['omega_max'] == W)
+    results = []
+    for seed in range(10):
+        events, _ = honest_stream(vf_s, seed=seed)
+        judged = {ev[1]: ev[3] for ev in events if ev[0] == 'intervention'}
+        records, fit, b = stream_fit(events, lr)
+        assert len(records) == 126 and b.counts['unmatched_interventions'] == 0
+        assert sorted(r.obstacle for r in records if r.intervened) == sorted(judged)
+        for r in records:
+            if r.intervened:
+                assert r.frames[-1] == pytest.approx(judged[r.obstacle], abs=1e-12)
+                assert all(f[0] < judged[r.obstacle][0] for f in r.frames[:-1])     # frames judged safe before it
+            else:
+                assert r.reason == 'passed' and r.frames[-1][0] > 0
+        if seed < 2:                                      # topics interleaved by delays up to 0.5 s
+            shuffled, fit2, _ = stream_fit(shuffled_across_topics(events, seed), lr)
+            assert sorted(r.to_json() for r in shuffled) == sorted(r.to_json() for r in records)
+            assert (fit2.omega_max, fit2.mu) == (fit.omega_max, fit.mu)
+        results.append((seed, fit.omega_max, round(fit.mu, 3)))
+    good = [r for r in results if r[1] == W and abs(r[2] - MU) <= 0.1]
+    # 126 straight passes, all intervened, barely tell w 0.5 from 0.625 in one draw of ten
+    assert len(good) >= 9, results
+
+
+def test_the_pose_after_a_removal_or_a_jump_is_never_the_intervention_frame():
+    b = builder(same_pose=0.05)
+    b.set_obstacles([1], [(0.0, 0.0)], 1.0)
+    t = drive(b, 'r', 1.0, -7.0, 0.5, 5)                   # x -7 .. -4.6 at 1.0 .. 1.8
+    b.intervention(1, t + 0.001, (-4.6, 0.5, 0.0))        # judged the last pose; reported 1 ms later
+    b.set_obstacles([], np.zeros((0, 2)), t + 0.011)
+    b.set_obstacles([2], [(0.0, 0.0)], t + 1.0)
+    b.pose('r', t + 1.0, (-7.0, -0.5, 0.0))               # the next scene, 2.4 m away: no jump
+    (r,) = b.pop_finished()
+    assert r.intervened and r.frames[-1] == (-4.6, 0.5, 0.0) and len(r.frames) == 5
+    assert r.t[-1] == pytest.approx(t + 0.001)            # the pose judged, merged with the report
+    # a pose after a jump while the judged pose is awaited: the reported state stands in
+    b = builder()
+    b.set_obstacles([1], [(0.0, 0.0)], 1.0)
+    drive(b, 'r', 1.0, -7.0, 0.5, 3)
+    b.intervention(1, 1.5, (-5.5, 0.5, 0.0))
+    b.pose('r', 1.6, (-30.0, 0.0, 0.0))
+    (r,) = b.pop_finished()
+    assert r.frames[-1] == (-5.5, 0.5, 0.0) and list(r.t) == pytest.approx([1.0, 1.2, 1.4, 1.5])
+    # the world's coarse clock stamps the removal before the intervention that caused it, or
+    # an exact clock with the pose judged: that pose (the first at or after the interpolated
+    # crossing) is still the frame
+    for reorder, removal in ((0.0, 1.45), (1.0, 1.45), (1.0, 1.6)):
+        b = builder(reorder=reorder)
+        b.set_obstacles([1], [(0.0, 0.0)], 1.0)
+        drive(b, 'r', 1.0, -7.0, 0.5, 3)                   # 1.0, 1.2, 1.4
+        b.intervention(1, 1.5, (-5.5, 0.5, 0.0))           # crossing between 1.4 and 1.6
+        b.set_obstacles([], np.zeros((0, 2)), removal)
+        drive(b, 'r', 1.6, -5.2, 0.5, 8)
+        b.finish_all()
+        (r,) = b.pop_finished()
+        assert r.frames[-1] == pytest.approx((-5.2, 0.5, 0.0)) and r.t[-1] == pytest.approx(1.6)
+
+
+def test_encounters_become_final_when_the_poses_stop_without_more_data():
+    b = builder(grace=2.0, stale_wall=2.0)
+    b.set_obstacles([7], [(0.0, 0.0)], 0.5)
+    for k in range(20):                                    # passes at y 2.5, ends 'passed'
+        b.pose('r', 1.0 + 0.2 * k, (-7.0 + 0.6 * k, 2.5, 0.0), wall=100.0 + 0.01 * k)
+    assert b.open_count == 1 and not b.pop_finished()
+    b.tick(101.0)                                          # the last pose arrived 0.81 s ago
+    assert not b.pop_finished()
+    b.tick(102.3)                                          # and now 2.1 s ago: the stream stopped
+    (r,) = b.pop_finished()
+    assert not r.intervened and r.reason == 'passed' and b.open_count == 0

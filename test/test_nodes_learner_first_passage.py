@@ -24,7 +24,7 @@ from std_srvs.srv import Empty
 from visualization_msgs.msg import MarkerArray
 
 from supersafe_ros.learning.data import PHASE2_OFFSETS
-from supersafe_ros.learning.encounters import phase2_events
+from supersafe_ros.learning.phase2_stream import phase2_events
 from supersafe_ros.nodes.learner_node import FIT_TOPIC, VALUE_FUNCTION_TOPIC, LearnerNode
 from supersafe_ros.nodes.markers import obstacles_to_markers
 from supersafe_ros.reach.library import PAPER_OMEGAS, LibrarySpec, load_or_build_library

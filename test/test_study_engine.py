@@ -47,6 +47,13 @@ def test_a_game_is_the_same_for_the_same_seed_and_differs_for_another(core):
     assert a['stats'] == b['stats'] and a['interventions'] == b['interventions']
     assert a['decisions'] == b['decisions'] and a['steps'] == b['steps'] == 151
     assert a['stats']['trips'] > 0 and math.isclose(float(a['stats']['sim_time']), 30.0)
+    # the game's trace (study.game_trace): every intervention, as the world classified it,
+    # and the override onsets, never far below the level (the filter looks ahead one step)
+    t = a['trace']
+    assert t == b['trace'] and len(t['interventions']) == int(a['stats']['interventions']) > 0
+    assert [(i['obstacle'], i['false_positive']) for i in t['interventions']] == \
+        [(i['obstacle'], i['false_positive']) for i in a['interventions']]
+    assert len(t['onsets']['v_minus_alpha']) > 0 and min(t['onsets']['v_minus_alpha']) > -0.5
     # another layout, another game (the comparison above is not trivially true)
     assert (a['stats'], a['interventions']) != (c['stats'], c['interventions'])
     # and step by step, not only in the counts

@@ -67,6 +67,12 @@ def test_summarize_pools_table1_and_lists_one_value_per_subject():
     assert c['conservative']['observed_fp_ratio'] == pytest.approx(0.5 / 5.0)
     assert set(s['anova']) >= {'F', 'p'}
     assert set(s['tukey']) == {'standard-learned', 'standard-conservative', 'learned-conservative'}
+    post = s['posthoc']['pairs']
+    assert set(post) == set(s['tukey']) and 'Holm' in s['posthoc']['method']
+    # standard 6, 4 vs learned 3, 3 (two_subjects): paired differences 3, 1
+    assert post['standard-learned']['mean_difference'] == pytest.approx(2.0)
+    assert {'p', 'ci_low', 'ci_high', 'effect_size'} <= set(post['standard-learned'])
+    assert 'independent groups' in s['tukey_method']
 
 
 def test_both_learned_conditions_get_their_row_and_the_h2_comparison():

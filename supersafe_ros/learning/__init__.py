@@ -26,7 +26,7 @@ _HOMES = {
     'fit_first_passage': 'estimators', 'fit_paper': 'estimators',
     'predicted_false_positive_fraction': 'estimators',
     'NoisySupervisor': 'supervisor',
-    'EncounterBuilder': 'encounters', 'EncounterRecord': 'encounters', 'phase2_events': 'encounters',
+    'EncounterBuilder': 'encounters', 'EncounterRecord': 'encounters', 'phase2_events': 'phase2_stream',
 }
 
 

@@ -9,8 +9,12 @@ the origin, axes as the map), the unit the first-passage estimator scores
   while the robot approaches (the distance to the centre is not growing);
 * it **ends**
   - at an intervention on that obstacle (``intervention``): its frames are those
-    stamped strictly before the intervention, then the robot's first pose at or after the
-    intervention (the pose judged unsafe);
+    stamped strictly before the intervention, then the intervention frame: the robot's
+    first pose at or after the intervention (the pose judged unsafe), unless that pose comes
+    after a jump or after the obstacle left the set (the next scene, a teleport: never the
+    pose judged); then the reported state stands in, and the frames just before it at that
+    same state (within ``same_pose`` metres: the pose the supervisor judged, stamped before
+    the intervention that reports it) are that frame, not frames judged safe;
   - when the robot has passed the obstacle (the distance grows:
     rel . (cos theta, sin theta) > 0), the frame where that is first seen included;
   - when the pair leaves the grid;
@@ -36,11 +40,15 @@ stamps, not arrival:
 
 * an obstacle set stamped T applies to a robot's poses stamped >= T (each robot keeps
   its own place in the list of obstacle-set versions); unstamped sets (T = 0) apply at
-  once, and a set that no robot's poses reach within ``stale_wall`` wall seconds (the
-  clock stopped, a robot went quiet) applies then (``tick``);
+  once (the learner node stamps an unstamped set with its arrival time, as it does an
+  unstamped intervention), and a set that no robot's poses reach within ``stale_wall``
+  wall seconds (the clock stopped, a robot went quiet) applies then (``tick``);
 * an encounter that ended without an intervention is held for ``grace`` seconds of pose
   time before it is final, so an intervention that arrives late still finds it; frames
-  stamped at or after an intervention are dropped from its encounter;
+  stamped at or after an intervention are dropped from its encounter. When the robot's
+  poses stop (the end of a stream), held encounters become final ``stale_wall`` wall
+  seconds after its last pose arrived (``tick``), so the end of a session is fitted
+  without waiting for more data;
 * an intervention names its obstacle, not its robot: it goes to the encounter of that
   obstacle (open, or ended within the grace time) whose frames pass closest to the
   intervention state, within ``match_tolerance`` metres. An intervention no encounter
@@ -119,6 +127,7 @@ class _Open:
     reason: str = ''
     await_t: float | None = None          # intervened at this time; waiting for the next pose
     await_state: tuple | None = None      # the intervention's reported state (fallback frame)
+    gone_at: float | None = None          # pose time the obstacle left the robot's set (lingering)
 
 
 class EncounterBuilder:
@@ -131,14 +140,14 @@ class EncounterBuilder:
     def __init__(self, lo, hi, speed: float, *, jump_distance: float = 1.0, grace: float = 2.0,
                  match_tolerance: float = 1.0, pending_timeout: float = 5.0, max_frames: int = 2000,
                  stale_wall: float = 2.0, max_versions: int = 1000, removal_delay: float = 1.0,
-                 reorder: float = 0.0):
+                 reorder: float = 0.0, same_pose: float = 0.05):
         self.lo = np.asarray(lo, dtype=float).reshape(2)
         self.hi = np.asarray(hi, dtype=float).reshape(2)
         if not np.all(self.hi > self.lo):
             raise ValueError(f'grid bounds must have hi > lo, got {lo}, {hi}')
         for name, v in (('speed', speed), ('jump_distance', jump_distance), ('grace', grace),
                         ('match_tolerance', match_tolerance), ('pending_timeout', pending_timeout),
-                        ('stale_wall', stale_wall), ('reorder', reorder)):
+                        ('stale_wall', stale_wall), ('reorder', reorder), ('same_pose', same_pose)):
             if not (math.isfinite(v) and v >= 0):
                 raise ValueError(f'{name} must be finite and >= 0, got {v}')
         if max_frames < 2:
@@ -146,7 +155,8 @@ class EncounterBuilder:
         self.speed, self.jump_distance, self.grace = float(speed), float(jump_distance), float(grace)
         self.match_tolerance, self.pending_timeout = float(match_tolerance), float(pending_timeout)
         self.max_frames, self.stale_wall, self.max_versions = int(max_frames), float(stale_wall), max_versions
-        self.removal_delay, self.reorder = float(removal_delay), float(reorder)
+        self.removal_delay, self.reorder, self.same_pose = float(removal_delay), float(reorder), float(same_pose)
+        self._last_wall: dict[str, float] = {}     # robot -> arrival (wall) of its newest pose
         self._held: dict[str, deque] = {}           # robot -> poses (t, x, y, th, wall) not judged yet
         self._lingering: dict[tuple, float] = {}    # (robot, obstacle) -> pose time it ends at
         # obstacle-set versions: [stamp, first_seen_wall, {id: (x, y)}]; robots index into it
@@ -192,6 +202,7 @@ class EncounterBuilder:
         if not all(math.isfinite(v) for v in (x, y, th, stamp)):
             raise ValueError(f'pose of {robot} is not finite ({x}, {y}, {th}) at {stamp}')
         self.newest = max(self.newest, stamp)
+        self._last_wall[robot] = float(wall)
         if robot not in self._robot_version:
             self._robot_version[robot] = self._base     # keeps the sets its held poses may need
         if self.reorder <= 0.0:
@@ -324,45 +335,83 @@ class EncounterBuilder:
             self._closing.remove(best)
         else:
             del self._open[(best.robot, best.obstacle)]
-        after = [k for k, tk in enumerate(best.t) if tk >= stamp - 1e-9]
+        # frames after the obstacle left the set (lingering) are never the pose judged
+        after = [k for k, tk in enumerate(best.t) if tk >= stamp - 1e-9 and not self._after_removal(best, stamp, tk)]
         keep = [k for k, tk in enumerate(best.t) if tk < stamp - 1e-9]
-        if after:
-            k = after[0]
-            self._intervened(best, keep, best.t[k], best.frames[k])
+        frame = (best.t[after[0]], best.frames[after[0]]) if after else None
+        best.t = [best.t[k] for k in keep]
+        best.frames = [best.frames[k] for k in keep]
+        best.await_t, best.await_state = stamp, tuple(float(v) for v in rel)
+        if frame is not None:
+            self._intervened(best, *frame)
+        elif best.ended_at is not None or self._after_removal(best, stamp, math.inf):
+            self._intervened(best)       # it has ended: no later pose of it can be the one judged
         else:
-            best.t = [best.t[k] for k in keep]
-            best.frames = [best.frames[k] for k in keep]
-            best.await_t, best.await_state = stamp, tuple(float(v) for v in rel)
-            best.ended_at = stamp
+            best.ended_at = stamp        # the pose judged may still be on its way
             self._awaiting.append(best)
         return True
 
-    def _intervened(self, enc, keep, t, frame):
-        record = EncounterRecord(enc.robot, enc.obstacle, tuple([enc.t[k] for k in keep] + [t]),
-                                 tuple([enc.frames[k] for k in keep] + [tuple(frame)]), True,
+    def _intervened(self, enc, t=None, frame=None):
+        """Finish ``enc`` (its frames: those before the intervention) with the intervention
+        frame: the pose judged (``t``, ``frame``), or else the reported state, which then
+        stands for the frames just before it at the same state (``same_pose``)."""
+        ts, frames = list(enc.t), list(enc.frames)
+        if frame is None:
+            t, frame = enc.await_t, enc.await_state
+            while frames and math.hypot(frames[-1][0] - frame[0], frames[-1][1] - frame[1]) <= self.same_pose:
+                ts.pop()
+                frames.pop()
+        record = EncounterRecord(enc.robot, enc.obstacle, tuple(ts + [t]), tuple(frames + [tuple(frame)]), True,
                                  'intervention')
         self.counts['intervention'] += 1
         self._finished.append(record)
 
     def _resolve_awaiting(self, robot, stamp, x, y, th, jumped):
-        """The robot's pose after a pending intervention: it becomes the intervention frame."""
+        """The robot's pose after a pending intervention becomes the intervention frame,
+        unless it comes after a jump or after the obstacle left the set (then the reported
+        state stands in)."""
         still = []
         for enc in self._awaiting:
             if enc.robot != robot:
                 still.append(enc)
-            elif jumped:
-                self._intervened(enc, range(len(enc.t)), enc.await_t, enc.await_state)
+            elif jumped or self._gone_by(robot, enc, stamp):
+                self._intervened(enc)
             elif stamp >= enc.await_t - 1e-9:
-                rel = (x - enc.centre[0], y - enc.centre[1], th)
-                self._intervened(enc, range(len(enc.t)), stamp, rel)
+                self._intervened(enc, stamp, (x - enc.centre[0], y - enc.centre[1], th))
             else:
                 still.append(enc)
         self._awaiting = still
 
+    def _gone_by(self, robot, enc, stamp) -> bool:
+        """Whether ``enc``'s obstacle left the set (or moved) after its intervention and by
+        the robot's pose stamped ``stamp`` (``_after_removal``), by the versions in force."""
+        if enc.gone_at is None:
+            v = self._robot_version[robot]
+            last = self._base + len(self._versions) - 1
+            while v < last and self._versions[v + 1 - self._base][0] <= stamp:
+                v += 1
+                if self._versions[v - self._base][2].get(enc.obstacle) != enc.centre:
+                    enc.gone_at = self._versions[v - self._base][0]
+                    break
+        return self._after_removal(enc, enc.await_t, stamp)
+
+    @staticmethod
+    def _after_removal(enc, intervention: float, stamp: float) -> bool:
+        """A pose stamped ``stamp`` comes after the obstacle left the set, by a removal
+        stamped after the intervention (a pose stamped with the removal itself was seen
+        before it: the world removes on the intervention that pose caused). A removal
+        stamped at or before the intervention is the world's coarse clock lagging: the
+        removal the intervention caused cannot precede it, so it says nothing about which
+        pose was judged."""
+        return enc.gone_at is not None and intervention + 1e-9 < enc.gone_at < stamp - 1e-9
+
     def tick(self, wall: float) -> None:
         """Wall-clock housekeeping: apply obstacle sets that no robot's poses have reached
         within ``stale_wall`` seconds of their arrival (``wall`` is the arrival clock), and
-        judge poses held that long (a robot that stopped publishing)."""
+        judge poses held that long (a robot that stopped publishing). When a robot's poses
+        stopped ``stale_wall`` seconds ago, its encounters held for the grace time become final
+        and its interventions waiting for the pose judged take their reported state: no pose
+        time will pass for them (the end of a stream), and the fit should not wait."""
         for r in list(self._held):
             self._release(r, -math.inf, wall)
         for k, v in enumerate(self._versions):
@@ -373,6 +422,14 @@ class EncounterBuilder:
                 self._advance_to_stamp(r, self._last_pose[r][0])
         self._prune()
         self._match_pending(wall)
+        quiet = {r for r, w in self._last_wall.items() if w + self.stale_wall <= wall and r not in self._held}
+        if quiet:
+            for enc in [e for e in self._closing if e.robot in quiet]:
+                self._closing.remove(enc)
+                self._emit(enc)
+            for enc in [e for e in self._awaiting if e.robot in quiet]:
+                self._awaiting.remove(enc)
+                self._intervened(enc)
 
     def finish_all(self) -> None:
         """Shutdown: pending interventions are matched, encounters held for the grace time
@@ -384,7 +441,7 @@ class EncounterBuilder:
             self._emit(enc)
         self._closing = []
         for enc in self._awaiting:
-            self._intervened(enc, range(len(enc.t)), enc.await_t, enc.await_state)
+            self._intervened(enc)
         self._awaiting = []
 
     def pop_finished(self) -> list[EncounterRecord]:
@@ -409,21 +466,33 @@ class EncounterBuilder:
     def _advance(self, robot, version, stamp):
         """Move ``robot`` to obstacle-set ``version``: end its encounters with obstacles
         that are gone or moved there."""
-        old = self._versions[self._robot_version[robot] - self._base][2]
+        first = self._robot_version[robot]
+        old = self._versions[first - self._base][2]
         new = self._versions[version - self._base][2]
         self._robot_version[robot] = version
-        t_change = self._versions[version - self._base][0]
         for oid in list(old):
             if new.get(oid) != old[oid] and (robot, oid) in self._open:
+                t_change = self._left_at(first, version, oid, old[oid])
                 # a set's stamp may lag the true time (a node on a coarse clock): the
                 # encounter goes on for removal_delay, so no frame before the removal is cut
                 # (frames after an intervention are dropped anyway, and a jump still ends it)
                 start = stamp if t_change == -math.inf else t_change
                 self._lingering[(robot, oid)] = start + self.removal_delay
+                self._open[(robot, oid)].gone_at = start
+        for enc in self._awaiting:
+            if enc.robot == robot and enc.gone_at is None and new.get(enc.obstacle) != enc.centre:
+                t_change = self._left_at(first, version, enc.obstacle, enc.centre)
+                enc.gone_at = stamp if t_change == -math.inf else t_change
         for oid in list(self._blocked):
             if oid not in new and all(oid not in self._versions[self._robot_version[r] - self._base][2]
                                       for r in self._robot_version):
                 del self._blocked[oid]
+
+    def _left_at(self, first, version, oid, centre) -> float:
+        """Stamp of the first version after ``first`` (up to ``version``) without obstacle
+        ``oid`` at ``centre``: when it left (a later set may already stamp the next scene)."""
+        return next(self._versions[v - self._base][0] for v in range(first + 1, version + 1)
+                    if self._versions[v - self._base][2].get(oid) != centre)
 
     def _end_robot(self, robot, reason, stamp):
         for key in [k for k in self._open if k[0] == robot]:
@@ -449,7 +518,7 @@ class EncounterBuilder:
         still = []
         for enc in self._awaiting:        # no pose after the intervention: its own state stands in
             if self._last_pose[enc.robot][0] - enc.await_t > self.grace:
-                self._intervened(enc, range(len(enc.t)), enc.await_t, enc.await_state)
+                self._intervened(enc)
             else:
                 still.append(enc)
         self._awaiting = still
@@ -476,57 +545,5 @@ class EncounterBuilder:
                     self._robot_version[r] = self._base
 
 
-# -- a Phase II session as the learner sees it on topics ---------------------------------
-def phase2_events(watcher, offsets, *, speed=3.0, dt=0.05, x0=-8.0, x_end=2.5, robot='robot_0',
-                  first_obstacle=1, t0=1.0, park=(-30.0, 0.0)):
-    """The event stream of the study's Phase II scenes (study/conductor.py) judged by a
-    simulated supervisor (``sim.watcher.Watcher``, the supervisor node's own rule).
-
-    Per offset y0: the obstacle set becomes one disc at the origin with a new id; the
-    robot appears at (x0, y0) heading 0 and drives straight at ``speed``, a pose every
-    ``dt``, until the supervisor intervenes (the world then removes the obstacle) or the
-    robot is past x_end; then the set is emptied and the robot is parked far away (a jump).
-    Yields ('obstacles', stamp, ids, xy), ('pose', robot, stamp, (x, y, theta)) and
-    ('intervention', obstacle_id, stamp, rel_state), in publication order.
-    """
-    t = float(t0)
-    oid = int(first_obstacle)
-    empty = np.zeros((0, 2))
-    yield ('pose', robot, t, (park[0], park[1], 0.0))
-    for y0 in offsets:
-        t += dt
-        yield ('obstacles', t, [oid], np.zeros((1, 2)))
-        watcher.obstacles_changed([oid])
-        x = x0
-        while True:
-            t += dt
-            state = (x, float(y0), 0.0)
-            yield ('pose', robot, t, state)
-            decision = watcher.judge(robot, state, t, [oid], np.zeros((1, 2)))
-            if decision is not None:
-                yield ('intervention', oid, decision.time, tuple(decision.rel_state))
-                break
-            if x > x_end:
-                break
-            x += speed * dt
-        t += dt
-        yield ('obstacles', t, [], empty)
-        watcher.obstacles_changed([])
-        t += dt
-        yield ('pose', robot, t, (park[0], park[1], 0.0))
-        watcher.judge(robot, (park[0], park[1], 0.0), t, [], empty)
-        oid += 1
-
-
-def feed(builder: EncounterBuilder, events) -> int:
-    """Apply an event stream (``phase2_events``) to ``builder``; returns interventions fed."""
-    n = 0
-    for ev in events:
-        if ev[0] == 'pose':
-            builder.pose(ev[1], ev[2], ev[3])
-        elif ev[0] == 'obstacles':
-            builder.set_obstacles(ev[2], ev[3], ev[1])
-        else:
-            builder.intervention(ev[1], ev[2], ev[3])
-            n += 1
-    return n
+# the Phase II event stream and its feeder live in phase2_stream (re-exported for callers)
+from .phase2_stream import feed, phase2_events  # noqa: E402,F401

@@ -393,7 +393,9 @@ class LearnerNode(Node):
             return
         stamps = [m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in msg.markers]
         ids, xy = self.obstacles.arrays()
-        self.builder.set_obstacles(ids, xy, max(stamps, default=0.0), time.monotonic())
+        # unstamped: in force from its arrival, as an unstamped intervention is (``parse``)
+        stamp = max(stamps, default=0.0) or self.get_clock().now().nanoseconds * 1e-9
+        self.builder.set_obstacles(ids, xy, stamp, time.monotonic())
 
     def on_pose(self, robot, msg: PoseStamped):
         try:

@@ -24,7 +24,9 @@ One step at sim time t (``sim_clock_node`` lockstep; the nodes named in brackets
    as the graph's filter holds its answer until the union value is in force
    (``cluster_hold_timeout``);
 6. the robot takes the decision as its command at t, the world the decision's action
-   (H2 meters of the next segment).
+   (H2 meters of the next segment);
+7. an online learner, if any, reads the step and may put a refitted set in force for the
+   next step's decisions (the study's ``learned_online``).
 
 Which planner command a lockstepped filter judges is a race in the graph: it answers a
 pose on arrival, and the planner's answer to the same pose may come before or after
@@ -43,6 +45,7 @@ last game's command over for its first step); cluster values are solved inline.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+import functools
 import math
 
 import numpy as np
@@ -77,6 +80,7 @@ class _Robot:
     filter: RobotFilter
     goal: np.ndarray | None = None       # the goal the planner knows
     seen_xy: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    seen_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
 
 
 class TeamLoop:
@@ -85,12 +89,19 @@ class TeamLoop:
     ``safe_set``: the set in force in every filter. ``watcher``: the supervisor's rule
     (None: no supervisor). ``robot_seeds``: each robot's sensor seed. ``filtered`` False
     forwards the planner's command unfiltered (an ablation: what the filter prevents).
+    ``observer``: told of every robot's decision (``step(loop, t, name, state, seen_ids,
+    seen_xy, action)``) and intervention (``intervention(loop, decision, record)``), e.g.
+    ``study.game_trace.GameTrace``; it only reads. ``learner``: told of each step's end
+    (``step(loop, t, states)``: the poses, ``loop.interventions``, the world's obstacles);
+    a SafeSet it returns is in force in every filter from the next step (the study's
+    ``learned_online``: ``study.online.OnlineLearner``).
     """
 
     def __init__(self, world_config: WorldConfig, world_seed: int, starts: dict, robot_seeds: dict,
                  robot: RobotParams, filter_config: FilterConfig, safe_set: SafeSet,
                  watcher: Watcher | None, step: float, respawn: bool = True, filtered: bool = True,
-                 clusters: ClusterStore | None = None, planner_lag: bool = False):
+                 clusters: ClusterStore | None = None, planner_lag: bool = False, observer=None,
+                 learner=None):
         if not (math.isfinite(step) and step > 0):
             raise ValueError(f'step must be positive, got {step}')
         self.step_s = float(step)
@@ -99,6 +110,8 @@ class TeamLoop:
         self.safe_set = safe_set
         self.respawn = respawn
         self.planner_lag = planner_lag
+        self.observer = observer
+        self.learner = learner
         self.filtered = filtered
         self.params = robot
         self.clusters = clusters if clusters is not None else inline_cluster_store(filter_config)
@@ -126,7 +139,7 @@ class TeamLoop:
         states = {}
         for r in self.robots:                                    # 1. integrate and sense
             states[r.name] = r.sim.advance(t).copy()
-            _, r.seen_xy = r.sensor.sense(states[r.name][:2], ids, xy)
+            r.seen_ids, r.seen_xy = r.sensor.sense(states[r.name][:2], ids, xy)
         goals_before = {r.name: r.goal for r in self.robots}
         for r in self.robots:                                    # 2. the world counts
             self.world.update_detections(r.name, r.seen_xy, t)
@@ -156,10 +169,16 @@ class TeamLoop:
             r.sim.command(omega, t)
             self.world.set_filter_action(r.name, action)
             self.decisions[action] = self.decisions.get(action, 0) + 1
+            if self.observer is not None:
+                self.observer.step(self, t, r.name, states[r.name], r.seen_ids, r.seen_xy, action)
         if self.planner_lag:
             self._plan(states, goals_before, t)
         if self.record:
             self.trace.append((t, np.array([states[r.name] for r in self.robots])))
+        if self.learner is not None:                             # 7. a learner may refit
+            new = self.learner.step(self, t, states)
+            if new is not None:
+                self.safe_set = new
 
     def _plan(self, states, goals, t) -> None:
         """The planners answer this step's poses with the goals they knew before it."""
@@ -177,6 +196,8 @@ class TeamLoop:
         robot = self.world.robot_at(centre + d.rel_state[:2], 1.0)
         record, _ = self.world.intervene(d.obstacle_id, d.time, robot, respawn=self.respawn)
         self.interventions.append((d, record))
+        if self.observer is not None:
+            self.observer.intervention(self, d, record)
         self.watcher.obstacles_changed(self.world.obstacle_arrays()[0])
 
     def _solve_clusters(self) -> None:
@@ -213,6 +234,17 @@ class TeamLoop:
 def inline_cluster_store(cfg: FilterConfig) -> ClusterStore:
     """A cluster store for the filter's configuration that solves in the caller's thread
     (values on disk are shared with the graph's filters: ``disk_cache``)."""
-    settings = ClusterSettings(radius=cfg.radius, speed=cfg.speed, omega_max=cfg.omega_max,
-                               link=cfg.cluster_link)
-    return ClusterStore(settings, background=False)
+    return ClusterStore(cluster_settings(cfg), background=False)
+
+
+def cluster_settings(cfg: FilterConfig) -> ClusterSettings:
+    """The cluster settings of a filter configuration (as the filter nodes build them)."""
+    return ClusterSettings(radius=cfg.radius, speed=cfg.speed, omega_max=cfg.omega_max, link=cfg.cluster_link)
+
+
+@functools.lru_cache(maxsize=2)
+def process_cluster_store(settings: ClusterSettings) -> ClusterStore:
+    """One inline store per process and settings, kept across games: a value once loaded
+    (disk cache) or solved is not read and differentiated again in the next game (the
+    values are the same either way; LRU-bounded)."""
+    return ClusterStore(settings, background=False, capacity=192)

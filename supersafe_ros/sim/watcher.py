@@ -94,7 +94,9 @@ class Watcher:
                 del self.pending[oid]      # the world never removed it: judge it afresh
         rel = np.column_stack([s[0] - xy[:, 0], s[1] - xy[:, 1], np.full(len(ids), s[2])])
         inside = self.vf.grid.contains(rel)
-        values = np.where(inside, self.vf.value(rel), np.inf)
+        values = np.full(len(ids), np.inf)
+        if inside.any():                 # only the obstacles near enough to judge are evaluated
+            values[inside] = self.vf.value(rel[inside])
         best = None
         for k, oid in enumerate(ids.tolist()):
             key = (robot, oid)

@@ -11,11 +11,14 @@ Table 1 (right, observed): mean false positives per subject in each condition's
 game, and that mean relative to Standard's.
 
 Statistics: one-way repeated-measures ANOVA over the conditions (statsmodels
-AnovaRM, subject as the repeated factor) and Tukey's HSD for all pairs
-(scipy.stats.tukey_hsd), as the paper reports.
+AnovaRM, subject as the repeated factor), as the paper reports. Pairs: the paired tests of
+``posthoc`` (Holm); Tukey's HSD (scipy.stats.tukey_hsd, what the paper reports) treats the
+conditions as independent groups and is kept only as a labelled reference (``tukey_pairs``).
 
 Conditions: Standard, Learned (the paper's estimator, eqs. 3-4, alpha = mu), Learned FP
-(the first-passage estimator, alpha = mu) and Conservative; a study may run any subset
+(the first-passage estimator, alpha = mu), Learned online (Learned FP's set, refitted
+during the game from the team's own encounters: ``online``) and Conservative; a study may
+run any subset
 (``--conditions``), and every function here works on the conditions it is given, in
 ``CONDITIONS`` order.
 
@@ -29,9 +32,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-CONDITIONS = ('standard', 'learned', 'learned_fp', 'conservative')
+CONDITIONS = ('standard', 'learned', 'learned_fp', 'learned_online', 'conservative')
 LABELS = {'standard': 'Standard', 'learned': 'Learned', 'learned_fp': 'Learned FP',
-          'conservative': 'Conservative'}
+          'learned_online': 'Learned online', 'conservative': 'Conservative'}
 H2_MEASURES = ('path_per_trip', 'avoidance_length', 'override_fraction', 'min_clearance')
 
 # The paper's Table 1 (Sec. V, 11 participants) and its statistics, for side-by-side reports.
@@ -132,7 +135,7 @@ def h2_summary(measures: dict) -> dict:
                                   'sd': float(v.std(ddof=1)) if len(v) > 1 else float('nan'),
                                   'n': int(len(v))}
     if 'conservative' in measures:
-        for c in ('learned', 'learned_fp'):
+        for c in ('learned', 'learned_fp', 'learned_online'):
             if c in measures:
                 k, n = shorter_count(measures[c]['avoidance_length'],
                                      measures['conservative']['avoidance_length'])

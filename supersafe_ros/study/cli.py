@@ -14,7 +14,10 @@ from pathlib import Path
 import sys
 import time
 
-from .analysis import CONDITIONS, PAPER_STATS, format_h2, format_table1, ordered, significance_stars
+from .analysis import CONDITIONS, LABELS, PAPER_STATS, format_h2, format_table1, ordered
+from .posthoc import format_posthoc
+from .online import format_online
+from .validity import format_validity
 
 DEMO_SUBJECTS = 3
 DEMO_SEED = 7
@@ -25,10 +28,12 @@ def _add_common(parser, subjects_default):
     parser.add_argument('--seed', type=int, default=0, help='seed of subjects and world layouts')
     parser.add_argument('--out', type=Path, default=Path('study-out'), help='plots, logs and results go here')
     parser.add_argument('--json', type=Path, default=None, help='results JSON (default <out>/study.json)')
-    parser.add_argument('--conditions', type=str, default=','.join(CONDITIONS),
+    parser.add_argument('--conditions', type=str, default=None,
                         help='comma-separated safe sets to play in Phase III, of '
-                             f'{",".join(CONDITIONS)} (default all): learned = the paper\'s estimator '
-                             '(learner node), learned_fp = first-passage (from the recorded approaches)')
+                             f'{",".join(CONDITIONS)} (default all; the graph engine: all but learned_online): '
+                             'learned = the paper\'s estimator (learner node), learned_fp = first-passage (from the '
+                             'recorded approaches), learned_online = learned_fp\'s set refitted during the game from '
+                             'the team\'s own encounters (core engine)')
     parser.add_argument('--step', type=float, default=0.2,
                         help='sim seconds per lockstep step (default 0.2: ~20x real time on 2 cores; '
                              '0.05 is the team default, ~4x slower)')
@@ -40,10 +45,19 @@ def _add_common(parser, subjects_default):
     parser.add_argument('--sweep-subjects', type=int, default=2,
                         help='observed alpha sweep (extra Learned games at mu+sigma, mu+2sigma) for the '
                              'first k subjects (default 2; 0 = predicted sweep only)')
+    _add_population(parser)
     _add_engine(parser)
     parser.add_argument('--domain-id', type=int, default=None, help='ROS_DOMAIN_ID (graph engine; '
                         'default inherited)')
     parser.add_argument('--no-plots', action='store_true', help='skip the PNG figures')
+
+
+def _add_population(parser):
+    parser.add_argument('--population', default='pilots', metavar='pilots|paper|FILE.json',
+                        help='who the simulated subjects are: pilots (default; the authors\' five pilot '
+                             'supervisors, fitted), paper (calibrated so that Phase II reproduces the paper\'s '
+                             'Table 1 and Fig. 6 mix), or a population file (supersafe population calibrate / '
+                             'from-sessions)')
 
 
 def _add_engine(parser):
@@ -56,6 +70,10 @@ def _add_engine(parser):
     parser.add_argument('--workers', type=int, default=0,
                         help='core engine: subjects run in this many processes (default 0: one per core); '
                              'the results do not depend on it')
+    parser.add_argument('--scheduler', default='', metavar='ADDRESS',
+                        help='core engine: run the subjects on a Dask distributed cluster, this scheduler\'s '
+                             'address (e.g. tcp://10.0.0.5:8786); its workers need supersafe_ros and '
+                             '$SUPERSAFE_CACHE; the same records as a local run')
 
 
 def add_parser(subparsers):
@@ -69,17 +87,20 @@ def add_parser(subparsers):
         'demo', help=f'a small study: {DEMO_SUBJECTS} subjects, seed {DEMO_SEED}, out ./study-out',
         description='A small study (3 simulated supervisors); prints Table 1 and where the plots are. '
                     'Builds the value-function cache on first use.')
+    _add_population(demo)
     _add_engine(demo)
     demo.add_argument('--domain-id', type=int, default=None, help='ROS_DOMAIN_ID (graph engine; default '
                       'inherited)')
     demo.add_argument('--out', type=Path, default=Path('study-out'), help='output directory')
     demo.set_defaults(func=run_demo)
+    from .population_cli import add_parser as add_population_parser
+    add_population_parser(subparsers)
     return study
 
 
 def run_demo(args) -> int:
     args.subjects, args.seed, args.json = DEMO_SUBJECTS, DEMO_SEED, None
-    args.conditions = ','.join(CONDITIONS)
+    args.conditions = None           # every condition the engine runs
     args.step, args.rate_factor, args.game_seconds = 0.2, 0.0, 120.0
     args.phase2_offsets, args.sweep_subjects, args.no_plots = None, 1, False
     return run(args)
@@ -95,12 +116,19 @@ def parse_conditions(text: str) -> tuple:
 
 def options_from_args(args):
     from .protocol import StudyOptions
+    engine = getattr(args, 'engine', 'core')
+    conditions = args.conditions or ','.join(c for c in CONDITIONS if engine == 'core' or c != 'learned_online')
     opts = StudyOptions(subjects=args.subjects, seed=args.seed, step=args.step,
                         rate_factor=args.rate_factor, game_seconds=args.game_seconds,
-                        conditions=parse_conditions(args.conditions),
+                        conditions=parse_conditions(conditions),
                         out_dir=Path(args.out), domain_id=args.domain_id,
                         sweep_subjects=max(0, args.sweep_subjects), plots=not args.no_plots,
-                        engine=getattr(args, 'engine', 'core'), workers=max(0, getattr(args, 'workers', 0)))
+                        engine=engine, workers=max(0, getattr(args, 'workers', 0)),
+                        scheduler=getattr(args, 'scheduler', '') or '')
+    if opts.scheduler and engine != 'core':
+        raise ValueError('--scheduler runs the core engine\'s subjects (--engine core)')
+    if engine == 'graph' and 'learned_online' in opts.conditions:
+        raise ValueError('learned_online runs on the core engine only (--engine core)')
     if args.phase2_offsets:
         opts.phase2_offsets = tuple(float(v) for v in args.phase2_offsets.split(',') if v.strip())
     return opts
@@ -109,7 +137,7 @@ def options_from_args(args):
 def run(args, out=sys.stdout) -> int:
     from ..rosenv import ensure_local_ros_env
     ensure_local_ros_env()
-    from .population import draw_subjects, pilot_fits
+    from .population import load_population
     from .plots import make_plots
     from .protocol import reference_sets
     from .records import jsonable
@@ -129,9 +157,18 @@ def run(args, out=sys.stdout) -> int:
     load_or_build_library()          # the learner's library, built once into the cache
     standard_vf, conservative_vf = reference_sets()
     print(f'ready in {time.monotonic() - t0:.1f} s', file=out, flush=True)
-    pilots, population_source = pilot_fits()
-    print(f'population: the five pilots fitted from {population_source}', file=out, flush=True)
-    subjects = draw_subjects(opts.subjects, opts.seed, pilots)
+    try:
+        population = load_population(getattr(args, 'population', 'pilots'))
+    except ValueError as exc:
+        print(f'supersafe study: {exc}', file=sys.stderr)
+        return 2
+    if population.name == 'pilots':
+        print(f'population: the five pilots fitted from {population.source}', file=out, flush=True)
+    else:
+        print(f'population: {population.name} ({population.source}): '
+              + ', '.join(f'{m.name} x{m.weight:g} (w_S {m.omega_max:g}, mu {m.mu:g}, sigma {m.sigma:g})'
+                          for m in population.members), file=out, flush=True)
+    subjects = population.draw(opts.subjects, opts.seed)
     try:
         raw = run_study(subjects, opts, out=out)
     except KeyboardInterrupt:
@@ -144,8 +181,9 @@ def run(args, out=sys.stdout) -> int:
                          'game_wall_s': [g['wall'] for r in raw['records']
                                          for g in list(r['games'].values()) + [v for k, v in r['sweep'].items() if k]],
                          'load_average': list(os.getloadavg())}
-    summary['population'] = {'source': population_source,
-                             'pilots': [dict(vars(p)) for p in pilots]}
+    summary['population'] = population.describe()
+    if population.name == 'pilots':
+        summary['population']['pilots'] = summary['population']['members']
     summary['options'] = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(opts).items()}
     out_dir = Path(opts.out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -159,10 +197,12 @@ def run(args, out=sys.stdout) -> int:
     print(f"\nrepeated-measures ANOVA (false positives): F({a['df_num']:g}, {a['df_den']:g}) = "
           f"{a['F']:.3g}, p = {a['p']:.3g}" + (f"  ({a['note']})" if 'note' in a else '')
           + f"   [paper: {PAPER_STATS['anova']}]", file=out)
-    for pair, t in summary['tukey'].items():
-        paper = PAPER_STATS['tukey'].get(pair)
-        print(f"Tukey {pair}: mean difference {t['mean_difference']:+.2f}, p = {t['p']:.3g} "
-              f"{significance_stars(t['p'])}" + (f'   [paper: {paper}]' if paper else ''), file=out)
+    print(format_posthoc(summary['posthoc'], LABELS, PAPER_STATS['tukey'], summary['tukey']), file=out)
+    print('\nmodel validity (95 % CIs; study.validity):', file=out)
+    print(format_validity(summary['validity']), file=out)
+    if summary.get('online'):
+        print('\nlearning from the games (learned_online; study.online):', file=out)
+        print(format_online(summary['online']), file=out)
     print('\nH2, efficiency: mean (sd) over subjects', file=out)
     print(format_h2(summary['h2']), file=out)
     for c, v in summary['conditions'].items():

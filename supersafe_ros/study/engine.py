@@ -10,7 +10,7 @@ the two side by side.
 
 * Phase II (``CoreStudy.phase2``): the scenes of ``conductor.Phase2Conductor`` (one robot
   at (-8, y0, 0) with u = 0 towards one disc at the origin, a new obstacle id per scene,
-  ids from 0 as the graph's world gives them) as ``learning.encounters.phase2_events``
+  ids from 0 as the graph's world gives them) as ``learning.phase2_stream.phase2_events``
   generates them, judged by the supervisor node's own rule (``sim.watcher.Watcher``, the
   subject's w_max, mu, sigma and seed). The two learners fit as the learner node does,
   once on all the data: ``paper`` (``fit_paper_values`` on the intervention states) and
@@ -36,16 +36,19 @@ import numpy as np
 
 from ..filter.admissibility import check_learned_set
 from ..filter import FilterConfig, SafeSet
-from ..learning.encounters import EncounterBuilder, feed, phase2_events
+from ..learning.encounters import EncounterBuilder
+from ..learning.phase2_stream import feed, phase2_events
 from ..learning.estimators import (admissible_mask, encounter_intervals, fit_first_passage_intervals,
                                    fit_paper_values)
 from ..learning.levels import learned_alpha
 from ..reach.grid import Grid
 from ..reach.library import LibrarySpec, load_or_build_library, load_or_solve
-from ..sim.team_loop import RobotParams, TeamLoop
+from ..sim.team_loop import RobotParams, TeamLoop, cluster_settings, process_cluster_store
 from ..sim.watcher import Watcher
 from ..sim.world import WorldConfig
 from ..team import robot_names, start_poses
+from .game_trace import GameTrace
+from .online import OnlineLearner
 from .protocol import (FP_LEARNER, PHASE2_X0, PHASE2_X_END, SPEED, Phase2Result, config_params,
                        reference_sets, supervisor_seed)
 
@@ -142,8 +145,9 @@ class Learners:
                                           'estimator', 'interventions')}
 
     def first_passage(self, events):
-        """(value function, fit dict) of the first-passage estimator on the encounters the
-        learner node builds from the same event stream, or (None, None)."""
+        """(value function, fit dict, encounter records) of the first-passage estimator on the
+        encounters the learner node builds from the same event stream; (None, None, records)
+        without an admissible fit."""
         builder = EncounterBuilder(self.lo, self.hi, **self.builder_args)
         feed(builder, events)
         builder.finish_all()
@@ -151,19 +155,19 @@ class Learners:
         encounters = [r.to_encounter() for r in records]
         n_int = sum(1 for e in encounters if e.intervened)
         if n_int < MIN_INTERVENTIONS:
-            return None, None
+            return None, None, records
         iv = encounter_intervals(self.entries, encounters)
         fit = fit_first_passage_intervals(self.entries, iv, alpha_k=self.alpha_k, admissible=self.admissible)
         vf = self.publish(fit)
         if vf is None:
-            return None, None
+            return None, None, records
         d = fit.to_dict()
         out = {k: d.get(k) for k in ('omega_max', 'mu', 'sigma', 'alpha', 'log_likelihood')}
         out.update(estimator=d['estimator'], interventions=int(d['interventions']),
                    encounters=int(d.get('encounters') or 0), index=d['index'],
                    stored_encounters=len(records),
                    unmatched_interventions=int(builder.counts['unmatched_interventions']))
-        return vf, out
+        return vf, out, records
 
 
 @functools.lru_cache(maxsize=1)
@@ -215,13 +219,13 @@ class CoreStudy:
         states = np.array([s['state'] for s in scenes if s['intervened']], dtype=float).reshape(-1, 3)
         lr = learners()
         vf, fit = lr.paper(states)
-        fp_vf, fp_fit = lr.first_passage(events) if with_fp else (None, None)
+        fp_vf, fp_fit, fp_records = lr.first_passage(events) if with_fp else (None, None, [])
         notes = []
         if with_fp and fp_fit is None and len(states) >= MIN_INTERVENTIONS:
             notes.append(f'the {FP_LEARNER} fit was not admissible')
         span = scenes[-1]['end_time'] - scenes[0]['start_time'] if scenes else 0.0
         res = Phase2Result(scenes, states, None, fit, span, time.monotonic() - t0, notes, None, fp_fit)
-        res.vf, res.fp_vf = vf, fp_vf
+        res.vf, res.fp_vf, res.fp_records = vf, fp_vf, fp_records
         res.cpu_s = time.process_time() - cpu0
         return res
 
@@ -235,7 +239,7 @@ class CoreStudy:
         if condition == 'conservative':
             vf, alpha, ran = conservative_vf, 0.0, 'conservative'
         elif condition in learned and learned[condition][0] is not None:
-            vf, fit = learned[condition]
+            vf, fit = learned[condition][:2]
             alpha, ran = learned_alpha(fit, k), condition
         else:
             return SafeSet(standard_vf, std_alpha, 'standard'), None, 'standard'
@@ -244,16 +248,23 @@ class CoreStudy:
             raise RuntimeError(f'the filters would reject the {condition} set: {verdict.reason}')
         return SafeSet(vf, alpha, 'learned'), (alpha if ran != 'conservative' else None), ran
 
-    def play(self, subject, world_seed: int, safe_set: SafeSet, opts, filtered: bool = True) -> dict:
-        """One game: the result dict of ``GameGraph.play`` (stats, interventions, wall, cpu)."""
+    def play(self, subject, world_seed: int, safe_set: SafeSet, opts, filtered: bool = True,
+             online_records=None) -> dict:
+        """One game: the result dict of ``GameGraph.play`` (stats, interventions, wall, cpu).
+        ``online_records`` (the Phase II encounters): the set keeps learning during the game
+        (``online.OnlineLearner``, the ``learned_online`` condition)."""
         t0, cpu0 = time.monotonic(), time.process_time()
         names = robot_names(N_ROBOTS)
         starts = dict(zip(names, start_poses(N_ROBOTS)))
         # team_layout(seed=world_seed): robot i's sensor seed is seed * 1000 + i + 1
         seeds = {n: world_seed * 1000 + i + 1 for i, n in enumerate(names)}
         watcher = make_watcher(subject, supervisor_seed(subject, world_seed))
-        loop = TeamLoop(world_config(), world_seed, starts, seeds, robot_params(),
-                        filter_config(opts.step), safe_set, watcher, opts.step, filtered=filtered)
+        cfg = filter_config(opts.step)
+        trace = GameTrace()
+        online = OnlineLearner(learners(), online_records, safe_set) if online_records is not None else None
+        loop = TeamLoop(world_config(), world_seed, starts, seeds, robot_params(), cfg, safe_set, watcher,
+                        opts.step, filtered=filtered, clusters=process_cluster_store(cluster_settings(cfg)),
+                        observer=trace, learner=online)
         loop.run(opts.game_seconds)
         stats = loop.stats()
         stats['sim_time'] = f'{opts.game_seconds:.3f}'
@@ -264,4 +275,5 @@ class CoreStudy:
         wall = time.monotonic() - t0
         return {'stats': stats, 'interventions': log, 'wall': wall, 'wall_running': wall,
                 'resends': 0, 'cpu_s': cpu, 'cpu_by_process': {f'study ({os.getpid()})': round(cpu, 2)},
-                'decisions': dict(loop.decisions), 'steps': loop.steps}
+                'decisions': dict(loop.decisions), 'steps': loop.steps, 'trace': trace.to_dict(),
+                'online': online.history if online is not None else None}

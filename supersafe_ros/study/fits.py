@@ -57,8 +57,9 @@ def learned_sets(p2: Phase2Result, conditions) -> dict:
     out = {}
     if 'learned' in conditions:
         out['learned'] = (p2.vf_msg, p2.fit)
-    if 'learned_fp' in conditions:
-        out['learned_fp'] = (p2.fp_msg, p2.fp_fit)
+    for c in ('learned_fp', 'learned_online'):     # learned_online starts from the first-passage fit
+        if c in conditions:
+            out[c] = (p2.fp_msg, p2.fp_fit)
     return out
 
 

@@ -1,6 +1,7 @@
 """The study's figures (PNG): the paper's Figs. 5 (FP per set), 6 (learned sets), 7
-(Phase II interventions over reachable sets), the alpha sweep of Sec. II-D and the H2
-efficiency panel (Sec. V-B); ``make_plots`` draws them all for one study."""
+(Phase II interventions over reachable sets), the model validity of Sec. V-C
+(``validity``), the alpha sweep of Sec. II-D and the H2 efficiency panel (Sec. V-B);
+``make_plots`` draws them all for one study."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -14,7 +15,7 @@ from .protocol import TRUE_RADIUS
 from .records import record_learned
 
 COLORS = {'standard': '0.55', 'learned': 'tab:blue', 'learned_fp': 'tab:green',
-          'conservative': 'tab:orange'}
+          'learned_online': 'tab:purple', 'conservative': 'tab:orange'}
 
 
 def _plt():
@@ -24,7 +25,9 @@ def _plt():
     return plt
 
 
-def plot_false_positives(path, fp: dict, tukey: dict) -> None:
+def plot_false_positives(path, fp: dict, tests: dict) -> None:
+    """Mean FP per set (SEM bars, subjects as dots) with the paired post-hoc tests' stars
+    (Holm-corrected; ``tests``: posthoc['pairs'])."""
     plt = _plt()
     conds = ordered(fp)
     n = len(conds)
@@ -39,13 +42,13 @@ def plot_false_positives(path, fp: dict, tukey: dict) -> None:
     pairs = [(a, b) for a in range(n) for b in range(a + 1, n)]
     for k, (a, b) in enumerate(pairs):
         key = f'{conds[a]}-{conds[b]}'
-        if key in tukey:
+        if key in tests:
             y = top * (1 + 0.1 * k)
             ax.plot([a, a, b, b], [y, y * 1.02, y * 1.02, y], color='k', lw=1)
-            ax.text((a + b) / 2, y * 1.03, significance_stars(tukey[key]['p']), ha='center', fontsize=8)
+            ax.text((a + b) / 2, y * 1.03, significance_stars(tests[key]['p']), ha='center', fontsize=8)
     ax.set_xticks(range(n), [LABELS[c] for c in conds])
     ax.set_ylabel('False positives per game')
-    ax.set_title('False positives per safe set (Tukey HSD)')
+    ax.set_title('False positives per safe set (paired t, Holm)')
     ax.set_ylim(0, top * (1.2 + 0.1 * len(pairs)))
     fig.tight_layout()
     fig.savefig(path, dpi=120)
@@ -167,6 +170,82 @@ def plot_alpha_sweep(path, sweep: dict) -> None:
     plt.close(fig)
 
 
+def plot_validity(path, validity: dict) -> None:
+    """Model validity: left, observed FP ratio against the predicted share, per subject (small
+    marks) and pooled (large, 95 % CIs; hollow: the prediction from the games' own states);
+    middle, where the FP came from; right, V - alpha at override onsets by bearing."""
+    plt = _plt()
+    fig, (ax, bx, cx) = plt.subplots(1, 3, figsize=(14, 4.4))
+    top = 1.2
+    for c, rows in validity['per_subject'].items():
+        for r in rows:
+            if np.isfinite(r['predicted']) and np.isfinite(r['observed']):
+                ax.plot(r['predicted'], r['observed'], 'o', ms=3.5, alpha=0.45, color=COLORS[c])
+                top = max(top, min(r['observed'], 3.0))
+    for c, p in validity['pooled'].items():
+        if not (np.isfinite(p['predicted']) and np.isfinite(p['observed'])):
+            continue
+        xerr = [[p['predicted'] - p['predicted_ci'][0]], [p['predicted_ci'][1] - p['predicted']]]
+        yerr = [[p['observed'] - p['observed_ci'][0]], [p['observed_ci'][1] - p['observed']]]
+        ax.errorbar(p['predicted'], p['observed'], xerr=xerr, yerr=yerr, fmt='s', ms=9, color=COLORS[c],
+                    capsize=3, label=f'{LABELS[c]} (pooled)')
+        if np.isfinite(p['games_predicted']):
+            ax.plot(p['games_predicted'], p['observed'], 's', ms=9, mfc='none', color=COLORS[c])
+            ax.annotate('', (p['games_predicted'], p['observed']), (p['predicted'], p['observed']),
+                        arrowprops={'arrowstyle': '->', 'color': COLORS[c], 'lw': 0.8})
+    ax.plot([0, top], [0, top], 'k:', lw=1)
+    ax.set_xlim(0, top)
+    ax.set_ylim(0, top)
+    ax.set_xlabel('predicted FP vs Standard (Phase II states inside the set)')
+    ax.set_ylabel('observed FP vs Standard')
+    ax.set_title('Model validity (hollow: predicted from the games\' states)', fontsize=9)
+    ax.legend(fontsize=7, loc='upper left')
+    conds = list(validity['gap'])
+    keys = (('fp_after_override', 'after an override'), ('fp_tangential', 'tangential bearing'),
+            ('fp_inside_set', 'inside the set (predicted)'))
+    width = 0.8 / len(keys)
+    for k, (key, label) in enumerate(keys):
+        bx.bar(np.arange(len(conds)) + (k - 1) * width, [validity['gap'][c][key] for c in conds], width,
+               label=label)
+    bx.set_xticks(range(len(conds)), [f'{LABELS[c]}\n{validity["gap"][c]["false_positives"]} FP' for c in conds],
+                  fontsize=8)
+    bx.set_ylim(0, 1)
+    bx.set_ylabel('share of the false positives')
+    bx.set_title('Where the games\' false positives come from', fontsize=9)
+    bx.legend(fontsize=7)
+    for k, bearing in enumerate(('head-on', 'oblique')):
+        med = [validity['gap'][c]['onset_v_minus_alpha'][bearing] for c in conds]
+        cx.errorbar(np.arange(len(conds)) + (k - 0.5) * 0.3, [m['median'] for m in med],
+                    yerr=[[m['median'] - m['q25'] for m in med], [m['q75'] - m['median'] for m in med]],
+                    fmt='o', capsize=3, label=f'{bearing} (median, IQR)')
+    cx.axhline(0, color='k', lw=0.8)
+    cx.set_xticks(range(len(conds)), [LABELS[c] for c in conds], fontsize=8)
+    cx.set_ylabel('V - alpha where overriding starts [m]')
+    cx.set_title('How far from its level the filter starts to act', fontsize=9)
+    cx.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_online(path, report: dict) -> None:
+    """False positives per quarter of the game, per condition (learned_online learns during it)."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(5.5, 3.8))
+    for c, q in report['fp_per_quarter'].items():
+        ax.plot(range(1, len(q) + 1), q, 'o-', color=COLORS[c], lw=2.5 if c == 'learned_online' else 1.2,
+                label=LABELS[c])
+    ax.set_xticks(range(1, len(q) + 1), [f'Q{k}' for k in range(1, len(q) + 1)])
+    ax.set_xlabel('quarter of the 120 s game')
+    ax.set_ylabel('false positives (mean over subjects)')
+    ax.set_ylim(bottom=0)
+    ax.set_title('Learning from the games: false positives across the game', fontsize=9)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
 def make_plots(out_dir: Path, summary: dict, records: list, standard_vf, conservative_vf) -> list:
     """Every figure of a study (``summary.summarize``'s ``summary`` of ``records``) into
     ``out_dir``; returns their paths."""
@@ -174,7 +253,7 @@ def make_plots(out_dir: Path, summary: dict, records: list, standard_vf, conserv
     paths = []
     fp = {c: summary['conditions'][c]['false_positives'] for c in summary['conditions']}
     p = out_dir / 'false_positives.png'
-    plot_false_positives(p, fp, summary['tukey'])
+    plot_false_positives(p, fp, summary['posthoc']['pairs'])
     paths.append(p)
     p = out_dir / 'efficiency.png'
     plot_efficiency(p, summary['conditions'], summary['h2'])
@@ -182,7 +261,7 @@ def make_plots(out_dir: Path, summary: dict, records: list, standard_vf, conserv
     learned = []
     for r in records:
         for c, (vf, fit) in record_learned(r).items():
-            if vf is not None:
+            if vf is not None and c != 'learned_online':      # it starts from learned_fp's set
                 learned.append((vf, learned_alpha(fit), f"subject {r['subject']['index']}", c))
     p = out_dir / 'learned_sets.png'
     plot_learned_sets(p, standard_vf, conservative_vf, learned, TRUE_RADIUS)
@@ -191,6 +270,14 @@ def make_plots(out_dir: Path, summary: dict, records: list, standard_vf, conserv
     p = out_dir / 'phase2_interventions.png'
     plot_phase2(p, states, standard_vf, conservative_vf, TRUE_RADIUS)
     paths.append(p)
+    if summary.get('validity', {}).get('pooled'):
+        p = out_dir / 'validity.png'
+        plot_validity(p, summary['validity'])
+        paths.append(p)
+    if summary.get('online') and summary['online']['fp_per_quarter']:
+        p = out_dir / 'online.png'
+        plot_online(p, summary['online'])
+        paths.append(p)
     sweep = {label: v for label, v in summary['alpha_sweep'].items() if v['predicted']}
     if sweep:
         p = out_dir / 'alpha_sweep.png'

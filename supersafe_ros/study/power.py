@@ -4,9 +4,10 @@ The simulated subjects of a study (one row each: their false positives, or anoth
 per-subject measure, in every condition) are resampled with replacement, keeping each
 subject's conditions together (the design is repeated measures). For each number of
 participants N and each of ``draws`` resamples, the study's own tests run on the sample:
-the one-way repeated-measures ANOVA (statsmodels AnovaRM) and Tukey's HSD for every pair
-(scipy.stats.tukey_hsd), both from ``study.analysis``. The power at N is the share of
-resamples with p < 0.05. A draw whose values do not vary cannot be tested and counts as
+the one-way repeated-measures ANOVA (statsmodels AnovaRM, ``study.analysis``) and the
+paired post-hoc tests of every pair (paired t-tests, Holm-corrected over the pairs,
+``study.posthoc``). The power at N is the share of resamples with p < 0.05 (for a pair:
+its Holm-adjusted p). A draw whose values do not vary cannot be tested and counts as
 not significant.
 
 This is a bootstrap of the simulated population: it says how often a study of N people
@@ -22,7 +23,8 @@ import time
 
 import numpy as np
 
-from .analysis import H2_MEASURES, LABELS, ordered, repeated_measures_anova, tukey_pairs
+from .analysis import H2_MEASURES, LABELS, ordered, repeated_measures_anova
+from .posthoc import paired_posthoc
 
 MEASURES = ('false_positives',) + H2_MEASURES
 ALPHA = 0.05
@@ -58,14 +60,16 @@ def default_sizes(max_subjects: int, count: int = 8) -> list[int]:
 
 def resample_power(conds, values, sizes, draws: int, seed: int = 0, alpha: float = ALPHA,
                    progress=None) -> dict:
-    """Power of the ANOVA and of each Tukey pair at each N in ``sizes`` (bootstrap)."""
+    """Power of the ANOVA and of each pair's paired test (Holm) at each N in ``sizes``
+    (bootstrap); ``out['posthoc'][pair]`` per N."""
     if draws < 1:
         raise ValueError(f'draws must be >= 1, got {draws}')
     rng = np.random.default_rng(seed)
     n = len(values)
     pairs = [f'{conds[i]}-{conds[j]}' for i in range(len(conds)) for j in range(i + 1, len(conds))]
     out = {'sizes': [int(s) for s in sizes], 'draws': int(draws), 'alpha': alpha,
-           'conditions': list(conds), 'anova': [], 'tukey': {p: [] for p in pairs}}
+           'conditions': list(conds), 'anova': [], 'posthoc': {p: [] for p in pairs},
+           'posthoc_method': 'paired t-tests, Holm-corrected'}
     for size in sizes:
         hits = {'anova': 0, **{p: 0 for p in pairs}}
         for _ in range(draws):
@@ -73,13 +77,13 @@ def resample_power(conds, values, sizes, draws: int, seed: int = 0, alpha: float
             sample = {c: rows[:, j] for j, c in enumerate(conds)}
             a = repeated_measures_anova(sample)
             hits['anova'] += bool(np.isfinite(a['p']) and a['p'] < alpha)
-            t = tukey_pairs(sample)
+            t = paired_posthoc(sample, conds, wilcoxon=False)['pairs']
             for p in pairs:
-                pv = t.get(p, {}).get('p', np.nan)
+                pv = t[p]['p']
                 hits[p] += bool(np.isfinite(pv) and pv < alpha)
         out['anova'].append(hits['anova'] / draws)
         for p in pairs:
-            out['tukey'][p].append(hits[p] / draws)
+            out['posthoc'][p].append(hits[p] / draws)
         if progress:
             progress(size, out)
     return out
@@ -92,9 +96,9 @@ def plot_power(path, power: dict, measure: str, n_sim: int) -> None:
     fig, ax = plt.subplots(figsize=(6.5, 4.2))
     sizes = power['sizes']
     ax.plot(sizes, power['anova'], 'k-o', lw=2, label='repeated-measures ANOVA')
-    for pair, v in power['tukey'].items():
+    for pair, v in power['posthoc'].items():
         a, b = pair.split('-')
-        ax.plot(sizes, v, '--.', label=f'Tukey {LABELS[a]} vs {LABELS[b]}')
+        ax.plot(sizes, v, '--.', label=f'{LABELS[a]} vs {LABELS[b]} (paired, Holm)')
     ax.axhline(0.8, color='0.6', lw=0.8, ls=':')
     ax.set_ylim(-0.02, 1.02)
     ax.set_xlabel('participants')
@@ -108,18 +112,19 @@ def plot_power(path, power: dict, measure: str, n_sim: int) -> None:
 
 
 def format_power(power: dict) -> str:
-    pairs = list(power['tukey'])
-    head = f'{"N":>4s}{"ANOVA":>8s}' + ''.join(f'{p:>26s}' for p in pairs)
+    pairs = list(power['posthoc'])
+    w = max([len(p) for p in pairs] + [24]) + 2
+    head = f'{"N":>4s}{"ANOVA":>8s}' + ''.join(f'{p:>{w}s}' for p in pairs)
     lines = [head]
     for k, size in enumerate(power['sizes']):
         lines.append(f'{size:>4d}{power["anova"][k]:>8.2f}'
-                     + ''.join(f'{power["tukey"][p][k]:>26.2f}' for p in pairs))
+                     + ''.join(f'{power["posthoc"][p][k]:>{w}.2f}' for p in pairs))
     return '\n'.join(lines)
 
 
 def add_parser(subparsers):
     p = subparsers.add_parser('power', help='participants needed: bootstrap power of the ANOVA and '
-                              'Tukey pairs from a simulated study',
+                              'the paired post-hoc tests from a simulated study',
                               description=__doc__.splitlines()[0])
     p.add_argument('study', type=Path, help='a study JSON (supersafe study --json / <out>/study.json)')
     p.add_argument('--max-subjects', type=int, default=24, help='largest number of participants (24)')

@@ -54,7 +54,7 @@ class StudyOptions:
     rate_factor: float = 0.0
     game_seconds: float = 120.0
     phase2_offsets: tuple = tuple(float(v) for v in PHASE2_OFFSETS)
-    conditions: tuple = ('standard', 'learned', 'learned_fp', 'conservative')
+    conditions: tuple = ('standard', 'learned', 'learned_fp', 'learned_online', 'conservative')
     out_dir: Path = Path('study-out')
     domain_id: int | None = None
     sweep_subjects: int = 2          # observed alpha sweep (extra Learned games) for the first k
@@ -63,6 +63,7 @@ class StudyOptions:
     plots: bool = True
     engine: str = 'core'             # core: in this process (study.engine); graph: the node graph
     workers: int = 0                 # core: subjects run in this many processes (0: one per core)
+    scheduler: str = ''              # core: a Dask distributed scheduler's address: subjects run on its workers
 
 
 ENGINES = ('core', 'graph')
@@ -115,4 +116,5 @@ class Phase2Result:
     fp_fit: dict | None = None         # its fit (estimator, omega_max, mu, sigma, alpha, counts)
     vf: object = None                  # core engine: the paper fit's ValueFunction (no message)
     fp_vf: object = None               # core engine: the first-passage fit's ValueFunction
+    fp_records: list = field(default_factory=list)   # core engine: its Phase II encounters
     cpu_s: float | None = None         # core engine: CPU seconds of the phase

@@ -77,14 +77,19 @@ class GraphGames:
 
 
 class CoreGames:
-    """Phase III of one subject in this process (``engine.CoreStudy.play``)."""
+    """Phase III of one subject in this process (``engine.CoreStudy.play``); ``phase2``: its
+    Phase II (the encounters ``learned_online`` goes on learning from)."""
 
-    def __init__(self, core, subject, world_seed: int, opts: StudyOptions):
+    def __init__(self, core, subject, world_seed: int, opts: StudyOptions, phase2=None):
         self.core, self.subject, self.world_seed, self.opts = core, subject, world_seed, opts
+        self.phase2 = phase2
 
     def play(self, condition: str, learned: dict, k: float):
         safe_set, alpha, ran = self.core.safe_set(condition, learned, k)
-        return self.core.play(self.subject, self.world_seed, safe_set, self.opts), alpha, ran
+        online = (self.phase2.fp_records if condition == 'learned_online' and ran == 'learned_online'
+                  and k == 0.0 and self.phase2 is not None else None)
+        return (self.core.play(self.subject, self.world_seed, safe_set, self.opts, online_records=online),
+                alpha, ran)
 
     def close(self):
         pass
@@ -98,9 +103,13 @@ def run_study(subjects: list, opts: StudyOptions, out=sys.stdout) -> dict:
     if opts.engine not in ENGINES:
         raise ValueError(f"engine '{opts.engine}' is not one of {ENGINES}")
     conditions = ordered(opts.conditions)
+    if opts.engine == 'graph' and 'learned_online' in conditions:
+        raise ValueError('learned_online runs on the core engine only (its learner refits inside the game loop)')
     progress = Progress(len(subjects), out)
     t_start = time.monotonic()
-    if opts.engine == 'core':
+    if opts.engine == 'core' and opts.scheduler:
+        records = on_cluster(subjects, opts, conditions, progress)
+    elif opts.engine == 'core':
         workers = opts.workers or os.cpu_count() or 1
         workers = max(1, min(int(workers), len(subjects)))
         if workers > 1:
@@ -121,7 +130,7 @@ def run_study(subjects: list, opts: StudyOptions, out=sys.stdout) -> dict:
         env = team_env(domain)
         records = []
         for i, subject in enumerate(subjects):
-            player = lambda world_seed, i=i, subject=subject: GraphGames(  # noqa: E731
+            player = lambda world_seed, p2, i=i, subject=subject: GraphGames(  # noqa: E731
                 subject, world_seed, opts, env, Path(opts.out_dir) / 'logs' / f's{i:02d}-phase3')
             phase2 = lambda subject, i=i: run_phase2(  # noqa: E731
                 subject, opts, domain, Path(opts.out_dir) / 'logs' / f's{i:02d}-phase2', progress)
@@ -131,6 +140,27 @@ def run_study(subjects: list, opts: StudyOptions, out=sys.stdout) -> dict:
         # (console/session.py), so the analysis can mix the two
         write_subject(Path(opts.out_dir) / 'subjects' / f's{i:02d}', rec)
     return {'records': records, 'wall': time.monotonic() - t_start}
+
+
+def on_cluster(subjects, opts, conditions, progress) -> list:
+    """The core engine's subjects as tasks on a Dask distributed cluster (``opts.scheduler``:
+    its scheduler's address). A subject's record depends on its seeds only, so the records
+    are those of a local run. The workers need this package and its value-function cache
+    (``$SUPERSAFE_CACHE``) as this process has them; each prints its subjects' progress in its
+    own log, and this process one line per finished subject."""
+    from distributed import Client, as_completed
+    records = [None] * len(subjects)
+    with Client(opts.scheduler, timeout=60) as client:
+        futures = {client.submit(_core_subject, i, subject, opts, conditions, progress.t0, pure=False,
+                                 key=f'supersafe-subject-{opts.seed}-{i}-{time.time_ns()}'): i
+                   for i, subject in enumerate(subjects)}
+        for future in as_completed(futures):
+            i = futures[future]
+            records[i] = future.result()
+            games = records[i]['games']
+            progress.line(i, 'done on the cluster', None,
+                          ', '.join(f'{c} FP {g["false_positives"]}' for c, g in games.items()))
+    return records
 
 
 @functools.lru_cache(maxsize=1)
@@ -144,13 +174,14 @@ def _core_subject(i, subject, opts, conditions, t0, out=None):
     progress.t0 = t0
     core = _core()
     return run_subject(i, subject, opts, conditions, progress,
-                       lambda subject: core.phase2(subject, opts, with_fp='learned_fp' in conditions),
-                       lambda world_seed: CoreGames(core, subject, world_seed, opts))
+                       lambda subject: core.phase2(subject, opts, with_fp=bool({'learned_fp', 'learned_online'}
+                                                                               & set(conditions))),
+                       lambda world_seed, p2: CoreGames(core, subject, world_seed, opts, p2))
 
 
 def run_subject(i, subject, opts, conditions, progress, phase2, player_for) -> dict:
     """Phase II, fits and Phase III of one subject; ``phase2(subject)`` -> Phase2Result,
-    ``player_for(world_seed)`` -> GraphGames | CoreGames."""
+    ``player_for(world_seed, phase2 result)`` -> GraphGames | CoreGames."""
     rec = {'subject': subject.to_dict(), 'games': {}, 'sweep': {}, 'fits': {}, 'learned_vfs': {}}
     progress.line(i, 'phase II', None, f'w_max {subject.omega_max:g} mu {subject.mu:g} '
                   f'sigma {subject.sigma:g}, {len(opts.phase2_offsets)} offsets')
@@ -168,14 +199,15 @@ def run_subject(i, subject, opts, conditions, progress, phase2, player_for) -> d
     progress.line(i, 'phase II done', p2.sim_time, f'{len(p2.states)} interventions' + ''.join(
         f'; {c}: ' + (f'w {f["omega_max"]:g} mu {f["mu"]:.3g} sigma {f["sigma"]:.3g}' if f
                       else 'no fit (too few interventions): Standard set')
-        for c, f in rec['fits'].items()) + ''.join(f'; {n}' for n in p2.notes))
+        for c, f in rec['fits'].items() if c != 'learned_online')   # it starts from learned_fp's
+        + ''.join(f'; {n}' for n in p2.notes))
     world_seed = opts.seed * 1000 + i
     learned = {c: (rec['learned_vfs'][c], rec['fits'][c]) for c in fits}
     games = [(c, 0.0) for c in conditions]
     swept = sweep_condition(conditions)
     if i < opts.sweep_subjects and swept and rec['fits'].get(swept):
         games += [(swept, k) for k in opts.sweep_k if k != 0.0]
-    player = player_for(world_seed)
+    player = player_for(world_seed, p2)
     try:
         for cond, k in games:
             result, alpha, ran = player.play(cond, learned, k)
@@ -183,7 +215,9 @@ def run_subject(i, subject, opts, conditions, progress, phase2, player_for) -> d
             g.update(wall=result['wall'], wall_running=result['wall_running'], cpu_s=result['cpu_s'],
                      cpu_by_process=result['cpu_by_process'],
                      resends=result['resends'], set=ran, engine=opts.engine,
-                     alpha=alpha, complete=g['sim_time'] >= opts.game_seconds - 1e-6)
+                     alpha=alpha, complete=g['sim_time'] >= opts.game_seconds - 1e-6,
+                     trace=result.get('trace'),         # core engine only (study.game_trace)
+                     online=result.get('online'))       # learned_online: its refits (study.online)
             if k == 0.0:
                 rec['games'][cond] = g
                 name = f'phase III {cond}'

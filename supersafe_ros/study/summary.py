@@ -1,7 +1,8 @@
-"""The study's numbers from its records: Table 1, H2, ANOVA, Tukey, the alpha sweep.
+"""The study's numbers from its records: Table 1, H2, ANOVA, paired post-hoc tests, the alpha sweep.
 
 ``summarize`` pools the per-subject records (``records``) with the statistics of
-``analysis``; a human participant's record (``console.session``) counts like a
+``analysis`` and ``posthoc`` (paired tests; Tukey's independent-groups HSD is kept as a
+labelled reference); a human participant's record (``console.session``) counts like a
 simulated subject's.
 """
 from __future__ import annotations
@@ -11,12 +12,26 @@ import numpy as np
 from ..learning.levels import learned_alpha
 from .analysis import (H2_MEASURES, SetCount, h2_summary, interventions_inside, ordered,
                        repeated_measures_anova, table1, tukey_pairs)
+from .posthoc import TUKEY_REFERENCE, paired_posthoc
 from .protocol import sweep_condition
 from .records import record_learned, stored_measure
+from .online import online_report
+from .validity import model_validity
+
+
+def record_sets(r: dict, standard_vf, conservative_vf) -> dict:
+    """condition -> (value function, alpha) of the sets a record's Phase III started with (a
+    learned condition without a fit used the Standard set)."""
+    learned = record_learned(r)
+    sets = {'standard': (standard_vf, 0.0), 'conservative': (conservative_vf, 0.0)}
+    for c in ('learned', 'learned_fp', 'learned_online'):
+        vf, fit = learned.get(c, (None, None))
+        sets[c] = (vf, learned_alpha(fit)) if vf is not None else (standard_vf, 0.0)
+    return sets
 
 
 def summarize(records: list, standard_vf, conservative_vf, sweep_k=(0.0, 1.0, 2.0)) -> dict:
-    """Aggregate per-subject records into the study's JSON (Table 1, H2, ANOVA, Tukey, sweep).
+    """Aggregate per-subject records into the study's JSON (Table 1, H2, ANOVA, post-hoc, sweep).
 
     A record: {'subject', 'states' (Phase II intervention states), 'fits' and 'learned_vfs'
     (learned condition -> fit dict / ValueFunction, or None), 'games': {condition: counts
@@ -31,10 +46,7 @@ def summarize(records: list, standard_vf, conservative_vf, sweep_k=(0.0, 1.0, 2.
     for r in records:
         states = np.asarray(r['states'], dtype=float).reshape(-1, 3)
         learned = record_learned(r)
-        sets = {'standard': (standard_vf, 0.0), 'conservative': (conservative_vf, 0.0)}
-        for c in ('learned', 'learned_fp'):
-            vf, fit = learned.get(c, (None, None))
-            sets[c] = (vf, learned_alpha(fit)) if vf is not None else (standard_vf, 0.0)
+        sets = record_sets(r, standard_vf, conservative_vf)
         for c in conditions:
             vf, alpha = sets[c]
             n = interventions_inside(vf, alpha, states)
@@ -73,7 +85,11 @@ def summarize(records: list, standard_vf, conservative_vf, sweep_k=(0.0, 1.0, 2.
         'table1': rows,
         'conditions': out_conditions,
         'anova': repeated_measures_anova(fp),
+        'posthoc': paired_posthoc(fp, conditions),
         'tukey': tukey_pairs(fp),
+        'tukey_method': TUKEY_REFERENCE,
+        'validity': model_validity(records, lambda r: record_sets(r, standard_vf, conservative_vf), conditions),
+        'online': online_report(records, conditions) if 'learned_online' in conditions else None,
         'h2': h2,
         'alpha_sweep': sweep,
         'subjects': [{'subject': r['subject'],
