@@ -58,7 +58,8 @@ def bench_burst(n, burners, repeats):
 def bench_refit(sizes, repeats):
     from supersafe_ros.learning import estimators as E
     from supersafe_ros.learning.data import PHASE2_OFFSETS
-    from supersafe_ros.learning.encounters import EncounterBuilder, feed, phase2_events
+    from supersafe_ros.learning.encounters import EncounterBuilder
+    from supersafe_ros.learning.phase2_stream import feed, phase2_events
     from supersafe_ros.reach.library import LibrarySpec, load_or_build_library
     from supersafe_ros.sim.watcher import Watcher
     lib = load_or_build_library(LibrarySpec())

@@ -156,6 +156,7 @@ def test_analyse_tests_from_three_subjects_and_lists_a_folder_without_complete_o
     assert analyse([tmp_path], out=out) == 0
     assert '3 complete (3 human, 0 simulated)' in out.getvalue()
     assert 'repeated-measures ANOVA (false positives, 3 subjects): F(2, 4)' in out.getvalue()
+    assert 'paired post-hoc (' in out.getvalue() and 'p(Holm) = ' in out.getvalue()
     assert 'no statistical test' not in out.getvalue()
     only = tmp_path / 'only'
     S.SessionStore(only, 'q1')

@@ -3,9 +3,11 @@
 1. Every participant found (a folder with session.json or subject.json) with its state:
    complete, or incomplete and the phase it reached.
 2. The complete ones (human and simulated alike) through the study's ``summarize``; from
-   its result only ``table1``, ``conditions`` and ``anova`` are read. A descriptive table
-   always; the repeated-measures ANOVA only with at least MIN_SUBJECTS_FOR_TESTS subjects,
-   else a plain statement that no test is meaningful (and no test's warnings).
+   its result ``table1``, ``conditions``, ``anova`` and ``posthoc`` are read. A descriptive
+   table always; the repeated-measures ANOVA and the paired post-hoc tests (Holm; Tukey's
+   independent-groups p beside them as a reference) only with at least
+   MIN_SUBJECTS_FOR_TESTS subjects, else a plain statement that no test is meaningful (and
+   no test's warnings).
 3. ``--csv``: one row per participant and condition (counts, H2 measures, the Likert
    answers) for R or SPSS; ``--json``: the summary, the answers and the listing.
 """
@@ -124,6 +126,8 @@ def write_csv(path, rows: list) -> None:
 
 
 def analyse(dirs, json_path=None, csv_path=None, out=sys.stdout) -> int:
+    from ..study.analysis import LABELS
+    from ..study.posthoc import format_posthoc
     from ..study.protocol import reference_sets
     from ..study.records import jsonable
     from ..study.summary import summarize
@@ -155,6 +159,8 @@ def analyse(dirs, json_path=None, csv_path=None, out=sys.stdout) -> int:
         a = summary['anova']
         print(f"\nrepeated-measures ANOVA (false positives, {n} subjects): F({a['df_num']:g}, {a['df_den']:g}) = "
               f"{a['F']:.3g}, p = {a['p']:.3g}" + (f"  ({a['note']})" if 'note' in a else ''), file=out)
+        if summary.get('posthoc'):
+            print(format_posthoc(summary['posthoc'], LABELS, tukey=summary.get('tukey')), file=out)
     if csv_path:
         rows = csv_rows(records)
         write_csv(csv_path, rows)
@@ -162,6 +168,7 @@ def analyse(dirs, json_path=None, csv_path=None, out=sys.stdout) -> int:
     if json_path:
         doc = {'participants': found, 'table1': summary['table1'], 'conditions': summary['conditions'],
                'anova': summary['anova'] if n >= MIN_SUBJECTS_FOR_TESTS else None,
+               'posthoc': summary.get('posthoc') if n >= MIN_SUBJECTS_FOR_TESTS else None,
                'tests_meaningful': n >= MIN_SUBJECTS_FOR_TESTS,
                'answers': {str(r['subject'].get('participant', r['subject'].get('index'))): r['answers']
                            for r in records if r.get('answers')}}

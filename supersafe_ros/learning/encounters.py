@@ -543,7 +543,3 @@ class EncounterBuilder:
             for r, v in self._robot_version.items():
                 if v < self._base:
                     self._robot_version[r] = self._base
-
-
-# the Phase II event stream and its feeder live in phase2_stream (re-exported for callers)
-from .phase2_stream import feed, phase2_events  # noqa: E402,F401
