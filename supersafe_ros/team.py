@@ -476,6 +476,17 @@ def run_team(argvs: list[list[str]], duration: float = 0.0, timeout: float = 0.0
             'cpu_seconds_at_start': cpu_at_start or {}, 'bag': bag}
 
 
+def exit_status(result: dict, log_dir) -> int:
+    """The command's exit status after ``run_team``: 1 if a process died while the team ran,
+    else 0; the processes that did not exit cleanly are named (with their logs' folder)."""
+    unclean = {n: c for n, c in result['exit_codes'].items() if c != 0}
+    if unclean:
+        print(f'processes that did not exit cleanly (exit codes): {unclean}; logs in {log_dir}')
+    if result['dead'] and result['reason'].startswith('processes exited'):
+        return 1
+    return 0
+
+
 def parse_overrides(items) -> dict:
     """['supervisor.mu=1.0', ...] -> {'supervisor': {'mu': 1.0}} (values parsed as YAML)."""
     import yaml

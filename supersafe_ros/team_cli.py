@@ -10,7 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from .hosts.placement import run_on_hosts
-from .team import default_log_dir, parse_overrides, run_team, team_processes
+from .team import default_log_dir, exit_status, parse_overrides, run_team, team_processes
 
 
 def add_parser(subparsers):
@@ -96,9 +96,4 @@ def run(args) -> int:
         print(f'console: http://127.0.0.1:{args.console_port}/', flush=True)
     result = run_team(argvs, args.duration, args.timeout, args.domain_id, log_dir,
                       record=record)
-    unclean = {n: c for n, c in result['exit_codes'].items() if c != 0}
-    if unclean:
-        print(f'processes that did not exit cleanly (exit codes): {unclean}; logs in {log_dir}')
-    if result['dead'] and result['reason'].startswith('processes exited'):
-        return 1
-    return 0
+    return exit_status(result, log_dir)

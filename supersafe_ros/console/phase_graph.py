@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import signal
 import subprocess
-import threading
 import time
 
 from ..team import Team, TeamMonitor, _param_value, process_name
@@ -35,19 +34,14 @@ class PhaseNode:
     def __init__(self, env, state: ConsoleState, robots, drive_robot: str | None = None,
                  keys=None, w_max: float = 1.0, set_msg=None, on_first_pose=None, hold=None,
                  record_path: bool = False, rate_factor: float | None = None):
-        from ..rosenv import ensure_local_ros_env
-        ensure_local_ros_env()
-        import rclpy
         from rclpy.clock import Clock, ClockType
-        from rclpy.executors import SingleThreadedExecutor
         from geometry_msgs.msg import Twist
         from ..nodes.common import StepAcknowledger
         from ..ros_io import rosmsg
+        from ..ros_io.background_node import BackgroundNode
         from .bridge import ConsoleBridge
-        self._rclpy = rclpy
-        self.context = rclpy.Context()
-        rclpy.init(context=self.context, args=[], domain_id=int(env['ROS_DOMAIN_ID']))
-        self.node = rclpy.create_node('supervisor', context=self.context)
+        self.ros = BackgroundNode('supervisor', env['ROS_DOMAIN_ID'])
+        self.context, self.node = self.ros.context, self.ros.node
         state.reset(robots)
         self.Twist = Twist
         self.keys = keys
@@ -73,16 +67,7 @@ class PhaseNode:
                                SetParameters.Request(parameters=[
                                    Parameter('rate_factor', value=float(rate_factor)).to_parameter_msg()]))
                 self._repacing = None
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self.thread = threading.Thread(target=self._spin, daemon=True)
-        self.thread.start()
-
-    def _spin(self):
-        try:
-            self.executor.spin()
-        except Exception:   # the context was shut down under the executor by close()
-            pass
+        self.ros.start()
 
     def _after_pose(self, robot, msg):
         if self.on_first_pose is not None:
@@ -123,13 +108,7 @@ class PhaseNode:
 
     def close(self):
         self.bridge.state.reset([])     # the phase is over: its scene leaves the page
-        self._rclpy.try_shutdown(context=self.context)
-        self.thread.join(timeout=1.0)
-        try:
-            self.executor.shutdown(timeout_sec=0.5)
-            self.node.destroy_node()
-        except Exception:
-            pass
+        self.ros.close(join_timeout=1.0, shutdown_timeout=0.5)   # Ctrl-C ends a session in about a second
 
 
 class SetGate:

@@ -31,7 +31,7 @@ import signal
 import subprocess
 import sys
 
-from ..team import process_name
+from ..team import exit_status, process_name
 from .netns import HostNetwork, NetworkError, NetworkPermissionError, require_net_admin
 
 DISCOVERY_PORT = 11811
@@ -271,9 +271,4 @@ def run_on_hosts(argvs: list[list[str]], n_hosts: int, log_dir, run_team,
     except KeyboardInterrupt:
         print('interrupted: namespaces removed', file=sys.stderr)
         return 130
-    unclean = {n: c for n, c in result['exit_codes'].items() if c != 0}
-    if unclean:
-        print(f'processes that did not exit cleanly (exit codes): {unclean}; logs in {log_dir}')
-    if result['dead'] and result['reason'].startswith('processes exited'):
-        return 1
-    return 0
+    return exit_status(result, log_dir)

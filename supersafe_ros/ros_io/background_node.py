@@ -36,13 +36,15 @@ class BackgroundNode:
         except Exception:  # the context was shut down under the executor by close()
             pass
 
-    def close(self) -> None:
+    def close(self, join_timeout: float = 2.0, shutdown_timeout: float | None = None) -> None:
+        """Stop spinning and tear down; ``join_timeout``, ``shutdown_timeout``: the most wall
+        seconds to wait for the spin thread and for callbacks in flight (None: until they end)."""
         # stop the context first so spin() returns, then tear down in this thread
         self._rclpy.try_shutdown(context=self.context)
         if self._thread is not None:
-            self._thread.join(timeout=2.0)
+            self._thread.join(timeout=join_timeout)
         try:
-            self._executor.shutdown()
+            self._executor.shutdown(timeout_sec=shutdown_timeout)
             self.node.destroy_node()
         except Exception:
             pass
