@@ -201,3 +201,34 @@ def test_encounters_survive_a_restart_and_unadmissible_fits_are_not_published(ro
         node.close()
         node.destroy_node()
         driver.node.destroy_node()
+
+
+def test_inputs_say_how_many_publishers_each_input_has_matched(ros_context, tmp_path, library):
+    """A driver (the study's conductor) waits on ~/inputs before it makes events: the counts
+    start at 0 and rise, input by input, as publishers appear."""
+    from rclpy.node import Node
+    node = make_learner(ros_context, tmp_path / 'i.jsonl')
+    listener = Node('inputs_listener', context=ros_context)
+    heard = []
+    sub = listener.create_subscription(DiagnosticStatus, '/learner/inputs',
+                                       lambda m: heard.append(rosmsg.diagnostic_values(m)), rosmsg.QOS_LATCHED)
+    spin = Spinner(ros_context, node, listener)
+    pubs = []
+    try:
+        spin.until(lambda: matched(sub) and heard, 20.0, 'the first ~/inputs status')
+        assert heard[-1] == {'interventions': '0', 'obstacle_markers': '0', 'poses': '0'}
+        for topic, qos in (('/interventions', rosmsg.QOS_EVENTS), ('/robot_0/pose', rosmsg.QOS_STREAM)):
+            pubs.append(listener.create_publisher(PoseStamped, topic, qos))
+        spin.until(lambda: heard[-1].get('poses') == '1' and heard[-1].get('interventions') == '1', 20.0,
+                   'interventions and poses matched')
+        assert heard[-1]['obstacle_markers'] == '0'
+        pubs.append(listener.create_publisher(MarkerArray, '/obstacle_markers', rosmsg.QOS_LATCHED))
+        spin.until(lambda: heard[-1].get('obstacle_markers') == '1', 20.0, 'obstacle markers matched')
+        n = len(heard)
+        spin.spin_for(0.3)
+        assert len(heard) == n     # sent when a count changes, not every tick
+    finally:
+        spin.shutdown()
+        node.close()
+        node.destroy_node()
+        listener.destroy_node()

@@ -50,7 +50,8 @@ def test_phase2_session_through_the_graph_counts_every_encounter(tmp_path):
     from supersafe_ros.study.conductor import Phase2Conductor
     store = tmp_path / 'subject.jsonl'
     env = team_env(int(os.environ['ROS_DOMAIN_ID']))
-    conductor = Phase2Conductor(env, OFFSETS, x0=-8.0, x_end=2.5, step_length=3.0 * STEP)
+    conductor = Phase2Conductor(env, OFFSETS, x0=-8.0, x_end=2.5, step_length=3.0 * STEP,
+                                learners=('learner',))
     fits = []
     conductor.node.create_subscription(DiagnosticStatus, '/safe_set/fit',
                                        lambda m: fits.append(rosmsg.diagnostic_values(m)), rosmsg.QOS_LATCHED)

@@ -55,6 +55,7 @@ def test_one_subject_study_through_the_graph(tmp_path):
     # learned_fp is the first-passage learner node's fit: it built one encounter per scene
     # from robot_0/pose and /obstacle_markers, with the scenes' interventions
     fp = subj['fits']['learned_fp']
+    assert fp is not None, subj['phase2']
     assert fp['estimator'] == 'first-passage'
     n_int = sum(s['intervened'] for s in subj['phase2']['scenes'])
     # at least one encounter per scene; a scene reset can add one that ends at the teleport

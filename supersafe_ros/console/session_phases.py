@@ -129,7 +129,7 @@ class SessionPhases:
         self.start_recording()
         self.pause = {'until': 0.0, 'scene': -1}
         self.conductor = conductor = Phase2Conductor(self.env, offsets, x0=PHASE2_X0, x_end=PHASE2_X_END,
-                                                     step_length=SPEED * opts.step)
+                                                     step_length=SPEED * opts.step, learners=('learner',))
         self.phase_node = PhaseNode(self.env, self.state, ['robot_0'], hold=self._scene_pause,
                                     rate_factor=self.args.rate_factor)
         self.graph = PhaseGraph(argvs, self.env, self.store.dir / 'logs' / name).start()

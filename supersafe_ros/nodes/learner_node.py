@@ -16,6 +16,13 @@ Topics and services:
   pub  /safe_set/fit             diagnostic_msgs/DiagnosticStatus  latched: one per refit (and after
                                                              rejections): counts, omega_max, mu, sigma,
                                                              alpha, whether the fit is published and why
+  pub  ~/inputs                  diagnostic_msgs/DiagnosticStatus  latched, sent when a count changes: how
+                                                             many publishers each input has matched
+                                                             (interventions, obstacle_markers, and
+                                                             poses: the fewest over the robots), so a
+                                                             driver can wait until the learner hears
+                                                             before it makes events (the study's
+                                                             conductor does)
   srv  ~/reset                   std_srvs/Empty              new subject: archive the data files
                                                              (renamed, never deleted), start empty,
                                                              publish the standard set
@@ -187,6 +194,8 @@ class LearnerNode(Node):
         self.fit_pub = self.create_publisher(DiagnosticStatus, FIT_TOPIC, rosmsg.QOS_LATCHED)
         self.interventions_sub = self.create_subscription(PoseStamped, '/interventions',
                                                           self.on_interventions, rosmsg.QOS_EVERY_EVENT)
+        self.inputs_pub = self.create_publisher(DiagnosticStatus, '~/inputs', rosmsg.QOS_LATCHED)
+        self.inputs_heard = None
         self.create_service(Empty, '~/reset', self.on_reset)
         self.builder_args = dict(builder_args, speed=speed)
         self.builder = None
@@ -418,7 +427,22 @@ class LearnerNode(Node):
     status_dirty = False
     _next_refit = 0.0
 
+    def matched_inputs(self) -> dict:
+        """Publishers each input subscription has matched (poses: the fewest over the robots)."""
+        heard = {'interventions': self.interventions_sub.get_publisher_count()}
+        if self.markers_sub is not None:
+            heard['obstacle_markers'] = self.markers_sub.get_publisher_count()
+            heard['poses'] = min((s.get_publisher_count() for s in self.pose_subs.values()), default=0)
+        return heard
+
     def on_timer(self):
+        heard = self.matched_inputs()
+        if heard != self.inputs_heard:
+            self.inputs_heard = heard
+            self.inputs_pub.publish(rosmsg.make_diagnostic(
+                'learner inputs', heard,
+                'publishers matched: ' + ', '.join(f'{k} {v}' for k, v in heard.items()),
+                0 if all(heard.values()) else 1))
         if self.builder is not None:
             self.builder.tick(time.monotonic())
             self._drain_encounters()

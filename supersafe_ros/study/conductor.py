@@ -2,10 +2,12 @@
 
 It plays the authors' Phase II protocol on the running graph (one robot, world with
 ``respawn`` false and no obstacles, supervisor, learner). First it waits until every
-``/interventions`` reader (world, learner, itself) is in the graph, plus one settling
-wall second (an intervention sent before the learner's subscription has matched
-would be lost); the robot stays parked meanwhile. Then, for every lateral offset y0,
-a scene:
+``/interventions`` reader (world, learner, itself) is in the graph, until every learner
+named in ``learners`` says on its ``~/inputs`` that each of its inputs has matched every
+publisher this node sees (an intervention, pose or obstacle set sent before that match
+would be lost to it: on a loaded machine the pairwise matches come seconds after the
+graph's counts), plus one settling wall second; the robot stays parked meanwhile. Then,
+for every lateral offset y0, a scene:
 
   A. ``/world/set_obstacles`` with no obstacle; ``robot_0/initialpose`` 6 m behind the
      start line (outside the supervisor's grid); wait for a pose there;
@@ -46,7 +48,7 @@ def yaw_of(q) -> float:
 
 class Phase2Conductor:
     def __init__(self, env: dict, offsets, x0: float = -8.0, x_end: float = 2.5,
-                 step_length: float = 0.6, readers: int = READERS):
+                 step_length: float = 0.6, readers: int = READERS, learners=()):
         from ..ros_io.background_node import BackgroundNode
         from rclpy.qos import QoSProfile, DurabilityPolicy, HistoryPolicy, ReliabilityPolicy
         from geometry_msgs.msg import PoseArray, PoseStamped, PoseWithCovarianceStamped, Twist
@@ -57,6 +59,7 @@ class Phase2Conductor:
                      'Twist': Twist}
         self.offsets = [float(v) for v in offsets]
         self.readers = int(readers)     # /interventions readers to wait for before the first scene
+        self.learner_inputs = {name: None for name in learners}   # node name: newest ~/inputs values
         self.x0, self.x_end = float(x0), float(x_end)
         # a teleported, commanded robot moves one step before its next pose: teleport that
         # much behind x0 so that the scene's first pose is at x0
@@ -100,6 +103,12 @@ class Phase2Conductor:
                                       rosmsg.QOS_LATCHED)
         self.node.create_subscription(Float32MultiArray, '/safe_set/value_function', self.on_vf,
                                       rosmsg.QOS_LATCHED)
+        from diagnostic_msgs.msg import DiagnosticStatus
+        for name in self.learner_inputs:
+            self.node.create_subscription(
+                DiagnosticStatus, f'/{name}/inputs',
+                lambda m, name=name: self.learner_inputs.__setitem__(name, rosmsg.diagnostic_values(m)),
+                rosmsg.QOS_LATCHED)
         from rosgraph_msgs.msg import Clock
         self.judged = -1.0            # newest sim time whose poses the supervisor has judged
         self.node.create_subscription(Clock, '/supervisor/step_done', self.on_judged, rosmsg.QOS_ACK)
@@ -161,7 +170,7 @@ class Phase2Conductor:
                 # every /interventions reader (world, learner, this node) visible, then a
                 # settling second of wall time: the graph's counts come before the pairwise
                 # matches, and an intervention sent before the learner's match is lost
-                if self.node.count_subscribers('/interventions') >= self.readers:
+                if self.node.count_subscribers('/interventions') >= self.readers and self._learners_hear():
                     if self.settle_until is None:
                         self.settle_until = time.monotonic() + SETTLE_S
                     elif time.monotonic() >= self.settle_until:
@@ -193,6 +202,20 @@ class Phase2Conductor:
                 self._end_scene(None)
         if self.stage != 'idle':
             self.cmd_pub.publish(self.msgs['Twist']())   # u = 0; also the lockstep's answer
+
+    def _learners_hear(self) -> bool:
+        """Every watched learner has matched, on each of its inputs, at least the publishers
+        of that topic in this node's view of the graph (and at least one)."""
+        seen = {'interventions': self.node.count_publishers('/interventions'),
+                'obstacle_markers': self.node.count_publishers('/obstacle_markers'),
+                'poses': self.node.count_publishers(f'/{ROBOT}/pose')}
+        for heard in self.learner_inputs.values():
+            if heard is None:
+                return False
+            for key, value in heard.items():
+                if key in seen and int(value) < max(1, seen[key]):
+                    return False
+        return True
 
     def _end_scene(self, state):
         self.scenes.append({'y0': self.offsets[self.scene_index], 'intervened': state is not None,

@@ -90,7 +90,8 @@ def run_phase2(subject: Subject, opts: StudyOptions, domain_id: int, log_dir: Pa
     t0 = time.monotonic()
     # world, paper learner, first-passage learner, the conductor itself
     conductor = Phase2Conductor(env, offsets, x0=PHASE2_X0, x_end=PHASE2_X_END, step_length=SPEED * opts.step,
-                                readers=4 if with_fp else 3)
+                                readers=4 if with_fp else 3,
+                                learners=('learner', FP_LEARNER) if with_fp else ('learner',))
     fp_watch = conductor.watch_learner(FP_VF_TOPIC, FP_FIT_TOPIC) if with_fp else None
     fp_msg = fp_fit = None
     team = Team(argvs, env, log_dir)
