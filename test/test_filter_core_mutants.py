@@ -252,6 +252,15 @@ def test_a_long_hold_judges_robots_that_start_off_the_grid(standard):
     assert robot(pose=pose, cmd=0.0, lookahead=0.2).step(level, T).action == PASS
 
 
+def test_an_override_whose_row_turns_zero_still_sends_a_bounded_turn(standard):
+    """The case above overrides by a row whose avoid turn is 0 (V = +inf now and both bangs
+    held from the state now end off the grid): the command sent is still a turn rate within
+    +-w_max (kills ``bang / turn`` for ``bang * turn`` in law.decide_rows, which sends +-inf)."""
+    out = robot(pose=at(-13.0, 0.0, 0.0), cmd=0.0, lookahead=2.0).step(SafeSet(standard.vf, 5.5), T)
+    assert out.action == OVERRIDE
+    assert math.isfinite(out.omega) and abs(out.omega) <= 1.0
+
+
 @pytest.mark.parametrize('lo, hi', [((-4.0, -14.0), (14.0, 4.0)), ((-14.0, -4.0), (4.0, 14.0))])
 def test_lookahead_values_on_lopsided_grids_equal_their_definition(lo, hi):
     """V after the planner's 2 s hold and the better bang's next hold (the smaller), computed
