@@ -1,8 +1,8 @@
 """Tests that kill the mutants of ``supersafe_ros.filter`` (then filter/core.py) that survived the fast tests.
 
-Each test names the mutation it guards against (issue 9: mutation testing with mutmut,
-``bash bench/mutation.sh core``); the equivalent survivors are listed with a reason in
-docs/filter_learner.md. ROS-free and fast, like test_filter_core.py.
+Each test names the mutation it guards against (mutation testing with mutmut,
+``bash bench/mutation.sh filter``); the equivalent survivors are listed with a reason in
+bench/results/mutation.md. ROS-free and fast, like test_filter_core.py.
 """
 import math
 
