@@ -231,3 +231,26 @@ def test_the_clock_process_exits_at_its_duration_with_exit_at_duration(tmp_path)
             if p.poll() is None:
                 os.killpg(p.pid, signal.SIGKILL)
                 p.wait()
+
+
+@pytest.mark.ros
+def test_a_node_that_ends_before_the_spin_loop_begins_still_exits():
+    """The race a quiet CI run hit: a 0.5 s clock at rate 0 reached its duration while its node
+    was still being constructed, found no stop hook yet and ran on for ever. A node that raises
+    ``stop_requested`` in its constructor stands for it: run_node must still stop it, exit 0."""
+    import os
+    import subprocess
+    import sys
+    code = '\n'.join([
+        'import sys',
+        'from rclpy.node import Node',
+        'from supersafe_ros.nodes.common import run_node',
+        'class EndsAtOnce(Node):',
+        '    def __init__(self):',
+        '        super().__init__("ends_at_once")',
+        '        self.stop_requested = True',
+        'sys.exit(run_node(EndsAtOnce))',
+    ])
+    p = subprocess.run([sys.executable, '-c', code], env=dict(os.environ), capture_output=True, text=True,
+                       timeout=120)
+    assert p.returncode == 0 and p.stderr == '', p.stderr

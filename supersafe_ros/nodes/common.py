@@ -119,8 +119,9 @@ def run_node(node_class, args=None, executor_class=None) -> int:
     nothing publishes or logs into a context that is gone. Exit code 0 on a stop asked for,
     1 if the node failed to start or crashed (with the traceback on stderr).
 
-    A node that ends by itself (sim_clock at its duration, with ``exit_at_duration``) calls
-    ``node.stop_process()``, which is set here (from any thread): the same orderly stop.
+    A node that ends by itself (sim_clock at its duration, with ``exit_at_duration``) sets
+    ``node.stop_requested`` and then calls ``node.stop_process()`` if it is set; it is set
+    here (and called at once when the flag is up already): the same orderly stop.
     """
     ensure_local_ros_env()
     import rclpy
@@ -146,6 +147,8 @@ def run_node(node_class, args=None, executor_class=None) -> int:
         else:   # the EventsExecutor takes no guard conditions: the loop looks for the stop 10 times a second
             on_stop, poll = stopping.set, 0.1
         node.stop_process = on_stop
+        if getattr(node, 'stop_requested', False):
+            on_stop()         # the node ended by itself before the hook was set
         if signals is None or signals.spinning(on_stop):
             while not stopping.is_set() and rclpy.ok():
                 executor.spin_once(timeout_sec=poll)

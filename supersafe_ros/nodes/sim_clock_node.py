@@ -238,11 +238,16 @@ class SimClockNode(Node):
                 next_status = self.now_ns + int(self.status_period * 1e9)
             if self.duration > 0 and self.now_ns >= first_ns + int(round(self.duration * 1e9)):
                 self.publish_status()
-                stop_process = getattr(self, 'stop_process', None) if self.exit_at_duration else None
                 self.get_logger().info(f'duration reached at sim time {self.now_ns * 1e-9:.3f}'
-                                       + ('; exiting' if stop_process is not None else ''))
-                if stop_process is not None:
-                    stop_process()
+                                       + ('; exiting' if self.exit_at_duration else ''))
+                if self.exit_at_duration:
+                    # the flag first, then the hook: run_node sets the hook, then reads the
+                    # flag, so a duration reached before the spin loop began (a short one on
+                    # a quiet machine) still ends the process
+                    self.stop_requested = True
+                    stop_process = getattr(self, 'stop_process', None)
+                    if stop_process is not None:
+                        stop_process()
                 return
             self.now_ns += self.step_ns
             self.pace_step()
