@@ -247,7 +247,8 @@ def test_intervention_ahead_of_the_poses_waits_for_them():
     assert not b.pop_finished() and b.counts['unmatched_interventions'] == 0
     drive(b, 'r', 1.2, -6.4, 0.5, 3)                       # 1.2, 1.4, 1.6
     (r,) = b.pop_finished()
-    assert r.intervened and list(r.t) == pytest.approx([1.0, 1.2, 1.4, 1.6])
+    # its frame: the last pose of the pass (1.6) or the reported state at its stamp (1.61)
+    assert r.intervened and list(r.t) == pytest.approx([1.0, 1.2, 1.4, 1.6], abs=0.011)
     # no new encounter with an intervened obstacle until it is removed
     drive(b, 'r', 1.8, -5.2, 0.5, 3)
     assert b.open_count == 0
@@ -374,3 +375,20 @@ def test_encounters_become_final_when_the_poses_stop_without_more_data():
     b.tick(102.3)                                          # and now 2.1 s ago: the stream stopped
     (r,) = b.pop_finished()
     assert not r.intervened and r.reason == 'passed' and b.open_count == 0
+
+
+def test_an_intervention_read_before_its_poses_is_matched_when_its_wall_time_runs_out():
+    """Topics cross at the end of a stream: the intervention is read before the poses of its
+    pass and no later pose comes. Its wall-time limit runs out before theirs: the poses up to
+    its stamp are judged first, so it finds its encounter (a quiet CI run lost one this way)."""
+    b = builder(reorder=1.0, stale_wall=2.0)
+    b.set_obstacles([1], [(0.0, 0.0)], 0.5, wall=9.0)
+    b.intervention(1, 1.61, (-5.2, 0.5, 0.0), wall=10.0)
+    for k in range(4):                                       # 1.0 .. 1.6, read at wall 11 .. 11.3
+        b.pose('r', 1.0 + 0.2 * k, (-7.0 + 0.6 * k, 0.5, 0.0), wall=11.0 + 0.1 * k)
+    b.tick(12.5)              # the intervention waited 2.5 s, the poses 1.2-1.5 s
+    assert b.counts['unmatched_interventions'] == 0
+    b.tick(20.0)              # the stream has stopped: the encounter is final
+    (r,) = b.pop_finished()
+    # its frame: the last pose of the pass (1.6) or the reported state at its stamp (1.61)
+    assert r.intervened and list(r.t) == pytest.approx([1.0, 1.2, 1.4, 1.6], abs=0.011)

@@ -417,6 +417,12 @@ class EncounterBuilder:
         for k, v in enumerate(self._versions):
             if v[0] > -math.inf and v[1] + self.stale_wall <= wall:
                 v[0] = -math.inf       # in force now
+        # an intervention about to be matched by wall time needs its poses judged first: read
+        # before them (topics cross), it would otherwise find its encounter not begun
+        due = [p[0] for p in self._pending if p[3] + self.stale_wall <= wall]
+        if due:
+            for r in list(self._held):
+                self._release(r, max(due))
         for r in list(self._robot_version):
             if r in self._last_pose:           # (a robot whose poses are all held stays put)
                 self._advance_to_stamp(r, self._last_pose[r][0])
