@@ -25,6 +25,13 @@ def _plt():
     return plt
 
 
+def _save(plt, fig, path, dpi: int) -> None:
+    """Lay out, write and free a figure (pyplot keeps every open figure otherwise)."""
+    fig.tight_layout()
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+
+
 def plot_false_positives(path, fp: dict, tests: dict) -> None:
     """Mean FP per set (SEM bars, subjects as dots) with the paired post-hoc tests' stars
     (Holm-corrected; ``tests``: posthoc['pairs'])."""
@@ -50,9 +57,7 @@ def plot_false_positives(path, fp: dict, tests: dict) -> None:
     ax.set_ylabel('False positives per game')
     ax.set_title('False positives per safe set (paired t, Holm)')
     ax.set_ylim(0, top * (1.2 + 0.1 * len(pairs)))
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    _save(plt, fig, path, dpi=120)
 
 
 def plot_efficiency(path, conditions: dict, h2: dict) -> None:
@@ -81,9 +86,7 @@ def plot_efficiency(path, conditions: dict, h2: dict) -> None:
                                       if c != 'standard') + ' (paper 9/11)'
         ax.set_title(title, fontsize=9)
     fig.suptitle('H2: efficiency per safe set (one line per subject, bar = mean)', fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(plt, fig, path, dpi=110)
 
 
 def plot_learned_sets(path, standard, conservative, learned: list, radius: float) -> None:
@@ -114,9 +117,7 @@ def plot_learned_sets(path, standard, conservative, learned: list, radius: float
     ax.set_title('Learned safe sets at $\\theta$ = 0 over the baselines')
     ax.set_xlabel('x [m]')
     ax.set_ylabel('y [m]')
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    _save(plt, fig, path, dpi=120)
 
 
 def plot_phase2(path, states, standard, conservative, radius: float) -> None:
@@ -142,9 +143,7 @@ def plot_phase2(path, states, standard, conservative, radius: float) -> None:
     ax.set_ylim(-5, 5)
     ax.legend(loc='upper left', fontsize=7)
     ax.set_title('Phase II interventions over the reachable sets ($\\theta$ = 0)')
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    _save(plt, fig, path, dpi=120)
 
 
 def plot_alpha_sweep(path, sweep: dict) -> None:
@@ -165,9 +164,7 @@ def plot_alpha_sweep(path, sweep: dict) -> None:
     ax.set_ylim(0, 1)
     ax.set_title('Raising alpha drives false positives down')
     ax.legend(loc='upper right', fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    _save(plt, fig, path, dpi=120)
 
 
 def plot_validity(path, validity: dict) -> None:
@@ -223,9 +220,7 @@ def plot_validity(path, validity: dict) -> None:
     cx.set_ylabel('V - alpha where overriding starts [m]')
     cx.set_title('How far from its level the filter starts to act', fontsize=9)
     cx.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(plt, fig, path, dpi=110)
 
 
 def plot_online(path, report: dict) -> None:
@@ -241,9 +236,7 @@ def plot_online(path, report: dict) -> None:
     ax.set_ylim(bottom=0)
     ax.set_title('Learning from the games: false positives across the game', fontsize=9)
     ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    _save(plt, fig, path, dpi=120)
 
 
 def make_plots(out_dir: Path, summary: dict, records: list, standard_vf, conservative_vf) -> list:
