@@ -22,3 +22,22 @@ def robot(t=0.0, pose=(0.0, 0.0, 0.0), detections=(OBSTACLE,), cmd=0.3, **cfg):
 
 def at(rel_x, rel_y, theta):
     return (OBSTACLE[0] + rel_x, OBSTACLE[1] + rel_y, theta)
+
+
+class Log:
+    """A node's logger that keeps its lines: (level, text)."""
+
+    def __init__(self):
+        self.lines = []
+
+    def debug(self, text):
+        self.lines.append(('debug', text))
+
+    def info(self, text):
+        self.lines.append(('info', text))
+
+    def error(self, text):
+        self.lines.append(('error', text))
+
+    def said(self, level, part):
+        return any(lv == level and part in text for lv, text in self.lines)

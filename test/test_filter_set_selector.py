@@ -14,6 +14,8 @@ from supersafe_ros.filter.set_selector import LearnedSetSelector
 from supersafe_ros.reach.grid import Grid
 from supersafe_ros.reach.value_function import ValueFunction
 
+from filter_support import Log
+
 WAIT = 20.0
 
 
@@ -25,23 +27,6 @@ def disc_vf(radius, shape=(41, 41, 12), source='learned', **meta):
 
 
 STANDARD = disc_vf(1.8, source='standard')
-
-
-class Log:
-    def __init__(self):
-        self.lines = []
-
-    def debug(self, text):
-        self.lines.append(('debug', text))
-
-    def info(self, text):
-        self.lines.append(('info', text))
-
-    def error(self, text):
-        self.lines.append(('error', text))
-
-    def said(self, level, part):
-        return any(lv == level and part in text for lv, text in self.lines)
 
 
 class Messages:

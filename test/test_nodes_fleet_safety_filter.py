@@ -14,6 +14,7 @@ from supersafe_ros.nodes import fleet_safety_filter_node as fleet_module
 from supersafe_ros.nodes.fleet_safety_filter_node import FleetSafetyFilterNode
 from supersafe_ros.ros_io import fleetmsg, rosmsg
 
+from filter_support import Log
 from graph_support import Rosout, Spinner, matched
 
 ROBOTS = ['robot_0', 'robot_1', 'robot_2']
@@ -277,16 +278,6 @@ def test_held_steps_are_debug_lines_and_an_info_summary_at_most_every_period():
     """A team run logged one INFO line per held lockstep step (377 in 3.5 min): each is DEBUG
     now, with one INFO summary per period that had any (times given: no clock involved)."""
     from supersafe_ros.nodes.filter_state import HoldSummary
-
-    class Log:
-        def __init__(self):
-            self.lines = []
-
-        def debug(self, text):
-            self.lines.append(('debug', text))
-
-        def info(self, text):
-            self.lines.append(('info', text))
     log = Log()
     holds = HoldSummary(log, period=30.0, now=0.0)
     for t, held in ((1.0, 0.31), (2.0, 0.62), (29.0, 0.1)):
