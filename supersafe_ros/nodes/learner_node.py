@@ -36,10 +36,12 @@ outside the library's grid, or whose encounter no admissible entry explains
 (``learning.encounter_window``), is set aside from the fit: kept in the store, logged and
 counted (``set_aside``), so one hasty click cannot stop the learning. Rejections and
 set-asides are logged at WARN per reason, at most once a second with the count and the
-latest example (``rejections``), and their totals at shutdown. A steady timer (``refit_period``) refits once on everything received so far,
-whatever the number of messages since the last refit, checks the fitted set against the
-standard set (``filter.admissibility.check_learned_set``) and publishes it only if it
-passes and its entry changed, or its level (mu, sigma or alpha) moved by more than
+latest example (``rejections``), and their totals at shutdown.
+
+A steady timer (``refit_period``) refits once on everything received so far, whatever
+the number of messages since the last refit, checks the fitted set against the standard
+set (``filter.admissibility.check_learned_set``) and publishes it only if it passes and
+its entry changed, or its level (mu, sigma or alpha) moved by more than
 ``republish_level_tolerance`` (0.01 m): a refit on one more encounter moves mu in its
 third digit, and resending the 710 KB set for that cost every filter a decode and a check
 and the log two lines each. Each encounter's values are computed once, when
