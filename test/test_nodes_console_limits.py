@@ -42,7 +42,7 @@ def test_the_unfinished_request_bounds_are_parameters_in_force(ros_context):
                 writer.close()
             return closed
         assert all(asyncio.run(run()))
-        assert server.unfinished.refused == 7 and server.unfinished.abandoned == 3
+        assert server.unfinished.evicted == 7 and server.unfinished.abandoned == 10
     finally:
         node.close()
         node.destroy_node()

@@ -20,8 +20,8 @@ window holds at most ``per_second`` times).
 slowly, or never, holds a file descriptor each (1,000 such requests were held for 150 s
 each and took the process from 24 to 1,024 descriptors). The server closes a connection
 whose request headers are not complete within its header timeout (``server``), and this
-caps how many connections may be without a complete request at once: one more is closed
-as soon as it opens.
+caps how many connections may be without a complete request at once: when one more
+opens, the oldest of them is closed.
 """
 from __future__ import annotations
 
@@ -92,34 +92,39 @@ class InterventionLimiter:
 class UnfinishedRequests:
     """Connections that have not sent a complete request yet: at most ``cap`` at once.
 
-    ``opened(key)`` -> False when the cap is reached (the caller closes that connection);
-    ``finished(key)`` when its request's headers are complete; ``closed(key)`` when it goes
-    (counted in ``abandoned`` if it never finished: a timeout or a client that gave up)."""
+    ``opened(key)`` returns the connection to close when the cap is exceeded (the oldest
+    unfinished one: a client that sends its headers at once, such as a page, is never the
+    oldest for long, while a slow one ages) or None; ``finished(key)`` when its request's
+    headers are complete; ``closed(key)`` when it goes (counted in ``abandoned`` if it never
+    finished: a timeout, an eviction or a client that gave up)."""
 
     def __init__(self, cap: int):
         if int(cap) < 1:
             raise ValueError('the cap on unfinished requests must be at least 1')
         self.cap = int(cap)
-        self._open: set = set()
-        self.refused = 0        # closed at once: the cap was reached
+        self._open: dict = {}   # key -> None, oldest first
+        self.evicted = 0        # closed because the cap was exceeded
         self.abandoned = 0      # closed before a complete request
         self.peak = 0
 
     def __len__(self) -> int:
         return len(self._open)
 
-    def opened(self, key) -> bool:
-        if len(self._open) >= self.cap:
-            self.refused += 1
-            return False
-        self._open.add(key)
+    def opened(self, key):
+        self._open[key] = None
         self.peak = max(self.peak, len(self._open))
-        return True
+        if len(self._open) <= self.cap:
+            return None
+        oldest = next(iter(self._open))
+        del self._open[oldest]
+        self.evicted += 1
+        self.abandoned += 1
+        return oldest
 
     def finished(self, key) -> None:
-        self._open.discard(key)
+        self._open.pop(key, None)
 
     def closed(self, key) -> None:
         if key in self._open:
-            self._open.discard(key)
+            del self._open[key]
             self.abandoned += 1

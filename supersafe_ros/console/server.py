@@ -26,7 +26,8 @@ Bounds on what a client holds: a connection whose request headers are not comple
 within ``header_timeout`` s is closed (aiohttp's keep-alive timer, which runs from the
 moment a connection opens and while it waits for a request), and at most
 ``max_unfinished`` connections may be without a complete request at once (``limits``:
-one more is closed as it opens). A WebSocket message over ``MAX_FRAME_BYTES`` gets an
+when one more opens, the oldest is closed; a page's request completes at once, so it
+gets through while slow ones are held). A WebSocket message over ``MAX_FRAME_BYTES`` gets an
 error reply, then the socket is closed (code 1009, message too big); one over
 ``state.MAX_MESSAGE_CHARS`` characters gets the error reply and the socket stays open.
 """
@@ -272,15 +273,16 @@ class ConsoleServer:
 
     def _count_unfinished(self, server):
         """Every connection counts as unfinished from its opening to its first complete
-        request (``_access`` sees it); over ``max_unfinished`` it is closed at once."""
+        request (``_access`` sees it); over ``max_unfinished``, the oldest is closed."""
         made, lost = server.connection_made, server.connection_lost
 
         def connection_made(handler, transport):
             made(handler, transport)
-            if not self.unfinished.opened(handler):
+            oldest = self.unfinished.opened(handler)
+            if oldest is not None:
                 # aiohttp's own way to drop a connection (as its keep-alive timer does), once
                 # the handler is set up: closing the transport here would pull it out from under it
-                asyncio.get_running_loop().call_soon(handler.force_close)
+                asyncio.get_running_loop().call_soon(oldest.force_close)
 
         def connection_lost(handler, exc):
             self.unfinished.closed(handler)

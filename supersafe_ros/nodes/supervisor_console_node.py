@@ -47,7 +47,7 @@ class SupervisorConsoleNode(Node):
         header_timeout = p('header_timeout', 10.0, 'wall seconds a connection has to send a whole request\'s '
                            'headers (also how long an idle keep-alive connection stays open)', 0.1, 600.0)
         max_unfinished = p('max_unfinished', 64, 'most connections without a complete request at once; '
-                           'one more is closed as it opens', 1, 10000)
+                           'when one more opens, the oldest is closed', 1, 10000)
         self.robots = [r.strip('/') for r in p('robots', ['robot_0', 'robot_1'],
                                                'robot namespaces to show')]
         field = Field(
