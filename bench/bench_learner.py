@@ -148,7 +148,7 @@ def _rss_mb():
 
 def bench_clicks(hasty_rounds):
     """Phase II, a flood of hasty and far clicks, Phase II: what the learner publishes."""
-    from graph_support import Rosout, Spinner, matched
+    from graph_support import Rosout, Spinner
     from test_nodes_learner_clicks import click_flood, make_learner
     from test_nodes_learner_first_passage import Driver, play
     from supersafe_ros.learning.data import PHASE2_OFFSETS
@@ -163,8 +163,7 @@ def bench_clicks(hasty_rounds):
         rosout = Rosout(driver.node)
         spin = Spinner(ctx, node, driver.node)
         try:
-            spin.until(lambda: matched(driver.pose_pub, driver.markers_pub, driver.iv_pub, driver.fit_sub,
-                                       rosout.sub), 20.0, 'learner topics')
+            driver.wait_for(spin, rosout.sub)
             watcher = Watcher(lib.entry(0.5), mu=1.0, sigma=0.3, seed=5)
             n = len(PHASE2_OFFSETS)
             phases = []
@@ -216,9 +215,7 @@ def bench_clicks(hasty_rounds):
 def bench_junk(n):
     """n junk interventions of five kinds at full speed: counters, log lines, memory."""
     from geometry_msgs.msg import PoseStamped
-    from graph_support import Rosout, Spinner, matched
-    from test_nodes_learner_clicks import make_learner
-    from supersafe_ros.ros_io import rosmsg
+    from test_nodes_learner_clicks import JunkSender, make_learner
     ctx = _ros_context()
 
     def junk(k):
@@ -236,13 +233,10 @@ def bench_junk(n):
 
     with tempfile.TemporaryDirectory() as d:
         node = make_learner(ctx, Path(d) / 'junk.jsonl', estimator='paper')
-        from rclpy.node import Node
-        sender = Node('junk_sender', context=ctx)
-        pub = sender.create_publisher(PoseStamped, '/interventions', rosmsg.QOS_EVENTS)
-        rosout = Rosout(sender)
-        spin = Spinner(ctx, node, sender)
+        sender = JunkSender(ctx, node)
+        pub, rosout, spin = sender.pub, sender.rosout, sender.spin
+        sender = sender.node
         try:
-            spin.until(lambda: matched(pub, rosout.sub), 20.0, 'the learner')
             spin.spin_for(0.5)
             rss0, lines0 = _rss_mb(), len(rosout.logs)
             t0 = time.perf_counter()

@@ -28,7 +28,7 @@ from supersafe_ros.ros_io import rosmsg
 from supersafe_ros.sim.watcher import Watcher
 
 from graph_support import Rosout, Spinner, matched
-from test_nodes_learner_first_passage import Driver, play
+from test_nodes_learner_first_passage import drive, play
 
 pytestmark = pytest.mark.ros   # rclpy nodes in this process
 
@@ -78,14 +78,11 @@ def click_flood(t0, first_obstacle, offsets=(2.0, -2.5, 3.0, -2.2, 2.5, -3.0)):
 
 
 def test_fits_resume_after_a_click_flood(ros_context, tmp_path, library):
-    store = tmp_path / 'clicks.jsonl'
+    n, store = len(PHASE2_OFFSETS), tmp_path / 'clicks.jsonl'
     node = make_learner(ros_context, store)
-    driver = Driver(ros_context)
-    spin = Spinner(ros_context, node, driver.node)
+    driver, spin = drive(ros_context, node)
     try:
-        spin.until(lambda: matched(driver.pose_pub, driver.markers_pub, driver.iv_pub, driver.fit_sub), 20.0,
-                   'learner topics')
-        n = len(PHASE2_OFFSETS)
+        driver.wait_for(spin)
         watcher = Watcher(library.entry(W), mu=MU, sigma=SIGMA, seed=5)
         n_iv = play(spin, node, driver, phase2_events(watcher, PHASE2_OFFSETS, dt=STEP, t0=1.0))
         spin.until(lambda: driver.fit().get('fitted_encounters') == str(n), 30.0, 'the fit before the flood')
@@ -157,15 +154,23 @@ def test_unstamped_interventions_without_a_clock_are_not_each_others_duplicates(
         sender.destroy_node()
 
 
+class JunkSender:
+    """A node that publishes on /interventions and reads /rosout, spun with the learner."""
+
+    def __init__(self, ctx, learner):
+        from rclpy.node import Node
+        self.node = Node('junk_sender', context=ctx)
+        self.pub = self.node.create_publisher(PoseStamped, '/interventions', rosmsg.QOS_EVENTS)
+        self.rosout = Rosout(self.node)
+        self.spin = Spinner(ctx, learner, self.node)
+        self.spin.until(lambda: matched(self.pub, self.rosout.sub), 20.0, 'the learner')
+
+
 def test_a_burst_of_junk_is_told_per_reason_on_time_and_in_totals(ros_context, tmp_path):
     node = make_learner(ros_context, tmp_path / 'j.jsonl', estimator='paper')
-    from rclpy.node import Node
-    sender = Node('junk_sender', context=ros_context)
-    pub = sender.create_publisher(PoseStamped, '/interventions', rosmsg.QOS_EVENTS)
-    rosout = Rosout(sender)
-    spin = Spinner(ros_context, node, sender)
+    junk = JunkSender(ros_context, node)
+    sender, pub, rosout, spin = junk.node, junk.pub, junk.rosout, junk.spin
     try:
-        spin.until(lambda: matched(pub, rosout.sub), 20.0, 'the learner')
         kinds = {'frame names no obstacle': lambda k: _pose('map', -3, 0.5, sec=k + 1),
                  'invalid stamp': lambda k: _pose('obstacle_1', -3, 0.5, sec=1, nanosec=2_000_000_000 + k)}
         burst = 300
