@@ -7,11 +7,20 @@
 * refit: the first-passage refit (maximisation over cached encounter intervals, the
   paper's 13-entry library) with 500 and 5,000 encounters (goal < 100 ms at 500), and
   the cost of adding one encounter (its values along the frames, computed once);
-* builder: EncounterBuilder cost per pose.
+* builder: EncounterBuilder cost per pose;
+* clicks (issue 29): a learner node (first-passage, 13 entries on 41 x 41 x 24) fed Phase II
+  scenes, then a click flood (clicks just after the robot passed its obstacle, and clicks
+  on obstacles far from it), then Phase II scenes again; prints the fits published
+  before, during and after the flood, what was set aside, and "fit failed" lines;
+* junk (issue 29): N malformed or duplicate interventions (five kinds, round robin) at
+  full speed to a learner node; prints the counters on /safe_set/fit, the learner's
+  log lines on /rosout (during the burst, after it, at shutdown), how long after the
+  last message each reason's count was told, and the process's resident memory.
 
 Every figure is printed with /proc/loadavg. Run with the project's ROS environment:
 
     source scripts/ros-env.sh; .venv/bin/python bench/bench_learner.py [--burst 1000 --burners 2]
+    .venv/bin/python bench/bench_learner.py --only clicks junk [--junk 10000]
 """
 from __future__ import annotations
 
@@ -122,6 +131,161 @@ def bench_builder(n_poses):
     print(f'builder: {dt / n_poses * 1e6:.0f} us per pose against 10 obstacles; load {load()}', flush=True)
 
 
+def _ros_context():
+    from supersafe_ros.rosenv import ensure_local_ros_env
+    ensure_local_ros_env()
+    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    import rclpy
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    return ctx
+
+
+def _rss_mb():
+    with open('/proc/self/status') as f:
+        return next(int(line.split()[1]) for line in f if line.startswith('VmRSS')) / 1024
+
+
+def bench_clicks(hasty_rounds):
+    """Phase II, a flood of hasty and far clicks, Phase II: what the learner publishes."""
+    from graph_support import Rosout, Spinner
+    from test_nodes_learner_clicks import click_flood, make_learner
+    from test_nodes_learner_first_passage import Driver, play
+    from supersafe_ros.learning.data import PHASE2_OFFSETS
+    from supersafe_ros.learning.phase2_stream import phase2_events
+    from supersafe_ros.reach.library import PAPER_OMEGAS, LibrarySpec, load_or_build_library
+    from supersafe_ros.sim.watcher import Watcher
+    ctx = _ros_context()
+    lib = load_or_build_library(LibrarySpec(shape=(41, 41, 24), omegas=tuple(float(w) for w in PAPER_OMEGAS)))
+    with tempfile.TemporaryDirectory() as d:
+        node = make_learner(ctx, Path(d) / 'clicks.jsonl')
+        driver = Driver(ctx)
+        rosout = Rosout(driver.node)
+        spin = Spinner(ctx, node, driver.node)
+        try:
+            driver.wait_for(spin, rosout.sub)
+            watcher = Watcher(lib.entry(0.5), mu=1.0, sigma=0.3, seed=5)
+            n = len(PHASE2_OFFSETS)
+            phases = []
+
+            def phase(name, events, want_encounters=None):
+                published, t0 = int(driver.fit().get('published', 0)), time.perf_counter()
+                play(spin, node, driver, events)
+                if want_encounters is not None:
+                    driver.publish(('pose', 'robot_0', driver_time[0], (-30.0, 0.0, 0.0)))
+                    try:
+                        spin.until(lambda: driver.fit().get('fitted_encounters') == str(want_encounters), 60.0, name)
+                    except AssertionError as exc:      # (the learner before issue 29 stopped fitting)
+                        print(f'clicks, {name}: {exc}', flush=True)
+                else:
+                    spin.until(lambda: node.builder.open_count == 0, 60.0, name)
+                    spin.spin_for(0.5)
+                driver_time[0] += 1000.0
+                phases.append((name, int(driver.fit()['published']) - published, dict(driver.fit()),
+                               time.perf_counter() - t0))
+
+            driver_time = [900.0]
+            phase('before: 19 Phase II scenes', phase2_events(watcher, PHASE2_OFFSETS, dt=0.2, t0=1.0), n)
+            flood = []
+            for r in range(hasty_rounds):
+                flood += list(click_flood(2000.0 + 200.0 * r, 500 + 10 * r))
+            driver_time[0] = 2000.0 + 200.0 * hasty_rounds + 100.0
+            phase(f'flood: {6 * hasty_rounds} hasty clicks, {4 * hasty_rounds} far clicks', flood)
+            driver_time[0] += 1000.0
+            phase('after: 19 Phase II scenes', phase2_events(watcher, PHASE2_OFFSETS, dt=0.2, t0=driver_time[0] - 900.0,
+                                                             first_obstacle=5000), 2 * n)
+            failed = sum('fit failed' in m.msg for m in rosout.logs if m.name == 'learner')
+            warns = sum(m.level == 30 for m in rosout.logs if m.name == 'learner')
+            for name, published, fit, wall in phases:
+                print(f'clicks, {name}: {published} fits published ({fit.get("published")} in all, '
+                      f'{fit.get("refits")} refits), '
+                      f'fitted encounters {fit.get("fitted_encounters")} of {fit.get("encounters")}, '
+                      f'interventions {fit.get("interventions")}, set aside {fit.get("set_aside")}, '
+                      f'omega_max {fit.get("omega_max")}, mu {float(fit.get("mu", "nan")):.3f}; '
+                      f'{wall:.1f} s; load {load()}', flush=True)
+            print(f'clicks: "fit failed" lines {failed}, learner WARN lines {warns}; load {load()}', flush=True)
+        finally:
+            spin.shutdown()
+            node.close()
+            node.destroy_node()
+            driver.node.destroy_node()
+    ctx.try_shutdown()
+
+
+def bench_junk(n):
+    """n junk interventions of five kinds at full speed: counters, log lines, memory."""
+    from geometry_msgs.msg import PoseStamped
+    from test_nodes_learner_clicks import JunkSender, make_learner
+    ctx = _ros_context()
+
+    def junk(k):
+        msg = PoseStamped()
+        kind = k % 5
+        msg.header.frame_id = ['map', 'obstacle_' + '9' * 1000, 'obstacle_1', 'obstacle_2', 'obstacle_3'][kind]
+        msg.header.stamp.sec = 1 + k
+        if kind == 2:
+            msg.header.stamp.nanosec = 2_000_000_000          # invalid stamp
+        msg.pose.position.x, msg.pose.position.y = (float('nan') if kind == 3 else -3.0), 0.5
+        if kind == 4:
+            msg.header.stamp.sec = 7                          # the same event again and again
+        msg.pose.orientation.w = 1.0
+        return msg
+
+    with tempfile.TemporaryDirectory() as d:
+        node = make_learner(ctx, Path(d) / 'junk.jsonl', estimator='paper')
+        sender = JunkSender(ctx, node)
+        pub, rosout, spin = sender.pub, sender.rosout, sender.spin
+        sender = sender.node
+        try:
+            spin.spin_for(0.5)
+            rss0, lines0 = _rss_mb(), len(rosout.logs)
+            t0 = time.perf_counter()
+            for k in range(n):
+                pub.publish(junk(k))
+                if k % 200 == 199:
+                    spin.executor.spin_once(timeout_sec=0)
+            sent = time.perf_counter()
+            c = node.counts
+            spin.until(lambda: c['rejected'] + c['duplicates'] == n - 1, 120.0, 'every message counted')
+            read = time.perf_counter()
+            during = [m for m in rosout.logs[lines0:] if m.name == 'learner']
+            k_during = len(during)      # (rosout is read later than the messages: often 0 here)
+
+            def told():
+                out = {}
+                for m in rosout.logs[lines0:]:
+                    if m.name == 'learner' and '(' in m.msg and 'this run' not in m.msg:
+                        reason = m.msg.split('(', 1)[1].split(')', 1)[0]
+                        words = m.msg.split()
+                        out[reason] = out.get(reason, 0) + (int(words[0]) if words[1] == 'more' else 1)
+                return out
+            try:
+                spin.until(lambda: sum(told().values()) == n - 1, 30.0, 'every rejection told')
+            except AssertionError as exc:        # (before issue 29: most only counted)
+                print(f'junk {n}: {exc}', flush=True)
+            told_s = time.perf_counter() - read
+            rss1 = _rss_mb()
+            lines = [m for m in rosout.logs[lines0:] if m.name == 'learner']
+            node.close()
+            try:
+                spin.until(lambda: any('this run' in m.msg for m in rosout.logs), 10.0, 'the totals')
+            except AssertionError as exc:
+                print(f'junk {n}: {exc}', flush=True)
+            totals = [m.msg for m in rosout.logs if 'this run' in m.msg]
+            fit = node.counts
+            print(f'junk {n}: published in {sent - t0:.2f} s, all read {read - sent:.2f} s after the last; '
+                  f'rejected {fit["rejected"]}, duplicates {fit["duplicates"]}, stored {len(node.store)}; '
+                  f'learner log lines: {k_during} by the time all were read, {len(lines)} once every count '
+                  f'was told ({told_s:.2f} s after), told per reason {told()}; totals at shutdown: {totals}; '
+                  f'RSS {rss0:.0f} -> {rss1:.0f} MB (learner and sender in one process); load {load()}',
+                  flush=True)
+        finally:
+            spin.shutdown()
+            node.destroy_node()
+            sender.destroy_node()
+    ctx.try_shutdown()
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     ap.add_argument('--burst', type=int, default=1000)
@@ -130,7 +294,17 @@ def main():
     ap.add_argument('--sizes', type=int, nargs='+', default=[500, 5000])
     ap.add_argument('--repeats', type=int, default=7)
     ap.add_argument('--skip-burst', action='store_true')
+    ap.add_argument('--junk', type=int, default=10000, help='junk interventions (issue 29)')
+    ap.add_argument('--flood-rounds', type=int, default=3, help='rounds of 6 hasty and 4 far clicks')
+    ap.add_argument('--only', nargs='+', choices=['builder', 'refit', 'burst', 'clicks', 'junk'],
+                    help='run only these parts (default: builder, refit, burst)')
     args = ap.parse_args()
+    if args.only:
+        for part in args.only:
+            {'builder': lambda: bench_builder(20000), 'refit': lambda: bench_refit(args.sizes, args.repeats),
+             'burst': lambda: bench_burst(args.burst, args.burners, args.burst_repeats),
+             'clicks': lambda: bench_clicks(args.flood_rounds), 'junk': lambda: bench_junk(args.junk)}[part]()
+        return
     bench_builder(20000)
     bench_refit(args.sizes, args.repeats)
     if not args.skip_burst:

@@ -30,6 +30,20 @@ def test_duplicates_are_not_stored_twice(tmp_path):
         assert not store.append(iv(1))
         assert store.append(iv(1, frame='obstacle_2'))   # same time, other obstacle: a new event
         assert len(store) == 2
+        # the obstacle's number, not the frame's spelling (issue 29: three records for one)
+        assert not store.append(iv(1, frame='obstacle_01')) and not store.append(iv(1, frame='obstacle_0001'))
+        assert store.append(iv(1, frame='obstacle_10'))
+        assert len(store) == 3
+
+
+def test_a_reloaded_store_knows_spellings_of_one_event_as_one(tmp_path):
+    path = tmp_path / 's.jsonl'
+    with open(path, 'w') as f:      # a file written before the key was the obstacle's number
+        for frame in ('obstacle_7', 'obstacle_07', 'obstacle_007'):
+            f.write(iv(3, frame).to_json() + '\n')
+    with InterventionStore(path) as store:
+        assert len(store) == 1 and store.entries[0].frame == 'obstacle_7' and store.entries[0].obstacle == 7
+        assert not store.append(iv(3, 'obstacle_0007'))
 
 
 def test_torn_last_line_is_cut_and_appends_stay_clean(tmp_path):

@@ -122,8 +122,8 @@ def test_fit_follows_the_interventions_of_a_simulated_supervisor(running, superv
 
 
 @pytest.mark.parametrize('bad', ['nan', 'inf', 'empty_frame', 'map_frame', 'outside', 'zero_quaternion',
-                                 'duplicate', 'frame_not_an_id', 'frame_100kB', 'negative_stamp',
-                                 'nanosec_overflow'])
+                                 'duplicate', 'duplicate_spelled', 'frame_not_an_id', 'frame_100kB',
+                                 'negative_stamp', 'nanosec_overflow'])
 def test_bad_interventions_are_rejected_and_the_node_keeps_running(running, bad):
     state, listener, spin = running
     before = int(listener.fit().get('interventions', 0))
@@ -143,6 +143,8 @@ def test_bad_interventions_are_rejected_and_the_node_keeps_running(running, bad)
         s = (-3.0, 0.5, math.nan)
     elif bad == 'duplicate':
         stamp = 100.0   # the first supervised intervention, same obstacle and time
+    elif bad == 'duplicate_spelled':
+        stamp, frame = 100.0, 'obstacle_000'    # obstacle 0 again, its number spelled otherwise
     elif bad == 'frame_not_an_id':
         frame = 'obstacle_abc'
     elif bad == 'frame_100kB':
@@ -150,15 +152,26 @@ def test_bad_interventions_are_rejected_and_the_node_keeps_running(running, bad)
     elif bad == 'negative_stamp':
         stamp = -5.0
     duplicates = int(listener.fit().get('duplicates', 0))
+    set_aside = int(listener.fit().get('set_aside', 0))
+    fitted = listener.fit().get('fitted_interventions')
     listener.fits.clear()
     if bad == 'nanosec_overflow':
         listener.send(s, 0, stamp, frame, nanosec=1_500_000_000)
     else:
         listener.send(s, 0, stamp, frame)
-    if bad == 'duplicate':
+    if bad.startswith('duplicate'):
         spin.until(lambda: listener.fit().get('duplicates') == str(duplicates + 1), 5.0, 'the duplicate')
         assert listener.fit()['interventions'] == str(before) and listener.fit()['rejected'] == str(rejected)
         assert len(state['node'].store) == before
+        assert listener.fit()['last_rejection'].startswith('duplicate: obstacle 0 at stamp 100000000000 ns')
+        return
+    if bad == 'outside':
+        # an obstacle far from every robot: a real removal, stored, but no value to fit
+        spin.until(lambda: listener.fit().get('set_aside') == str(set_aside + 1), 5.0, 'the set-aside')
+        assert listener.fit()['interventions'] == str(before + 1) and listener.fit()['rejected'] == str(rejected)
+        assert listener.fit()['fitted_interventions'] == fitted
+        assert listener.fit()['last_set_aside'].startswith('outside the library grid: obstacle_0 at (-30, 0.5)')
+        assert 'set aside' in listener.fits[-1].message and listener.fits[-1].level == bytes([1])
         return
     spin.until(lambda: listener.fit().get('rejected') == str(rejected + 1), 5.0, 'the rejection')
     assert listener.fit()['interventions'] == str(before)
@@ -166,7 +179,7 @@ def test_bad_interventions_are_rejected_and_the_node_keeps_running(running, bad)
     reason = listener.fit()['last_rejection']
     expected = {'frame_not_an_id': 'does not name an obstacle', 'frame_100kB': 'characters long',
                 'negative_stamp': 'not a valid time', 'nanosec_overflow': 'not a valid time',
-                'outside': 'outside the library grid', 'nan': 'not finite'}.get(bad)
+                'nan': 'not finite'}.get(bad)
     if expected:
         assert expected in reason and len(reason) < 300
 
@@ -249,7 +262,10 @@ def test_restart_keeps_the_data_and_republishes_the_fit(running, ros_context):
     spin.add(late.node)
     spin.until(lambda: late.fits and late.vfs, 10.0, 'the republished fit')
     assert late.fit()['interventions'] == str(n) and float(late.fit()['mu']) == pytest.approx(old_mu)
-    assert msg_to_value_function(late.vfs[-1]).meta['interventions'] == n
+    # the intervention outside the grid (test_bad_interventions...) is stored, and set aside again
+    assert late.fit()['set_aside'] == '1' and 'outside the library grid' in late.fit()['last_set_aside']
+    meta = msg_to_value_function(late.vfs[-1]).meta
+    assert meta['interventions'] == n - 1 and meta['stored_interventions'] == n
     late.node.destroy_node()
 
 

@@ -75,6 +75,11 @@ class Driver:
     def fit(self):
         return self.fits[-1] if self.fits else {}
 
+    def wait_for(self, spin, *more):
+        """Until the learner has matched every topic of the driver's (and ``more`` endpoints)."""
+        spin.until(lambda: matched(self.pose_pub, self.markers_pub, self.iv_pub, self.fit_sub, *more), 20.0,
+                   'learner topics')
+
 
 @pytest.fixture(scope='module')
 def library(ros_context):
@@ -86,6 +91,12 @@ def make_learner(ctx, store, **extra):
                   library_shape=SHAPE, library_omegas=OMEGAS)
     params.update(extra)
     return LearnerNode(context=ctx, parameter_overrides=[Parameter(k, value=v) for k, v in params.items()])
+
+
+def drive(ctx, node):
+    """A Driver for ``node`` and a Spinner over both."""
+    driver = Driver(ctx)
+    return driver, Spinner(ctx, node, driver.node)
 
 
 def play(spin, node, driver, events):
@@ -111,11 +122,9 @@ def play(spin, node, driver, events):
 
 def test_first_passage_recovers_the_supervisor_in_9_of_10_seeds(ros_context, tmp_path, library):
     node = make_learner(ros_context, tmp_path / 's.jsonl')
-    driver = Driver(ros_context)
-    spin = Spinner(ros_context, node, driver.node)
+    driver, spin = drive(ros_context, node)
     try:
-        spin.until(lambda: matched(driver.pose_pub, driver.markers_pub, driver.iv_pub, driver.fit_sub), 20.0,
-                   'learner topics')
+        driver.wait_for(spin)
         spin.until(lambda: driver.reset.service_is_ready(), 20.0, 'the reset service')
         offsets = np.tile(PHASE2_OFFSETS, REPEATS)
         good, results = 0, []
@@ -157,11 +166,9 @@ def test_first_passage_recovers_the_supervisor_in_9_of_10_seeds(ros_context, tmp
 def test_encounters_survive_a_restart_and_unadmissible_fits_are_not_published(ros_context, tmp_path, library):
     store = tmp_path / 'r.jsonl'
     node = make_learner(ros_context, store)
-    driver = Driver(ros_context)
-    spin = Spinner(ros_context, node, driver.node)
+    driver, spin = drive(ros_context, node)
     try:
-        spin.until(lambda: matched(driver.pose_pub, driver.markers_pub, driver.iv_pub, driver.fit_sub), 20.0,
-                   'learner topics')
+        driver.wait_for(spin)
         watcher = Watcher(library.entry(W), mu=MU, sigma=SIGMA, seed=3)
         play(spin, node, driver, phase2_events(watcher, PHASE2_OFFSETS, dt=STEP))
         driver.publish(('pose', 'robot_0', 5000.0, (-30.0, 0.0, 0.0)))

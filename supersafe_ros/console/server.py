@@ -21,6 +21,15 @@ full snapshot.
 Access (``access.py``): the Host header must name the console (DNS rebinding), a
 browser's Origin must be a page of the console, and a non-loopback bind needs the token
 (``?token=``, the cookie the page sets, or ``Authorization: Bearer``), else 403.
+
+Bounds on what a client holds: a connection whose request headers are not complete
+within ``header_timeout`` s is closed (aiohttp's keep-alive timer, which runs from the
+moment a connection opens and while it waits for a request), and at most
+``max_unfinished`` connections may be without a complete request at once (``limits``:
+when one more opens, the oldest is closed; a page's request completes at once, so it
+gets through while slow ones are held). A WebSocket message over ``MAX_FRAME_BYTES`` gets an
+error reply, then the socket is closed (code 1009, message too big); one over
+``state.MAX_MESSAGE_CHARS`` characters gets the error reply and the socket stays open.
 """
 from __future__ import annotations
 
@@ -33,9 +42,10 @@ import secrets
 import threading
 import time
 
-from aiohttp import WSMsgType, web
+from aiohttp import WSCloseCode, WSMsgType, web
 
 from .access import HostRules, is_loopback
+from .limits import UnfinishedRequests
 from .state import MAX_MESSAGE_CHARS, ClientMessageError, ConsoleState, parse_client_message
 
 __all__ = ['ConsoleServer', 'is_loopback', 'new_token', 'static_dir']
@@ -43,6 +53,7 @@ __all__ = ['ConsoleServer', 'is_loopback', 'new_token', 'static_dir']
 TOKEN_COOKIE = 'supersafe_console_token'
 BACKLOG_BYTES = 16 * 1024     # a watcher with more than this unsent is skipped until it drains
 CLOSE_TIMEOUT = 0.5           # s a page gets to answer the close frame at shutdown
+MAX_FRAME_BYTES = MAX_MESSAGE_CHARS * 4      # a WebSocket message longer than this closes the socket
 
 
 def new_token() -> str:
@@ -59,6 +70,24 @@ def static_dir() -> Path:
     except Exception:  # not installed in an ament prefix (editable install, plain venv)
         pass
     return Path(__file__).resolve().parent / 'static'
+
+
+class ConsoleSocket(web.WebSocketResponse):
+    """aiohttp's WebSocket, which says why before it closes on a message that is too big.
+
+    aiohttp closes the socket as soon as it reads a message over ``max_msg_size`` (from
+    ``receive``, before the handler sees anything); the page is told first."""
+
+    async def close(self, *, code: int = WSCloseCode.OK, message: bytes = b'', drain: bool = True) -> bool:
+        if code == WSCloseCode.MESSAGE_TOO_BIG and not self.closed:
+            try:
+                await self.send_str(json.dumps({
+                    'type': 'error', 'message': f'message too long: over {MAX_FRAME_BYTES // 1024} KB; '
+                    'the console closes the connection (the page reconnects)'}))
+            except Exception:       # the page is gone already: nothing to tell
+                pass
+            message = message or b'message too big'
+        return await super().close(code=code, message=message, drain=drain)
 
 
 class Client:
@@ -88,11 +117,16 @@ class ConsoleServer:
     def __init__(self, state: ConsoleState, intervene, host: str = '127.0.0.1', port: int = 8765,
                  token: str = '', update_rate: float = 30.0, log=print, extra_handlers=None,
                  static: Path | None = None, page_config: dict | None = None,
-                 max_connections: int = 8, confirm_timeout: float = 3.0, unanswered=None):
+                 max_connections: int = 8, confirm_timeout: float = 3.0, unanswered=None,
+                 header_timeout: float = 10.0, max_unfinished: int = 64):
         if not (update_rate > 0):
             raise ValueError('update_rate must be positive')
         if int(max_connections) < 1:
             raise ValueError('max_connections must be at least 1')
+        if not (0 < header_timeout < float('inf')):
+            raise ValueError('header_timeout must be a positive number of seconds')
+        self.header_timeout = float(header_timeout)
+        self.unfinished = UnfinishedRequests(max_unfinished)
         self.state = state
         self.intervene = intervene
         self.unanswered = unanswered or (lambda oid, fut: {
@@ -218,8 +252,10 @@ class ConsoleServer:
         app.router.add_get('/ws', self._ws)
         app.router.add_get('/files/{name}', self._file)
         app.router.add_static('/static/', self.static, follow_symlinks=False)
-        self._runner = web.AppRunner(app, access_log=None, handle_signals=False, shutdown_timeout=0.5)
+        self._runner = web.AppRunner(app, access_log=None, handle_signals=False, shutdown_timeout=0.5,
+                                     keepalive_timeout=self.header_timeout)
         await self._runner.setup()
+        self._count_unfinished(self._runner.server)
         site = web.TCPSite(self._runner, self.host, self.port)
         await site.start()
         self.port = site._server.sockets[0].getsockname()[1]
@@ -234,6 +270,25 @@ class ConsoleServer:
             await asyncio.gather(self._sender, return_exceptions=True)
         if self._runner is not None:
             await self._runner.cleanup()
+
+    def _count_unfinished(self, server):
+        """Every connection counts as unfinished from its opening to its first complete
+        request (``_access`` sees it); over ``max_unfinished``, the oldest is closed."""
+        made, lost = server.connection_made, server.connection_lost
+
+        def connection_made(handler, transport):
+            made(handler, transport)
+            oldest = self.unfinished.opened(handler)
+            if oldest is not None:
+                # aiohttp's own way to drop a connection (as its keep-alive timer does), once
+                # the handler is set up: closing the transport here would pull it out from under it
+                asyncio.get_running_loop().call_soon(oldest.force_close)
+
+        def connection_lost(handler, exc):
+            self.unfinished.closed(handler)
+            lost(handler, exc)
+
+        server.connection_made, server.connection_lost = connection_made, connection_lost
 
     # ----- HTTP -----------------------------------------------------------------------------
     def _token_ok(self, request) -> bool:
@@ -250,6 +305,7 @@ class ConsoleServer:
 
     @web.middleware
     async def _access(self, request, handler):
+        self.unfinished.finished(request.protocol)
         host = request.headers.get('Host')
         if not self.rules.host_ok(host):
             return self._refuse('host', '403: this console answers only to its own address '
@@ -290,8 +346,7 @@ class ConsoleServer:
             self.refused['full'] += 1
             return web.Response(status=503, text=f'503: {self.max_connections} pages are open already; '
                                 'close one (max_connections)\n')
-        ws = web.WebSocketResponse(heartbeat=20.0, max_msg_size=MAX_MESSAGE_CHARS * 4, compress=False,
-                                   timeout=CLOSE_TIMEOUT)
+        ws = ConsoleSocket(heartbeat=20.0, max_msg_size=MAX_FRAME_BYTES, compress=False, timeout=CLOSE_TIMEOUT)
         await ws.prepare(request)
         client = Client(ws, request.transport)
         self.clients[ws] = client

@@ -48,6 +48,15 @@ class ClientMessageError(ValueError):
     """A WebSocket message from a page that the console cannot act on."""
 
 
+def _ref(msg: dict):
+    """The message's ``ref``, echoed in the reply: absent, an integer or a string (Python's
+    JSON reader takes NaN and Infinity, which no JSON reader on the page could read back)."""
+    ref = msg.get('ref')
+    if ref is not None and (isinstance(ref, bool) or not isinstance(ref, (int, str))):
+        raise ClientMessageError('"ref" must be an integer or a string')
+    return ref
+
+
 def parse_client_message(text, extra_types=()) -> dict:
     """Validate one message from the page; returns {'type': ..., ...} or raises
     ClientMessageError with the reason (sent back to the page). A message whose type is
@@ -71,12 +80,9 @@ def parse_client_message(text, extra_types=()) -> dict:
         oid = msg.get('obstacle')
         if isinstance(oid, bool) or not isinstance(oid, int) or oid < 0:
             raise ClientMessageError('"intervene" needs "obstacle": a non-negative integer id')
-        ref = msg.get('ref')
-        if ref is not None and (isinstance(ref, bool) or not isinstance(ref, (int, str))):
-            raise ClientMessageError('"ref" must be a number or a string')
-        return {'type': 'intervene', 'obstacle': oid, 'ref': ref}
+        return {'type': 'intervene', 'obstacle': oid, 'ref': _ref(msg)}
     if kind == 'ping':
-        return {'type': 'ping', 'ref': msg.get('ref')}
+        return {'type': 'ping', 'ref': _ref(msg)}
     if kind == 'watch':
         return {'type': 'watch'}
     known = ', '.join(('intervene', 'ping', 'watch') + tuple(extra_types))

@@ -494,6 +494,48 @@ def concat_intervals(parts) -> EncounterIntervals:
                               np.concatenate([p.intervened for p in parts]))
 
 
+def unexplained_encounters(iv: EncounterIntervals, admissible=None) -> np.ndarray:
+    """bool[n_encounters]: encounters that no (admissible) entry can explain, each on its own.
+
+    An encounter's interval [lo, hi) is empty under entry i when its intervention frame is
+    no lower in value than an earlier frame of the same approach (v_k >= m_{<k}): the
+    supervisor's threshold would have been crossed before. Under every entry that happens
+    to an intervention made after the robot's closest approach (the distance growing: a
+    hasty click on an obstacle the robot has just passed), and under omega_max = 0 to one
+    made where V is flat (a straight line that misses the disc). One such encounter makes
+    every log-likelihood -inf (``_choose`` then finds nothing): an online learner sets it
+    aside instead (``admissible``: the entries it chooses among; None = all)."""
+    empty = iv.lo >= iv.hi
+    if admissible is not None:
+        empty = empty[np.asarray(admissible, dtype=bool)]
+    return empty.all(axis=0)
+
+
+def conflicting_encounters(iv: EncounterIntervals, admissible=None) -> np.ndarray:
+    """bool[n_encounters]: the fewest encounters to set aside so that some (admissible) entry
+    explains all the others; none if one already does.
+
+    Each encounter may be explained by some entry and yet no entry explain them all
+    (encounter a impossible under entries 1-2, b under 3-13). The entry with the fewest
+    impossible encounters (the lowest omega_max on a tie) is the one that the rest of the
+    data can be fitted with after its impossible encounters are set aside."""
+    empty = iv.lo >= iv.hi
+    rows = np.arange(empty.shape[0]) if admissible is None else np.flatnonzero(np.asarray(admissible, bool))
+    if rows.size == 0:
+        return np.zeros(empty.shape[1], dtype=bool)
+    counts = empty[rows].sum(axis=1)
+    if counts.min() == 0:
+        return np.zeros(empty.shape[1], dtype=bool)
+    return empty[rows[int(np.argmin(counts))]].copy()
+
+
+def select_encounters(iv: EncounterIntervals, keep) -> EncounterIntervals:
+    """The encounters ``keep`` (bool or index array over encounters) of ``iv``."""
+    keep = np.asarray(keep)
+    return EncounterIntervals(iv.lo[:, keep], iv.hi[:, keep], None if iv.m_full is None else iv.m_full[:, keep],
+                              iv.outcomes[keep], iv.intervened[keep])
+
+
 def fit_first_passage_intervals(entries, iv: EncounterIntervals, *, true_vf=None, alpha_k=0.0,
                                 lapse=0.0, admissible_tol=None, admissible=None, start=None) -> FitResult:
     """``fit_first_passage`` from precomputed intervals (``encounter_intervals``);

@@ -24,9 +24,13 @@ import fcntl
 import json
 import math
 import os
+import re
 import time
 
 import numpy as np
+
+
+_TRAILING_DIGITS = re.compile(r'[0-9]+$')
 
 
 @dataclass(frozen=True)
@@ -47,9 +51,19 @@ class Intervention:
             raise ValueError('intervention frame is empty')
 
     @property
+    def obstacle(self):
+        """The obstacle's number: the frame's trailing digits as an integer, so that
+        ``obstacle_7``, ``obstacle_07`` and ``obstacle_007`` name one obstacle (the frame
+        text itself for a frame without digits)."""
+        digits = _TRAILING_DIGITS.search(self.frame)
+        return int(digits.group()) if digits else self.frame
+
+    @property
     def key(self):
-        """Identity for duplicate detection: the same event republished."""
-        return (self.frame, int(self.stamp_ns))
+        """Identity for duplicate detection: the same event republished, whatever the spelling
+        of its frame. The message names no robot: one obstacle's intervention at one stamp
+        concerns one robot (the nearest, or the one the supervisor judged)."""
+        return (self.obstacle, int(self.stamp_ns))
 
     @property
     def state(self):

@@ -27,14 +27,21 @@ Topics and services:
                                                              (renamed, never deleted), start empty,
                                                              publish the standard set
 
-Flow. A callback only validates and stores: an intervention is checked (finite, frame
-``obstacle_<int>`` of sane length, valid stamp, normalisable quaternion, inside the
-library's grid, not a duplicate) and appended to the store at once (to the kernel; the
-refit timer fsyncs every line appended since the last one before it fits: a group
-commit). A steady timer (``refit_period``) refits once on everything received so far,
-whatever the number of messages since the last refit, checks the fitted set against the
-standard set (``filter.admissibility.check_learned_set``) and publishes it only if it
-passes and its entry changed, or its level (mu, sigma or alpha) moved by more than
+Flow. A callback only validates and stores: an intervention is checked
+(``intervention_input``: frame ``obstacle_<int>`` of sane length, valid stamp, finite
+pose; not a duplicate: the same obstacle number and stamp, whatever the frame's spelling)
+and appended to the store at once (to the kernel; the refit timer fsyncs every line
+appended since the last one before it fits: a group commit). A stored intervention
+outside the library's grid, or whose encounter no admissible entry explains
+(``learning.encounter_window``), is set aside from the fit: kept in the store, logged and
+counted (``set_aside``), so one hasty click cannot stop the learning. Rejections and
+set-asides are logged at WARN per reason, at most once a second with the count and the
+latest example (``rejections``), and their totals at shutdown.
+
+A steady timer (``refit_period``) refits once on everything received so far, whatever
+the number of messages since the last refit, checks the fitted set against the standard
+set (``filter.admissibility.check_learned_set``) and publishes it only if it passes and
+its entry changed, or its level (mu, sigma or alpha) moved by more than
 ``republish_level_tolerance`` (0.01 m): a refit on one more encounter moves mu in its
 third digit, and resending the 710 KB set for that cost every filter a decode and a check
 and the log two lines each. Each encounter's values are computed once, when
@@ -56,7 +63,6 @@ from __future__ import annotations
 
 import math
 import os
-import re
 import time
 
 import numpy as np
@@ -75,19 +81,20 @@ from ..filter.admissibility import check_learned_set
 from ..learning.encounters import EncounterBuilder, EncounterRecord
 from ..learning.intervention_store import Intervention, InterventionStore, RecordStore
 # imported here, not in the first refit: scipy takes ~1 s to import on a busy machine
-from ..learning.estimators import (admissible_mask, concat_intervals, encounter_intervals,
-                                   fit_first_passage_intervals, fit_paper_values)
+from ..learning.estimators import admissible_mask, fit_first_passage_intervals, fit_paper_values
+from ..learning.encounter_window import EncounterWindow
 from ..reach.library import PAPER_OMEGAS, LibrarySpec, load_or_build_library
 from ..ros_io.vfmsg import value_function_to_msg
 from ..storage import new_run_store, prune_runs
 from .common import LiveParameters, declare, run_node
+from .intervention_input import Rejected, parse_intervention, receive_time_ns
 from .markers import ObstacleMarkers
+from .rejections import RejectionLog
 
 VALUE_FUNCTION_TOPIC = '/safe_set/value_function'
 FIT_TOPIC = '/safe_set/fit'
 ESTIMATORS = ('first-passage', 'paper')
 DEFAULT_OMEGAS = [float(w) for w in PAPER_OMEGAS]
-MAX_FRAME_LENGTH = 64          # 'obstacle_' + an id: longer frame names are refused unread
 # every pose and every obstacle set, even when a refit holds the learner up (reliable;
 # compatible with the robots' stream and the world's latched writers)
 QOS_EVERY_POSE = QoSProfile(depth=5000, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE,
@@ -96,7 +103,7 @@ QOS_EVERY_OBSTACLE_SET = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST,
                                     reliability=ReliabilityPolicy.RELIABLE,
                                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
 DRAIN_LIMIT = 1000             # messages of a burst taken per callback (see on_interventions)
-REJECTION_LOG_BURST = 5        # rejections logged one by one per second; the rest summarised
+SET_ASIDE_OUTSIDE = 'outside the library grid'
 
 
 def default_store_path() -> str:
@@ -211,11 +218,12 @@ class LearnerNode(Node):
 
         self.fit = None
         self.published = None        # (index, alpha, mu, sigma) of the value function in force
-        self.counts = {'rejected': 0, 'duplicates': 0, 'refits': 0, 'published': 0, 'refused': 0}
-        self.last_rejection = ''
+        self.counts = {'rejected': 0, 'duplicates': 0, 'set_aside': 0, 'refits': 0, 'published': 0, 'refused': 0}
+        warn = self.get_logger().warn
+        self.rejections = RejectionLog('intervention', 'rejected', warn)     # duplicates too
+        self.set_aside = RejectionLog('intervention', 'set aside from the fit (kept in the store)', warn)
         self.verdict = ''
         self.timing = {}
-        self._rejection_window = [0.0, 0, 0]     # window start (monotonic), logged, suppressed
         if not store_path:
             store_path = default_store_path()
             gone = prune_runs(keep_runs, current=os.path.dirname(store_path))
@@ -247,7 +255,11 @@ class LearnerNode(Node):
                                             keep=self.fit_window)
                                 if self.estimator == 'first-passage' else None)
         self._reset_caches()
-        self.new_interventions = list(self.store.entries)      # values not computed yet
+        for entry in self.store.entries:                        # values not computed yet
+            if self.in_grid(entry):
+                self.new_interventions.append(entry)
+            else:
+                self._set_aside(SET_ASIDE_OUTSIDE, f'stored {entry.frame} at ({entry.x:.3g}, {entry.y:.3g})')
         self.new_encounters = list(self.encounter_store.entries) if self.encounter_store else []
         n, m = len(self.store), len(self.encounter_store or ())
         damage = ''
@@ -268,7 +280,7 @@ class LearnerNode(Node):
         self.fit = None
         self.published = None
         self.values = np.zeros((len(self.entries), 0))    # paper: V_i at the newest interventions
-        self.intervals = None                               # first-passage: the newest encounters'
+        self.window = EncounterWindow(self.entries, self.admissible, self.fit_window, self._set_aside)
         self.new_interventions, self.new_encounters = [], []
         if self.estimator == 'first-passage':
             self.builder = EncounterBuilder(self.lo, self.hi, **self.builder_args)
@@ -280,30 +292,20 @@ class LearnerNode(Node):
         if self.builder is not None and self.encounter_store is not None:
             self.builder.finish_all()
             self._drain_encounters()
+        now = time.monotonic()
+        self.rejections.close(now)        # what is pending, and the run's totals per reason
+        self.set_aside.close(now)
         self.store.close()
         if self.encounter_store is not None:
             self.encounter_store.close()
 
     # -- inputs ----------------------------------------------------------------------------
     def parse(self, msg: PoseStamped) -> Intervention:
-        """Validated intervention; raises ValueError with the reason."""
-        frame = msg.header.frame_id
-        if len(frame) > MAX_FRAME_LENGTH:
-            raise ValueError(f'frame name is {len(frame)} characters long (limit {MAX_FRAME_LENGTH}): '
-                             f"'{frame[:24]}...'")
-        if not re.fullmatch(re.escape(self.frame_prefix) + r'[0-9]{1,18}', frame):
-            raise ValueError(f"frame '{frame}' does not name an obstacle ('{self.frame_prefix}<int>')")
-        sec, nanosec = msg.header.stamp.sec, msg.header.stamp.nanosec
-        if sec < 0 or not (0 <= nanosec < 1_000_000_000):
-            raise ValueError(f'stamp ({sec} s, {nanosec} ns) is not a valid time')
-        x, y, theta = rosmsg.pose_to_state(msg, frame=None)
-        if not (self.lo[0] <= x <= self.hi[0] and self.lo[1] <= y <= self.hi[1]):
-            raise ValueError(f'state ({x:.3g}, {y:.3g}) is outside the library grid '
-                             f'{tuple(self.lo)}..{tuple(self.hi)}')
-        stamp_ns = sec * 1_000_000_000 + nanosec
-        if stamp_ns == 0:   # unstamped: use the arrival time (duplicates then cannot be told apart)
-            stamp_ns = self.get_clock().now().nanoseconds
-        return Intervention(int(stamp_ns), frame, x, y, theta, time.time())
+        """Validated intervention (``intervention_input``); raises Rejected with the reason."""
+        return parse_intervention(msg, self.frame_prefix, lambda: receive_time_ns(self.get_clock()))
+
+    def in_grid(self, entry: Intervention) -> bool:
+        return self.lo[0] <= entry.x <= self.hi[0] and self.lo[1] <= entry.y <= self.hi[1]
 
     # The executor hands a callback one message per wait, and a wait costs far more than
     # a take. So each callback also takes what else is waiting (rclpy's own take call, as
@@ -362,37 +364,37 @@ class LearnerNode(Node):
     def on_intervention(self, msg: PoseStamped):
         try:
             entry = self.parse(msg)
-        except ValueError as exc:
-            self.reject(str(exc))
+        except Rejected as exc:
+            self.counts['rejected'] += 1
+            self._note(self.rejections, exc.reason, str(exc))
             return
         if not self.store.append(entry, sync=False):   # fsynced by the next refit tick
             self.counts['duplicates'] += 1
-            self.get_logger().warn(f'duplicate intervention ({entry.frame}, stamp {entry.stamp_ns}) ignored',
-                                   throttle_duration_sec=1.0)
-            self.status_dirty = True
+            self._note(self.rejections, 'duplicate', f'obstacle {entry.obstacle} at stamp {entry.stamp_ns} ns is '
+                       f'stored already (this one as {entry.frame!r})')
+            return
+        self._admit(entry)
+
+    def _admit(self, entry: Intervention):
+        """A stored intervention into the fit, or set aside from it with the reason."""
+        if not self.in_grid(entry):
+            self._set_aside(SET_ASIDE_OUTSIDE, f'{entry.frame} at ({entry.x:.3g}, {entry.y:.3g}), the grid '
+                            f'{tuple(self.lo)}..{tuple(self.hi)}: a click on an obstacle far from every robot')
             return
         self.new_interventions.append(entry)
         if self.builder is not None:
-            self.builder.intervention(int(entry.frame[len(self.frame_prefix):]), entry.stamp_ns * 1e-9,
-                                      entry.state, time.monotonic())
+            self.builder.intervention(entry.obstacle, entry.stamp_ns * 1e-9, entry.state, time.monotonic())
         self.dirty = True
 
-    def reject(self, reason: str):
-        self.counts['rejected'] += 1
-        self.last_rejection = reason
+    def _set_aside(self, reason: str, details: str):
+        self.counts['set_aside'] += 1
+        self._note(self.set_aside, reason, details)
+
+    def _note(self, log: RejectionLog, reason: str, details: str):
+        """Log (per reason, at most once a second) and say on the next status."""
+        log.add(reason, details, time.monotonic())
+        self.status_note = f'{log.noun} {log.verb}: {log.latest}'
         self.status_dirty = True
-        window = self._rejection_window
-        now = time.monotonic()
-        if now - window[0] >= 1.0:
-            if window[2]:
-                self.get_logger().error(f'{window[2]} more interventions rejected in the last second '
-                                        f'(latest: {reason})')
-            window[:] = [now, 0, 0]
-        if window[1] < REJECTION_LOG_BURST:
-            window[1] += 1
-            self.get_logger().error(f'intervention rejected: {reason}')
-        else:
-            window[2] += 1
 
     def on_markers(self, msg: MarkerArray):
         try:
@@ -425,6 +427,7 @@ class LearnerNode(Node):
     # -- refit -----------------------------------------------------------------------------
     dirty = False
     status_dirty = False
+    status_note = ''
     _next_refit = 0.0
 
     def matched_inputs(self) -> dict:
@@ -450,6 +453,8 @@ class LearnerNode(Node):
         if self.encounter_store is not None:
             self.encounter_store.sync()
         now = time.monotonic()
+        self.rejections.flush(now)      # each reason's summary on time, not with the next burst
+        self.set_aside.flush(now)
         if self.dirty and now >= self._next_refit:
             # rclpy takes one message per subscription per wait: were a refit due every tick,
             # a burst would get one message per refit. Refits get at most a third of the time.
@@ -458,7 +463,7 @@ class LearnerNode(Node):
             self._next_refit = time.monotonic() + 2.0 * (time.monotonic() - now)
         elif self.status_dirty:
             self.status_dirty = False
-            self.publish_status(f'intervention rejected: {self.last_rejection}', level=1)
+            self.publish_status(self.status_note, level=1)
 
     def _paper_values(self):
         if self.new_interventions:
@@ -469,15 +474,11 @@ class LearnerNode(Node):
         return self.values
 
     def _encounter_intervals(self):
-        if self.new_encounters:
-            iv = encounter_intervals(self.entries, [r.to_encounter() for r in self.new_encounters])
-            self.new_encounters = []
-            iv = iv if self.intervals is None else concat_intervals([self.intervals, iv])
-            w = self.fit_window
-            if iv.lo.shape[1] > w:
-                iv = type(iv)(iv.lo[:, -w:], iv.hi[:, -w:], None, iv.outcomes[-w:], iv.intervened[-w:])
-            self.intervals = iv
-        return self.intervals
+        """The encounters fitted: the newest that the library explains (``EncounterWindow``:
+        one that no entry explains is set aside, else no fit could be made while it stays)."""
+        records, self.new_encounters = self.new_encounters, []
+        self.window.add(records)
+        return self.window.intervals
 
     def fitted_counts(self):
         """(interventions the fit would use, encounters or None), computing new values."""
@@ -505,10 +506,10 @@ class LearnerNode(Node):
                 if self.fit is not None and self.fit.candidates:
                     start = (np.array([c['mu'] for c in self.fit.candidates]),
                              np.array([c['sigma'] for c in self.fit.candidates]))
-                fit = fit_first_passage_intervals(self.entries, self.intervals, alpha_k=self.alpha_k,
+                fit = fit_first_passage_intervals(self.entries, self.window.intervals, alpha_k=self.alpha_k,
                                                   admissible=self.admissible, start=start)
         except ValueError as exc:
-            self.get_logger().error(f'fit failed: {exc}; keeping the previous fit')
+            self.get_logger().error(f'fit failed: {exc}; keeping the previous fit', throttle_duration_sec=5.0)
             self.publish_status(f'fit failed: {exc}', level=2)
             return None
         self.timing['fit_s'] = time.perf_counter() - t0
@@ -554,7 +555,8 @@ class LearnerNode(Node):
             'index': f.index if f else -1, 'store': self.store.path,
             'published_index': self.published[0] if self.published else -1,
             'published_alpha': self.published[1] if self.published else nan,
-            'admissibility': self.verdict, 'last_rejection': self.last_rejection,
+            'admissibility': self.verdict, 'last_rejection': self.rejections.latest,
+            'last_set_aside': self.set_aside.latest,
             'notes': '; '.join(f.notes) if f else '',
         }
         values.update(self.counts)

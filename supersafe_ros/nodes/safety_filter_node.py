@@ -267,7 +267,8 @@ class SafetyFilterNode(Node):
             msg = cdr.twist(data)
             self.filter.update_command(rosmsg.twist_turn_rate(msg), t, msg.linear.x)
         except ValueError as exc:
-            w.complain('cmd', f'cmd_vel_nav rejected: {exc}; keeping the previous command')
+            w.complain('cmd', f'cmd_vel_nav rejected: {exc}; the previous command stays in force until it is '
+                       f'cmd_timeout ({self.filter.config.cmd_timeout:g} s) old, then a zero twist goes out')
         else:
             if self.filter.command.note:
                 w.complain('cmd clipped', f'cmd_vel_nav beyond the robot\'s limits: {self.filter.command.note}')

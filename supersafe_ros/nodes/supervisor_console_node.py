@@ -44,6 +44,10 @@ class SupervisorConsoleNode(Node):
         per_second = p('interventions_per_second', 3.0, 'most interventions published in any one second '
                        '(and one per obstacle until the world answers); more clicks are refused', 1.0, 100.0)
         confirm = p('confirm_timeout', 3.0, "wall seconds a click waits for the world's answer", 0.1, 60.0)
+        header_timeout = p('header_timeout', 10.0, 'wall seconds a connection has to send a whole request\'s '
+                           'headers (also how long an idle keep-alive connection stays open)', 0.1, 600.0)
+        max_unfinished = p('max_unfinished', 64, 'most connections without a complete request at once; '
+                           'when one more opens, the oldest is closed', 1, 10000)
         self.robots = [r.strip('/') for r in p('robots', ['robot_0', 'robot_1'],
                                                'robot namespaces to show')]
         field = Field(
@@ -55,7 +59,8 @@ class SupervisorConsoleNode(Node):
         self.server = ConsoleServer(self.state, self.bridge.intervene, host=host, port=port, token=token,
                                     update_rate=rate, log=self.get_logger().info,
                                     page_config={'trail_length': trail}, max_connections=max_connections,
-                                    confirm_timeout=confirm, unanswered=self.bridge.unanswered)
+                                    confirm_timeout=confirm, unanswered=self.bridge.unanswered,
+                                    header_timeout=header_timeout, max_unfinished=max_unfinished)
         bound = self.server.start()
         # the URL (with the token when one is needed) is the one thing the operator needs
         self.get_logger().info(f'console: {self.server.url()}  (robots {self.robots}, port {bound})')
