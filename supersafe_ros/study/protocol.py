@@ -64,6 +64,7 @@ class StudyOptions:
     engine: str = 'core'             # core: in this process (study.engine); graph: the node graph
     workers: int = 0                 # core: subjects run in this many processes (0: one per core)
     scheduler: str = ''              # core: a Dask distributed scheduler's address: subjects run on its workers
+    supervisor: str = 'memoryless'   # the simulated supervisors' model (sim.supervisor_models.MODELS)
 
 
 ENGINES = ('core', 'graph')

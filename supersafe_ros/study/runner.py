@@ -52,8 +52,8 @@ class Progress:
               f'{"  " + extra if extra else ""}', file=self.out, flush=True)
 
 
-def supervisor_params(subject: Subject) -> dict:
-    return {'w_max': subject.omega_max, 'mu': subject.mu, 'sigma': subject.sigma}
+def supervisor_params(subject: Subject, model: str = 'memoryless') -> dict:
+    return {'w_max': subject.omega_max, 'mu': subject.mu, 'sigma': subject.sigma, 'model': model}
 
 
 class GraphGames:
@@ -61,8 +61,8 @@ class GraphGames:
 
     def __init__(self, subject, world_seed: int, opts: StudyOptions, env: dict, log_dir: Path):
         self.subject, self.world_seed, self.opts = subject, world_seed, opts
-        self.graph = GameGraph(env, world_seed, supervisor_params(subject), opts.step, opts.rate_factor,
-                               log_dir)
+        self.graph = GameGraph(env, world_seed, supervisor_params(subject, opts.supervisor), opts.step,
+                               opts.rate_factor, log_dir)
 
     def play(self, condition: str, learned: dict, k: float):
         """(result dict of ``GameGraph.play``, alpha or None, the set that ran)."""
