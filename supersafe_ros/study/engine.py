@@ -45,7 +45,7 @@ from ..learning.levels import learned_alpha
 from ..reach.grid import Grid
 from ..reach.library import LibrarySpec, load_or_build_library, load_or_solve
 from ..sim.team_loop import RobotParams, TeamLoop, cluster_settings, process_cluster_store
-from ..sim.supervisor_models import AttentiveParams
+from ..sim.supervisor_models import DEFAULT_MODEL, AttentiveParams
 from ..sim.watcher import Watcher
 from ..sim.world import WorldConfig
 from ..team import robot_names, start_poses
@@ -102,7 +102,7 @@ def attentive_params() -> AttentiveParams:
     return AttentiveParams(**{k: float(p[k]) for k in AttentiveParams.__dataclass_fields__ if k in p})
 
 
-def make_watcher(subject, seed: int, model: str = 'memoryless') -> Watcher:
+def make_watcher(subject, seed: int, model: str = DEFAULT_MODEL) -> Watcher:
     """The subject's supervisor as the node runs it (``model``: sim.supervisor_models)."""
     return Watcher(supervisor_vf(subject.omega_max), mu=subject.mu, sigma=subject.sigma, seed=int(seed),
                    pending_timeout=node_params('supervisor')['pending_timeout'], model=model,

@@ -29,6 +29,7 @@ import sys
 import time
 
 from ..console.session import write_subject
+from ..sim.supervisor_models import DEFAULT_MODEL
 from ..team import team_env
 from .analysis import ordered
 from .engine import CoreStudy
@@ -52,7 +53,7 @@ class Progress:
               f'{"  " + extra if extra else ""}', file=self.out, flush=True)
 
 
-def supervisor_params(subject: Subject, model: str = 'memoryless') -> dict:
+def supervisor_params(subject: Subject, model: str = DEFAULT_MODEL) -> dict:
     return {'w_max': subject.omega_max, 'mu': subject.mu, 'sigma': subject.sigma, 'model': model}
 
 
