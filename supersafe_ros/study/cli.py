@@ -180,6 +180,7 @@ def run(args, out=sys.stdout) -> int:
         print(f'population: {population.name} ({population.source}): '
               + ', '.join(f'{m.name} x{m.weight:g} (w_S {m.omega_max:g}, mu {m.mu:g}, sigma {m.sigma:g})'
                           for m in population.members), file=out, flush=True)
+    print(f'supervisor model: {opts.supervisor} (docs/study.md, "Supervisor models")', file=out, flush=True)
     subjects = population.draw(opts.subjects, opts.seed)
     try:
         raw = run_study(subjects, opts, out=out)
