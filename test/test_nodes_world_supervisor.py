@@ -136,18 +136,27 @@ PRIVATE = {'/obstacle_markers': '/supervisor_test/obstacle_markers',
 PRIVATE_ARGS = ['--ros-args'] + [a for old, new in PRIVATE.items() for a in ('-r', f'{old}:={new}')]
 
 
-def test_supervisor_intervenes_at_its_level_and_names_the_robot(ros_context):
+def supervisor_rig(ros_context, driver_name, pose_qos, **overrides):
+    """A supervisor (w_max 0.5, mu 0.8, no noise, a small V_S grid) on the private topics and a
+    driver node: (sup, driver, markers and pose publishers, interventions and decisions
+    received, their subscriptions)."""
     sup = SupervisorNode(context=ros_context, cli_args=PRIVATE_ARGS, parameter_overrides=params(
         robots=['robot_0'], w_max=0.5, mu=0.8, sigma=0.0, horizon=2.0, seed=1,
-        grid_nxy=41, grid_ntheta=24))
-    driver = Node('supervisor_test_driver', context=ros_context)
+        grid_nxy=41, grid_ntheta=24, **overrides))
+    driver = Node(driver_name, context=ros_context)
     markers = driver.create_publisher(MarkerArray, PRIVATE['/obstacle_markers'], rosmsg.QOS_LATCHED)
-    pose = driver.create_publisher(PoseStamped, PRIVATE['/robot_0/pose'], rosmsg.QOS_STREAM)
+    pose = driver.create_publisher(PoseStamped, PRIVATE['/robot_0/pose'], pose_qos)
     got, decisions = [], []
     s1 = driver.create_subscription(PoseStamped, PRIVATE['/interventions'], got.append, rosmsg.QOS_EVENTS)
     s2 = driver.create_subscription(DiagnosticStatus, '/supervisor/decisions',
                                     lambda m: decisions.append(rosmsg.diagnostic_values(m)),
                                     rosmsg.QOS_EVENTS)
+    return sup, driver, markers, pose, got, decisions, s1, s2
+
+
+def test_supervisor_intervenes_at_its_level_and_names_the_robot(ros_context):
+    sup, driver, markers, pose, got, decisions, s1, s2 = supervisor_rig(
+        ros_context, 'supervisor_test_driver', rosmsg.QOS_STREAM)
     rosout = Rosout(driver)
     spin = Spinner(ros_context, sup, driver)
     try:
@@ -409,17 +418,8 @@ def test_supervisor_model_parameter_changes_what_an_alarm_does(ros_context):
     """One approach that turns away from its obstacle (test_sim_supervisor_models' case):
     with ``model`` memoryless the supervisor intervenes; set to attentive at run time it
     watches the same approach to a new obstacle go by; an unknown model is refused."""
-    sup = SupervisorNode(context=ros_context, cli_args=PRIVATE_ARGS, parameter_overrides=params(
-        robots=['robot_0'], w_max=0.5, mu=0.8, sigma=0.0, horizon=2.0, seed=1,
-        grid_nxy=41, grid_ntheta=24, model='memoryless'))
-    driver = Node('supervisor_model_driver', context=ros_context)
-    markers = driver.create_publisher(MarkerArray, PRIVATE['/obstacle_markers'], rosmsg.QOS_LATCHED)
-    pose = driver.create_publisher(PoseStamped, PRIVATE['/robot_0/pose'], rosmsg.QOS_EVERY_SAMPLE)
-    got, decisions = [], []
-    s1 = driver.create_subscription(PoseStamped, PRIVATE['/interventions'], got.append, rosmsg.QOS_EVENTS)
-    s2 = driver.create_subscription(DiagnosticStatus, '/supervisor/decisions',
-                                    lambda m: decisions.append(rosmsg.diagnostic_values(m)),
-                                    rosmsg.QOS_EVENTS)
+    sup, driver, markers, pose, got, decisions, s1, s2 = supervisor_rig(
+        ros_context, 'supervisor_model_driver', rosmsg.QOS_EVERY_SAMPLE, model='memoryless')
     spin = Spinner(ros_context, sup, driver)
     centre = np.array([5.0, 1.0])
     clock = {'ns': 0}
