@@ -75,7 +75,8 @@ def summarize(records: list, standard_vf, conservative_vf, sweep_k=(0.0, 1.0, 2.
         r['crashes'] = [rows[a]['crashes'], rows[b]['crashes']]
     out_conditions = {}
     for c in conditions:
-        out_conditions[c] = dict(counts[c], **measures[c], **rows[c])
+        # the per-subject counts (lists) over Table 1's totals of the same names
+        out_conditions[c] = {**rows[c], **counts[c], **measures[c]}
         if c == 'standard':   # the reference, by definition (other ratios are NaN if it is 0)
             out_conditions[c]['predicted_fp_ratio'] = 1.0
             out_conditions[c]['observed_fp_ratio'] = 1.0
