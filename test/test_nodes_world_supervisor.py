@@ -136,18 +136,27 @@ PRIVATE = {'/obstacle_markers': '/supervisor_test/obstacle_markers',
 PRIVATE_ARGS = ['--ros-args'] + [a for old, new in PRIVATE.items() for a in ('-r', f'{old}:={new}')]
 
 
-def test_supervisor_intervenes_at_its_level_and_names_the_robot(ros_context):
+def supervisor_rig(ros_context, driver_name, pose_qos, **overrides):
+    """A supervisor (w_max 0.5, mu 0.8, no noise, a small V_S grid) on the private topics and a
+    driver node: (sup, driver, markers and pose publishers, interventions and decisions
+    received, their subscriptions)."""
     sup = SupervisorNode(context=ros_context, cli_args=PRIVATE_ARGS, parameter_overrides=params(
         robots=['robot_0'], w_max=0.5, mu=0.8, sigma=0.0, horizon=2.0, seed=1,
-        grid_nxy=41, grid_ntheta=24))
-    driver = Node('supervisor_test_driver', context=ros_context)
+        grid_nxy=41, grid_ntheta=24, **overrides))
+    driver = Node(driver_name, context=ros_context)
     markers = driver.create_publisher(MarkerArray, PRIVATE['/obstacle_markers'], rosmsg.QOS_LATCHED)
-    pose = driver.create_publisher(PoseStamped, PRIVATE['/robot_0/pose'], rosmsg.QOS_STREAM)
+    pose = driver.create_publisher(PoseStamped, PRIVATE['/robot_0/pose'], pose_qos)
     got, decisions = [], []
     s1 = driver.create_subscription(PoseStamped, PRIVATE['/interventions'], got.append, rosmsg.QOS_EVENTS)
     s2 = driver.create_subscription(DiagnosticStatus, '/supervisor/decisions',
                                     lambda m: decisions.append(rosmsg.diagnostic_values(m)),
                                     rosmsg.QOS_EVENTS)
+    return sup, driver, markers, pose, got, decisions, s1, s2
+
+
+def test_supervisor_intervenes_at_its_level_and_names_the_robot(ros_context):
+    sup, driver, markers, pose, got, decisions, s1, s2 = supervisor_rig(
+        ros_context, 'supervisor_test_driver', rosmsg.QOS_STREAM)
     rosout = Rosout(driver)
     spin = Spinner(ros_context, sup, driver)
     try:
@@ -399,6 +408,57 @@ def test_supervisor_is_ready_for_the_clock_only_when_its_interventions_are_read(
                                                       lambda m: None, rosmsg.QOS_EVENTS))
         spin.until(lambda: sup.acks.sent == 0, 10.0, 'ready with both readers')
         assert sup.intervention_pub.get_subscription_count() == 2
+    finally:
+        spin.shutdown()
+        sup.destroy_node()
+        driver.destroy_node()
+
+
+def test_supervisor_model_parameter_changes_what_an_alarm_does(ros_context):
+    """One approach that turns away from its obstacle (test_sim_supervisor_models' case):
+    with ``model`` memoryless the supervisor intervenes; set to attentive at run time it
+    watches the same approach to a new obstacle go by; an unknown model is refused."""
+    sup, driver, markers, pose, got, decisions, s1, s2 = supervisor_rig(
+        ros_context, 'supervisor_model_driver', rosmsg.QOS_EVERY_SAMPLE, model='memoryless')
+    spin = Spinner(ros_context, sup, driver)
+    centre = np.array([5.0, 1.0])
+    clock = {'ns': 0}
+
+    def approach(obstacle_id):
+        """Straight 0.3 s from (-8, 0.3) relative to the obstacle, then a turn away at 0.3 rad/s,
+        one pose per 0.1 s, each judged before the next; the interventions it brought."""
+        markers.publish(obstacles_to_markers([obstacle_id], centre[None], 1.8))
+        spin.until(lambda: list(sup.obstacles.centres) == [obstacle_id], 5.0, f'obstacle {obstacle_id}')
+        n0 = len(got)
+        x, y, th = -8.0, 0.3, 0.0
+        for k in range(60):
+            if k >= 4:
+                th += 0.3 * 0.1
+            if k:
+                x, y = x + 0.3 * math.cos(th), y + 0.3 * math.sin(th)
+            msg = rosmsg.state_to_pose((x + centre[0], y + centre[1], th))
+            clock['ns'] += 100_000_000
+            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(clock['ns'], 10**9)
+            pose.publish(msg)
+            t_ns = clock['ns']
+            spin.until(lambda: sup.acks.sent >= t_ns, 10.0, f'pose {k} judged')
+        # the last pose is judged after any intervention went out: wait for it on the wire
+        spin.until(lambda: len(got) == len(decisions), 5.0, 'the decisions on the wire')
+        return got[n0:]
+
+    try:
+        spin.until(lambda: matched(markers, pose, s1, s2), 10.0, 'matching')
+        first = approach(7)
+        assert len(first) == 1 and first[0].header.frame_id == 'obstacle_7'
+        assert decisions[-1]['model'] == 'memoryless'
+        result, = set_parameters(spin, driver, '/supervisor', model='telepathic')
+        assert not result.successful and 'unknown model' in result.reason
+        assert sup.watcher.model == 'memoryless'
+        result, = set_parameters(spin, driver, '/supervisor', model='attentive')
+        assert result.successful, result.reason
+        assert sup.watcher.model == 'attentive'
+        assert approach(8) == []
+        assert sup.watcher.withheld > 0             # its alarm was on, and it held back
     finally:
         spin.shutdown()
         sup.destroy_node()

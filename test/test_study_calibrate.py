@@ -6,6 +6,7 @@ import pytest
 
 from supersafe_ros.learning.data import PHASE2_OFFSETS
 from supersafe_ros.reach.library import load_or_build_library
+from supersafe_ros.sim.supervisor_models import MODELS
 from supersafe_ros.sim.watcher import Watcher
 from supersafe_ros.study import calibrate as C
 from supersafe_ros.study.population import load_population, population_from_dict
@@ -68,6 +69,18 @@ def test_the_simulated_check_repeats_the_studys_phase2_exactly():
     run = pop.meta['achieved']['simulated']['runs'][0]
     check = C.simulated_check(pop, run['subjects'], [run['seed']], PHASE2_OFFSETS, 0.2)
     assert check['runs'][0] == run
+
+
+def test_every_supervisor_model_has_the_same_phase2_so_one_population_fits_them_all():
+    """Phase II passes do not turn: the attentive model is the memoryless one there (the
+    shipped file records it for a whole study; here three subjects, re-run)."""
+    pop = load_population('paper')
+    shipped = pop.meta['achieved']['model_agreement']
+    assert all(r['same_as_memoryless'] for r in shipped['models'].values())
+    assert set(shipped['models']) == set(MODELS)
+    again = C.model_agreement(pop, 3, shipped['seed'], PHASE2_OFFSETS, 0.2)
+    assert {m: r['same_as_memoryless'] for m, r in again['models'].items()} == {m: True for m in MODELS}
+    assert all(r['interventions'] > 0 for r in again['models'].values())
 
 
 def test_a_population_of_participants_from_their_subject_files(tmp_path):

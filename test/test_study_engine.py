@@ -126,7 +126,8 @@ def test_the_core_study_reports_every_condition_and_the_h2_measures(tmp_path):
     assert '(core engine)' in text.getvalue() and 'arcs shorter than Conservative' in text.getvalue()
     res = json.loads(out_json.read_text())
     assert list(res['conditions']) == list(CONDITIONS)
-    assert res['options']['engine'] == 'core'
+    assert res['options']['engine'] == 'core' and res['options']['supervisor'] == 'attentive'
+    assert 'supervisor model: attentive' in text.getvalue()          # the default
     subj = res['subjects'][0]
     assert subj['fits']['learned']['estimator'] == 'paper'
     assert subj['fits']['learned_fp']['estimator'] == 'first-passage'
@@ -138,6 +139,8 @@ def test_the_core_study_reports_every_condition_and_the_h2_measures(tmp_path):
         assert 0 <= cond['false_positives'][0] <= cond['interventions'][0]
         assert 0 < cond['trips'][0] <= 4 and cond['path_per_trip'][0] >= 32.0
         assert 0.0 <= cond['override_fraction'][0] <= 1.0
+        # Table 1's row carries the crash and trip totals beside the false positives
+        assert res['table1'][c]['crashes'] == cond['crashes'][0] and res['table1'][c]['trips'] == cond['trips'][0]
         g = subj['games'][c]
         assert g['engine'] == 'core' and g['complete'] and g['set'] in (c, 'standard')
     assert set(subj['sweep']) == {'0', '1', '2'}

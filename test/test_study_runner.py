@@ -268,3 +268,16 @@ def test_learned_fp_is_the_first_passage_learner_message_with_its_newest_counts(
                                fp_msg=msg, fp_fit=fit)
     sets = fits.learned_sets(p2, ('learned', 'learned_fp'))
     assert sets['learned'] == ('paper-msg', {'estimator': 'paper'}) and sets['learned_fp'] == (msg, fit)
+
+
+def test_both_graphs_run_the_studys_supervisor_model(tmp_path):
+    """The graph engine's supervisor nodes get the study's model (Phase II and the games)."""
+    from supersafe_ros.study.runner import supervisor_params
+    subject = Subject(0, 0.5, 1.0, 0.2, 100)
+    for model in ('memoryless', 'attentive'):
+        argvs = graph_phase2.phase2_argvs(subject, protocol.StudyOptions(supervisor=model), tmp_path / 'i.jsonl', 0.0)
+        sup = [a for a in argvs if 'supersafe_ros.nodes.supervisor_node' in a]
+        assert len(sup) == 1 and f'model:={model}' in sup[0]
+        argvs, _ = games.graph_argvs(3, supervisor_params(subject, model), 0.2, 0.0)
+        sup = [a for a in argvs if 'supersafe_ros.nodes.supervisor_node' in a]
+        assert len(sup) == 1 and f'model:={model}' in sup[0]

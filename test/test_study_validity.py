@@ -43,7 +43,7 @@ def test_model_validity_puts_the_prediction_beside_the_observation_and_finds_the
     records = []
     for i in range(4):
         games = {'standard': {'false_positives': 6, 'trace': trace([iv(0.5, True), iv(2.0, True), iv(4.0, False)])},
-                 'learned': {'false_positives': 3 + (i % 2),
+                 'learned': {'false_positives': 3 + (i % 2), 'crashes': i % 2,
                              'trace': trace([iv(2.0, True, after=True, bearing=80.0), iv(3.0, True, v=-0.1)])}}
         records.append({'subject': {'index': i}, 'states': [[x, 0, 0] for x in (-2, -1, 1, 2, 3)],
                         'games': games})
@@ -60,4 +60,6 @@ def test_model_validity_puts_the_prediction_beside_the_observation_and_finds_the
     assert g['false_positives'] == 8 and g['fp_after_override'] == 0.5 and g['fp_tangential'] == 0.5
     assert g['fp_inside_set'] == 0.5 and g['onset_v_minus_alpha']['head-on']['median'] == pytest.approx(0.4)
     assert v['gap']['standard']['fp_after_override'] == 0.0
-    assert 'Learned' in format_validity(v)
+    assert g['crashes'] == 2 and v['gap']['standard']['crashes'] == 0     # beside the false positives
+    text = format_validity(v).splitlines()
+    assert 'crashes' in text[-3] and text[-1].startswith('Learned') and text[-1].rstrip().endswith(' 2')

@@ -4,8 +4,12 @@ Its internal value function V_S is its own: a Dubins car with the supervisor's
 belief of the turn-rate bound ``w_max``, obstacle ``radius`` and ``horizon``
 (computed or loaded from the cache by reach.library.load_or_solve). It never reads
 the learner's value function. It watches every robot pose against every obstacle
-and, per approach, intervenes when V_S(x_rel) <= mu + w, w ~ N(0, sigma^2) drawn once
-per approach (supersafe_ros.sim.watcher).
+and, per approach, raises an alarm when V_S(x_rel) <= mu + w, w ~ N(0, sigma^2) drawn once
+per approach (supersafe_ros.sim.watcher). Parameter ``model`` chooses what it does with an
+alarm (supersafe_ros.sim.supervisor_models): ``memoryless`` (the paper's) intervenes at
+once; ``attentive`` does not while the robot's turns away from that obstacle in this
+approach have convinced it that the robot saw it (``convince_angle``, ``doubt_horizon``,
+``doubt_window``).
 
   sub  /<robot>/pose         geometry_msgs/PoseStamped  every pose (deep queue)
   sub  /obstacle_markers     visualization_msgs/MarkerArray  latched, obstacle ids and centres
@@ -34,6 +38,7 @@ from visualization_msgs.msg import MarkerArray
 
 from ..ros_io import rosmsg
 from ..reach.grid import Grid
+from ..sim.supervisor_models import DEFAULT_MODEL, MODELS, AttentiveParams
 from ..sim.watcher import Watcher
 from .common import LiveParameters, StepAcknowledger, declare, run_node
 from .markers import ObstacleMarkers
@@ -73,7 +78,22 @@ class SupervisorNode(Node):
             'seed': p('seed', -1, 'random seed of the noise (-1: from the OS); live', -1, 2**31 - 1),
             'pending_timeout': p('pending_timeout', 5.0, 'sim seconds to wait for a removal before '
                                  'judging that obstacle again; live', 0.01, 1e4),
+            'model': p('model', DEFAULT_MODEL, f"what an alarm V_S <= mu + w does, one of {', '.join(MODELS)}: "
+                       'memoryless (the paper\'s) intervenes at once, attentive not while the robot\'s turns '
+                       'away from that obstacle show it has seen it; live'),
+            'convince_angle': p('convince_angle', 0.3, 'attentive: turn away from an obstacle (while it is the '
+                                "robot's most urgent and it heads toward it) that convinces [rad]; live",
+                                0.0, 10.0),
+            'doubt_horizon': p('doubt_horizon', 0.5, 'attentive: a convinced belief is dropped when the straight '
+                               'course enters the disc within this many seconds and the robot is not turning '
+                               'away [s]; live', 0.0, 100.0),
+            'doubt_window': p('doubt_window', 0.6, 'attentive: "turning away" is the net turn over this many '
+                              'seconds [s]; live', 0.0, 100.0),
         }
+        if self.params['model'] not in MODELS:
+            self.get_logger().error(f"model {self.params['model']!r} is not one of {MODELS}; judging as "
+                                    f'{DEFAULT_MODEL}')
+            self.params['model'] = DEFAULT_MODEL
         half = ro('grid_half_width', 8.0, 'V_S grid spans +-this in x and y [m]', 1.0, 100.0)
         nxy = ro('grid_nxy', 65, 'V_S grid nodes per axis in x and y', 5, 1001)
         nth = ro('grid_ntheta', 42, 'V_S grid nodes in theta', 4, 720)
@@ -89,7 +109,8 @@ class SupervisorNode(Node):
         self.rebuild(set(self.params))
         self.live = LiveParameters(self, after=self.rebuild)
         for name in self.params:
-            self.live.add(name, lambda v, name=name: self.params.__setitem__(name, v))
+            self.live.add(name, lambda v, name=name: self.params.__setitem__(name, v),
+                          check=_check_model if name == 'model' else None)
         self.obstacles = ObstacleMarkers()
         self.intervention_pub = self.create_publisher(PoseStamped, '/interventions', rosmsg.QOS_EVENTS)
         self.decision_pub = self.create_publisher(DiagnosticStatus, '/supervisor/decisions',
@@ -112,12 +133,14 @@ class SupervisorNode(Node):
             self.vf = supervisor_value_function(self.grid, q['speed'], q['w_max'], q['radius'],
                                                 q['horizon'])
         pending = dict(self.watcher.pending) if self.watcher is not None else {}
+        attentive = AttentiveParams(**{k: float(q[k]) for k in AttentiveParams.__dataclass_fields__})
         self.watcher = Watcher(self.vf, mu=q['mu'], sigma=q['sigma'], pending_timeout=q['pending_timeout'],
-                               seed=None if q['seed'] < 0 else q['seed'])
+                               seed=None if q['seed'] < 0 else q['seed'], model=q['model'],
+                               attentive=attentive)
         self.watcher.pending = pending
         self.get_logger().info(f"supervisor: V_S with w_max={q['w_max']:.4g}, speed={q['speed']:.4g}, "
                                f"radius={q['radius']:.4g}, horizon={q['horizon']:.4g}; mu={q['mu']:.4g}, "
-                               f"sigma={q['sigma']:.4g}, seed={q['seed']}")
+                               f"sigma={q['sigma']:.4g}, seed={q['seed']}, model={q['model']}")
 
     def on_reset(self, msg: DiagnosticStatus):
         """A new subject or game: these beliefs and noise, and no encounter or pending removal
@@ -173,11 +196,16 @@ class SupervisorNode(Node):
         self.intervention_pub.publish(out)
         values = {'robot': robot, 'obstacle': decision.obstacle_id, 'time': f'{decision.time:.4f}',
                   'value': f'{decision.value:.4f}', 'threshold': f'{decision.threshold:.4f}'}
-        values.update({k: self.params[k] for k in ('w_max', 'mu', 'sigma', 'horizon', 'radius')})
+        values.update({k: self.params[k] for k in ('w_max', 'mu', 'sigma', 'horizon', 'radius', 'model')})
         self.decision_pub.publish(rosmsg.make_diagnostic('intervention', values))
         # the world's INFO line tells the story of each intervention; this is the detail
         self.get_logger().debug(f'intervene: {robot} at V_S={decision.value:.3f} <= '
                                 f'{decision.threshold:.3f} near obstacle {decision.obstacle_id}')
+
+
+def _check_model(value):
+    """None if ``value`` is a supervisor model, else the reason to refuse it."""
+    return None if value in MODELS else f"unknown model; one of {', '.join(MODELS)}"
 
 
 def main(args=None):

@@ -28,6 +28,11 @@ linearly in V between the last pose above the level and the first at or below it
 
 When an encounter starts below its level there is nothing to interpolate from and
 the pose itself is reported.
+
+``model`` chooses how an alarm (V_S <= mu + w) becomes an intervention
+(``sim.supervisor_models``): ``memoryless``, the paper's, at once; ``attentive``, only
+while the supervisor is not convinced, from the robot's turns in this approach, that the
+robot has seen the obstacle.
 """
 from __future__ import annotations
 
@@ -39,6 +44,7 @@ import numpy as np
 from ..reach.grid import wrap_angle
 from ..reach.value_function import ValueFunction
 from .dubins_sim import base_seed, keyed_rng
+from .supervisor_models import AttentiveParams, DetectionBelief, check_model
 
 
 @dataclass
@@ -64,10 +70,15 @@ class Watcher:
     pending: dict = field(default_factory=dict)      # obstacle id -> time intervened
     previous: dict = field(default_factory=dict)     # (robot, obstacle id) -> (rel state, V, t)
     encounters: dict = field(default_factory=dict)   # (robot, obstacle id) -> approaches so far
+    model: str = 'memoryless'
+    attentive: AttentiveParams = field(default_factory=AttentiveParams)
+    beliefs: dict = field(default_factory=dict)      # (robot, obstacle id) -> DetectionBelief
+    withheld: int = 0                                # alarms not acted on (attentive: convinced)
 
     def __post_init__(self):
         if not (math.isfinite(self.mu) and math.isfinite(self.sigma) and self.sigma >= 0):
             raise ValueError(f'mu must be finite and sigma >= 0, got mu={self.mu}, sigma={self.sigma}')
+        check_model(self.model)
         self.seed = base_seed(self.seed)
 
     def obstacles_changed(self, ids) -> None:
@@ -76,6 +87,7 @@ class Watcher:
         self.pending = {o: t for o, t in self.pending.items() if o in alive}
         self.thresholds = {k: v for k, v in self.thresholds.items() if k[1] in alive}
         self.previous = {k: v for k, v in self.previous.items() if k[1] in alive}
+        self.beliefs = {k: v for k, v in self.beliefs.items() if k[1] in alive}
 
     def judge(self, robot: str, state, time: float, obstacle_ids, obstacle_xy) -> Decision | None:
         """Judge one robot state against every obstacle; returns an intervention or None.
@@ -98,22 +110,29 @@ class Watcher:
         if inside.any():                 # only the obstacles near enough to judge are evaluated
             values[inside] = self.vf.value(rel[inside])
         best = None
+        urgent = int(np.argmin(values)) if inside.any() else -1
         for k, oid in enumerate(ids.tolist()):
             key = (robot, oid)
             if not inside[k]:
                 self.thresholds.pop(key, None)       # encounter over
                 self.previous.pop(key, None)
+                self.beliefs.pop(key, None)
                 continue
             if key not in self.thresholds:           # a new approach: one noisy judgement
                 n = self.encounters.get(key, 0)
                 self.encounters[key] = n + 1
                 w = float(keyed_rng(self.seed, robot, oid, n).standard_normal())
                 self.thresholds[key] = self.mu + self.sigma * w
+                self.beliefs.pop(key, None)
             prev = self.previous.get(key)
             self.previous[key] = (rel[k].copy(), float(values[k]), float(time))
+            convinced = self.model == 'attentive' and self._convinced(key, prev, rel[k], time, k == urgent)
             if oid in self.pending:
                 continue
             margin = values[k] - self.thresholds[key]
+            if margin <= 0 and convinced:
+                self.withheld += 1
+                continue
             if margin <= 0 and (best is None or margin < best[0]):
                 best = (margin, k, oid, prev)
         if best is None:
@@ -121,6 +140,7 @@ class Watcher:
         _, k, oid, prev = best
         level = self.thresholds.pop((robot, oid))
         self.previous.pop((robot, oid), None)
+        self.beliefs.pop((robot, oid), None)
         self.pending[oid] = float(time)
         x, v, t = rel[k].copy(), float(values[k]), float(time)
         if prev is not None and prev[1] > level and prev[2] < t:
@@ -131,3 +151,14 @@ class Watcher:
             t = prev[2] + f * (t - prev[2])
             v = float(self.vf.value(x[None])[0])
         return Decision(robot, oid, t, x, v, level)
+
+    def _convinced(self, key, prev, rel, time: float, urgent: bool) -> bool:
+        """The attentive supervisor's belief after this frame (``supervisor_models``): the
+        turn from the previous frame of this approach counts for this obstacle if it is the
+        robot's most urgent (lowest V_S) and the robot was heading toward it."""
+        belief = self.beliefs.get(key)
+        if belief is None:
+            belief = self.beliefs[key] = DetectionBelief(self.attentive)
+        if prev is None or not prev[2] < time:
+            return belief.convinced
+        return belief.update(prev[0], rel, time, urgent)

@@ -100,14 +100,14 @@ def table1(inside: dict, observed_fp: dict) -> dict:
 def format_table1(rows: dict, paper: bool = True) -> str:
     """Table 1 as the paper prints it; with ``paper`` the paper's own row beside each."""
     lines = [
-        f'{"":22s}{"Interventions":>16s}{"Predicted":>12s}{"Average":>10s}{"Observed":>11s}',
-        f'{"":22s}{"in safe set":>16s}{"FP vs Std":>12s}{"FP":>10s}{"FP vs Std":>11s}',
+        f'{"":22s}{"Interventions":>16s}{"Predicted":>12s}{"Average":>10s}{"Observed":>11s}{"Crashes":>9s}',
+        f'{"":22s}{"in safe set":>16s}{"FP vs Std":>12s}{"FP":>10s}{"FP vs Std":>11s}{"(sum)":>9s}',
     ]
 
     def row(label, r):
         return (f'{label:22s}{r["inside"]:>9d} / {r["total"]:<4d}'
                 f'{100 * r["predicted_fp_ratio"]:>11.1f}%{r["average_fp"]:>10.2f}'
-                f'{100 * r["observed_fp_ratio"]:>10.1f}%')
+                f'{100 * r["observed_fp_ratio"]:>10.1f}%' + (f'{r["crashes"]:>9d}' if 'crashes' in r else ''))
     for c in ordered(rows):
         lines.append(row(LABELS[c], rows[c]))
         if paper and c in PAPER_TABLE1:

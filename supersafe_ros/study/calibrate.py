@@ -37,6 +37,13 @@
 ``calibrate`` returns the population as a dict (``population.population_from_dict``
 reads it back) with the target, the achieved shares (expected, and realised by a seeded
 simulation of a whole study's Phase II), the mix and the method.
+
+**Every supervisor model** (``sim.supervisor_models``) is calibrated by this one search:
+the models differ only in what the robot's turns tell the supervisor, and Phase II's
+passes do not turn, so each model's Phase II is the memoryless rule's and the best
+population is the same. ``model_agreement`` checks it on the study's own engine (every
+scene and intervention state of a whole study's Phase II under each model) and the file
+records it (``achieved.model_agreement``).
 """
 from __future__ import annotations
 
@@ -285,6 +292,29 @@ def calibrate(target: Target, offsets, step: float, seed: int = 0, grid: dict | 
                             'realisations': REALISATIONS, 'candidates': len(scores),
                             'wall_s': round(time.monotonic() - t0, 1),
                             'method': 'supersafe_ros.study.calibrate (docs/study.md, "The paper-like population")'}}
+
+
+def model_agreement(population, subjects: int, seed: int, offsets, step: float) -> dict:
+    """Phase II of ``subjects`` subjects (``engine.CoreStudy.phase2``) under every supervisor
+    model: whether each model's scenes, interventions and intervention states are the
+    memoryless model's, and the largest state difference [m or rad]."""
+    from ..sim.supervisor_models import MODELS
+    from .engine import CoreStudy
+    from .protocol import StudyOptions
+    core = CoreStudy()
+    runs = {}
+    for model in MODELS:
+        opts = StudyOptions(phase2_offsets=tuple(float(v) for v in offsets), step=float(step), supervisor=model)
+        runs[model] = [core.phase2(subject, opts, with_fp=False) for subject in population.draw(subjects, int(seed))]
+    out = {'subjects': subjects, 'seed': int(seed), 'models': {}}
+    for model, res in runs.items():
+        same = all([s['intervened'] for s in a.scenes] == [s['intervened'] for s in b.scenes]
+                   and a.states.shape == b.states.shape for a, b in zip(res, runs['memoryless']))
+        diff = max((float(np.max(np.abs(a.states - b.states))) for a, b in zip(res, runs['memoryless'])
+                    if same and len(a.states)), default=0.0)
+        out['models'][model] = {'interventions': int(sum(len(r.states) for r in res)),
+                                'same_as_memoryless': bool(same and diff == 0.0), 'max_state_difference': diff}
+    return out
 
 
 def simulated_check(population, subjects: int, seeds, offsets, step: float) -> dict:

@@ -46,6 +46,7 @@ def _add_common(parser, subjects_default):
                         help='observed alpha sweep (extra Learned games at mu+sigma, mu+2sigma) for the '
                              'first k subjects (default 2; 0 = predicted sweep only)')
     _add_population(parser)
+    _add_supervisor(parser)
     _add_engine(parser)
     parser.add_argument('--domain-id', type=int, default=None, help='ROS_DOMAIN_ID (graph engine; '
                         'default inherited)')
@@ -58,6 +59,15 @@ def _add_population(parser):
                              'supervisors, fitted), paper (calibrated so that Phase II reproduces the paper\'s '
                              'Table 1 and Fig. 6 mix), or a population file (supersafe population calibrate / '
                              'from-sessions)')
+
+
+def _add_supervisor(parser):
+    from ..sim.supervisor_models import DEFAULT_MODEL, MODELS
+    parser.add_argument('--supervisor', choices=MODELS, default=DEFAULT_MODEL,
+                        help=f'how the simulated supervisors decide (default {DEFAULT_MODEL}): memoryless '
+                             '(the paper\'s: intervene when V_S <= mu + w, whatever the robot did), attentive '
+                             '(no intervention while the robot\'s turns away from that obstacle show it has '
+                             'seen it); docs/study.md, "Supervisor models"')
 
 
 def _add_engine(parser):
@@ -88,6 +98,7 @@ def add_parser(subparsers):
         description='A small study (3 simulated supervisors); prints Table 1 and where the plots are. '
                     'Builds the value-function cache on first use.')
     _add_population(demo)
+    _add_supervisor(demo)
     _add_engine(demo)
     demo.add_argument('--domain-id', type=int, default=None, help='ROS_DOMAIN_ID (graph engine; default '
                       'inherited)')
@@ -125,6 +136,7 @@ def options_from_args(args):
                         sweep_subjects=max(0, args.sweep_subjects), plots=not args.no_plots,
                         engine=engine, workers=max(0, getattr(args, 'workers', 0)),
                         scheduler=getattr(args, 'scheduler', '') or '')
+    opts.supervisor = getattr(args, 'supervisor', opts.supervisor)
     if opts.scheduler and engine != 'core':
         raise ValueError('--scheduler runs the core engine\'s subjects (--engine core)')
     if engine == 'graph' and 'learned_online' in opts.conditions:
@@ -168,6 +180,7 @@ def run(args, out=sys.stdout) -> int:
         print(f'population: {population.name} ({population.source}): '
               + ', '.join(f'{m.name} x{m.weight:g} (w_S {m.omega_max:g}, mu {m.mu:g}, sigma {m.sigma:g})'
                           for m in population.members), file=out, flush=True)
+    print(f'supervisor model: {opts.supervisor} (docs/study.md, "Supervisor models")', file=out, flush=True)
     subjects = population.draw(opts.subjects, opts.seed)
     try:
         raw = run_study(subjects, opts, out=out)

@@ -12,14 +12,15 @@ the two side by side.
   at (-8, y0, 0) with u = 0 towards one disc at the origin, a new obstacle id per scene,
   ids from 0 as the graph's world gives them) as ``learning.phase2_stream.phase2_events``
   generates them, judged by the supervisor node's own rule (``sim.watcher.Watcher``, the
-  subject's w_max, mu, sigma and seed). The two learners fit as the learner node does,
+  subject's w_max, mu, sigma and seed, and the study's supervisor model). The two learners fit as the learner node does,
   once on all the data: ``paper`` (``fit_paper_values`` on the intervention states) and
   ``first-passage`` (encounters from ``EncounterBuilder`` fed the poses, obstacle sets and
   interventions, then ``fit_first_passage_intervals``), both with the conservative prior,
   alpha = mu, min_interventions 3, and published only if admissible
   (``check_learned_set`` against the standard set).
 * Phase III (``CoreStudy.play``): ``sim.team_loop.TeamLoop`` with the team's two robots,
-  the world seed of the subject, the subject's supervisor (seed ``supervisor_seed``) and
+  the world seed of the subject, the subject's supervisor (seed ``supervisor_seed``, the
+  study's model ``opts.supervisor``: ``sim.supervisor_models``) and
   the condition's safe set, checked for admissibility as each filter checks a received
   set.
 
@@ -44,6 +45,7 @@ from ..learning.levels import learned_alpha
 from ..reach.grid import Grid
 from ..reach.library import LibrarySpec, load_or_build_library, load_or_solve
 from ..sim.team_loop import RobotParams, TeamLoop, cluster_settings, process_cluster_store
+from ..sim.supervisor_models import DEFAULT_MODEL, AttentiveParams
 from ..sim.watcher import Watcher
 from ..sim.world import WorldConfig
 from ..team import robot_names, start_poses
@@ -94,9 +96,17 @@ def supervisor_vf(w_max: float):
     return load_or_solve(grid, p['speed'], float(w_max), p['radius'], p['horizon'])
 
 
-def make_watcher(subject, seed: int) -> Watcher:
+def attentive_params() -> AttentiveParams:
+    """The attentive model's constants as the supervisor node loads them (supervisor.yaml)."""
+    p = node_params('supervisor')
+    return AttentiveParams(**{k: float(p[k]) for k in AttentiveParams.__dataclass_fields__ if k in p})
+
+
+def make_watcher(subject, seed: int, model: str = DEFAULT_MODEL) -> Watcher:
+    """The subject's supervisor as the node runs it (``model``: sim.supervisor_models)."""
     return Watcher(supervisor_vf(subject.omega_max), mu=subject.mu, sigma=subject.sigma, seed=int(seed),
-                   pending_timeout=node_params('supervisor')['pending_timeout'])
+                   pending_timeout=node_params('supervisor')['pending_timeout'], model=model,
+                   attentive=attentive_params())
 
 
 # -- the learners ---------------------------------------------------------------------------
@@ -209,7 +219,7 @@ class CoreStudy:
 
     def phase2(self, subject, opts, with_fp: bool = True) -> Phase2Result:
         t0, cpu0 = time.monotonic(), time.process_time()
-        watcher = make_watcher(subject, subject.seed)
+        watcher = make_watcher(subject, subject.seed, opts.supervisor)
         # the graph's world numbers obstacles from 0: the first scene's disc is obstacle 0,
         # and the supervisor's draws are keyed by obstacle id
         events = list(phase2_events(watcher, [float(v) for v in opts.phase2_offsets], speed=SPEED,
@@ -258,7 +268,7 @@ class CoreStudy:
         starts = dict(zip(names, start_poses(N_ROBOTS)))
         # team_layout(seed=world_seed): robot i's sensor seed is seed * 1000 + i + 1
         seeds = {n: world_seed * 1000 + i + 1 for i, n in enumerate(names)}
-        watcher = make_watcher(subject, supervisor_seed(subject, world_seed))
+        watcher = make_watcher(subject, supervisor_seed(subject, world_seed), opts.supervisor)
         cfg = filter_config(opts.step)
         trace = GameTrace()
         online = OnlineLearner(learners(), online_records, safe_set) if online_records is not None else None

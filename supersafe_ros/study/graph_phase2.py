@@ -48,7 +48,7 @@ def phase2_argvs(subject: Subject, opts: StudyOptions, store: Path, first_offset
     ``fp_store`` also the first-passage learner (``fp_learner_argv``). No planner/filter:
     the conductor answers the robot's poses (u = 0)."""
     sup = {'w_max': subject.omega_max, 'mu': subject.mu, 'sigma': subject.sigma,
-           'seed': subject.seed, 'robots': ['robot_0']}
+           'seed': subject.seed, 'robots': ['robot_0'], 'model': opts.supervisor}
     layout = team_layout(1, opts.rate_factor, seed=subject.seed % 1_000_000, step=opts.step,
                          with_filter=False, learner_store=store,
                          overrides={'world': {'respawn': False, 'robots': ['robot_0'], 'n_obstacles': 0},

@@ -100,7 +100,7 @@ def _write(path: Path, doc: dict) -> None:
 
 def run_calibrate(args, out=sys.stdout) -> int:
     from ..learning.data import PHASE2_OFFSETS
-    from .calibrate import TARGETS, calibrate, simulated_check
+    from .calibrate import TARGETS, calibrate, model_agreement, simulated_check
     from .population import population_from_dict
     if args.step <= 0 or args.check_subjects < 1 or args.check_seeds < 0:
         print('need --step > 0, --check-subjects >= 1, --check-seeds >= 0', file=sys.stderr)
@@ -114,6 +114,8 @@ def run_calibrate(args, out=sys.stdout) -> int:
         doc['achieved']['simulated'] = simulated_check(pop, args.check_subjects,
                                                        range(args.seed, args.seed + args.check_seeds),
                                                        offsets, args.step)
+        doc['achieved']['model_agreement'] = model_agreement(pop, args.check_subjects, args.seed, offsets,
+                                                             args.step)
     doc['calibration']['wall_s'] = round(time.monotonic() - t0, 1)
     _write(args.out, doc)
     print(format_population(doc), file=out)
@@ -153,4 +155,11 @@ def format_population(doc: dict) -> str:
             lines.append(f'{label:>22s}{100 * r["inside_standard"]:>11.1f}%{100 * r["inside_conservative"]:>11.1f}%'
                          f'{100 * r["intervention_rate"]:>11.1f}%   '
                          + ' / '.join(f'{float(mix.get(k, 0)):.2g}' for k in ('standard', 'conservative', 'gradual')))
+        agree = a.get('model_agreement')
+        if agree:
+            lines.append(f'Phase II under each supervisor model ({agree["subjects"]} subjects, seed {agree["seed"]}): '
+                         + ', '.join(f'{m} {r["interventions"]} interventions, '
+                                     + ('the same as memoryless' if r['same_as_memoryless']
+                                        else f'differs (up to {r["max_state_difference"]:.3g})')
+                                     for m, r in agree['models'].items()))
     return '\n'.join(lines)

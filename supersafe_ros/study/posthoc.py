@@ -98,8 +98,9 @@ def paired_posthoc(values: dict, conditions=None, wilcoxon: bool = True) -> dict
 
 
 def format_posthoc(posthoc: dict, labels: dict, paper: dict | None = None, tukey: dict | None = None) -> str:
-    """One line per pair: mean difference [95 % CI], d_z, Holm p (and the paper's figure, and
-    Tukey's independent-groups p as a reference when given)."""
+    """One line per pair: mean difference [95 % CI], d_z, Holm p, the two conditions' crash
+    totals when the pair has them (and the paper's figure, and Tukey's independent-groups p as
+    a reference when given)."""
     lines = [f'paired post-hoc ({posthoc["method"]}):']
     for pair, r in posthoc['pairs'].items():
         a, b = pair.split('-')
@@ -107,6 +108,7 @@ def format_posthoc(posthoc: dict, labels: dict, paper: dict | None = None, tukey
         lines.append(f'  {labels[a]} - {labels[b]}: {r["mean_difference"]:+.2f} FP [{r["ci_low"]:+.2f}, '
                      f'{r["ci_high"]:+.2f}], d_z {r["effect_size"]:+.2f}, p(Holm) = {r["p"]:.3g} '
                      f'{significance_stars(r["p"])}'
+                     + (f', crashes {r["crashes"][0]} / {r["crashes"][1]}' if 'crashes' in r else '')
                      + (f'  (Tukey, independent groups: p = {ref["p"]:.3g})' if ref else '')
                      + (f'   [paper, Tukey: {paper[pair]}]' if paper and pair in paper else ''))
     return '\n'.join(lines)

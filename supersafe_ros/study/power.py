@@ -12,7 +12,10 @@ not significant.
 
 This is a bootstrap of the simulated population: it says how often a study of N people
 like these simulated subjects would reach significance, and is no better than the
-simulation's population (docs/study.md).
+simulation's population and its supervisor model (docs/study.md, "Supervisor models"):
+it names the study's model, says so when that is not the default
+(``sim.supervisor_models.DEFAULT_MODEL``, what `supersafe study` runs), and prints the
+study's crashes per condition beside the false positives it tests.
 """
 from __future__ import annotations
 
@@ -26,7 +29,7 @@ import numpy as np
 from .analysis import H2_MEASURES, LABELS, ordered, repeated_measures_anova
 from .posthoc import paired_posthoc
 
-MEASURES = ('false_positives',) + H2_MEASURES
+MEASURES = ('false_positives', 'crashes') + H2_MEASURES
 ALPHA = 0.05
 
 
@@ -132,7 +135,8 @@ def add_parser(subparsers):
                    help='comma-separated participant numbers (default: up to 8 from 3 to --max-subjects)')
     p.add_argument('--draws', type=int, default=200, help='resamples per number of participants (200)')
     p.add_argument('--measure', choices=MEASURES, default='false_positives',
-                   help='per-subject measure to test (default false_positives, the paper\'s H1)')
+                   help='per-subject measure to test (default false_positives, the paper\'s H1; crashes '
+                        'beside them)')
     p.add_argument('--seed', type=int, default=0, help='seed of the resampling')
     p.add_argument('--out', type=Path, default=None, help='plot (default <study dir>/power.png)')
     p.add_argument('--json', type=Path, default=None, help='also write the curves here')
@@ -151,8 +155,15 @@ def run(args, out=sys.stdout) -> int:
     except (OSError, ValueError, KeyError) as exc:
         print(f'supersafe power: {exc}', file=sys.stderr)
         return 2
+    from ..sim.supervisor_models import DEFAULT_MODEL
+    model = study.get('options', {}).get('supervisor', 'memoryless')
     print(f'{len(values)} simulated subjects, conditions {", ".join(conds)}; {args.measure}; '
-          f'{args.draws} draws at N = {sizes}', file=out, flush=True)
+          f'{args.draws} draws at N = {sizes}; supervisor model {model}'
+          + ('' if model == DEFAULT_MODEL else f' (not the default, {DEFAULT_MODEL})'), file=out, flush=True)
+    if all('false_positives' in study['conditions'][c] and 'crashes' in study['conditions'][c] for c in conds):
+        print('the study per condition (sums over its subjects): '
+              + ', '.join(f'{c} {sum(study["conditions"][c]["false_positives"])} FP / '
+                          f'{sum(study["conditions"][c]["crashes"])} crashes' for c in conds), file=out, flush=True)
     t0 = time.monotonic()
     power = resample_power(conds, values, sizes, args.draws, args.seed,
                            progress=lambda n, _: print(f'  N = {n} done ({time.monotonic() - t0:.0f} s)',

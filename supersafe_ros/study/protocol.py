@@ -23,6 +23,7 @@ import numpy as np
 from ..learning.data import PHASE2_OFFSETS
 from ..reach.grid import Grid
 from ..reach.library import load_or_solve
+from ..sim.supervisor_models import DEFAULT_MODEL
 from ..team import CONFIG_FILES, config_dir
 from .population import Subject
 
@@ -64,6 +65,7 @@ class StudyOptions:
     engine: str = 'core'             # core: in this process (study.engine); graph: the node graph
     workers: int = 0                 # core: subjects run in this many processes (0: one per core)
     scheduler: str = ''              # core: a Dask distributed scheduler's address: subjects run on its workers
+    supervisor: str = DEFAULT_MODEL  # the simulated supervisors' model (sim.supervisor_models.MODELS)
 
 
 ENGINES = ('core', 'graph')

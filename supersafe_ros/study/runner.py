@@ -29,6 +29,7 @@ import sys
 import time
 
 from ..console.session import write_subject
+from ..sim.supervisor_models import DEFAULT_MODEL
 from ..team import team_env
 from .analysis import ordered
 from .engine import CoreStudy
@@ -52,8 +53,8 @@ class Progress:
               f'{"  " + extra if extra else ""}', file=self.out, flush=True)
 
 
-def supervisor_params(subject: Subject) -> dict:
-    return {'w_max': subject.omega_max, 'mu': subject.mu, 'sigma': subject.sigma}
+def supervisor_params(subject: Subject, model: str = DEFAULT_MODEL) -> dict:
+    return {'w_max': subject.omega_max, 'mu': subject.mu, 'sigma': subject.sigma, 'model': model}
 
 
 class GraphGames:
@@ -61,8 +62,8 @@ class GraphGames:
 
     def __init__(self, subject, world_seed: int, opts: StudyOptions, env: dict, log_dir: Path):
         self.subject, self.world_seed, self.opts = subject, world_seed, opts
-        self.graph = GameGraph(env, world_seed, supervisor_params(subject), opts.step, opts.rate_factor,
-                               log_dir)
+        self.graph = GameGraph(env, world_seed, supervisor_params(subject, opts.supervisor), opts.step,
+                               opts.rate_factor, log_dir)
 
     def play(self, condition: str, learned: dict, k: float):
         """(result dict of ``GameGraph.play``, alpha or None, the set that ran)."""

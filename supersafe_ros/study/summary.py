@@ -3,7 +3,9 @@
 ``summarize`` pools the per-subject records (``records``) with the statistics of
 ``analysis`` and ``posthoc`` (paired tests; Tukey's independent-groups HSD is kept as a
 labelled reference); a human participant's record (``console.session``) counts like a
-simulated subject's.
+simulated subject's. Crashes stand beside false positives (a supervisor that saves false
+positives by missing undetected obstacles is not a better one): each Table 1 row and each
+paired test carries the conditions' crash totals.
 """
 from __future__ import annotations
 
@@ -64,9 +66,17 @@ def summarize(records: list, standard_vf, conservative_vf, sweep_k=(0.0, 1.0, 2.
                 for c in conditions}
     fp = {c: counts[c]['false_positives'] for c in conditions}
     rows = table1(inside, fp)
+    for c in conditions:     # crashes beside false positives: a supervisor that misses is not better
+        rows[c]['crashes'] = int(sum(counts[c]['crashes']))
+        rows[c]['trips'] = int(sum(counts[c]['trips']))
+    posthoc = paired_posthoc(fp, conditions)
+    for pair, r in posthoc['pairs'].items():
+        a, b = pair.split('-')
+        r['crashes'] = [rows[a]['crashes'], rows[b]['crashes']]
     out_conditions = {}
     for c in conditions:
-        out_conditions[c] = dict(counts[c], **measures[c], **rows[c])
+        # the per-subject counts (lists) over Table 1's totals of the same names
+        out_conditions[c] = {**rows[c], **counts[c], **measures[c]}
         if c == 'standard':   # the reference, by definition (other ratios are NaN if it is 0)
             out_conditions[c]['predicted_fp_ratio'] = 1.0
             out_conditions[c]['observed_fp_ratio'] = 1.0
@@ -85,7 +95,7 @@ def summarize(records: list, standard_vf, conservative_vf, sweep_k=(0.0, 1.0, 2.
         'table1': rows,
         'conditions': out_conditions,
         'anova': repeated_measures_anova(fp),
-        'posthoc': paired_posthoc(fp, conditions),
+        'posthoc': posthoc,
         'tukey': tukey_pairs(fp),
         'tukey_method': TUKEY_REFERENCE,
         'validity': model_validity(records, lambda r: record_sets(r, standard_vf, conservative_vf), conditions),

@@ -139,6 +139,9 @@ def model_validity(records: list, sets_of, conditions, seed: int = 0, draws: int
         pooled[c]['gap'] = pooled[c]['observed'] - pooled[c]['predicted']
         pooled[c]['gap_ci'] = _ci(diff)
     gap = {c: trace_gap([r['games'].get(c) for r in records]) for c in ordered(conditions)}
+    for c in gap:        # beside the false positives: what missing the undetected ones cost
+        gap[c]['crashes'] = int(sum((r['games'][c].get('totals') or r['games'][c]).get('crashes', 0)
+                                    for r in records if r['games'].get(c)))
     return {'per_subject': per_subject, 'pooled': pooled, 'gap': gap, 'draws': draws, 'seed': seed,
             'method': 'predicted: Phase II states inside / inside Standard; observed: FP / FP Standard; '
                       'games_predicted: the Standard games\' intervention states inside / inside Standard; '
@@ -160,10 +163,10 @@ def format_validity(validity: dict) -> str:
                      f'{pct(p["games_predicted"]):>11s} {ci(p["games_predicted_ci"]):>16s}')
     lines.append('where the games differ from the prediction (core engine traces):')
     lines.append(f'{"":14s}{"onset V-alpha head-on":>23s}{"oblique":>9s}{"FP":>5s}{"after override":>16s}'
-                 f'{"tangential":>12s}{"inside set":>12s}')
+                 f'{"tangential":>12s}{"inside set":>12s}{"crashes":>9s}')
     for c, g in validity['gap'].items():
         o = g['onset_v_minus_alpha']
         lines.append(f'{LABELS[c]:14s}{o["head-on"]["median"]:>+20.2f} m{o["oblique"]["median"]:>+7.2f} m'
                      f'{g["false_positives"]:>5d}{pct(g["fp_after_override"]):>16s}{pct(g["fp_tangential"]):>12s}'
-                     f'{pct(g["fp_inside_set"]):>12s}')
+                     f'{pct(g["fp_inside_set"]):>12s}' + (f'{g["crashes"]:>9d}' if 'crashes' in g else ''))
     return '\n'.join(lines)
