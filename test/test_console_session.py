@@ -198,8 +198,8 @@ def test_analyse_lists_every_participant_and_says_no_test_is_meaningful_below_th
     assert len(answers) == 3 * 6
     sl = {r['item']: r for r in answers if r['comparison'] == 'standard-learned'}
     first = plan[0]['treatment']
-    assert sl['trust']['first_treatment'] == first and sl['trust']['first_rating'] == ('3' if first == 'standard'
-                                                                                      else '5')
+    assert sl['trust']['first_treatment'] == first
+    assert sl['trust']['first_rating'] == ('3' if first == 'standard' else '5')
     assert sl['preference']['preference'] == '6'
     assert sl['preference']['towards_second_named'] == ('6' if plan[1]['treatment'] == 'learned' else '2')
 

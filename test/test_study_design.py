@@ -160,8 +160,8 @@ def test_the_papers_tests_per_item_from_three_participants_and_means_below():
     # two participants: means only
     few = Q.subjective_analysis(lists[:2])['standard-learned']
     assert few['items']['trust']['anova'] is None and few['items']['preference']['ttest'] is None
-    assert 'no test (fewer than 3)' in Q.format_subjective({'standard-learned': few},
-                                                          {'standard': 'S', 'learned': 'L'})
+    labels = {'standard': 'S', 'learned': 'L'}
+    assert 'no test (fewer than 3)' in Q.format_subjective({'standard-learned': few}, labels)
 
 
 def test_every_pair_of_rows_in_a_block_differs():

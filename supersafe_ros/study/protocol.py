@@ -5,8 +5,9 @@ nodes' parameters, the reference sets, the seeds and what Phase II returns.
   3.6 m, speed 3 m/s, the true turn-rate bound 1 rad/s, horizon 3 s on the 65 x 65 x 42
   grid over [-8, 8]^2 (``reference_sets``); a Phase II scene runs from x = -8 to 2.5.
 * ``StudyOptions``: one run's settings (subjects, seed, step, game length, conditions,
-  engine, Phase III form: ``same-world`` or the paper's six games of ``design``); ``config_params``: a node's parameters from its config file, as the core
-  engine's nodes and the graph's renamed first-passage learner take them.
+  engine, Phase III form: ``same-world`` or the paper's six games of ``design``);
+  ``config_params``: a node's parameters from its config file, as the core engine's
+  nodes and the graph's renamed first-passage learner take them.
 * ``supervisor_seed``: a subject's noise in Phase III; ``sweep_condition``: the learned
   condition whose alpha the observed sweep raises.
 * ``Phase2Result``: Phase II of one subject, from ``engine.CoreStudy.phase2`` or
