@@ -302,3 +302,80 @@ def test_a_port_in_use_is_said_plainly(tmp_path):
                             '--out', str(tmp_path), '--port', str(port)], capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and f'cannot serve the console on port {port}' in r.stderr, r
     assert 'Traceback' not in r.stderr + r.stdout
+
+
+class ScriptedSession:
+    """Session.protocol's order of events, with every screen and phase recorded instead of run."""
+
+    def __init__(self, store, phase3='paper'):
+        import argparse
+        from supersafe_ros.console.session_runner import Session
+        self.protocol = Session.protocol.__get__(self)
+        self.store, self.events = store, []
+        self.args = argparse.Namespace(phase1_seconds=0, stop_after=None, estimator='paper', game_seconds=5.0,
+                                       phase3=phase3)
+
+    def wait_for_start(self, phase, **fields):
+        self.events.append(('start', phase, fields.get('game')))
+
+    def show(self, phase, **fields):
+        self.events.append(('show', phase))
+
+    def say(self, text):
+        pass
+
+    def learned_vf(self, estimator=None):
+        return None
+
+    def game(self, g):
+        self.events.append(('game', g['game']))
+        self.store.data['plays'].append(dict(g, false_positives=g['game'], interventions=g['game'],
+                                             crashes=0, trips=1))
+        self.store.save()
+        if g['game'] == self.stop_at:
+            raise KeyboardInterrupt
+
+    def ask(self, q):
+        self.events.append(('ask', tuple(q['games'])))
+        self.store.data['answers'].append({'comparison': q['comparison'], 'games': q['games']})
+        self.store.save()
+
+
+def test_the_protocol_runs_the_plan_and_resumes_at_the_game_or_questionnaire_where_it_stopped(tmp_path,
+                                                                                              monkeypatch):
+    import time
+    monkeypatch.setattr(time, 'sleep', lambda s: None)       # the protocol's last pause for the page
+    store = S.SessionStore(tmp_path, '3', n_offsets=1)
+    store.data.update(scenes=[{'y0': 0.0, 'intervened': False, 'state': None, 'frames': []}],
+                      fit={'paper': None, 'first_passage': None}, fit_seen=True)
+    store.save()
+    run = ScriptedSession(store)
+    run.stop_at = 4                      # Ctrl-C in game 4: its record is lost, games 1-3 stay
+    with pytest.raises(KeyboardInterrupt):
+        run.protocol()
+    assert [e for e in run.events if e[0] != 'show'] == [
+        ('start', 'game', 'Game 1'), ('game', 1), ('start', 'game', 'Game 2'), ('game', 2), ('ask', (1, 2)),
+        ('start', 'game', 'Game 3'), ('game', 3), ('start', 'game', 'Game 4'), ('game', 4)]
+    data = json.loads(store.path.read_text())
+    data['plays'] = data['plays'][:3]           # game 4 did not end
+    store.path.write_text(json.dumps(data))
+    again = ScriptedSession(S.SessionStore(tmp_path, '3'))
+    again.stop_at = None
+    assert again.protocol() == 0
+    assert [e for e in again.events if e[0] != 'show'] == [
+        ('start', 'game', 'Game 4'), ('game', 4), ('ask', (3, 4)),
+        ('start', 'game', 'Game 5'), ('game', 5), ('start', 'game', 'Game 6'), ('game', 6), ('ask', (5, 6))]
+    done = json.loads(again.store.path.read_text())
+    assert done['complete'] and [p['game'] for p in done['plays']] == [1, 2, 3, 4, 5, 6]
+    subject = json.loads((tmp_path / '3' / 'subject.json').read_text())
+    assert len(subject['plays']) == 6 and len(subject['answers']) == 3
+    # a questionnaire left open: the resumed session asks it before the next game
+    store = S.SessionStore(tmp_path, '4', n_offsets=1)
+    store.data.update(scenes=[{}], fit={'paper': None}, fit_seen=True,
+                      plays=[dict(g) for g in store.data['plan']['games'][:2]])
+    store.save()
+    run = ScriptedSession(S.SessionStore(tmp_path, '4'))
+    run.stop_at = 3
+    with pytest.raises(KeyboardInterrupt):
+        run.protocol()
+    assert [e for e in run.events if e[0] != 'show'][:2] == [('ask', (1, 2)), ('start', 'game', 'Game 3')]

@@ -46,11 +46,9 @@ def _add_common(parser, subjects_default):
                         help='observed alpha sweep (extra Learned games at mu+sigma, mu+2sigma) for the '
                              'first k subjects (default 2; 0 = predicted sweep only)')
     parser.add_argument('--phase3', choices=('same-world', 'paper'), default='same-world',
-                        help='Phase III: same-world (default; each condition once on the subject\'s own world, '
-                             'common random numbers: the sharpest comparison of the sets) or paper (the paper\'s '
-                             'protocol: three pairwise comparisons of Standard, Learned and Conservative, six '
-                             'games on six task versions in a balanced design; a treatment\'s FP is the mean of '
-                             'its two games)')
+                        help='same-world (default: each condition once on the subject\'s world, common random '
+                             'numbers) or paper (six games: three pairwise comparisons on six task versions; '
+                             'FP per treatment = the mean of its two games; see docs/study.md)')
     _add_population(parser)
     _add_engine(parser)
     parser.add_argument('--domain-id', type=int, default=None, help='ROS_DOMAIN_ID (graph engine; '
