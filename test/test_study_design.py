@@ -83,7 +83,7 @@ def test_versions_are_worlds_and_the_short_form_is_todays_three_games():
 def test_treatment_means_average_a_treatments_two_games_and_keep_the_totals():
     plan = D.paper_plan(0)['games']
     plays = [dict(g, false_positives=fp, interventions=fp + 1, crashes=0, trips=5, avoidance_length=arc,
-                  set=g['treatment'], trace={'n': g['game']})
+                  set=g['treatment'], trace={'n': g['game']}, complete=g['game'] != 4)
              for g, fp, arc in zip(plan, (3, 8, 1, 4, 6, 2), (0.5, None, 1.0, float('nan'), 0.2, 2.0))]
     means = D.treatment_means(plays)
     for t in D.TREATMENTS:
@@ -94,6 +94,7 @@ def test_treatment_means_average_a_treatments_two_games_and_keep_the_totals():
         assert means[t]['versions'] == [p['version'] for p in mine]
         assert means[t]['trace'] == mine[0]['trace'] and means[t]['set'] == t
         assert 'comparison' not in means[t] and 'version' not in means[t]
+        assert means[t]['complete'] == all(p['game'] != 4 for p in mine)
     # a missing measure (None, NaN) is left out of its mean
     arcs = {t: [p['avoidance_length'] for p in plays if p['treatment'] == t] for t in D.TREATMENTS}
     for t, v in arcs.items():

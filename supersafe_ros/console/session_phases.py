@@ -300,7 +300,7 @@ class SessionPhases:
         finally:
             self.interventions_open = False
         counts = game_counts(result)
-        counts.update(reason=result['reason'], position=k, played=ran,
+        counts.update(reason=result['reason'], played=ran,
                       alpha=alpha, complete=counts['sim_time'] >= seconds - 1e-6)
         counts.update(g, world_seed=world_seed)
         self.store.data['plays'].append(counts)

@@ -121,8 +121,8 @@ PLAN_KEYS = ('game', 'treatment', 'comparison', 'comparison_number', 'position_i
 def treatment_means(plays: list) -> dict:
     """treatment -> its games' entries averaged, in the order the treatments were first played:
     a number is the mean over the treatment's games (a count played once stays as it is),
-    None / NaN values left out of a mean (None if no game has one); anything else is its
-    first game's. ``totals``: the counts summed over its games (for count models). ``games``
+    None / NaN values left out of a mean (None if no game has one), a flag true when true
+    for every game; anything else is its first game's. ``totals``: the counts summed over its games (for count models). ``games``
     and ``versions`` list the treatment's game numbers and task
     versions; the other plan keys (comparison, place) are per game, not per treatment."""
     import math
@@ -134,6 +134,9 @@ def treatment_means(plays: list) -> dict:
             if k in PLAN_KEYS:
                 continue
             vals = [p.get(k) for p in mine]
+            if all(isinstance(v, bool) for v in vals):       # e.g. complete: every game was
+                entry[k] = all(vals)
+                continue
             numeric = all(v is None or (isinstance(v, (int, float)) and not isinstance(v, bool)) for v in vals)
             if len(mine) == 1 or not numeric or all(v is None for v in vals):
                 entry[k] = vals[0]
