@@ -169,7 +169,7 @@ def test_the_papers_phase3_plays_six_games_on_the_versions_and_averages_each_tre
     parser = argparse.ArgumentParser()
     cli.add_parser(parser.add_subparsers(dest='command'))
     common = ['study', '--subjects', '1', '--seed', '2', '--game-seconds', '12', '--phase3', 'paper',
-              '--phase2-offsets=-1.0,0.0,1.0', '--sweep-subjects', '0', '--no-plots']
+              '--phase2-offsets=-0.5,0.0,0.5', '--sweep-subjects', '1', '--no-plots']
     bad = parser.parse_args(common + ['--conditions', 'standard,learned_fp', '--out', str(tmp_path / 'x')])
     err = io.StringIO()
     assert cli.run(bad, out=err) == 2
@@ -189,6 +189,11 @@ def test_the_papers_phase3_plays_six_games_on_the_versions_and_averages_each_tre
         fps = [p['false_positives'] for p in rec['plays'] if p['treatment'] == t]
         assert len(fps) == 2 and rec['games'][t]['false_positives'] == pytest.approx(sum(fps) / 2)
         assert res['table1'][t]['average_fp'] == pytest.approx(sum(fps) / 2)
+    # the alpha sweep plays on the subject's own world, its alpha = mu game included
+    assert rec['fits']['learned'] and {float(k) for k in rec['sweep']} == {0.0, 1.0, 2.0}
+    assert all(g['complete'] and g['set'] == 'learned' for g in rec['sweep'].values())
+    assert rec['sweep']['0.0']['alpha'] == pytest.approx(rec['fits']['learned']['mu'])
+    assert rec['sweep']['0.0'] not in rec['plays']
     # the six games are six worlds: not all the same counts
     assert len({json.dumps([p['trips'], p['interventions'], p['avoidance_length']]) for p in rec['plays']}) > 1
     out = io.StringIO()

@@ -191,7 +191,7 @@ def run(args, out=sys.stdout) -> int:
                          'phase2_wall_s': [r['phase2']['wall'] for r in raw['records']],
                          'game_wall_s': [g['wall'] for r in raw['records']
                                          for g in (r.get('plays') or list(r['games'].values()))
-                                         + [v for k, v in r['sweep'].items() if k]],
+                                         + [v for k, v in r['sweep'].items() if k or r.get('plays')]],
                          'load_average': list(os.getloadavg())}
     summary['population'] = population.describe()
     if population.name == 'pilots':

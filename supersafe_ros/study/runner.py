@@ -218,7 +218,9 @@ def run_subject(i, subject, opts, conditions, progress, phase2, player_for) -> d
         games = [(c, 0.0, None) for c in conditions]
     swept = sweep_condition(conditions)
     if i < opts.sweep_subjects and swept and rec['fits'].get(swept):
-        games += [(swept, k, None) for k in opts.sweep_k if k != 0.0]
+        # on the subject's own world; the paper's form plays its alpha = mu game there too
+        # (its Learned games are on other worlds)
+        games += [(swept, k, None) for k in opts.sweep_k if k != 0.0 or opts.phase3 == 'paper']
     plays = []
     player = player_for(world_seed, p2)
     try:
@@ -235,7 +237,7 @@ def run_subject(i, subject, opts, conditions, progress, phase2, player_for) -> d
             if planned:
                 plays.append(dict(g, **planned, world_seed=seed))
                 name = f'game {planned["game"]} {cond} v{planned["version"]}'
-            elif k == 0.0:
+            elif k == 0.0 and opts.phase3 != 'paper':
                 rec['games'][cond] = g
                 name = f'phase III {cond}'
             else:
@@ -248,7 +250,7 @@ def run_subject(i, subject, opts, conditions, progress, phase2, player_for) -> d
         if plays:
             rec['plays'] = plays
             rec['games'] = treatment_means(plays)
-        if swept in rec['games'] and rec['sweep']:
+        if swept in rec['games'] and rec['sweep'] and 0.0 not in rec['sweep']:
             rec['sweep'][0.0] = rec['games'][swept]
     finally:
         player.close()
