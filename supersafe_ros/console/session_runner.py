@@ -256,7 +256,8 @@ def add_parser(subparsers):
                    help='most pages open on the console at once (default 4)')
     p.add_argument('--offsets', type=int, default=42,
                    help='Phase II scenes: offsets evenly spaced in [-2.25, 2.25] (default 42, the paper)')
-    p.add_argument('--phase1-seconds', type=float, default=60.0, help="Phase I free driving, s (default 60: the paper's minute; 0: skip)")
+    p.add_argument('--phase1-seconds', type=float, default=60.0,
+                   help="Phase I free driving, s (default 60: the paper's minute; 0: skip)")
     p.add_argument('--game-seconds', type=float, default=120.0, help='each Phase III game')
     p.add_argument('--phase3', choices=('paper', 'short'), default='paper',
                    help="Phase III: paper (default; three pairwise comparisons, six games on six task "

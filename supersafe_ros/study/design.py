@@ -33,6 +33,8 @@ demos; it does not compare Learned with Standard for every participant.
 """
 from __future__ import annotations
 
+import math
+
 TREATMENTS = ('standard', 'learned', 'conservative')
 COMPARISONS = (('standard', 'learned'), ('standard', 'conservative'), ('learned', 'conservative'))
 # Williams design over the comparisons (indices into COMPARISONS)
@@ -122,10 +124,9 @@ def treatment_means(plays: list) -> dict:
     """treatment -> its games' entries averaged, in the order the treatments were first played:
     a number is the mean over the treatment's games (a count played once stays as it is),
     None / NaN values left out of a mean (None if no game has one), a flag true when true
-    for every game; anything else is its first game's. ``totals``: the counts summed over its games (for count models). ``games``
-    and ``versions`` list the treatment's game numbers and task
-    versions; the other plan keys (comparison, place) are per game, not per treatment."""
-    import math
+    for every game; anything else is its first game's. ``totals``: the counts summed over
+    its games (for count models); ``games`` and ``versions``: its game numbers and task
+    versions. The other plan keys (comparison, place) are per game, not per treatment."""
     out = {}
     for t in dict.fromkeys(p['treatment'] for p in plays):
         mine = [p for p in plays if p['treatment'] == t]
