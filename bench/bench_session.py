@@ -6,7 +6,8 @@ the time is the session's own (a person adds their reading and answering time). 
 Phase II they stop the robot in every other scene, 3-5 m before the obstacle; in each
 game they click one obstacle. Prints the wall time of each phase (from the page's phase
 changes) and of the whole session. ``--paper``: the paper's timing (rate 1, 60 s of
-Phase I, 42 scenes, three games of 120 s); default: the CI test's short options.
+Phase I, 42 scenes, games of 120 s); default: the CI test's short options. ``--phase3``:
+paper (default: six games, three questionnaires) or short (three games, two).
 ``--screenshot PATH``: a picture of game 1 under way (after ``--shot-after`` sim s, with
 no robot within 0.5 m of an obstacle), for the README.
 
@@ -14,7 +15,7 @@ Part ``stop``: SIGINT (``--signal``) at Start of Phase I, in Phase I, in Phase I
 the fit screen and in a game, the participant scripted over the WebSocket; the time from
 the signal to the command's exit, and whether it printed the resume hint and no traceback.
 
-    .venv/bin/python bench/bench_session.py run [--paper] [--screenshot docs/img/session_game.png]
+    .venv/bin/python bench/bench_session.py run [--paper] [--phase3 paper|short] [--screenshot PATH]
     .venv/bin/python bench/bench_session.py stop [--signal SIGTERM]
 """
 import argparse
@@ -63,7 +64,8 @@ def run(args):
     from selenium.webdriver.common.keys import Keys
     out = Path(tempfile.mkdtemp(prefix='bench-session-'))
     port = free_port()
-    proc = session(out, 'b1', (PAPER if args.paper else CI), port)
+    options = (PAPER if args.paper else CI) + ('--phase3', args.phase3)
+    proc = session(out, 'b1', options, port)
     browser = None
     phases, t0 = [], None
     try:
@@ -126,8 +128,9 @@ def run(args):
     for (key, t), (_, t_next) in zip(phases, phases[1:] + [(None, t0 + total)]):
         spans[key[0]] = spans.get(key[0], 0.0) + (t_next - t)
     data = json.loads((out / 'b1' / 'session.json').read_text())
-    print(f'options: {" ".join(PAPER if args.paper else CI)}; exit code {proc.returncode}; '
-          f'{len(data["scenes"])} scenes ({sum(s["intervened"] for s in data["scenes"])} stopped)')
+    print(f'options: {" ".join(options)}; exit code {proc.returncode}; '
+          f'{len(data["scenes"])} scenes ({sum(s["intervened"] for s in data["scenes"])} stopped), '
+          f'{len(data["plays"])} games, {len(data["answers"])} questionnaires')
     print('wall time per phase (s): ' + ', '.join(f'{k} {v:.1f}' for k, v in spans.items()))
     print(f'whole session: {total:.1f} s ({total / 60:.1f} min), the participant answering at once; '
           f'load {open("/proc/loadavg").read().split()[0]}')
@@ -180,6 +183,8 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('part', choices=('run', 'stop'))
     ap.add_argument('--paper', action='store_true', help="run: the paper's timing (default: the CI test's)")
+    ap.add_argument('--phase3', choices=('paper', 'short'), default='paper',
+                    help="run: the session's Phase III form (default paper: six games)")
     ap.add_argument('--screenshot', default=None, help='run: save a picture of game 1 here')
     ap.add_argument('--shot-after', type=float, default=40.0, help='run: sim seconds into game 1 for the picture')
     ap.add_argument('--signal', default='SIGINT', choices=('SIGINT', 'SIGTERM'))

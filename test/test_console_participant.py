@@ -1,11 +1,13 @@
 """`supersafe session` with a scripted participant in a real headless Chromium.
 
-* The whole protocol on a 1280x800 laptop (the page gets 1280x657): Phase I with the
-  arrow keys, Phase II with Space (and the pause between scenes), the fit screen, three
-  games with clicks, both questionnaires, to subject.json; then --analyse with the CSV.
-  In every phase the field and the message line are fully in view, the countdowns run,
-  the fit screen speaks in words, the robots' colours are named.
-* SIGINT in Phase II and in a game (on a 1920x1080 screen): each time the session ends
+* The whole protocol, the paper's Phase III (the default), on a 1280x800 laptop (the page
+  gets 1280x657): Phase I with the arrow keys, Phase II with Space (and the pause between
+  scenes), the fit screen, six games with clicks, the three questionnaires naming their
+  two games, to subject.json (6 games with treatment, comparison, place and version; 3
+  questionnaires); then --analyse with the CSVs. In every phase the field and the message
+  line are fully in view, the countdowns run, the fit screen speaks in words, the robots'
+  colours are named; the end is a calm thank-you screen, also once the program has ended.
+* SIGINT in Phase II and in a game (on a 1920x1080 screen, the short form): each time the session ends
   with "interrupted: resume with the same command" and no traceback, the page says the
   study is paused, and the same command resumes at the scene or game that was running,
   to the end; no run leaves an empty bag.
@@ -23,6 +25,8 @@ import pytest
 import yaml
 
 from supersafe_ros.console import session as S
+from supersafe_ros.study.design import paper_plan
+from supersafe_ros.study.subjective import TEAM_ITEMS
 from console_support import DESKTOP, LAPTOP, Browser, free_port, wait_for_server, wait_until
 
 REPO = Path(__file__).resolve().parents[1]
@@ -152,17 +156,20 @@ class Participant:
         wait_until(step, 180, 'the game to end', period=0.3)
 
     def likert(self, value):
+        """Answer every statement ``value``; returns the page's text of the questionnaire."""
         wait_until(lambda: self.p()['phase'] == 'likert', 60, 'the questionnaire')
-        self.check('likert')
+        panel = self.check('likert')['panel']
         radios = self.d.execute_script("""
             const seen = new Set(); const out = [];
             for (const r of document.querySelectorAll('input[data-likert]')) {
               if (!seen.has(r.name) && r.value === arguments[0]) { seen.add(r.name); out.push(r); } }
             return out;""", str(value))
-        assert len(radios) == len(S.LIKERT_ITEMS)
+        assert len(radios) == 2 * len(TEAM_ITEMS) + 1      # each statement for both games, the preference
         for radio in radios:
             radio.click()
         self.d.find_element('css selector', 'button[data-action="answers"]').click()
+        wait_until(lambda: self.p()['phase'] != 'likert', 60, 'the questionnaire to be taken')
+        return panel
 
 
 def clear_of_obstacles(p, margin=0.5):
@@ -174,8 +181,8 @@ def clear_of_obstacles(p, margin=0.5):
 @pytest.mark.browser
 @pytest.mark.slow
 def test_scripted_participant_completes_the_whole_protocol_on_a_laptop_screen(tmp_path):
-    """Phase I (arrow keys), Phase II (Space), the fit, three games with clicks and both
-    Likert screens, to subject.json; then the researcher's --analyse over it."""
+    """Phase I (arrow keys), Phase II (Space), the fit, the paper's six games with clicks and
+    its three questionnaires, to subject.json; then the researcher's --analyse over it."""
     from selenium.webdriver.common.action_chains import ActionChains
     from selenium.webdriver.common.keys import Keys
     port = free_port()
@@ -205,9 +212,10 @@ def test_scripted_participant_completes_the_whole_protocol_on_a_laptop_screen(tm
         fit = person.check('fit')
         person.press_start('fit')
 
-        clicks = 0
-        for game in range(3):
+        questions = []
+        for game in range(6):
             person.press_start('game')
+            assert f'Game {game + 1} of 6' in person.p()['panel']
 
             def picture(p):
                 # the README's picture: a game under way, no robot in or near an obstacle
@@ -217,15 +225,19 @@ def test_scripted_participant_completes_the_whole_protocol_on_a_laptop_screen(tm
                               else tmp_path / 'session_game.png')
                     if d.save_screenshot(str(target)) and clear_of_obstacles(person.p()):
                         shot['taken'] = target
-            person.game(clicks=2, on_running=picture)
-            clicks += 2
-            if game >= 1:
-                person.likert(5)
+            person.game(clicks=1, on_running=picture)
+            if game % 2 == 1:
+                questions.append(person.likert(5))
         wait_until(lambda: person.p()['phase'] == 'done', 120, 'the end of the session')
-        person.check('done')
         output = proc.communicate(timeout=60)[0]
         assert proc.returncode == 0, output
         assert 'Traceback' not in output and 'Task was destroyed' not in output, output
+        # the end, once the program has ended too: a calm thank-you, no banner, no empty field
+        wait_until(lambda: d.execute_script('return document.body.dataset.connected') == 'false', 30,
+                   'the page to see the program end')
+        end = person.p()
+        assert end['banner'] == '' and end['field'] is None and end['message'] is None, end
+        assert 'Thank you' in end['panel'] and not end['scrollable'], end
     finally:
         if browser:
             browser.close()
@@ -250,12 +262,27 @@ def test_scripted_participant_completes_the_whole_protocol_on_a_laptop_screen(tm
     # what the session kept
     subject = json.loads((tmp_path / 'w1' / 'subject.json').read_text())
     session = json.loads((tmp_path / 'w1' / 'session.json').read_text())
-    assert set(session['games']) == set(S.CONDITIONS)
-    for cond, g in session['games'].items():
-        assert g['complete'] and g['sim_time'] == pytest.approx(game_s, abs=0.06), (cond, g)
-    assert sum(g['interventions'] for g in session['games'].values()) >= 1   # the clicks reached the world
-    assert len(session['answers']) == 2 and all(set(a['values'].values()) == {5} for a in session['answers'])
-    assert subject['answers'] == session['answers']
+    plan = paper_plan(S.participant_number('w1'))
+    assert session['plan'] == plan and len(session['plays']) == 6
+    for g, play in zip(plan['games'], session['plays']):
+        assert {k: play[k] for k in g} == g          # treatment, comparison, place in the pair, version
+        assert play['complete'] and play['sim_time'] == pytest.approx(game_s, abs=0.06), play
+    assert sorted(p['version'] for p in session['plays']) == list(range(6))
+    assert len({p['world_seed'] for p in session['plays']}) == 6
+    assert sum(p['interventions'] for p in session['plays']) >= 1   # the clicks reached the world
+    assert len(session['answers']) == 3
+    for q, a, text in zip(plan['questionnaires'], session['answers'], questions):
+        first, second = q['games']
+        assert a['comparison'] == q['comparison'] and a['games'] == q['games']
+        assert a['treatments'] == [plan['games'][first - 1]['treatment'], plan['games'][second - 1]['treatment']]
+        assert a['values'] == dict({k: [5, 5] for k, _ in TEAM_ITEMS}, preference=5)
+        # the page names the two games, and no treatment
+        assert f'Game {first} and Game {second}' in text and 'standard' not in text.lower(), text
+    assert subject['answers'] == session['answers'] and subject['plays'] == session['plays']
+    assert subject['design'] == {'form': 'paper', 'row': plan['row']}
+    for t in S.CONDITIONS:
+        fps = [p['false_positives'] for p in session['plays'] if p['treatment'] == t]
+        assert subject['games'][t]['false_positives'] == pytest.approx(sum(fps) / 2)
     path = subject['phase1']['path']
     assert subject['phase1']['path_columns'] == ['t', 'x', 'y', 'theta', 'u'] and len(path) >= 4 / 0.05 - 2
     assert all(b[0] > a[0] for a, b in zip(path, path[1:]))
@@ -281,9 +308,11 @@ def test_scripted_participant_completes_the_whole_protocol_on_a_laptop_screen(tm
     out = io.StringIO()
     from supersafe_ros.console.analysis import analyse
     assert analyse([tmp_path], csv_path=tmp_path / 'study.csv', out=out) == 0
-    assert '1 complete (1 human, 0 simulated)' in out.getvalue()
+    assert '1 complete (1 human, 0 simulated)' in out.getvalue() and 'Phase III forms: paper' in out.getvalue()
     assert 'no statistical test is meaningful' in out.getvalue()
-    assert len((tmp_path / 'study.csv').read_text().splitlines()) == 1 + 3
+    assert 'Standard vs Learned (1 participant answered)' in out.getvalue()
+    assert len((tmp_path / 'study.csv').read_text().splitlines()) == 1 + 6
+    assert len((tmp_path / 'study_answers.csv').read_text().splitlines()) == 1 + 3 * 6
 
 
 def bag_counts(folder):
@@ -310,7 +339,7 @@ def interrupt(proc, person, what):
 def test_sigint_in_phase_two_and_in_a_game_then_the_same_command_resumes_to_the_end(tmp_path):
     port = free_port()
     options = ('--port', str(port), '--offsets', '2', '--phase1-seconds', '0', '--game-seconds', '4',
-               '--rate-factor', '2')
+               '--rate-factor', '2', '--phase3', 'short')
     session_json = tmp_path / 'r1' / 'session.json'
     proc = start_session(tmp_path, 'r1', *options)
     browser, seen = None, {}
@@ -350,7 +379,7 @@ def test_sigint_in_phase_two_and_in_a_game_then_the_same_command_resumes_to_the_
         person.check('game running')
         interrupt(proc, person, 'in game 1')
         data = json.loads(session_json.read_text())
-        assert data['games'] == {} and len(data['scenes']) == 2 and data['scenes'][0]['intervened']
+        assert data['plays'] == [] and len(data['scenes']) == 2 and data['scenes'][0]['intervened']
 
         # 3. again: game 1 from its start, then the rest
         proc = start_session(tmp_path, 'r1', *options)
@@ -370,8 +399,9 @@ def test_sigint_in_phase_two_and_in_a_game_then_the_same_command_resumes_to_the_
             browser.close()
         print(stop(proc))
     data = json.loads(session_json.read_text())
-    assert data['complete'] and set(data['games']) == set(S.CONDITIONS)
-    assert all(g['complete'] for g in data['games'].values()) and len(data['answers']) == 2
+    assert data['complete'] and data['plan']['form'] == 'short'
+    assert [p['treatment'] for p in data['plays']] == list(S.condition_order('r1'))
+    assert all(p['complete'] for p in data['plays']) and len(data['answers']) == 2
     assert [s['obstacle'] for s in data['scenes'] if s['intervened']] == [int(o) for o in handled]
     assert (tmp_path / 'r1' / 'subject.json').exists()
     # three runs, each ran a graph: three bags, none empty

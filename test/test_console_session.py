@@ -15,6 +15,8 @@ import pytest
 from supersafe_ros.console import session as S
 from supersafe_ros.console.analysis import analyse, find_participants
 from supersafe_ros.console.fit_view import fit_view, turn_x
+from supersafe_ros.study.design import paper_plan, short_plan
+from supersafe_ros.study.subjective import TEAM_ITEMS
 
 
 def test_latin_square_is_balanced_and_fixed_by_the_participant():
@@ -56,9 +58,31 @@ def test_store_resumes_and_never_overwrites_a_complete_participant(tmp_path):
     with pytest.raises(S.ParticipantExists):
         S.SessionStore(tmp_path, 'other')
     with pytest.raises(ValueError):
-        S.check_answers({'trust': 8})
-    full = {k: 4 for k, _ in S.LIKERT_ITEMS}
+        S.check_answers({'trust': [8, 1]})
+    full = dict({k: [4, 5] for k, _ in TEAM_ITEMS}, preference=4)
     assert S.check_answers(full) == full
+
+
+def test_the_plan_is_fixed_when_a_participant_is_created_and_kept_on_resume(tmp_path):
+    store = S.SessionStore(tmp_path, '8', n_offsets=2)           # the paper's form by default
+    assert store.data['plan'] == paper_plan(8) and store.data['plays'] == [] and len(store.data['order']) == 6
+    again = S.SessionStore(tmp_path, '8', n_offsets=2, phase3='short')
+    assert again.data['plan']['form'] == 'paper'                 # a resumed participant keeps its form
+    from supersafe_ros.console.analysis import phase_reached
+    data = dict(store.data, scenes=[{}, {}], fit={'paper': None}, plays=[{}, {}], answers=[{}])
+    assert phase_reached(data) == 'Phase III, 2 of 6 games, 1 of 3 questionnaires'
+    short = S.SessionStore(tmp_path, '9', n_offsets=2, phase3='short')
+    assert short.data['plan']['form'] == 'short' and short.data['order'] == list(S.LATIN_ORDERS[9 % 6])
+    # a session.json from before the plan (games keyed by condition) resumes in the short form
+    old = {'participant': 'o1', 'order': list(S.LATIN_ORDERS[3]), 'offsets': [0.0], 'phase1': None,
+           'scenes': [], 'fit': None, 'answers': [], 'complete': False,
+           'games': {S.LATIN_ORDERS[3][0]: {'false_positives': 2}}}
+    (tmp_path / 'o1').mkdir()
+    (tmp_path / 'o1' / 'session.json').write_text(json.dumps(old))
+    resumed = S.SessionStore(tmp_path, 'o1')
+    assert resumed.data['plan']['form'] == 'short'
+    assert [g['treatment'] for g in resumed.data['plan']['games']] == list(S.LATIN_ORDERS[3])
+    assert resumed.data['plays'] == [dict(resumed.data['plan']['games'][0], false_positives=2)]
 
 
 def test_complete_participant_is_refused_by_the_command(tmp_path):
@@ -76,26 +100,42 @@ def test_complete_participant_is_refused_by_the_command(tmp_path):
 GAMES = {c: {'false_positives': fp, 'interventions': fp + 2, 'crashes': 0, 'trips': 9, 'played': c,
              'alpha': None, 'sim_time': 120.0}
          for c, fp in zip(S.CONDITIONS, (6, 4, 2))}
+FP_SECOND = {'standard': 8, 'learned': 2, 'conservative': 2}     # the paper form's second game
 
 
-def human_session(pid, order_row=0, answers=True):
-    """A complete human participant's session data (three Phase II scenes, both questionnaires)."""
-    order = list(S.LATIN_ORDERS[order_row])
-    return {'participant': pid, 'order': order,
+def human_session(pid, row=0, form='paper', trust=(3, 5)):
+    """A complete human participant's session data (three Phase II scenes, every game and
+    questionnaire of its plan; trust: the (Standard, Learned) ratings)."""
+    design = paper_plan(row) if form == 'paper' else short_plan(row)
+    plays, seen = [], set()
+    for g in design['games']:
+        t = g['treatment']
+        play = dict(GAMES[t], **g, world_seed=900000 + (g['version'] or 0))
+        if t in seen:
+            play.update(false_positives=FP_SECOND[t], interventions=FP_SECOND[t] + 2)
+        seen.add(t)
+        plays.append(play)
+    answers = []
+    for q in design['questionnaires']:
+        a, b = q['games']
+        treatments = [design['games'][a - 1]['treatment'], design['games'][b - 1]['treatment']]
+        rate = {'standard': trust[0], 'learned': trust[1], 'conservative': 4}
+        answers.append({'after_game': q['after_game'], 'comparison': q['comparison'], 'games': [a, b],
+                        'labels': [f'Game {a}', f'Game {b}'], 'treatments': treatments,
+                        'values': dict({k: [rate[treatments[0]], rate[treatments[1]]] for k, _ in TEAM_ITEMS},
+                                       preference=6)})
+    return {'participant': pid, 'plan': design, 'order': [g['treatment'] for g in design['games']],
             'phase1': {'seconds': 60.0, 'path_columns': ['t', 'x', 'y', 'theta', 'u'],
                        'path': [[0.05, -17.0, 0.0, 0.0, 1.0], [0.1, -16.85, 0.0, 0.05, 1.0]]},
             'scenes': [{'y0': 0.0, 'intervened': True, 'state': [-4.0, 0.0, 0.0], 'frames': []},
                        {'y0': 1.0, 'intervened': True, 'state': [-3.5, 1.0, 0.0], 'frames': []},
                        {'y0': 2.25, 'intervened': False, 'state': None, 'frames': []}],
             'fit': {'paper': {'omega_max': 0.75, 'mu': 0.4, 'sigma': 0.2, 'alpha': 0.4}},
-            'games': GAMES,
-            'answers': [{'after_game': 2, 'pair': order[:2], 'values': {k: 5 for k, _ in S.LIKERT_ITEMS}},
-                        {'after_game': 3, 'pair': order[1:], 'values': {k: 3 for k, _ in S.LIKERT_ITEMS}}]
-            if answers else []}
+            'plays': plays, 'answers': answers}
 
 
-def write_human(root, pid, lib, order_row=0):
-    data = human_session(pid, order_row)
+def write_human(root, pid, lib, row=0, form='paper', trust=(3, 5)):
+    data = human_session(pid, row, form, trust)
     S.write_subject(root / pid, S.subject_record(data, lib.entry(0.75)))
     (root / pid / 'session.json').write_text(json.dumps({**data, 'complete': True}))
 
@@ -114,6 +154,9 @@ def test_analyse_lists_every_participant_and_says_no_test_is_meaningful_below_th
         store.add_scene({'y0': y0, 'intervened': False, 'state': None, 'frames': []})
     record = S.load_subject(tmp_path / 'h1')
     assert record['phase1']['path'][1] == [0.1, -16.85, 0.0, 0.05, 1.0]     # the Phase I path is kept
+    assert record['design'] == {'form': 'paper', 'row': 0} and len(record['plays']) == 6
+    assert record['games']['standard']['false_positives'] == (6 + 8) / 2      # the mean of its two games
+    assert record['games']['standard']['totals']['false_positives'] == 14
 
     out = io.StringIO()
     with warnings.catch_warnings(record=True) as caught:
@@ -129,42 +172,63 @@ def test_analyse_lists_every_participant_and_says_no_test_is_meaningful_below_th
     assert '2 complete (1 human, 1 simulated)' in text
     assert 'no statistical test is meaningful' in text and 'ANOVA' not in text and 'F(' not in text
     table = text[text.index('condition'):].splitlines()
-    assert table[1].split()[:2] == ['standard', '6.00'] and table[3].split()[:2] == ['conservative', '2.00']
+    # Standard: the human's mean of 6 and 8, the simulated subject's 6
+    assert table[1].split()[:2] == ['standard', '6.50'] and table[3].split()[:2] == ['conservative', '2.00']
+    assert 'questionnaires: 1 of 2 subjects answered' in text
+    assert '1 simulated subject: a simulated supervisor answers no questionnaire' in text
+    assert 'Standard vs Learned (1 participant answered)' in text and 'no test (fewer than 3)' in text
     doc = json.loads((tmp_path / 'a.json').read_text())
-    assert doc['tests_meaningful'] is False and doc['anova'] is None
-    assert doc['answers']['h1'][0]['values']['trust'] == 5
-    # the CSV: one row per participant and condition, the answers on the human's rows
+    assert doc['tests_meaningful'] is False and doc['anova'] is None and doc['answered'] == 1
+    assert doc['subjective']['standard-learned']['items']['trust']['learned'] == 5
+    assert len(doc['answers']['h1']) == 3
+    # the CSV: one row per participant and game
     rows = list(csv.DictReader(open(tmp_path / 'a.csv')))
-    assert len(rows) == 6 and {(r['participant'], r['condition']) for r in rows} == {
-        (p, c) for p in ('h1', '0') for c in S.CONDITIONS}
-    h1 = {r['condition']: r for r in rows if r['participant'] == 'h1'}
-    order = S.LATIN_ORDERS[0]
-    assert [h1[c]['position'] for c in order] == ['1', '2', '3']
-    assert h1[order[0]]['after_game2_this'] == 'first' and h1[order[1]]['after_game2_this'] == 'second'
-    assert h1[order[2]]['after_game2_this'] == '' and h1[order[2]]['after_game3_this'] == 'second'
-    assert h1[order[0]]['after_game2_trust'] == '5' and h1[order[0]]['after_game3_fluency'] == '3'
-    assert h1['learned']['false_positives'] == '4'
-    assert [r['after_game2_trust'] for r in rows if r['participant'] == '0'] == ['', '', '']
+    h1 = [r for r in rows if r['participant'] == 'h1']
+    assert len(rows) == 6 + 3 and len(h1) == 6
+    plan = paper_plan(0)['games']
+    assert [(r['game'], r['treatment'], r['comparison'], r['position_in_pair'], r['version']) for r in h1] == [
+        (str(g['game']), g['treatment'], g['comparison'], str(g['position_in_pair']), str(g['version']))
+        for g in plan]
+    assert {r['form'] for r in h1} == {'paper'}
+    sim = [r for r in rows if r['participant'] == '0']
+    assert {r['treatment'] for r in sim} == set(S.CONDITIONS) and {r['form'] for r in sim} == {'same-world'}
+    assert [r['false_positives'] for r in h1 if r['treatment'] == 'standard'] == ['6', '8']
+    # and the answers: one row per participant, comparison and item
+    answers = list(csv.DictReader(open(tmp_path / 'a_answers.csv')))
+    assert len(answers) == 3 * 6
+    sl = {r['item']: r for r in answers if r['comparison'] == 'standard-learned'}
+    first = plan[0]['treatment']
+    assert sl['trust']['first_treatment'] == first
+    assert sl['trust']['first_rating'] == ('3' if first == 'standard' else '5')
+    assert sl['preference']['preference'] == '6'
+    assert sl['preference']['towards_second_named'] == ('6' if plan[1]['treatment'] == 'learned' else '2')
 
 
 def test_analyse_tests_from_three_subjects_and_lists_a_folder_without_complete_ones(tmp_path):
     from supersafe_ros.reach.library import load_or_build_library
     lib = load_or_build_library()
-    for k in range(3):
-        write_human(tmp_path, f'h{k}', lib, order_row=k)
+    for k, trust in enumerate(((3, 5), (2, 6), (4, 4))):
+        write_human(tmp_path, f'h{k}', lib, row=k, trust=trust)
+    write_human(tmp_path, 'h3', lib, row=1, form='short')
     out = io.StringIO()
     assert analyse([tmp_path], out=out) == 0
-    assert '3 complete (3 human, 0 simulated)' in out.getvalue()
-    assert 'repeated-measures ANOVA (false positives, 3 subjects): F(2, 4)' in out.getvalue()
-    assert 'paired post-hoc (' in out.getvalue() and 'p(Holm) = ' in out.getvalue()
-    assert 'no statistical test' not in out.getvalue()
+    text = out.getvalue()
+    assert '4 complete (4 human, 0 simulated)' in text and 'Phase III forms: paper, short' in text
+    assert 'repeated-measures ANOVA (false positives, 4 subjects): F(2, 6)' in text
+    assert 'paired post-hoc (' in text and 'p(Holm) = ' in text
+    assert 'no statistical test' not in text
+    # the paper's subjective test: the three paper participants' trust in Standard and Learned
+    # (the short-form participant of row 1 did not compare them)
+    assert 'Standard vs Learned (3 participants answered)' in text
+    trust = next(line for line in text.splitlines() if line.strip().startswith('trust') and 'F(1, 2)' in line)
+    assert 'Standard 3.00  Learned 5.00' in trust
     only = tmp_path / 'only'
     S.SessionStore(only, 'q1')
     out = io.StringIO()
     assert analyse([only], out=out) == 0
     assert 'incomplete: Phase I' in out.getvalue() and 'nothing to analyse' in out.getvalue()
     assert analyse([tmp_path / 'empty'], out=io.StringIO()) == 2
-    assert [e['participant'] for e in find_participants([tmp_path])] == ['h0', 'h1', 'h2', 'q1']
+    assert [e['participant'] for e in find_participants([tmp_path])] == ['h0', 'h1', 'h2', 'h3', 'q1']
 
 
 def test_fit_screen_says_earlier_or_later_in_words_and_keeps_the_numbers_for_the_researcher():
@@ -238,3 +302,80 @@ def test_a_port_in_use_is_said_plainly(tmp_path):
                             '--out', str(tmp_path), '--port', str(port)], capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and f'cannot serve the console on port {port}' in r.stderr, r
     assert 'Traceback' not in r.stderr + r.stdout
+
+
+class ScriptedSession:
+    """Session.protocol's order of events, with every screen and phase recorded instead of run."""
+
+    def __init__(self, store, phase3='paper'):
+        import argparse
+        from supersafe_ros.console.session_runner import Session
+        self.protocol = Session.protocol.__get__(self)
+        self.store, self.events = store, []
+        self.args = argparse.Namespace(phase1_seconds=0, stop_after=None, estimator='paper', game_seconds=5.0,
+                                       phase3=phase3)
+
+    def wait_for_start(self, phase, **fields):
+        self.events.append(('start', phase, fields.get('game')))
+
+    def show(self, phase, **fields):
+        self.events.append(('show', phase))
+
+    def say(self, text):
+        pass
+
+    def learned_vf(self, estimator=None):
+        return None
+
+    def game(self, g):
+        self.events.append(('game', g['game']))
+        self.store.data['plays'].append(dict(g, false_positives=g['game'], interventions=g['game'],
+                                             crashes=0, trips=1))
+        self.store.save()
+        if g['game'] == self.stop_at:
+            raise KeyboardInterrupt
+
+    def ask(self, q):
+        self.events.append(('ask', tuple(q['games'])))
+        self.store.data['answers'].append({'comparison': q['comparison'], 'games': q['games']})
+        self.store.save()
+
+
+def test_the_protocol_runs_the_plan_and_resumes_at_the_game_or_questionnaire_where_it_stopped(tmp_path,
+                                                                                              monkeypatch):
+    import time
+    monkeypatch.setattr(time, 'sleep', lambda s: None)       # the protocol's last pause for the page
+    store = S.SessionStore(tmp_path, '3', n_offsets=1)
+    store.data.update(scenes=[{'y0': 0.0, 'intervened': False, 'state': None, 'frames': []}],
+                      fit={'paper': None, 'first_passage': None}, fit_seen=True)
+    store.save()
+    run = ScriptedSession(store)
+    run.stop_at = 4                      # Ctrl-C in game 4: its record is lost, games 1-3 stay
+    with pytest.raises(KeyboardInterrupt):
+        run.protocol()
+    assert [e for e in run.events if e[0] != 'show'] == [
+        ('start', 'game', 'Game 1'), ('game', 1), ('start', 'game', 'Game 2'), ('game', 2), ('ask', (1, 2)),
+        ('start', 'game', 'Game 3'), ('game', 3), ('start', 'game', 'Game 4'), ('game', 4)]
+    data = json.loads(store.path.read_text())
+    data['plays'] = data['plays'][:3]           # game 4 did not end
+    store.path.write_text(json.dumps(data))
+    again = ScriptedSession(S.SessionStore(tmp_path, '3'))
+    again.stop_at = None
+    assert again.protocol() == 0
+    assert [e for e in again.events if e[0] != 'show'] == [
+        ('start', 'game', 'Game 4'), ('game', 4), ('ask', (3, 4)),
+        ('start', 'game', 'Game 5'), ('game', 5), ('start', 'game', 'Game 6'), ('game', 6), ('ask', (5, 6))]
+    done = json.loads(again.store.path.read_text())
+    assert done['complete'] and [p['game'] for p in done['plays']] == [1, 2, 3, 4, 5, 6]
+    subject = json.loads((tmp_path / '3' / 'subject.json').read_text())
+    assert len(subject['plays']) == 6 and len(subject['answers']) == 3
+    # a questionnaire left open: the resumed session asks it before the next game
+    store = S.SessionStore(tmp_path, '4', n_offsets=1)
+    store.data.update(scenes=[{}], fit={'paper': None}, fit_seen=True,
+                      plays=[dict(g) for g in store.data['plan']['games'][:2]])
+    store.save()
+    run = ScriptedSession(S.SessionStore(tmp_path, '4'))
+    run.stop_at = 3
+    with pytest.raises(KeyboardInterrupt):
+        run.protocol()
+    assert [e for e in run.events if e[0] != 'show'][:2] == [('ask', (1, 2)), ('start', 'game', 'Game 3')]

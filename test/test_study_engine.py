@@ -164,3 +164,44 @@ def test_the_core_records_do_not_depend_on_the_number_of_workers(tmp_path):
                      for r in recs])
     assert runs[0] == runs[1]
     assert runs[0][0] != runs[0][1]          # two subjects, two different records
+
+
+def test_the_papers_phase3_plays_six_games_on_the_versions_and_averages_each_treatments_two(tmp_path):
+    from supersafe_ros.console.analysis import analyse
+    from supersafe_ros.study.design import paper_plan, version_world_seed
+    parser = argparse.ArgumentParser()
+    cli.add_parser(parser.add_subparsers(dest='command'))
+    common = ['study', '--subjects', '1', '--seed', '2', '--game-seconds', '12', '--phase3', 'paper',
+              '--phase2-offsets=-0.5,0.0,0.5', '--sweep-subjects', '1', '--no-plots']
+    bad = parser.parse_args(common + ['--conditions', 'standard,learned_fp', '--out', str(tmp_path / 'x')])
+    err = io.StringIO()
+    assert cli.run(bad, out=err) == 2
+    args = parser.parse_args(common + ['--out', str(tmp_path / 'study')])
+    text = io.StringIO()
+    assert cli.run(args, out=text) == 0
+    assert 'average FP per treatment = the mean of its two games' in text.getvalue()
+    res = json.loads((tmp_path / 'study' / 'study.json').read_text())
+    assert list(res['conditions']) == ['standard', 'learned', 'conservative']
+    rec = json.loads((tmp_path / 'study' / 'subjects' / 's00' / 'subject.json').read_text())
+    plan = paper_plan(0)['games']
+    assert rec['design'] == {'form': 'paper', 'row': 0} and len(rec['plays']) == 6
+    for play, g in zip(rec['plays'], plan):
+        assert {k: play[k] for k in g} == g
+        assert play['world_seed'] == version_world_seed(g['version'], 2) and play['complete']
+    for t in ('standard', 'learned', 'conservative'):
+        fps = [p['false_positives'] for p in rec['plays'] if p['treatment'] == t]
+        assert len(fps) == 2 and rec['games'][t]['false_positives'] == pytest.approx(sum(fps) / 2)
+        assert res['table1'][t]['average_fp'] == pytest.approx(sum(fps) / 2)
+    # the alpha sweep plays on the subject's own world, its alpha = mu game included
+    assert rec['fits']['learned'] and {float(k) for k in rec['sweep']} == {0.0, 1.0, 2.0}
+    assert all(g['complete'] and g['set'] == 'learned' for g in rec['sweep'].values())
+    assert rec['sweep']['0.0']['alpha'] == pytest.approx(rec['fits']['learned']['mu'])
+    assert rec['sweep']['0.0'] not in rec['plays']
+    # the six games are six worlds: not all the same counts
+    assert len({json.dumps([p['trips'], p['interventions'], p['avoidance_length']]) for p in rec['plays']}) > 1
+    out = io.StringIO()
+    assert analyse([tmp_path / 'study'], csv_path=tmp_path / 'a.csv', out=out) == 0
+    assert 'Phase III forms: paper' in out.getvalue()
+    assert 'questionnaires: 0 of 1 subjects answered' in out.getvalue()
+    assert 'a simulated supervisor answers no questionnaire' in out.getvalue()
+    assert len((tmp_path / 'a.csv').read_text().splitlines()) == 1 + 6

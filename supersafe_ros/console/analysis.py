@@ -3,13 +3,23 @@
 1. Every participant found (a folder with session.json or subject.json) with its state:
    complete, or incomplete and the phase it reached.
 2. The complete ones (human and simulated alike) through the study's ``summarize``; from
-   its result ``table1``, ``conditions``, ``anova`` and ``posthoc`` are read. A descriptive
-   table always; the repeated-measures ANOVA and the paired post-hoc tests (Holm; Tukey's
-   independent-groups p beside them as a reference) only with at least
+   its result ``table1``, ``conditions``, ``anova`` and ``posthoc`` are read. A subject's
+   count per treatment is the mean over the treatment's games (two each in the paper's
+   form, one in the short form and in the simulated study's same-world form). A
+   descriptive table always; the repeated-measures ANOVA and the paired post-hoc tests
+   (Holm; Tukey's independent-groups p beside them as a reference) only with at least
    MIN_SUBJECTS_FOR_TESTS subjects, else a plain statement that no test is meaningful (and
    no test's warnings).
-3. ``--csv``: one row per participant and condition (counts, H2 measures, the Likert
-   answers) for R or SPSS; ``--json``: the summary, the answers and the listing.
+3. The questionnaires (``study.subjective``): per comparison and item, both teams' mean
+   ratings and, from MIN_SUBJECTS_FOR_TESTS answering participants, the paper's tests
+   (repeated-measures ANOVA of the two teams' ratings; preference against neutral).
+   Simulated supervisors answer no questionnaire: the analysis says how many subjects
+   that leaves out.
+4. ``--csv NAME.csv``: one row per participant and game (treatment, comparison, place in
+   the pair, task version, counts, H2 measures), and NAME_answers.csv beside it: one row
+   per participant, comparison and item (both teams' ratings; for preference the rating
+   and its value turned towards the second-named treatment), for R or SPSS; ``--json``:
+   the summary, the subjective analysis, the answers and the listing.
 """
 from __future__ import annotations
 
@@ -22,7 +32,8 @@ import warnings
 
 import numpy as np
 
-from .session import LIKERT_ITEMS, load_subject
+from ..study.subjective import PREFERENCE, TEAM_ITEMS, format_subjective, ratings, subjective_analysis
+from .session import load_subject
 
 MIN_SUBJECTS_FOR_TESTS = 3
 COUNTS = ('false_positives', 'interventions', 'crashes', 'trips')
@@ -32,15 +43,18 @@ MEASURES = ('path_per_trip', 'avoidance_length', 'override_fraction', 'min_clear
 def phase_reached(data: dict) -> str:
     """Where an unfinished session.json stopped, in words."""
     scenes, offsets = len(data.get('scenes') or []), len(data.get('offsets') or [])
-    games, answers = len(data.get('games') or {}), len(data.get('answers') or [])
+    design = data.get('plan') or {}
+    n_games, n_questions = len(design.get('games') or []) or 3, len(design.get('questionnaires') or []) or 2
+    games = len(data['plays']) if 'plays' in data else len(data.get('games') or {})
+    answers = len(data.get('answers') or [])
     if not scenes and data.get('phase1') is None:
         return 'Phase I (not started or interrupted)'
     if scenes < offsets:
         return f'Phase II, {scenes} of {offsets} scenes'
     if data.get('fit') is None:
         return 'the fit'
-    if games < 3 or answers < 2:
-        return f'Phase III, {games} of 3 games, {answers} of 2 questionnaires'
+    if games < n_games or answers < n_questions:
+        return f'Phase III, {games} of {n_games} games, {answers} of {n_questions} questionnaires'
     return 'the end (subject.json not written)'
 
 
@@ -89,29 +103,65 @@ def descriptive_table(summary: dict) -> str:
     return '\n'.join(lines)
 
 
+def _plain(row: dict) -> dict:
+    return {k: ('' if v is None or (isinstance(v, float) and not math.isfinite(v)) else v) for k, v in row.items()}
+
+
+def record_form(r: dict) -> str:
+    """A record's Phase III form: paper, short (a session) or same-world (the simulated study's
+    default); records from before the plan: short for a human, same-world for a simulated one."""
+    default = 'short' if r['subject'].get('kind') == 'human' else 'same-world'
+    return (r.get('design') or {}).get('form', default)
+
+
+def subject_plays(r: dict) -> list:
+    """A record's games one by one: ``plays`` (a session; the study's paper form), or one per
+    treatment of ``games`` (the study's same-world form, older sessions)."""
+    if r.get('plays'):
+        return r['plays']
+    order = list(r['subject'].get('order') or r['games'])
+    return [dict(g, treatment=c, game=order.index(c) + 1 if c in order else '') for c, g in r['games'].items()]
+
+
 def csv_rows(records: list) -> list:
-    """One dict per participant and condition, the Likert answers on every row of the
-    participant (the raw 1-7 value; ``after_gameN_this``: first / second / '' says which
-    side of that comparison this row's condition was)."""
+    """One dict per participant and game: treatment, comparison, place in the pair, task
+    version and world seed, the set that ran, counts and H2 measures."""
     rows = []
     for r in records:
         subject = r['subject']
         pid = str(subject.get('participant', subject.get('index')))
-        order = list(subject.get('order') or r['games'])
-        for c, g in r['games'].items():
-            row = {'participant': pid, 'kind': subject.get('kind', 'simulated'), 'condition': c,
-                   'position': order.index(c) + 1 if c in order else '', 'ran': g.get('played', c),
+        form = record_form(r)
+        for g in subject_plays(r):
+            row = {'participant': pid, 'kind': subject.get('kind', 'simulated'), 'form': form,
+                   'game': g.get('game', ''), 'treatment': g['treatment'], 'comparison': g.get('comparison'),
+                   'position_in_pair': g.get('position_in_pair'), 'version': g.get('version'),
+                   'world_seed': g.get('world_seed'), 'ran': g.get('played', g.get('set', g['treatment'])),
                    'alpha': g.get('alpha')}
             row.update({k: g.get(k) for k in COUNTS + ('sim_time',) + MEASURES})
-            for a in r.get('answers') or []:
-                key = f'after_game{a["after_game"]}'
-                pair = list(a.get('pair') or [])
-                row[f'{key}_pair'] = ' vs '.join(pair)
-                row[f'{key}_this'] = ('first' if pair[:1] == [c] else 'second' if pair[1:2] == [c] else '')
-                for item, _ in LIKERT_ITEMS:
-                    row[f'{key}_{item}'] = (a.get('values') or {}).get(item)
-            rows.append({k: ('' if v is None or (isinstance(v, float) and not math.isfinite(v)) else v)
-                         for k, v in row.items()})
+            rows.append(_plain(row))
+    return rows
+
+
+def answer_rows(records: list) -> list:
+    """One dict per participant, comparison and item: the two games, their treatments and
+    ratings (for preference: the raw rating, and ``towards_second_named`` = the rating
+    turned towards the comparison's second-named treatment, 4 = neutral)."""
+    rows = []
+    for r in records:
+        pid = str(r['subject'].get('participant', r['subject'].get('index')))
+        for a in r.get('answers') or []:
+            got = ratings(a, a.get('comparison', ''))
+            if not got:
+                continue
+            games, treatments, values = a['games'], a['treatments'], a['values']
+            base = {'participant': pid, 'comparison': a['comparison'], 'after_game': a.get('after_game'),
+                    'first_game': games[0], 'first_treatment': treatments[0],
+                    'second_game': games[1], 'second_treatment': treatments[1]}
+            for key, _ in TEAM_ITEMS:
+                rows.append(_plain(dict(base, item=key, first_rating=values[key][0], second_rating=values[key][1],
+                                        preference='', towards_second_named='')))
+            rows.append(_plain(dict(base, item=PREFERENCE[0], first_rating='', second_rating='',
+                                    preference=values[PREFERENCE[0]], towards_second_named=got[2])))
     return rows
 
 
@@ -152,6 +202,9 @@ def analyse(dirs, json_path=None, csv_path=None, out=sys.stdout) -> int:
         summary = summarize(records, standard, conservative)
     print(f'\n{n} complete ({humans} human, {n - humans} simulated): mean (sd) per subject', file=out)
     print(descriptive_table(summary), file=out)
+    forms = sorted({record_form(r) for r in records})
+    print(f'Phase III forms: {", ".join(forms)} (a treatment played twice counts as the mean of its two games)',
+          file=out)
     if n < MIN_SUBJECTS_FOR_TESTS:
         print(f'\nWith {n} subject{"s" if n != 1 else ""} no statistical test is meaningful (at least '
               f'{MIN_SUBJECTS_FOR_TESTS} are needed): the table is descriptive only.', file=out)
@@ -161,15 +214,30 @@ def analyse(dirs, json_path=None, csv_path=None, out=sys.stdout) -> int:
               f"{a['F']:.3g}, p = {a['p']:.3g}" + (f"  ({a['note']})" if 'note' in a else ''), file=out)
         if summary.get('posthoc'):
             print(format_posthoc(summary['posthoc'], LABELS, tukey=summary.get('tukey')), file=out)
+    answered = [r for r in records if r.get('answers')]
+    subjective = subjective_analysis([r['answers'] for r in answered])
+    print(f'\nquestionnaires: {len(answered)} of {n} subjects answered', file=out)
+    if n - humans:
+        print(f'({n - humans} simulated subject{"s" if n - humans != 1 else ""}: a simulated supervisor answers '
+              'no questionnaire, so only the human participants enter this analysis)', file=out)
+    if answered:
+        with warnings.catch_warnings(), np.errstate(all='ignore'):
+            warnings.simplefilter('ignore')
+            print(format_subjective(subjective, LABELS), file=out)
     if csv_path:
         rows = csv_rows(records)
         write_csv(csv_path, rows)
-        print(f'\n{len(rows)} rows (participant x condition) in {csv_path}', file=out)
+        print(f'\n{len(rows)} rows (participant x game) in {csv_path}', file=out)
+        arows = answer_rows(records)
+        apath = Path(csv_path).with_name(Path(csv_path).stem + '_answers.csv')
+        write_csv(apath, arows)
+        print(f'{len(arows)} rows (participant x comparison x item) in {apath}', file=out)
     if json_path:
         doc = {'participants': found, 'table1': summary['table1'], 'conditions': summary['conditions'],
                'anova': summary['anova'] if n >= MIN_SUBJECTS_FOR_TESTS else None,
                'posthoc': summary.get('posthoc') if n >= MIN_SUBJECTS_FOR_TESTS else None,
                'tests_meaningful': n >= MIN_SUBJECTS_FOR_TESTS,
+               'subjective': subjective, 'answered': len(answered),
                'answers': {str(r['subject'].get('participant', r['subject'].get('index'))): r['answers']
                            for r in records if r.get('answers')}}
         Path(json_path).write_text(json.dumps(jsonable(doc), indent=1))

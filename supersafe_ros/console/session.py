@@ -5,16 +5,19 @@ they are and keeps the record:
 
 * Phase II offsets: the 42 lateral offsets in [-2.25, 2.25], shuffled by a generator
   seeded from the participant ID (the same participant always gets the same order).
-* Phase III order: a balanced Latin square (Williams design; for three conditions its
-  six rows, so that each condition comes first, second and third, and follows each
-  other, equally often) indexed by the participant ID.
-* Likert items (7 points) after each pair of games.
+* Phase III: the plan of ``study.design`` for the participant's design row (the ID's
+  number mod 6): by default the paper's form (three comparisons of two games, six
+  task versions), ``--phase3 short`` the quick three-game form; the plan is fixed when
+  the participant is created and kept in session.json.
+* The questionnaire after each comparison (``study.subjective``: five statements rated
+  for each of the two games, and the preference between them, 7 points).
 * ``SessionStore``: <out>/<participant>/session.json, written atomically after every
   scene, fit, game and answer, so a closed tab or Ctrl-C loses at most the scene or
   game that was running. A complete participant is never overwritten.
 * ``subject_record`` / ``write_subject`` / ``load_subject``: the same record a
   simulated subject of ``supersafe study`` has (subject, phase2, fit, states,
-  learned_vf, games), plus Phase I (with the driven path) and the answers, in
+  learned_vf, games: per treatment, the mean of its games), plus the plan, every game
+  played (``plays``), Phase I (with the driven path) and the answers, in
   <dir>/subject.json and <dir>/learned_vf.npz, so ``study.summary.summarize`` runs
   over any mix of human and simulated subjects.
 """
@@ -29,29 +32,14 @@ import zlib
 
 import numpy as np
 
+from ..study.design import SHORT_ORDERS, TREATMENTS, plan, short_plan, treatment_means
 from ..study.records import jsonable
+from ..study.subjective import POINTS as LIKERT_POINTS, check_answers  # noqa: F401  (the session's)
 
-CONDITIONS = ('standard', 'learned', 'conservative')
-# Williams design for three conditions: two mirrored Latin squares
-LATIN_ORDERS = (
-    ('standard', 'learned', 'conservative'),
-    ('learned', 'conservative', 'standard'),
-    ('conservative', 'standard', 'learned'),
-    ('conservative', 'learned', 'standard'),
-    ('standard', 'conservative', 'learned'),
-    ('learned', 'standard', 'conservative'),
-)
+CONDITIONS = TREATMENTS
+LATIN_ORDERS = SHORT_ORDERS          # the short form's orders (a Williams design)
 PHASE2_N_OFFSETS = 42
 PHASE2_HALF_SPAN = 2.25
-LIKERT_ITEMS = (
-    ('trust', 'I trusted the robots to avoid the obstacles.'),
-    ('performance', 'The team performed well.'),
-    ('interpretability', 'I could tell what the robots were going to do.'),
-    ('confidence', 'I was confident in my decisions to intervene.'),
-    ('fluency', 'The robots and I worked together fluently as a team.'),
-    ('preference', 'I would like to work with these robots again.'),
-)
-LIKERT_POINTS = 7
 ID_PATTERN = re.compile(r'[A-Za-z0-9][A-Za-z0-9_.-]{0,63}')
 
 
@@ -81,28 +69,6 @@ def phase2_offsets(pid: str, n: int = PHASE2_N_OFFSETS) -> list:
     return [round(float(v), 6) for v in rng.permutation(ladder)]
 
 
-def game_pairs(order) -> list:
-    """The pairs compared in the questionnaires: after game 2 (games 1, 2) and after
-    game 3 (games 2, 3)."""
-    return [(order[0], order[1]), (order[1], order[2])]
-
-
-def check_answers(values: dict) -> dict:
-    """{item: 1..7} for every Likert item, or ValueError saying what is wrong."""
-    if not isinstance(values, dict):
-        raise ValueError('answers must be an object {item: 1..7}')
-    out = {}
-    for key, _ in LIKERT_ITEMS:
-        v = values.get(key)
-        if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= LIKERT_POINTS:
-            raise ValueError(f'answer "{key}" must be an integer 1..{LIKERT_POINTS}')
-        out[key] = v
-    extra = set(values) - {k for k, _ in LIKERT_ITEMS}
-    if extra:
-        raise ValueError(f'unknown items {sorted(extra)}')
-    return out
-
-
 class ParticipantExists(RuntimeError):
     pass
 
@@ -110,7 +76,7 @@ class ParticipantExists(RuntimeError):
 class SessionStore:
     """<out>/<participant>/session.json: everything done so far."""
 
-    def __init__(self, out_dir, pid: str, n_offsets: int = PHASE2_N_OFFSETS):
+    def __init__(self, out_dir, pid: str, n_offsets: int = PHASE2_N_OFFSETS, phase3: str = 'paper'):
         self.pid = check_participant_id(pid)
         self.dir = Path(out_dir) / pid
         self.path = self.dir / 'session.json'
@@ -120,14 +86,18 @@ class SessionStore:
                 raise ParticipantExists(f'participant {pid} is complete in {self.dir}; '
                                         'results are never overwritten (choose another ID)')
             self.resumed = True
+            if 'plan' not in self.data:     # a session begun before the plan: the short form
+                self.data.update(short_form_of(self.data))
+                self.save()
         else:
             if self.dir.exists() and any(self.dir.iterdir()):
                 raise ParticipantExists(f'{self.dir} exists and is not a session; refusing to touch it')
             self.dir.mkdir(parents=True, exist_ok=True)
+            design = plan(phase3, participant_number(pid))
             self.data = {'participant': pid, 'created': time.strftime('%Y-%m-%dT%H:%M:%S%z'),
-                         'order': list(condition_order(pid)),
+                         'plan': design, 'order': [g['treatment'] for g in design['games']],
                          'offsets': phase2_offsets(pid, n_offsets),
-                         'phase1': None, 'scenes': [], 'fit': None, 'games': {}, 'answers': [],
+                         'phase1': None, 'scenes': [], 'fit': None, 'plays': [], 'answers': [],
                          'complete': False}
             self.resumed = False
             self.save()
@@ -146,6 +116,20 @@ class SessionStore:
         self.save()
 
 
+def short_form_of(data: dict) -> dict:
+    """The plan and plays of a session.json written before the plan existed (three games
+    keyed by condition, in the order of the Latin square): the short form."""
+    order = tuple(data.get('order') or SHORT_ORDERS[0])
+    design = short_plan(SHORT_ORDERS.index(order) if order in SHORT_ORDERS else 0)
+    plays = []
+    for g in design['games']:
+        done = (data.get('games') or {}).get(g['treatment'])
+        if done is None:
+            break
+        plays.append(dict(done, **g))
+    return {'plan': design, 'plays': plays}
+
+
 def intervention_states(scenes) -> np.ndarray:
     return np.array([s['state'] for s in scenes if s['intervened']], dtype=float).reshape(-1, 3)
 
@@ -157,6 +141,7 @@ def subject_record(data: dict, learned_vf=None, estimator: str = 'paper') -> dic
     scenes = data['scenes']
     return {
         'subject': {'index': pid, 'kind': 'human', 'participant': pid, 'order': data['order']},
+        'design': {k: data['plan'][k] for k in ('form', 'row')},
         'phase1': data.get('phase1'),
         'phase2': {'scenes': [{k: v for k, v in s.items() if k != 'frames'} for s in scenes],
                    'interventions': int(sum(1 for s in scenes if s['intervened']))},
@@ -164,7 +149,8 @@ def subject_record(data: dict, learned_vf=None, estimator: str = 'paper') -> dic
         'fits': data.get('fit'),
         'states': intervention_states(scenes).tolist(),
         'learned_vf': learned_vf,
-        'games': data['games'],
+        'games': treatment_means(data['plays']),
+        'plays': data['plays'],
         'sweep': {},
         'answers': data['answers'],
     }

@@ -15,9 +15,8 @@ import time
 from ..team import node_argv, team_layout
 from .fit_view import fit_view
 from .phase_graph import SET_GATE_TOPIC, PhaseGraph, PhaseNode, add_clock_gate, set_clock_param, without
-from .session import LIKERT_ITEMS, LIKERT_POINTS, intervention_states, participant_number
+from .session import LIKERT_POINTS, intervention_states, participant_number
 
-GAME_LABELS = ('Game 1', 'Game 2', 'Game 3')
 SCENE_PAUSE = 3.0                          # wall s between calibration scenes
 
 
@@ -265,47 +264,69 @@ class SessionPhases:
         return page
 
     # -- Phase III -------------------------------------------------------------------------
-    def game(self, i, cond):
-        """One Phase III game: a fresh graph (world, two robots with planner and filter, no
-        supervisor process: the person is the supervisor) whose clock starts once both
-        filters have the condition's set in force (``SetGate``)."""
+    def game_world_seed(self, g) -> int:
+        """The world of a planned game: its task version's (the paper's form), else the
+        participant's own (the short form)."""
+        from ..study.design import version_world_seed
+        if g.get('version') is None:
+            return participant_number(self.store.pid) % 100000
+        return version_world_seed(g['version'])
+
+    def game(self, g):
+        """One Phase III game of the plan: a fresh graph (world on the game's task version,
+        two robots with planner and filter, no supervisor process: the person is the
+        supervisor) whose clock starts once both filters have the treatment's set in force
+        (``SetGate``)."""
         from ..study.games import condition_message
         from ..study.records import game_counts
+        cond, k = g['treatment'], g['game']
+        n = len(self.store.data['plan']['games'])
         fit = (self.store.data['fit'] or {}).get(self.args.estimator.replace('-', '_'))
         vf = self.learned_vf()
         learned = {'learned': (vf, fit)} if (vf is not None and fit) else {}
         msg, alpha, ran = condition_message(cond, learned)
         seconds = self.args.game_seconds
-        layout = team_layout(2, self.args.rate_factor, seed=participant_number(self.store.pid) % 100000,
+        world_seed = self.game_world_seed(g)
+        layout = team_layout(2, self.args.rate_factor, seed=world_seed,
                              duration=seconds, step=0.05, with_learner=False,
                              overrides={'safety_filter': {'use_learned': True, 'alpha_offset': 0.0}})
         argvs = without([node_argv(n.kind, n.namespace, n.params, n.remaps) for n in layout], 'supervisor')
         add_clock_gate(argvs, SET_GATE_TOPIC)
-        self.show('game', game=GAME_LABELS[i], number=i + 1, seconds=seconds, running=False)
+        self.show('game', game=f'Game {k}', number=k, of=n, seconds=seconds, running=False)
         node = PhaseNode(self.env, self.state, ['robot_0', 'robot_1'], set_msg=msg, on_first_pose=self._running)
         self.interventions_open = True
         try:
-            result = self._run_graph(argvs, f'game-{i + 1}-{cond}', node, seconds)
+            result = self._run_graph(argvs, f'game-{k}-{cond}', node, seconds)
         finally:
             self.interventions_open = False
         counts = game_counts(result)
-        counts.update(reason=result['reason'], position=i + 1, played=ran,
+        counts.update(reason=result['reason'], played=ran,
                       alpha=alpha, complete=counts['sim_time'] >= seconds - 1e-6)
-        self.store.data['games'][cond] = counts
+        counts.update(g, world_seed=world_seed)
+        self.store.data['plays'].append(counts)
         self.store.save()
-        self.say(f'{GAME_LABELS[i]} ({cond}) done: trips {counts["trips"]}, crashes {counts["crashes"]}, '
+        self.say(f'Game {k} of {n} ({cond}, ' + (f'version {g["version"]}, ' if g.get('version') is not None else '')
+                 + f'world {world_seed}) done: trips {counts["trips"]}, crashes {counts["crashes"]}, '
                  f'interventions {counts["interventions"]}, false positives {counts["false_positives"]}')
 
-    def ask(self, i, pair):
-        labels = (GAME_LABELS[i - 1], GAME_LABELS[i])
+    def ask(self, q):
+        """The questionnaire after a comparison: the statements about each of its two games
+        and the preference between them (study.subjective)."""
+        from ..study.subjective import PREFERENCE, SCALE, TEAM_ITEMS
+        a, b = q['games']
+        labels = [f'Game {a}', f'Game {b}']
+        games = self.store.data['plan']['games']
+        treatments = [games[a - 1]['treatment'], games[b - 1]['treatment']]
+        preference = PREFERENCE[1].format(first=labels[0], second=labels[1])
         self.answered.clear()
-        self.show('likert', pair=list(labels), points=LIKERT_POINTS,
-                  items=[{'key': k, 'text': t} for k, t in LIKERT_ITEMS])
+        self.show('likert', pair=labels, points=LIKERT_POINTS,
+                  items=[{'key': k, 'text': t} for k, t in TEAM_ITEMS],
+                  preference={'key': PREFERENCE[0], 'text': preference})
         while not self.answered.wait(0.1):
             pass
-        self.store.data['answers'].append({'after_game': i + 1, 'pair': list(pair),
-                                           'labels': list(labels), 'values': self.answers,
-                                           'scale': f'1 = much more {labels[0]}, 4 = the same, '
-                                                    f'7 = much more {labels[1]}'})
+        self.store.data['answers'].append({'after_game': q['after_game'], 'comparison': q['comparison'],
+                                           'games': [a, b], 'labels': labels, 'treatments': treatments,
+                                           'pair': treatments, 'values': self.answers,
+                                           'preference_statement': preference, 'scale': SCALE})
         self.store.save()
-        self.say(f'answers after {labels[1]}: {self.answers}')
+        self.say(f'answers on {labels[0]} and {labels[1]} ({q["comparison"]}): {self.answers}')

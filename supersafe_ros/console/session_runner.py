@@ -16,8 +16,13 @@ person's interventions on /interventions, and acknowledges every pose on
 3. Fit: the paper's estimator and the first-passage estimator over the candidate
    library (conservative prior). The page says in words what changes; the numbers go
    to the terminal, session.json and fit.png. The Learned games use ``--estimator``.
-4. Phase III: three games (``--game-seconds``, 120) in the participant's Latin-square
-   order, the conditions unnamed on the page; the Likert items after games 2 and 3.
+4. Phase III (``--phase3``): ``paper`` (the default, the paper's protocol: three
+   pairwise comparisons of two games, six games on six task versions, in the
+   participant's row of the balanced design of ``study.design``; the questionnaire
+   after each comparison, naming its two games) or ``short`` (three games, one per
+   treatment; questionnaires after games 2 and 3). Games last ``--game-seconds`` (120);
+   the treatments are unnamed on the page. The form is fixed when the participant is
+   created: a resumed session keeps it.
 Results: <out>/<ID>/session.json (everything, saved after every step) and, when
 complete, subject.json + learned_vf.npz in the study's subject layout (session.py).
 Ctrl-C (SIGINT) or SIGTERM at any point: the session ends within about a second with
@@ -33,9 +38,8 @@ import threading
 import time
 
 from ..team import team_env
-from .session import (ParticipantExists, SessionStore, check_answers, game_pairs, subject_record,
-                      write_subject)
-from .session_phases import GAME_LABELS, SessionPhases
+from .session import ParticipantExists, SessionStore, check_answers, subject_record, write_subject
+from .session_phases import SessionPhases
 from .state import ConsoleState, Field
 
 # rclpy, the console's web server and the study's modules (numpy, scipy, matplotlib) are
@@ -59,7 +63,7 @@ class Session(SessionPhases):
         from .server import ConsoleServer
         self.args = args
         self.out = out
-        self.store = SessionStore(args.out, args.participant, args.offsets)
+        self.store = SessionStore(args.out, args.participant, args.offsets, args.phase3)
         self.env = team_env(args.domain_id)
         self.state = ConsoleState(['robot_0'], Field())
         self.server = ConsoleServer(self.state, self.intervene, port=args.port, log=self.say,
@@ -157,6 +161,10 @@ class Session(SessionPhases):
                 self.say(f'console: http://127.0.0.1:{port}/   (open it on the participant\'s screen)')
                 self.say(f'participant {self.store.pid}: {"resuming" if self.store.resumed else "new"}, '
                          f'results in {self.store.dir}')
+                form = self.store.data['plan']['form']
+                if form != self.args.phase3:
+                    self.say(f'Phase III: this participant began in the {form} form, which it keeps '
+                             f'(--phase3 {self.args.phase3} applies to new participants)')
                 code = self.protocol()
             except (Interrupted, RuntimeError) as exc:
                 outcome = exc
@@ -211,14 +219,15 @@ class Session(SessionPhases):
             self.store.save()
         if a.stop_after == 'fit':
             return 0
-        order = data['order']
-        pairs = game_pairs(order)
-        for i, cond in enumerate(order):
-            if cond not in data['games']:
-                self.wait_for_start('game', game=GAME_LABELS[i], number=i + 1, seconds=a.game_seconds)
-                self.game(i, cond)
-            if i >= 1 and len(data['answers']) < i:
-                self.ask(i, pairs[i - 1])
+        games, questionnaires = data['plan']['games'], data['plan']['questionnaires']
+        for g in games:
+            k = g['game']
+            if len(data['plays']) < k:
+                self.wait_for_start('game', game=f'Game {k}', number=k, of=len(games), seconds=a.game_seconds)
+                self.game(g)
+            for j, q in enumerate(questionnaires):
+                if q['after_game'] == k and len(data['answers']) <= j:
+                    self.ask(q)
         write_subject(self.store.dir, subject_record(data, self.learned_vf(), a.estimator))
         data['complete'] = True
         self.store.save()
@@ -238,15 +247,22 @@ def add_parser(subparsers):
                         'simulated alike)')
     p.add_argument('--json', type=Path, default=None, help='with --analyse: write the summary here')
     p.add_argument('--csv', type=Path, default=None,
-                   help='with --analyse: one row per participant and condition (counts and Likert answers)')
+                   help='with --analyse: one row per participant and game (treatment, comparison, version, '
+                        'counts); the answers, one row per participant, comparison and item, go to '
+                        'NAME_answers.csv beside it')
     p.add_argument('--out', type=Path, default=Path('sessions'), help='results folder (default sessions/)')
     p.add_argument('--port', type=int, default=8765, help='console port on 127.0.0.1 (default 8765)')
     p.add_argument('--max-connections', type=int, default=4,
                    help='most pages open on the console at once (default 4)')
     p.add_argument('--offsets', type=int, default=42,
                    help='Phase II scenes: offsets evenly spaced in [-2.25, 2.25] (default 42, the paper)')
-    p.add_argument('--phase1-seconds', type=float, default=60.0, help='Phase I free driving (0: skip)')
+    p.add_argument('--phase1-seconds', type=float, default=60.0,
+                   help="Phase I free driving, s (default 60: the paper's minute; 0: skip)")
     p.add_argument('--game-seconds', type=float, default=120.0, help='each Phase III game')
+    p.add_argument('--phase3', choices=('paper', 'short'), default='paper',
+                   help="Phase III: paper (default; three pairwise comparisons, six games on six task "
+                        'versions, a questionnaire after each comparison) or short (three games, one per '
+                        'treatment, for quick runs and demos); a resumed participant keeps its form')
     p.add_argument('--estimator', choices=('paper', 'first-passage'), default='paper',
                    help='the fit the Learned game uses (both are fitted)')
     p.add_argument('--rate-factor', type=float, default=1.0,

@@ -45,6 +45,10 @@ def _add_common(parser, subjects_default):
     parser.add_argument('--sweep-subjects', type=int, default=2,
                         help='observed alpha sweep (extra Learned games at mu+sigma, mu+2sigma) for the '
                              'first k subjects (default 2; 0 = predicted sweep only)')
+    parser.add_argument('--phase3', choices=('same-world', 'paper'), default='same-world',
+                        help='same-world (default: each condition once on the subject\'s world, common random '
+                             'numbers) or paper (six games: three pairwise comparisons on six task versions; '
+                             'FP per treatment = the mean of its two games; see docs/study.md)')
     _add_population(parser)
     _add_supervisor(parser)
     _add_engine(parser)
@@ -141,6 +145,13 @@ def options_from_args(args):
         raise ValueError('--scheduler runs the core engine\'s subjects (--engine core)')
     if engine == 'graph' and 'learned_online' in opts.conditions:
         raise ValueError('learned_online runs on the core engine only (--engine core)')
+    opts.phase3 = getattr(args, 'phase3', 'same-world')
+    if opts.phase3 == 'paper':
+        from .design import TREATMENTS
+        if args.conditions and set(opts.conditions) != set(TREATMENTS):
+            raise ValueError('--phase3 paper plays the paper\'s three treatments (standard, learned, '
+                             'conservative): leave --conditions out')
+        opts.conditions = tuple(ordered(TREATMENTS))
     if args.phase2_offsets:
         opts.phase2_offsets = tuple(float(v) for v in args.phase2_offsets.split(',') if v.strip())
     return opts
@@ -192,7 +203,8 @@ def run(args, out=sys.stdout) -> int:
     summary['timing'] = {'study_wall_s': raw['wall'], 'total_wall_s': total,
                          'phase2_wall_s': [r['phase2']['wall'] for r in raw['records']],
                          'game_wall_s': [g['wall'] for r in raw['records']
-                                         for g in list(r['games'].values()) + [v for k, v in r['sweep'].items() if k]],
+                                         for g in (r.get('plays') or list(r['games'].values()))
+                                         + [v for k, v in r['sweep'].items() if k or r.get('plays')]],
                          'load_average': list(os.getloadavg())}
     summary['population'] = population.describe()
     if population.name == 'pilots':
@@ -205,6 +217,9 @@ def run(args, out=sys.stdout) -> int:
     json_path.parent.mkdir(parents=True, exist_ok=True)
     json_path.write_text(json.dumps(jsonable(summary), indent=1))
     print('', file=out)
+    if opts.phase3 == 'paper':
+        print('Phase III as the paper ran it: six games per subject (three pairwise comparisons, six task '
+              'versions); average FP per treatment = the mean of its two games', file=out)
     print(format_table1(summary['table1']), file=out)
     a = summary['anova']
     print(f"\nrepeated-measures ANOVA (false positives): F({a['df_num']:g}, {a['df_den']:g}) = "
@@ -219,8 +234,9 @@ def run(args, out=sys.stdout) -> int:
     print('\nH2, efficiency: mean (sd) over subjects', file=out)
     print(format_h2(summary['h2']), file=out)
     for c, v in summary['conditions'].items():
-        print(f"{c:13s} interventions {sum(v['interventions']):4d}  crashes {sum(v['crashes']):3d}  "
-              f"trips {sum(v['trips']):4d}  (sums over subjects)", file=out)
+        print(f"{c:13s} interventions {sum(v['interventions']):6g}  crashes {sum(v['crashes']):5g}  "
+              f"trips {sum(v['trips']):6g}  (sums over subjects"
+              + ('; per subject the mean of its two games)' if opts.phase3 == 'paper' else ')'), file=out)
     print(f'\n{len(subjects)} subjects in {total:.0f} s wall ({opts.engine} engine); results {json_path}',
           file=out)
     if paths:

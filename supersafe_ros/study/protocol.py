@@ -5,8 +5,9 @@ nodes' parameters, the reference sets, the seeds and what Phase II returns.
   3.6 m, speed 3 m/s, the true turn-rate bound 1 rad/s, horizon 3 s on the 65 x 65 x 42
   grid over [-8, 8]^2 (``reference_sets``); a Phase II scene runs from x = -8 to 2.5.
 * ``StudyOptions``: one run's settings (subjects, seed, step, game length, conditions,
-  engine); ``config_params``: a node's parameters from its config file, as the core
-  engine's nodes and the graph's renamed first-passage learner take them.
+  engine, Phase III form: ``same-world`` or the paper's six games of ``design``);
+  ``config_params``: a node's parameters from its config file, as the core engine's
+  nodes and the graph's renamed first-passage learner take them.
 * ``supervisor_seed``: a subject's noise in Phase III; ``sweep_condition``: the learned
   condition whose alpha the observed sweep raises.
 * ``Phase2Result``: Phase II of one subject, from ``engine.CoreStudy.phase2`` or
@@ -66,9 +67,11 @@ class StudyOptions:
     workers: int = 0                 # core: subjects run in this many processes (0: one per core)
     scheduler: str = ''              # core: a Dask distributed scheduler's address: subjects run on its workers
     supervisor: str = DEFAULT_MODEL  # the simulated supervisors' model (sim.supervisor_models.MODELS)
+    phase3: str = 'same-world'       # same-world: each condition once on the subject's world; paper: study.design
 
 
 ENGINES = ('core', 'graph')
+PHASE3_FORMS = ('same-world', 'paper')
 
 
 def config_params(kind: str) -> dict:

@@ -15,7 +15,10 @@ Per subject (a simulated supervisor from ``population.draw_subjects``), ``run_su
 3. Phase III: one game per condition and alpha-sweep game, played by ``CoreGames`` (in
    this process) or ``GraphGames`` (one kept-alive team graph per subject, reset between
    games, ``games.GameGraph``; the condition's safe set reaches the filters as a latched
-   value-function message). Same world seed for every condition of a subject.
+   value-function message). Same world seed for every condition of a subject (common
+   random numbers: ``phase3`` same-world), or (``phase3`` paper) the six games of the
+   subject's row of ``design.paper_plan`` (row = the subject's index), each on its task
+   version's world, a treatment's counts the mean of its two games.
 
 The records become JSON with ``records``, the study's numbers with ``summary`` and its
 figures with ``plots.make_plots``.
@@ -32,6 +35,7 @@ from ..console.session import write_subject
 from ..sim.supervisor_models import DEFAULT_MODEL
 from ..team import team_env
 from .analysis import ordered
+from .design import paper_plan, treatment_means, version_world_seed
 from .engine import CoreStudy
 from .fits import learned_value_functions, offline_cross_check
 from .games import GameGraph, condition_message
@@ -65,10 +69,12 @@ class GraphGames:
         self.graph = GameGraph(env, world_seed, supervisor_params(subject, opts.supervisor), opts.step,
                                opts.rate_factor, log_dir)
 
-    def play(self, condition: str, learned: dict, k: float):
-        """(result dict of ``GameGraph.play``, alpha or None, the set that ran)."""
+    def play(self, condition: str, learned: dict, k: float, world_seed: int | None = None):
+        """(result dict of ``GameGraph.play``, alpha or None, the set that ran); ``world_seed``:
+        another world than the subject's (a task version)."""
         msg, alpha, ran = condition_message(condition, learned, k)
-        result = self.graph.play(msg, self.world_seed, supervisor_seed(self.subject, self.world_seed),
+        seed = self.world_seed if world_seed is None else world_seed
+        result = self.graph.play(msg, seed, supervisor_seed(self.subject, seed),
                                  self.opts.game_seconds,
                                  self.opts.game_timeout + (120.0 if self.graph.games == 0 else 0.0))
         return result, alpha, ran
@@ -85,11 +91,12 @@ class CoreGames:
         self.core, self.subject, self.world_seed, self.opts = core, subject, world_seed, opts
         self.phase2 = phase2
 
-    def play(self, condition: str, learned: dict, k: float):
+    def play(self, condition: str, learned: dict, k: float, world_seed: int | None = None):
         safe_set, alpha, ran = self.core.safe_set(condition, learned, k)
         online = (self.phase2.fp_records if condition == 'learned_online' and ran == 'learned_online'
                   and k == 0.0 and self.phase2 is not None else None)
-        return (self.core.play(self.subject, self.world_seed, safe_set, self.opts, online_records=online),
+        seed = self.world_seed if world_seed is None else world_seed
+        return (self.core.play(self.subject, seed, safe_set, self.opts, online_records=online),
                 alpha, ran)
 
     def close(self):
@@ -204,14 +211,23 @@ def run_subject(i, subject, opts, conditions, progress, phase2, player_for) -> d
         + ''.join(f'; {n}' for n in p2.notes))
     world_seed = opts.seed * 1000 + i
     learned = {c: (rec['learned_vfs'][c], rec['fits'][c]) for c in fits}
-    games = [(c, 0.0) for c in conditions]
+    if opts.phase3 == 'paper':       # the paper's six games, each on its task version
+        design = paper_plan(i)
+        rec['design'] = {'form': 'paper', 'row': design['row']}
+        games = [(g['treatment'], 0.0, g) for g in design['games']]
+    else:                            # each condition once on the subject's world
+        games = [(c, 0.0, None) for c in conditions]
     swept = sweep_condition(conditions)
     if i < opts.sweep_subjects and swept and rec['fits'].get(swept):
-        games += [(swept, k) for k in opts.sweep_k if k != 0.0]
+        # on the subject's own world; the paper's form plays its alpha = mu game there too
+        # (its Learned games are on other worlds)
+        games += [(swept, k, None) for k in opts.sweep_k if k != 0.0 or opts.phase3 == 'paper']
+    plays = []
     player = player_for(world_seed, p2)
     try:
-        for cond, k in games:
-            result, alpha, ran = player.play(cond, learned, k)
+        for cond, k, planned in games:
+            seed = version_world_seed(planned['version'], opts.seed) if planned else None
+            result, alpha, ran = player.play(cond, learned, k, seed)
             g = game_counts(result)
             g.update(wall=result['wall'], wall_running=result['wall_running'], cpu_s=result['cpu_s'],
                      cpu_by_process=result['cpu_by_process'],
@@ -219,7 +235,10 @@ def run_subject(i, subject, opts, conditions, progress, phase2, player_for) -> d
                      alpha=alpha, complete=g['sim_time'] >= opts.game_seconds - 1e-6,
                      trace=result.get('trace'),         # core engine only (study.game_trace)
                      online=result.get('online'))       # learned_online: its refits (study.online)
-            if k == 0.0:
+            if planned:
+                plays.append(dict(g, **planned, world_seed=seed))
+                name = f'game {planned["game"]} {cond} v{planned["version"]}'
+            elif k == 0.0 and opts.phase3 != 'paper':
                 rec['games'][cond] = g
                 name = f'phase III {cond}'
             else:
@@ -229,7 +248,10 @@ def run_subject(i, subject, opts, conditions, progress, phase2, player_for) -> d
                           f'FP {g["false_positives"]} int {g["interventions"]} crashes {g["crashes"]} '
                           f'trips {g["trips"]} arc {g["avoidance_length"]:.2f} m '
                           f'({g["wall"]:.1f} s)')
-        if swept in rec['games'] and rec['sweep']:
+        if plays:
+            rec['plays'] = plays
+            rec['games'] = treatment_means(plays)
+        if swept in rec['games'] and rec['sweep'] and 0.0 not in rec['sweep']:
             rec['sweep'][0.0] = rec['games'][swept]
     finally:
         player.close()

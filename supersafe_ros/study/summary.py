@@ -32,12 +32,19 @@ def record_sets(r: dict, standard_vf, conservative_vf) -> dict:
     return sets
 
 
+def count_value(v):
+    """A stored count: an int, or the float mean of a treatment's games when not whole."""
+    v = float(v)
+    return int(v) if v.is_integer() else v
+
+
 def summarize(records: list, standard_vf, conservative_vf, sweep_k=(0.0, 1.0, 2.0)) -> dict:
     """Aggregate per-subject records into the study's JSON (Table 1, H2, ANOVA, post-hoc, sweep).
 
     A record: {'subject', 'states' (Phase II intervention states), 'fits' and 'learned_vfs'
     (learned condition -> fit dict / ValueFunction, or None), 'games': {condition: counts
-    and H2 measures}, 'sweep': {k: counts}}. A subject without a fit (fewer than 3
+    and H2 measures, the mean of its games when it was played more than once (the paper's
+    form: ``design.treatment_means``)}, 'sweep': {k: counts}}. A subject without a fit (fewer than 3
     interventions) is counted with the Standard set in that learned condition (what its
     filter used). The conditions are those the records' games ran.
     """
@@ -58,7 +65,8 @@ def summarize(records: list, standard_vf, conservative_vf, sweep_k=(0.0, 1.0, 2.
             for k in per_subject_pred:
                 n = interventions_inside(vf, learned_alpha(fit, k), states)
                 per_subject_pred[k].append(n.inside / n.total)
-    counts = {c: {key: [int(r['games'][c][key]) for r in records]
+    # a count per subject: a treatment's games' mean (two games each in the paper's form)
+    counts = {c: {key: [count_value(r['games'][c][key]) for r in records]
                   for key in ('false_positives', 'interventions', 'crashes', 'trips')}
               for c in conditions}
     measures = {c: {m: [stored_measure(r['games'][c].get(m)) for r in records]

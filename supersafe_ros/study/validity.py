@@ -117,7 +117,9 @@ def model_validity(records: list, sets_of, conditions, seed: int = 0, draws: int
             in_c = _inside(vf, alpha, states)
             phase2[c][i] = (in_c.sum(), in_std.sum())
             games[c][i] = (_inside(vf, alpha, g_states).sum(), g_std.sum())
-            fp[c][i] = (r['games'][c]['false_positives'], std_game.get('false_positives', 0))
+            # counts, not means: a treatment played twice (the paper's form) gives its total
+            fp[c][i] = ((r['games'][c].get('totals') or r['games'][c])['false_positives'],
+                        (std_game.get('totals') or std_game).get('false_positives', 0))
             boot = []
             if len(states):
                 pick = rng.integers(0, len(states), (200, len(states)))

@@ -260,10 +260,11 @@
       b.id = 'banner'; b.className = 'banner'; b.setAttribute('role', 'alert');
       document.body.prepend(b);
     }
-    b.textContent = window.supersafeBannerText ? window.supersafeBannerText() :
+    const text = window.supersafeBannerText ? window.supersafeBannerText() :
       'The connection to the study computer is lost. The page keeps trying to reconnect; ' +
       'if this message stays, please tell the researcher.';
-    b.hidden = !show;
+    b.textContent = text;
+    b.hidden = !show || !text;        // '' : the page says it in its own words (the end of a session)
   }
 
   function connect() {

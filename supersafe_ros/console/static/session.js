@@ -39,15 +39,17 @@
     fit: (v) => ['The robots have learned from you', [v.summary, v.sentence,
       'The drawing shows one obstacle, the places where you stopped the robot, and where a robot ' +
       'coming from the left starts to turn away: before, and from now on.']],
-    game: (v) => [`Part 3 of 3: ${v.game} of 3`, [
+    game: (v) => [`Part 3 of 3: ${v.game} of ${v.of || 3}`, [
       `Two robots, a blue one and an orange one, drive back and forth across the field for ${duration(v.seconds)}. ` +
       'They steer around the obstacles they notice, but they may miss one.',
       'If you think a robot is about to hit an obstacle, click that obstacle to remove it.',
       'Points: +10 each time a robot crosses the field, −20 for each crash, −10 for each obstacle you remove.']],
-    likert: (v) => ['Questions', [`Compare ${v.pair[0]} and ${v.pair[1]}. For each sentence, choose 1 if it ` +
-      `was much more true in ${v.pair[0]}, 4 if there was no difference, ${v.points} if it was much more ` +
-      `true in ${v.pair[1]}.`]],
-    done: () => ['Thank you!', ['The study is complete. You may close this page.']],
+    likert: (v) => [`Questions about ${v.pair[0]} and ${v.pair[1]}`, [
+      `You have played ${v.pair[0]} and ${v.pair[1]} with two robot teams. How much do you agree with each ` +
+      `sentence? Answer it once for the team of ${v.pair[0]} and once for the team of ${v.pair[1]}: ` +
+      `1 = strongly disagree, 4 = neither, ${v.points} = strongly agree.`]],
+    done: () => ['Thank you!', ['The study is complete. Thank you for taking part.',
+      'You may close this page.']],
     stopped: () => ['The study is paused', ['The researcher has stopped the program. ' +
       'Please wait: it will go on from where it stopped.']],
   };
@@ -75,50 +77,85 @@
     });
   }
 
+  // one radio group: name (a test hook: input[data-likert]), its label for screen readers
+  function radios(tr, name, label, points) {
+    for (let k = 1; k <= points; k++) {
+      const td = document.createElement('td');
+      const r = document.createElement('input');
+      r.type = 'radio'; r.name = name; r.value = k; r.dataset.likert = name;
+      r.setAttribute('aria-label', `${label}: ${k}`);
+      td.appendChild(r); tr.appendChild(td);
+    }
+  }
+
+  function scaleHead(table, points, groups) {
+    const head = document.createElement('thead');
+    const corner = () => { const c = document.createElement('th'); c.className = 'item'; return c; };
+    if (groups.length > 1) {
+      const gr = document.createElement('tr');
+      gr.appendChild(corner());
+      groups.forEach((g) => {
+        const th = document.createElement('th'); th.colSpan = points; th.className = 'group'; th.textContent = g;
+        gr.appendChild(th);
+      });
+      head.appendChild(gr);
+    }
+    const hr = document.createElement('tr');
+    hr.appendChild(corner());
+    groups.forEach(() => {
+      for (let k = 1; k <= points; k++) {
+        const th = document.createElement('th');
+        th.textContent = String(k);
+        if (k === 1) th.title = 'strongly disagree';
+        if (k === points) th.title = 'strongly agree';
+        hr.appendChild(th);
+      }
+    });
+    head.appendChild(hr); table.appendChild(head);
+  }
+
+  // the questionnaire after a comparison: each statement rated for both games, then the preference
   function renderLikert(v) {
     const form = el('likert');
     form.innerHTML = '';
-    const table = document.createElement('table');
-    const cols = document.createElement('colgroup');
-    const itemCol = document.createElement('col'); itemCol.className = 'item'; cols.appendChild(itemCol);
-    for (let k = 1; k <= v.points; k++) cols.appendChild(document.createElement('col'));
-    table.appendChild(cols);
-    const head = document.createElement('thead');
-    const hr = document.createElement('tr');
-    hr.appendChild(document.createElement('th'));
-    for (let k = 1; k <= v.points; k++) {
-      const th = document.createElement('th');
-      th.textContent = k === 1 ? `1: much more ${v.pair[0]}` : k === v.points ? `${k}: much more ${v.pair[1]}`
-        : k === (v.points + 1) / 2 ? `${k}: same` : String(k);
-      hr.appendChild(th);
-    }
-    head.appendChild(hr); table.appendChild(head);
+    const teams = document.createElement('table');
+    teams.className = 'teams';
+    scaleHead(teams, v.points, v.pair);
     const body = document.createElement('tbody');
     v.items.forEach((item) => {
       const tr = document.createElement('tr');
       const th = document.createElement('th'); th.className = 'item'; th.scope = 'row'; th.textContent = item.text;
       tr.appendChild(th);
-      for (let k = 1; k <= v.points; k++) {
-        const td = document.createElement('td');
-        const r = document.createElement('input');
-        r.type = 'radio'; r.name = item.key; r.value = k; r.dataset.likert = item.key;
-        r.setAttribute('aria-label', `${item.text}: ${k}`);
-        td.appendChild(r); tr.appendChild(td);
-      }
+      v.pair.forEach((game, side) => radios(tr, `${item.key}.${side}`, `${game}: ${item.text}`, v.points));
       body.appendChild(tr);
     });
-    table.appendChild(body); form.appendChild(table);
+    teams.appendChild(body); form.appendChild(teams);
+    const pref = document.createElement('table');
+    pref.className = 'preference';
+    scaleHead(pref, v.points, ['']);
+    const pb = document.createElement('tbody');
+    const tr = document.createElement('tr');
+    const th = document.createElement('th'); th.className = 'item'; th.scope = 'row'; th.textContent = v.preference.text;
+    tr.appendChild(th);
+    radios(tr, v.preference.key, v.preference.text, v.points);
+    pb.appendChild(tr); pref.appendChild(pb); form.appendChild(pref);
     const b = document.createElement('button');
     b.type = 'submit'; b.textContent = 'Send answers'; b.dataset.action = 'answers';
     form.appendChild(b);
     form.onsubmit = (e) => {
       e.preventDefault();
+      const pick = (name) => {
+        const c = form.querySelector(`input[name="${name}"]:checked`);
+        return c ? parseInt(c.value, 10) : null;
+      };
       const values = {};
+      let left = 0;
       v.items.forEach((item) => {
-        const c = form.querySelector(`input[name="${item.key}"]:checked`);
-        if (c) values[item.key] = parseInt(c.value, 10);
+        values[item.key] = v.pair.map((_, side) => pick(`${item.key}.${side}`));
+        left += values[item.key].filter((x) => x === null).length;
       });
-      const left = v.items.length - Object.keys(values).length;
+      values[v.preference.key] = pick(v.preference.key);
+      if (values[v.preference.key] === null) left += 1;
       if (left) { window.supersafeSay(`Please answer every sentence (${left} left).`, 'error'); return; }
       send({ type: 'answers', values });
     };
@@ -203,8 +240,9 @@
   // crashes are marked in Phase I and the games; a calibration scene lets the robot through
   window.supersafeShowCrashes = () => view.phase === 'phase1' || view.phase === 'game';
 
+  // the end: the page's own calm screen says it all (no banner when the program then closes)
   window.supersafeBannerText = () => (view.phase === 'done'
-    ? 'The study is complete and the program has ended. You may close this page.'
+    ? ''
     : view.phase === 'stopped'
       ? 'The study is paused: the researcher has stopped the program. Please wait; this page reconnects by itself.'
       : 'The connection to the study computer is lost. The page keeps trying to reconnect; ' +
