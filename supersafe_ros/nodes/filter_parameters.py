@@ -52,6 +52,13 @@ CONFIG_PARAMETERS = (
 )
 LIVE_CONFIG_FIELDS = tuple(p.name for p in CONFIG_PARAMETERS)
 
+# a stamp from another clock (issue 31, the nodes' half; a block of its own)
+STAMP_PARAMETERS = (
+    ParameterSpec('stamp_tolerance', 1.0, 'a pose or sensor message stamped farther than this from the node\'s '
+                  'clock is refused with an ERROR (another clock, a clock jump): failing safe [s]',
+                  0.001, 1e9, live=True),
+)
+
 # in the order they are declared
 FILTER_PARAMETERS = (
     # the true dynamics and obstacle: the standard set (read-only)
@@ -85,6 +92,7 @@ FILTER_PARAMETERS = (
     ParameterSpec('standard_shape', [65, 65, 42], 'standard set grid: nodes (nx, ny, ntheta)'),
     ParameterSpec('standard_horizon', 3.0, 'standard set horizon [s] (as the library; 0 = to convergence)',
                   0.0, 1000.0),
+    *STAMP_PARAMETERS,
 )
 
 
@@ -120,6 +128,7 @@ class FilterParameters:
         self.cache_dir = v['cache_dir']
         self.standard_lo, self.standard_hi = v['standard_lo'], v['standard_hi']
         self.standard_shape, self.standard_horizon = v['standard_shape'], v['standard_horizon']
+        self.stamp_tolerance = v['stamp_tolerance']
 
     def keep_current(self, lock, effects: dict) -> LiveParameters:
         """Register every live parameter (and use_sim_time); ``effects``: name -> what puts a
@@ -142,6 +151,7 @@ class FilterParameters:
         live.add('max_value_function_bytes', self._setter('max_value_function_bytes', int, effects))
         live.add('clock_stall_timeout', self._setter('clock_stall_timeout', float, effects))
         live.add('use_sim_time', self._setter('use_sim_time', bool, effects))   # rclpy switches the node clock
+        live.add('stamp_tolerance', self._setter('stamp_tolerance', float, effects))
         return live
 
     def _setter(self, name, kind, effects):

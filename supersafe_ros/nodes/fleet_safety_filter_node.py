@@ -294,12 +294,12 @@ class FleetSafetyFilterNode(Node):
                 header_stamp = data.header.stamp
             else:
                 states, bad, header_stamp = fleetmsg.posearray_cdr_to_states(data, self.n, w.frame)
+            stamp = w.stamp(header_stamp, t)
         except ValueError as exc:
             for f in w.filters:
                 f.reject_pose(str(exc), t)
             w.complain('fleet poses', f'fleet/poses rejected: {exc}; failing safe (every robot)', level='error')
         else:
-            stamp = w.stamp(header_stamp, t)
             for f, why in zip(w.filters, bad):
                 if why:
                     f.reject_pose(why, t)
