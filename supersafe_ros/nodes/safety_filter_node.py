@@ -192,8 +192,8 @@ class SafetyFilter:
                    pose_raw, rosmsg.QOS_STREAM)]
         if self.require_detections:
             kind = p['detections_type']
-            callback = {'pose_array': self.on_detections, 'marker_array': self.on_markers}.get(kind,
-                                                                                              self.on_range_sensor)
+            callback = {'pose_array': self.on_detections, 'marker_array': self.on_markers}.get(
+                kind, self.on_range_sensor)
             qos = qos_profile_sensor_data if kind in RANGE_SENSORS else rosmsg.QOS_STREAM
             inputs.append((detections_message_type(kind), 'detections', callback, kind == 'pose_array', qos))
         stamped = p['cmd_vel_stamped']
