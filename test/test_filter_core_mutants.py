@@ -499,15 +499,15 @@ def test_batched_poses_with_a_repeated_stamp_do_not_shorten_the_measured_period(
 
 
 def test_batched_detections_accept_none_and_reject_malformed():
-    """No detections is (0, 2); non-finite centres and rows that are not (x, y) are rejected
-    (kills the empty case read as size 1, replaced by None, (1, 2) or (0, 3), and ``and`` for
-    ``or`` in the shape/finite check)."""
+    """No detections is (0, 2); non-finite centres, rows that are neither (x, y) nor (x, y, r)
+    and radii that are not > 0 are rejected (kills the empty case read as size 1, replaced by
+    None, (1, 2) or (0, 3), and ``and`` for ``or`` in the shape/finite check)."""
     from supersafe_ros.filter import update_detections_all
     filters = [RobotFilter(), RobotFilter()]
     for empty in ([], np.zeros((0, 2))):
         update_detections_all(filters, empty, T)
         assert all(f.detections.value.shape == (0, 2) for f in filters)
-    for bad in ([[np.nan, 0.0]], [[0.0, 1.0, 2.0]], [0.0, 1.0]):
+    for bad in ([[np.nan, 0.0]], [[0.0, 1.0, 2.0, 3.0]], [0.0, 1.0], [[0.0, 1.0, 0.0]], [[0.0, 1.0, np.nan]]):
         with pytest.raises(ValueError):
             update_detections_all(filters, bad, T)
 

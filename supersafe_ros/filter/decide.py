@@ -16,9 +16,13 @@ fleet's, with one robot's rows.
 """
 from __future__ import annotations
 
+from itertools import repeat
+from operator import attrgetter, is_
+
 import numpy as np
 
 from .cluster_rows import cluster_rows
+from .discs import pair_shifts
 from .gather import gather, gather_one, judged
 from .law import ConstraintTable
 from .nearby import NEAR_QUERY_MIN, narrow
@@ -26,6 +30,8 @@ from .outputs import Decisions, outputs
 from .pairs import FEW_PAIRS, pair_reads, pair_turns, pair_values, robot_pair_values
 from .propagation import follow
 from .types import SafeSet
+
+_DETECTIONS, _KEPT = attrgetter('detections'), attrgetter('kept')
 
 
 def step_many(filters, safe_set: SafeSet, t, clusters=None) -> Decisions:
@@ -63,8 +69,13 @@ def step_many(filters, safe_set: SafeSet, t, clusters=None) -> Decisions:
         rel[:, 2] = states[pair_robot, 2]
     else:
         centres, rel = np.zeros((0, 2)), np.zeros((0, 3))
+    alpha = float(safe_set.alpha)
+    shift = pair_shifts(rb.radii, rb.configs, counts, narrowed.position if narrowed is not None else None)
     value, value_next = pair_reads(safe_set.vf, rel, planned[pair_robot], horizon[pair_robot], speed[pair_robot],
-                                   bang[pair_robot], float(safe_set.alpha))
+                                   bang[pair_robot], alpha if shift is None else alpha - shift)
+    if shift is not None:        # discs of their own radius (filter.discs): V_r = V_R + (R - r)
+        value += shift
+        value_next += shift
 
     def pair_turns_of(p) -> np.ndarray:
         r = pair_robot[p]
@@ -75,6 +86,7 @@ def step_many(filters, safe_set: SafeSet, t, clusters=None) -> Decisions:
     if narrowed is None:
         tab, n_groups = constraint_table(pair_robot, np.arange(n_pairs) - start[pair_robot], counts, value,
                                          value_next, centres, float(safe_set.alpha), cl, pair_turns_of)
+        name_by_message(tab, rb.filters, rb.dets)
     else:
         tab, n_groups = constraint_table(pair_robot, narrowed.position, narrowed.counts, value, value_next, centres,
                                          float(safe_set.alpha), cl, pair_turns_of)
@@ -105,12 +117,17 @@ def decide_one(f, problem, safe_set: SafeSet, t, clusters) -> Decisions:
                                               np.full(n_pairs, speed), np.full(n_pairs, bang))
     else:
         value, turn, value_next = (np.array(a, dtype=float) for a in pairs)
+    shift = pair_shifts(rb.radii, rb.configs, [n_pairs], narrowed.position if narrowed is not None else None)
+    if shift is not None:        # discs of their own radius (filter.discs): V_r = V_R + (R - r)
+        value += shift
+        value_next += shift
     start = np.zeros(1, np.intp)
     cl = cluster_rows([f], rb.configs, np.array([[x, y, th]]), rb.planned, rb.horizon, rb.speed, rb.bang,
                       rb.cluster_alpha, [det], start, clusters, narrowed.frames if narrowed is not None else None)
     if narrowed is None:
         tab, n_groups = constraint_table(np.zeros(n_pairs, np.intp), np.arange(n_pairs), np.array([n_pairs]), value,
                                          value_next, det, float(safe_set.alpha), cl, lambda p: turn[p])
+        name_by_message(tab, [f], [det])
     else:
         tab, n_groups = constraint_table(np.zeros(n_pairs, np.intp), narrowed.position, narrowed.counts, value,
                                          value_next, det, float(safe_set.alpha), cl, lambda p: turn[p])
@@ -150,3 +167,17 @@ def constraint_table(pair_robot, position, counts, value, value_next, centres, a
 
     tab.turns_of = turns_of
     return tab, n_pairs + cl['n_groups']
+
+
+def name_by_message(tab, filters, dets) -> None:
+    """The table's obstacles named by their rows in the robots' detections messages, where a
+    robot's detections are not the message's rows one for one (``detections.kept``: discs split
+    into covering rings, ``filter.discs``); ``filter.nearby`` names those it narrows itself."""
+    inputs = list(map(_DETECTIONS, filters))
+    if all(map(is_, map(_KEPT, inputs), repeat(None))):      # (most decisions: checked in C)
+        return
+    for i, (inp, det) in enumerate(zip(inputs, dets)):
+        kept = inp.kept
+        if kept is not None and inp.value is det:
+            rows = np.flatnonzero(tab.robot == i)
+            tab.obstacle[rows] = kept[tab.obstacle[rows]]

@@ -27,11 +27,11 @@ class RobotColumns:
 
     __slots__ = ('filters', 'use', 'problems', 'all_configs', 'all_bang', 'all_keep', 'configs', 'failing',
                  'poses', 'omega_arcs', 'dt_arcs', 'age', 'dets', 'horizon', 'planned', 'speed', 'bang',
-                 'overriding', 'margin', 'fresh', 'cluster_alpha')
+                 'overriding', 'margin', 'fresh', 'cluster_alpha', 'radii')
 
 
 _NEVER = (math.inf, 0.0)      # the (time, turn) a robot with no such command sent shows: no arc starts then
-_VALUE, _T, _STAMP, _REJECTED = (attrgetter(a) for a in ('value', 't', 'stamp', 'rejected'))
+_VALUE, _T, _STAMP, _REJECTED, _RADII = (attrgetter(a) for a in ('value', 't', 'stamp', 'rejected', 'radii'))
 
 
 def judged(f, t):
@@ -99,6 +99,7 @@ def gather(filters, t) -> RobotColumns:
     rb.filters, rb.configs, rb.failing = filters, configs, ~judged[use]
     rb.speed, rb.bang, rb.margin, rb.cluster_alpha = speed, bang, margin, cluster_alpha
     rb.dets = det_values
+    rb.radii = list(map(_RADII, (f.detections for f in filters)))
     rb.poses = np.array(pose_values, dtype=float).reshape(m, 3)
     rb.overriding = np.fromiter((f.overriding for f in filters), dtype=bool, count=m)
     compensate = compensate != 0.0
@@ -200,4 +201,5 @@ def gather_one(f, problem, t):
     rb.all_bang = rb.bang
     rb.failing, rb.overriding, rb.fresh = np.array([[bool(problem)], [f.overriding], [fresh]])
     rb.filters, rb.use, rb.problems, rb.configs, rb.all_configs = [f], _ONE, [problem], [cfg], [cfg]
+    rb.radii = [f.detections.radii]
     return rb, (x, y, th)

@@ -20,6 +20,7 @@ import math
 import numpy as np
 
 from .decide import step_many
+from .discs import checked_discs
 from .gather import clip
 from .nearby import drop_note, message_reach, within_limit
 from .types import FilterConfig, FilterOutput, SafeSet
@@ -40,6 +41,8 @@ class _Input:
     kept: object = None           # detections: the message's indices of those kept (None: all)
     dropped: int = 0              # detections: how many of the message were dropped
     dropped_safely: bool = True   # detections: all of them beyond any robot's reach (nearby.drop_note)
+    radii: object = None          # detections: each one's radius (M,), None: all the configured radius
+    solve_clusters: bool = True   # detections: their clusters' union values may be solved (filter.cluster_rows)
 
     def accept(self, value, t, stamp=None):
         self.value, self.t, self.rejected, self.note = value, float(t), '', ''
@@ -97,22 +100,27 @@ class RobotFilter:
         """Record a pose message the caller could not convert (wrong frame, bad quaternion)."""
         self.pose.reject(reason, t)
 
-    def update_detections(self, centres, t, safe_set=None) -> None:
-        """Obstacle centres (N, 2) in map, N >= 0; raises ValueError if malformed.
+    def update_detections(self, rows, t, safe_set=None, solve_clusters=True) -> None:
+        """Obstacles in map, N >= 0: (N, 2) centres, each of the configured ``radius``, or
+        (N, 3) rows [x, y, r] of their own radius r (finite, > 0; ``filter.discs``: a disc
+        larger than ``radius`` is judged as a ring of discs of that radius); raises ValueError
+        (and records it) if malformed.
 
         More than ``max_detections``: the nearest to the robot's pose are kept, the rest
         dropped, and ``detections.note`` says whether that is safe (they are farther than
         any can constrain the robot while judged, by ``safe_set``'s grid; unknown without).
+
+        ``solve_clusters``: False for detections that change every message (discs made from
+        a laser scan or a point cloud): their clusters are judged by the loiter fallback and
+        the per-disc rows, never by a union value solved in the background (a new geometry per
+        message would queue a solve per message and none would be in force in time).
         """
-        c = _checked_centres(centres)
-        if c is None:
-            reason = f'detections must be finite (N, 2) centres, got shape {np.shape(centres)}'
-            self.detections.reject(reason, t)
-            raise ValueError(reason)
-        c, kept, dropped, (note, safe) = _limited(c, [self], t, safe_set, self.config)
-        inp = self.detections
-        inp.accept(c, t)
-        inp.kept, inp.dropped, inp.note, inp.dropped_safely = kept, dropped, note, safe
+        try:
+            c, radii, origin = checked_discs(rows, self.config.radius)
+        except ValueError as exc:
+            self.detections.reject(str(exc), t)
+            raise
+        _store_detections([self], c, radii, origin, t, safe_set, self.config, solve_clusters)
 
     def reject_detections(self, reason, t) -> None:
         self.detections.reject(reason, t)
@@ -290,30 +298,31 @@ def _accept_rows(filters, name, rows, take, t, stamp) -> None:
             setattr(f, windows, after)
 
 
-def update_detections_all(filters, centres, t, safe_set=None) -> None:
-    """``update_detections(centres, t, safe_set)`` for every robot, with one array shared by all
-    (the fleet node's batched detections; robots that share it share its cluster frames and
-    spatial index). Beyond ``max_detections`` (the first robot's) the nearest to any robot's
-    pose are kept."""
-    c = _checked_centres(centres)
-    if c is None:
-        raise ValueError(f'detections must be finite (N, 2) centres, got shape {np.shape(centres)}')
-    t = float(t)
-    c, kept, dropped, (note, safe) = _limited(c, filters, t, safe_set, filters[0].config if filters else None)
+def update_detections_all(filters, rows, t, safe_set=None, solve_clusters=True) -> None:
+    """``update_detections(rows, t, safe_set, solve_clusters)`` for every robot, with one array
+    shared by all (the fleet node's batched detections; robots that share it share its cluster
+    frames and spatial index; radii against the first robot's ``radius``). Beyond
+    ``max_detections`` (the first robot's) the nearest to any robot's pose are kept."""
+    cfg = filters[0].config if filters else None
+    c, radii, origin = checked_discs(rows, cfg.radius if cfg is not None else 0.0)
+    _store_detections(filters, c, radii, origin, float(t), safe_set, cfg, solve_clusters)
+
+
+def _store_detections(filters, c, radii, origin, t, safe_set, cfg, solve_clusters) -> None:
+    """The checked discs (``discs.checked_discs``) become every filter's detections, at most
+    ``max_detections`` of them (``_limited``); ``kept``: the message's rows of those kept
+    (None: row i is row i)."""
+    c, kept, dropped, (note, safe) = _limited(c, filters, t, safe_set, cfg)
+    if kept is not None and radii is not None:
+        radii = radii[kept]
+    if origin is not None:
+        kept = origin if kept is None else origin[kept]
+    solve = bool(solve_clusters)
     for f in filters:
         inp = f.detections
         inp.accept(c, t)
         inp.kept, inp.dropped, inp.note, inp.dropped_safely = kept, dropped, note, safe
-
-
-def _checked_centres(centres):
-    """``centres`` as finite (N, 2) floats, or None if they are not."""
-    c = np.asarray(centres, dtype=float)
-    if c.size == 0:
-        return np.zeros((0, 2))
-    if c.ndim != 2 or c.shape[1] != 2 or not np.all(np.isfinite(c)):
-        return None
-    return c
+        inp.radii, inp.solve_clusters = radii, solve
 
 
 def _limited(c, robots, t, safe_set, cfg):

@@ -37,7 +37,8 @@ from .types import FilterConfig
 
 @dataclass(frozen=True)
 class CollisionTrial:
-    """One approach: discs (K, 2), a start state, a goal point and the goal line's normal.
+    """One approach: discs (K, 2) centres of ``run_trials``' radius or (K, 3) [x, y, r] of
+    their own radius, a start state, a goal point and the goal line's normal.
 
     The trial is done when (p - goal) . direction >= 0.
     """
@@ -122,8 +123,10 @@ def layout_trials(layouts, rng, margin=10.0, offset=None) -> list:
     """
     out = []
     for discs in layouts:
-        discs = np.asarray(discs, dtype=float).reshape(-1, 2)
-        extent = float(np.max(np.hypot(discs[:, 0], discs[:, 1]))) + 1.8
+        discs = np.asarray(discs, dtype=float)
+        discs = discs.reshape(-1, discs.shape[-1] if discs.ndim == 2 else 2)
+        rim = discs[:, 2] if discs.shape[1] == 3 else 1.8
+        extent = float(np.max(np.hypot(discs[:, 0], discs[:, 1]) + rim))
         phi = rng.uniform(-np.pi, np.pi)
         d, nrm = np.array([np.cos(phi), np.sin(phi)]), np.array([-np.sin(phi), np.cos(phi)])
         spread = extent if offset is None else offset
@@ -159,8 +162,12 @@ def run_trials(trials, guard, step=0.05, stale_probability=0.0, late_probability
     applied = np.zeros(n)                           # the command the robot holds
     width = max(len(e.discs) for e in trials)
     discs = np.full((n, width, 2), 1e9)             # padded: far-away fillers never collide
+    radii = np.full((n, width), float(radius))
     for i, e in enumerate(trials):
-        discs[i, :len(e.discs)] = e.discs
+        d = np.asarray(e.discs, dtype=float)
+        discs[i, :len(d)] = d[:, :2]
+        if d.shape[1] == 3:
+            radii[i, :len(d)] = d[:, 2]
     inside = np.zeros((n, width), dtype=bool)
     deepest = np.zeros((n, width))
     active = np.ones(n, dtype=bool)
@@ -202,7 +209,7 @@ def run_trials(trials, guard, step=0.05, stale_probability=0.0, late_probability
         previous[idx] = state[idx]
         for s in range(1, substeps + 1):
             pts = car.flow(state[idx], omega, step * s / substeps)
-            d = radius - np.linalg.norm(pts[:, None, :2] - discs[idx], axis=2)   # depth into each disc
+            d = radii[idx] - np.linalg.norm(pts[:, None, :2] - discs[idx], axis=2)   # depth into each disc
             entered = (d > depth) & ~inside[idx]
             res.collisions += int(entered.sum())
             inside[idx] |= d > depth
