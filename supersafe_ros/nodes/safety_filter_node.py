@@ -266,9 +266,14 @@ class SafetyFilter:
         except ValueError as exc:   # MessageError is a ValueError
             self.filter.reject_pose(str(exc), t)
             w.complain('pose', f'pose rejected: {exc}; failing safe', level='error')
+        self._answer_pose(t, None if msg is None else msg.header.stamp)
+
+    def _answer_pose(self, t, stamp):
+        """After a pose (``stamp``: its header's, None if unreadable): lockstep answers it,
+        else with ``publish_on_pose`` decide."""
         if self.lockstep:
             self.answers.new_pose(time.monotonic())
-            if msg is not None and self._clock_passed(msg.header.stamp):
+            if stamp is not None and self._clock_passed(stamp):
                 return
             self.decide(t, answers_pose=True)
         elif self.publish_on_pose:
@@ -285,8 +290,7 @@ class SafetyFilter:
         except ValueError as exc:
             self.filter.reject_pose(str(exc), t)
             w.complain('pose', f'pose rejected: {exc}; failing safe', level='error')
-        if self.publish_on_pose:
-            self.decide(t)
+        self._answer_pose(t, msg.header.stamp)
 
     def _take_pose(self, state, t, stamp):
         self.filter.update_pose(state, t, stamp=stamp)
@@ -342,16 +346,16 @@ class SafetyFilter:
         except ValueError as exc:
             self._refuse_detections(exc, t)
             return
-        self._take_detections(discs, t)
+        self._take_detections(discs, t, solve_clusters=False)     # new geometry every message: no union solve
 
     def _refuse_detections(self, exc, t):
         self.filter.reject_detections(str(exc), t)
         self.wiring.complain('detections', f'detections rejected: {exc}; failing safe', level='error')
 
-    def _take_detections(self, rows, t):
+    def _take_detections(self, rows, t, solve_clusters=True):
         w = self.wiring
         try:
-            self.filter.update_detections(rows, t, w.safe_set)
+            self.filter.update_detections(rows, t, w.safe_set, solve_clusters=solve_clusters)
         except ValueError as exc:
             self._refuse_detections(exc, t)
             return
