@@ -11,8 +11,8 @@ pytestmark = pytest.mark.ros   # rclpy nodes in this process
 STEPS = 500       # 25 s of sim time: the trip takes about 15
 
 
-@pytest.mark.parametrize('detections_type, topic', [('laser_scan', 'scan'), ('point_cloud2', 'cloud'),
-                                                     ('marker_array', 'markers')])
+@pytest.mark.parametrize('detections_type, topic', [
+    ('laser_scan', 'scan'), ('point_cloud2', 'cloud'), ('marker_array', 'markers')])
 def test_a_robot_crosses_a_field_of_three_sizes_without_a_collision(ros_context, detections_type, topic):
     g = SensorGraph(ros_context, detections_type, topic, robot_radius=0.3)
     try:
