@@ -19,8 +19,8 @@ def test_scan_returns_skip_nan_inf_and_out_of_range_beams():
     r = np.array([1.0, np.nan, np.inf, 0.01, 20.0, 2.0])
     p = sensing.scan_points(r, 0.0, math.pi / 2, 0.05, 10.0)
     assert p.shape == (2, 2)
-    assert np.allclose(p[0], [1.0, 0.0]) and np.allclose(p[1], [2.0 * math.cos(5 * math.pi / 2),
-                                                                 2.0 * math.sin(5 * math.pi / 2)])
+    assert np.allclose(p[0], [1.0, 0.0])
+    assert np.allclose(p[1], [2.0 * math.cos(5 * math.pi / 2), 2.0 * math.sin(5 * math.pi / 2)])
     with pytest.raises(ValueError, match='angle_increment'):
         sensing.scan_points(r, 0.0, math.nan, 0.05, 10.0)
 

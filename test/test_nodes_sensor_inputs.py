@@ -238,3 +238,41 @@ def test_the_managed_filter_publishes_only_while_active(ros_context):
         f.close()
         f.destroy_node()
         s.node.destroy_node()
+
+
+def test_the_managed_fleet_filter_says_each_robot_on_diagnostics_only_once_configured(ros_context):
+    from supersafe_ros.nodes.fleet_safety_filter_node import ManagedFleetSafetyFilterNode
+    f = ManagedFleetSafetyFilterNode(context=ros_context, namespace='/fleet_m', parameter_overrides=params(
+        robots=['fm_0', 'fm_1'], batched_topics=False, rate=20.0))
+    watcher = Node('fleet_watcher', context=ros_context)
+    arrays, out = [], []
+    watcher.create_subscription(DiagnosticArray, '/diagnostics', arrays.append, rosmsg.QOS_EVERY_SAMPLE)
+    cmd = watcher.create_subscription(Twist, '/fm_0/cmd_vel', out.append, rosmsg.QOS_EVERY_SAMPLE)
+    spin = Spinner(ros_context, f, watcher)
+    change = watcher.create_client(ChangeState, '/fleet_m/fleet_safety_filter/change_state')
+
+    def transition(tid):
+        spin.until(change.service_is_ready, 15.0, 'change_state')
+        future = change.call_async(ChangeState.Request(transition=Transition(id=tid)))
+        spin.until(future.done, 60.0, 'the transition')
+        assert future.result().success
+
+    def ours():
+        return [st for a in arrays for st in a.status if st.name.startswith('/fleet_m/fleet_safety_filter')]
+    try:
+        transition(Transition.TRANSITION_CONFIGURE)
+        spin.until(lambda: cmd.get_publisher_count() > 0, 15.0, 'the configured fleet to make its topics')
+        spin.until(lambda: len(ours()) >= 2, 15.0, 'a status per robot')
+        assert not out, 'inactive: no cmd_vel'
+        assert {st.hardware_id for st in ours()} == {'/fm_0', '/fm_1'}
+        transition(Transition.TRANSITION_ACTIVATE)
+        spin.until(lambda: len(out) >= 3, 15.0, 'cmd_vel once active')
+        assert out[-1].linear.x == 0.0 or out[-1].angular.z != 0.0, 'failing safe: no input yet'
+        n = len(arrays)
+        spin.until(lambda: any(st.level[0] == DiagnosticStatus.ERROR[0] and 'no pose' in st.message
+                               for a in arrays[n:] for st in a.status), 15.0, 'ERROR: no input yet')
+    finally:
+        spin.shutdown()
+        f.close()
+        f.destroy_node()
+        watcher.destroy_node()

@@ -34,29 +34,38 @@ def foreign_publishers(node, topic: str, expected: str) -> list:
 
 
 class FilterDiagnostics:
-    """See the module. ``inputs``: [(topic, message class)] the node subscribes."""
+    """See the module. ``inputs``: [(topic, message class)] the node subscribes; at most
+    ``checks`` of them are looked up in the graph per publish, in turn (a fleet's thousands of
+    topics cost the same each second as one robot's few)."""
 
-    def __init__(self, node, statuses, inputs, complain, period: float = 1.0):
+    def __init__(self, node, statuses, inputs, complain, period: float = 1.0, checks: int = 24):
         self.node = node
         self.statuses = statuses
         self.inputs = [(topic, type_name(t)) for topic, t in inputs]
         self.complain = complain
+        self.checks = int(checks)
+        self._next = 0             # the first input of the next look
+        self._found = {}           # topic -> its note, while a foreign publisher stays
         self.notes = []            # the input topics' foreign publishers, said in every status
         self.published = 0
         self.pub = node.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, rosmsg.QOS_STREAM)
         self.timer = node.create_timer(period, self.publish, clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def check_graph(self) -> list:
-        notes = []
-        for topic, expected in self.inputs:
+        n = len(self.inputs)
+        for k in range(min(n, self.checks)):
+            topic, expected = self.inputs[(self._next + k) % n]
             others = foreign_publishers(self.node, topic, expected)
             if others:
-                notes.append(f'{topic} has a publisher of {", ".join(others)}; this filter reads {expected} '
-                             'there (its messages are not received: the input looks silent)')
-        for note in notes:
+                self._found[topic] = (f'{topic} has a publisher of {", ".join(others)}; this filter reads '
+                                      f'{expected} there (its messages are not received: the input looks silent)')
+            else:
+                self._found.pop(topic, None)
+        self._next = (self._next + min(n, self.checks)) % n if n else 0
+        self.notes = list(self._found.values())
+        for note in self.notes:
             self.complain(f'type {note}', note, level='warn')
-        self.notes = notes
-        return notes
+        return self.notes
 
     def publish(self):
         notes = self.check_graph()
