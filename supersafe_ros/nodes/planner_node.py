@@ -9,10 +9,11 @@ No goal yet, or an invalid pose: nothing is published (the filter and robot fail
 
 Near its goal it slows and stops there for a moment (``sim.planner.approach_speed``):
 linear.x falls from ``speed`` within ``slow_radius`` of the goal and is 0 within
-``goal_tolerance``, where it waits ``goal_wait`` seconds (turn rate 0) before it heads for
-the newest goal. ``pose_type`` odometry reads nav_msgs/Odometry on pose; ``cmd_vel_stamped``
-publishes geometry_msgs/TwistStamped. The defaults (no slowing, no stop) are the study's
-constant-speed planner.
+``goal_tolerance``, where it waits ``goal_wait`` seconds (turn rate 0); then it heads for
+the newest goal, or creeps on at a fifth of ``speed`` while no new one has come (the team's
+world hands out the next goal once the robot crosses the goal line). ``pose_type`` odometry
+reads nav_msgs/Odometry on pose; ``cmd_vel_stamped`` publishes geometry_msgs/TwistStamped.
+The defaults (no slowing, no stop) are the study's constant-speed planner.
 """
 from __future__ import annotations
 
@@ -85,8 +86,13 @@ class PlannerNode(Node):
         now = self.get_clock().now().nanoseconds * 1e-9
         if speed == 0.0 and self.arrived is None:
             self.arrived = now
-        if self.arrived is not None and now - self.arrived < self.goal_wait:
-            speed = omega = 0.0          # a moment at the goal
+        if self.arrived is not None:
+            if now - self.arrived < self.goal_wait:
+                speed = omega = 0.0          # a moment at the goal
+            elif speed == 0.0:
+                # waited and no new goal yet: creep on at the least speed (the team's world
+                # gives the next goal when the robot crosses the goal line)
+                speed = 0.2 * self.speed
         twist = rosmsg.turn_rate_to_twist(omega if speed > 0.0 else 0.0, speed)
         if self.stamped:
             out = TwistStamped()

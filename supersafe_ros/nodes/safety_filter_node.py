@@ -340,6 +340,11 @@ class SafetyFilter:
         return in range is "looked, nothing seen"."""
         w = self.wiring
         t = w.now()
+        if not self.poses.stamps:       # starting: the scan came before the first pose (said once, not an error)
+            self.filter.reject_detections('no pose received yet to place the returns with', t)
+            w.complain('detections before pose', 'a scan before the first pose: waiting for a pose to place its '
+                       'returns with (failing safe until then)', level='info')
+            return
         try:
             stamp = w.stamp(msg.header.stamp, t)
             discs = self.sensor.discs(msg, t if stamp is None else stamp, w.config, w.config.pose_timeout)
