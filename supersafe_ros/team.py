@@ -119,6 +119,7 @@ CLUSTER_HOLD_TIMEOUT = 15.0
 
 # sensors 'scan': what the robots, planners and filters are told (beside their config files)
 SENSOR_MODE = {
+    'world': {'radii': [0.8, 1.8, 2.6]},        # obstacles of three sizes
     'dubins_robot': {'sensors': 'scan', 'cmd_vel_stamped': True, 'follow_speed': True, 'timeout_behavior': 'stop'},
     'planner': {'pose_type': 'odometry', 'cmd_vel_stamped': True, 'slow_radius': 6.0, 'goal_tolerance': 1.0,
                 'goal_wait': 1.0},
@@ -152,8 +153,8 @@ def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
     ``console_port``: also run the supervisor console (web page) on this port.
     ``sensors``: 'none' (the study's robots: PoseStamped pose, PoseArray detections, Twist,
     constant speed) or 'scan': robots that publish only what a real one does (``odom``
-    Odometry, ``scan`` LaserScan, TwistStamped cmd_vel, driving at the commanded speed), a
-    planner that slows near its goal and stops there a moment, and filters that read
+    Odometry, ``scan`` LaserScan, TwistStamped cmd_vel, driving at the commanded speed) in a
+    world of obstacles of three sizes, a planner that slows near its goal and stops there a moment, and filters that read
     odometry, the scan and TwistStamped (SENSOR_MODE); the world, learner, supervisor and
     console as in 'none'.
     """
@@ -179,7 +180,7 @@ def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
     # read the clock only for timeouts and statistics: they follow /clock_coarse and
     # are spared a /clock callback every step
     coarse = {'/clock': '/clock_coarse'}
-    add('world', None, {**sim, 'robots': robots, 'seed': seed}, coarse)
+    add('world', None, {**sim, 'robots': robots, 'seed': seed, **(SENSOR_MODE['world'] if scan else {})}, coarse)
     # one step of the clock = one robot step (lockstep acknowledges every step)
     if step is None:
         step = float(overrides.get('sim_clock', {}).get('step', 0.05))
