@@ -92,8 +92,8 @@ def test_an_input_exactly_timeout_old_is_not_stale(standard):
 
 
 # -- what the robot did since its pose (segments_since) ------------------------------------------
-def sent_filter(cmd=None, sent=()):
-    f = RobotFilter(FilterConfig())
+def sent_filter(cmd=None, sent=(), **cfg):
+    f = RobotFilter(FilterConfig(**cfg))
     if cmd is not None:
         f.update_command(cmd, T - 1.0)
     for ts, w in sent:
@@ -102,7 +102,24 @@ def sent_filter(cmd=None, sent=()):
 
 
 def segments(f, t0, t1):
-    return [(w, round(d, 12)) for w, d in f.segments_since(t0, t1)]
+    return [(w, round(d, 12)) for w, d, _ in f.segments_since(t0, t1)]
+
+
+def test_segments_carry_the_speed_each_command_was_sent_with():
+    """Each arc at the speed recorded with its command; before any: the planner's speed
+    (clipped to [0, speed], not given: the speed), else 0, or a constant-speed robot's speed
+    (kills a speed taken from the wrong command, and the idle speed's two branches)."""
+    f = sent_filter()
+    f.record_sent(0.4, T, 1.0)
+    f.record_sent(-0.6, T + 0.1, 2.5)
+    assert [v for _, _, v in f.segments_since(T + 0.05, T + 0.3)] == [1.0, 2.5]
+    assert [v for _, _, v in sent_filter().segments_since(T, T + 0.1)] == [0.0]
+    assert [v for _, _, v in sent_filter(fail_safe_command='stop_turn').segments_since(T, T + 0.1)] == [3.0]
+    assert [v for _, _, v in sent_filter(cmd=0.2).segments_since(T, T + 0.1)] == [3.0]
+    g = sent_filter()
+    for linear, v in ((1.5, 1.5), (-2.0, 0.0), (9.0, 3.0)):
+        g.update_command(0.2, T - 1.0, linear)
+        assert [s for _, _, s in g.segments_since(T, T + 0.1)] == [v]
 
 
 def test_segments_before_any_command_sent():
@@ -343,7 +360,8 @@ def test_inputs_older_than_hold_timeout_but_not_stale_are_judged(standard, pose_
 def test_a_last_valid_state_exactly_hold_timeout_old_is_still_avoided_from(standard, stale):
     """Fail safe with the last valid pose and detections up to hold_timeout old, inclusive
     (kills ``<`` for either input)."""
-    f = RobotFilter(FilterConfig(pose_timeout=0.5, detections_timeout=0.5, hold_timeout=1.0))
+    f = RobotFilter(FilterConfig(pose_timeout=0.5, detections_timeout=0.5, hold_timeout=1.0,
+                                 fail_safe_command='stop_turn'))
     f.update_pose(at(-6.0, 3.0, 0.0), 0.0 if stale == 'pose' else 1.0)
     f.update_detections(np.array([OBSTACLE]), 0.0 if stale == 'detections' else 1.0)
     f.update_command(0.0, 1.0)
@@ -577,7 +595,7 @@ def test_the_first_robot_failing_safe_far_from_obstacles_says_no_obstacle_is_nea
     reason tells the state was valid but clear, also for the fleet's first robot (kills a
     row test that takes row 0 for "no recent valid state")."""
     far = at(OBSTACLE[0] - 30.0, OBSTACLE[1], 0.0)
-    f = robot(pose=far, pose_timeout=0.5, hold_timeout=2.0, detections_timeout=5.0)
+    f = robot(pose=far, pose_timeout=0.5, hold_timeout=2.0, detections_timeout=5.0, fail_safe_command='stop_turn')
     outs = step_many([f, robot(pose=far)], standard, T + 1.0)
     assert outs[0].action == FAIL_SAFE and outs[0].linear == 0.0
     assert outs[0].reason.endswith('no obstacle near the last valid state: stop-turn'), outs[0].reason

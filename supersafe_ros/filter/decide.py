@@ -50,12 +50,13 @@ def step_many(filters, safe_set: SafeSet, t, clusters=None) -> Decisions:
             return decide_one(filters[0], problem, safe_set, t, clusters)
     rb = gather(filters, t)
     m = len(rb.use)
-    states = follow(rb.poses, rb.omega_arcs, rb.dt_arcs, rb.speed)
-    horizon, planned, speed, bang, dets = rb.horizon, rb.planned, rb.speed, rb.bang, rb.dets
+    states = follow(rb.poses, rb.omega_arcs, rb.dt_arcs, rb.speed_arcs)
+    # the holds the law judges are driven at the speed the robot drives under them (gather.drive_speed)
+    horizon, planned, speed, bang, dets = rb.horizon, rb.planned, rb.drive, rb.bang, rb.dets
     counts = np.fromiter(map(len, dets), dtype=np.intp, count=m)
     narrowed = None
     if m and counts.max() > NEAR_QUERY_MIN:
-        narrowed = narrow(rb.filters, rb.configs, dets, states, horizon, speed, rb.margin, safe_set, clusters)
+        narrowed = narrow(rb.filters, rb.configs, dets, states, horizon, rb.speed, rb.margin, safe_set, clusters)
         dets = narrowed.dets
         counts = np.fromiter(map(len, dets), dtype=np.intp, count=m)
     n_pairs = int(counts.sum())
@@ -99,7 +100,7 @@ def decide_one(f, problem, safe_set: SafeSet, t, clusters) -> Decisions:
     table, law and outputs, its few pairs read in Python floats (``pairs.robot_pair_values``,
     the same values bit for bit), or with numpy when more than FEW_PAIRS are near."""
     rb, (x, y, th) = gather_one(f, problem, t)
-    horizon, planned, speed, bang = (float(a[0]) for a in (rb.horizon, rb.planned, rb.speed, rb.bang))
+    horizon, planned, speed, bang = (float(a[0]) for a in (rb.horizon, rb.planned, rb.drive, rb.bang))
     det = f.detections.value
     narrowed = None
     if len(det) > NEAR_QUERY_MIN:
@@ -122,7 +123,7 @@ def decide_one(f, problem, safe_set: SafeSet, t, clusters) -> Decisions:
         value += shift
         value_next += shift
     start = np.zeros(1, np.intp)
-    cl = cluster_rows([f], rb.configs, np.array([[x, y, th]]), rb.planned, rb.horizon, rb.speed, rb.bang,
+    cl = cluster_rows([f], rb.configs, np.array([[x, y, th]]), rb.planned, rb.horizon, rb.drive, rb.bang,
                       rb.cluster_alpha, [det], start, clusters, narrowed.frames if narrowed is not None else None)
     if narrowed is None:
         tab, n_groups = constraint_table(np.zeros(n_pairs, np.intp), np.arange(n_pairs), np.array([n_pairs]), value,
