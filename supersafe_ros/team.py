@@ -154,9 +154,9 @@ def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
     ``sensors``: 'none' (the study's robots: PoseStamped pose, PoseArray detections, Twist,
     constant speed) or 'scan': robots that publish only what a real one does (``odom``
     Odometry, ``scan`` LaserScan, TwistStamped cmd_vel, driving at the commanded speed) in a
-    world of obstacles of three sizes, a planner that slows near its goal and stops there a moment, and filters that read
-    odometry, the scan and TwistStamped (SENSOR_MODE); the world, learner, supervisor and
-    console as in 'none'.
+    world of obstacles of three sizes, a planner that slows near its goal and stops there a
+    moment, and filters that read odometry, the scan and TwistStamped (SENSOR_MODE); the
+    world, learner, supervisor and console as in 'none'.
     """
     if sensors not in ('none', 'scan'):
         raise ValueError(f"sensors must be 'none' or 'scan', got {sensors!r}")
@@ -180,7 +180,8 @@ def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
     # read the clock only for timeouts and statistics: they follow /clock_coarse and
     # are spared a /clock callback every step
     coarse = {'/clock': '/clock_coarse'}
-    add('world', None, {**sim, 'robots': robots, 'seed': seed, **(SENSOR_MODE['world'] if scan else {})}, coarse)
+    add('world', None, {**sim, 'robots': robots, 'seed': seed, **(SENSOR_MODE['world'] if scan else {})},
+        coarse)
     # one step of the clock = one robot step (lockstep acknowledges every step)
     if step is None:
         step = float(overrides.get('sim_clock', {}).get('step', 0.05))

@@ -159,12 +159,12 @@ def test_clouds_malformed_or_huge_are_refused_with_bounded_work(rig):
     bad = xy_cloud(_header(s), xy[:10])
     bad.data = bytes(bad.data)[:50]            # shorter than its points
     s.det.publish(bad)
-    spin.until(lambda: s.rosout.has('safety_filter', 'shorter than'), 10.0, 'a malformed cloud refused')
+    spin.until(lambda: 'shorter than' in f.filter.detections.rejected, 10.0, 'a malformed cloud refused')
+    spin.until(lambda: s.rosout.has('safety_filter', 'detections rejected', 'shorter than'), 10.0, 'and logged')
     huge = xy_cloud(_header(s), np.zeros((1, 2)))
     huge.width = 10_000_000                    # claims more points than max_sensor_points: refused unread
     s.det.publish(huge)
-    spin.until(lambda: s.rosout.has('safety_filter', 'exceeds max_sensor_points'), 10.0, 'a huge cloud refused')
-    assert f.filter.detections.rejected
+    spin.until(lambda: 'exceeds max_sensor_points' in f.filter.detections.rejected, 10.0, 'a huge cloud refused')
 
 
 def _header(s):

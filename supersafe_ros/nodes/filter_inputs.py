@@ -24,6 +24,7 @@ message's stamp, its distance in time covered by a slack; returns inflated by
 from __future__ import annotations
 
 from collections import deque
+from importlib import import_module
 
 import numpy as np
 
@@ -32,7 +33,7 @@ from ..ros_io import sensors
 from ..ros_io.rosmsg import MessageError
 from .common import ParameterSpec
 
-POSE_TYPES = ('pose_stamped', 'odometry', 'pose_with_covariance')
+POSE_TYPES = ('pose_stamped', 'odometry', 'pose_with_covariance')   # (their messages: MESSAGE_TYPES)
 DETECTIONS_TYPES = ('pose_array', 'marker_array', 'laser_scan', 'point_cloud2')
 RANGE_SENSORS = ('laser_scan', 'point_cloud2')
 POSES_KEPT = 64        # poses remembered to place a scan (at 50 Hz: 1.3 s, more than pose_timeout)
@@ -61,29 +62,19 @@ INPUT_PARAMETERS = (
 )
 
 
-def pose_message_type(pose_type: str):
-    if pose_type == 'odometry':
-        from nav_msgs.msg import Odometry
-        return Odometry
-    if pose_type == 'pose_with_covariance':
-        from geometry_msgs.msg import PoseWithCovarianceStamped
-        return PoseWithCovarianceStamped
-    from geometry_msgs.msg import PoseStamped
-    return PoseStamped
+# each input type's message class, as 'package/Name' (imported when used)
+MESSAGE_TYPES = {
+    'pose_stamped': 'geometry_msgs/PoseStamped', 'odometry': 'nav_msgs/Odometry',
+    'pose_with_covariance': 'geometry_msgs/PoseWithCovarianceStamped',
+    'pose_array': 'geometry_msgs/PoseArray', 'marker_array': 'visualization_msgs/MarkerArray',
+    'laser_scan': 'sensor_msgs/LaserScan', 'point_cloud2': 'sensor_msgs/PointCloud2',
+}
 
 
-def detections_message_type(detections_type: str):
-    if detections_type == 'marker_array':
-        from visualization_msgs.msg import MarkerArray
-        return MarkerArray
-    if detections_type == 'laser_scan':
-        from sensor_msgs.msg import LaserScan
-        return LaserScan
-    if detections_type == 'point_cloud2':
-        from sensor_msgs.msg import PointCloud2
-        return PointCloud2
-    from geometry_msgs.msg import PoseArray
-    return PoseArray
+def message_type(kind: str):
+    """The message class of a ``pose_type`` or ``detections_type`` value."""
+    package, name = MESSAGE_TYPES[kind].split('/')
+    return getattr(import_module(f'{package}.msg'), name)
 
 
 def command_message_type(stamped: bool):

@@ -46,7 +46,6 @@ from operator import eq
 import time
 
 import numpy as np
-from rclpy.lifecycle import LifecycleNode
 from rclpy.node import Node
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
@@ -59,7 +58,7 @@ from .common import ParameterSpec, declare_all, run_node
 from .filter_diagnostics import FilterDiagnostics
 from .filter_state import FleetThrottle
 from .filter_wiring import FilterWiring
-from .managed import ManagedFilter
+from .managed import node_classes
 
 # this node's own parameters (the filter's are in filter_parameters), in the order declared
 PARAMETERS = (
@@ -406,19 +405,8 @@ class FleetSafetyFilter:
         self.io.destroy_node()
 
 
-class FleetSafetyFilterNode(FleetSafetyFilter, Node):
-    """The fleet's filter as a plain node: built and deciding from construction."""
-
-    def __init__(self, node_name='fleet_safety_filter', **kwargs):
-        Node.__init__(self, node_name, **kwargs)
-        self.build()
-
-
-class ManagedFleetSafetyFilterNode(ManagedFilter, FleetSafetyFilter, LifecycleNode):
-    """The fleet's filter as a managed node (executable managed_fleet_safety_filter; managed.py)."""
-
-    def __init__(self, node_name='fleet_safety_filter', **kwargs):
-        LifecycleNode.__init__(self, node_name, **kwargs)
+FleetSafetyFilterNode, ManagedFleetSafetyFilterNode = node_classes(FleetSafetyFilter, 'fleet_safety_filter',
+                                                                   'FleetSafetyFilter')
 
 
 def main(args=None):

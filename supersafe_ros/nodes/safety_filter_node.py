@@ -62,8 +62,6 @@ from __future__ import annotations
 import threading
 import time
 
-from rclpy.lifecycle import LifecycleNode
-from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 
 from diagnostic_msgs.msg import DiagnosticStatus
@@ -79,9 +77,9 @@ from ..ros_io.direct_take import DirectTake
 from .common import ParameterSpec, declare_all, run_node
 from .filter_diagnostics import FilterDiagnostics
 from .filter_inputs import (INPUT_PARAMETERS, RANGE_SENSORS, PoseHistory, SensorDiscs, check_types,
-                            command_message_type, detections_message_type, pose_message_type, pose_of)
+                            command_message_type, message_type, pose_of)
 from .filter_state import HoldSummary, StateThrottle
-from .managed import ManagedFilter
+from .managed import node_classes
 from .filter_wiring import VALUE_FUNCTION_TOPIC, FilterWiring  # noqa: F401  (the topic, re-exported for tests)
 from .markers import LevelSetMarkerPublisher
 
@@ -154,7 +152,7 @@ class SafetyFilter:
         # RViz: the level set in force around each detected obstacle (computed only while watched)
         if p['level_set_markers']:
             self.level_set = LevelSetMarkerPublisher(
-                self, lambda: (w.safe_set, self.filter.pose.value, _centres(self.filter.detections.value)),
+                self, lambda: (w.safe_set, self.filter.pose.value, self.filter.detections.value),
                 p['level_set_rate'])
         self.direct = None
         inputs = self._inputs(p)
@@ -188,14 +186,14 @@ class SafetyFilter:
         are decoded by rclpy. Ready together, they are taken in this order (the executor's: the
         order made), so a command is judged on the detections that came with it."""
         pose_raw = p['pose_type'] == 'pose_stamped'
-        inputs = [(pose_message_type(p['pose_type']), 'pose', self.on_pose if pose_raw else self.on_pose_message,
+        inputs = [(message_type(p['pose_type']), 'pose', self.on_pose if pose_raw else self.on_pose_message,
                    pose_raw, rosmsg.QOS_STREAM)]
         if self.require_detections:
             kind = p['detections_type']
             callback = {'pose_array': self.on_detections, 'marker_array': self.on_markers}.get(
                 kind, self.on_range_sensor)
             qos = qos_profile_sensor_data if kind in RANGE_SENSORS else rosmsg.QOS_STREAM
-            inputs.append((detections_message_type(kind), 'detections', callback, kind == 'pose_array', qos))
+            inputs.append((message_type(kind), 'detections', callback, kind == 'pose_array', qos))
         stamped = p['cmd_vel_stamped']
         inputs.append((command_message_type(stamped), 'cmd_vel_nav',
                        self.on_stamped_command if stamped else self.on_command, not stamped, rosmsg.QOS_STREAM))
@@ -478,24 +476,7 @@ class SafetyFilter:
         return super().destroy_node()
 
 
-def _centres(detections):
-    """The centres (N, 2) of detections rows ((N, 2) centres or (N, 3) discs), or None."""
-    return None if detections is None else np.asarray(detections)[:, :2]
-
-
-class SafetyFilterNode(SafetyFilter, Node):
-    """The filter as a plain node: built and deciding from construction."""
-
-    def __init__(self, node_name='safety_filter', **kwargs):
-        Node.__init__(self, node_name, **kwargs)
-        self.build()
-
-
-class ManagedSafetyFilterNode(ManagedFilter, SafetyFilter, LifecycleNode):
-    """The filter as a managed node (executable managed_safety_filter; see managed.py)."""
-
-    def __init__(self, node_name='safety_filter', **kwargs):
-        LifecycleNode.__init__(self, node_name, **kwargs)
+SafetyFilterNode, ManagedSafetyFilterNode = node_classes(SafetyFilter, 'safety_filter', 'SafetyFilter')
 
 
 def main(args=None):
