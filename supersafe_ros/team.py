@@ -203,7 +203,8 @@ def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
             # fallback (docs/graph_safety.md). A lockstepped robot does not move while /clock
             # waits (a busy machine, a slow rate factor), so the filter counts a stopped /clock
             # as lost only after 20 s (docs/filter_node.md).
-            add('safety_filter', name, {**sim, 'control_period': step,
+            # its robot is the constant-speed Dubins robot: the fail safe is the stop-turn
+            add('safety_filter', name, {**sim, 'control_period': step, 'fail_safe_command': 'stop_turn',
                                         'clock_stall_timeout': CLUSTER_HOLD_TIMEOUT + 5.0,
                                         'lockstep': True, 'lockstep_silence': CLUSTER_HOLD_TIMEOUT + 5.0,
                                         'cluster_hold_timeout': CLUSTER_HOLD_TIMEOUT,

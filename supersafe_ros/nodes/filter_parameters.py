@@ -36,7 +36,7 @@ CONFIG_PARAMETERS = (
     config_parameter('pose_timeout', 'a pose older than this is stale [s]', 0.001, 60.0, live=True),
     config_parameter('detections_timeout', 'detections older than this are stale [s]', 0.001, 60.0, live=True),
     config_parameter('hold_timeout', 'fail safe with the avoid control of the last valid state while it is '
-                     'younger than this, then stop-turn [s]', 0.0, 60.0, live=True),
+                     'younger than this, then fail_safe_command [s]', 0.0, 60.0, live=True),
     config_parameter('cmd_timeout', 'planner silent longer than this: zero command [s]', 0.001, 60.0, live=True),
     config_parameter('clear_margin', 'hysteresis: keep overriding until V > alpha + margin', 0.0, 10.0,
                      live=True),
@@ -62,10 +62,15 @@ STAMP_PARAMETERS = (
 # in the order they are declared
 FILTER_PARAMETERS = (
     # the true dynamics and obstacle: the standard set (read-only)
-    config_parameter('speed', 'robot speed, true dynamics [m/s] (standard set; linear.x)', 0.01, 100.0,
-                     live=False),
+    config_parameter('speed', 'the robot\'s largest forward speed, true dynamics [m/s] (the standard set\'s v): '
+                     'the planner\'s linear.x is passed clipped to [0, speed]', 0.01, 100.0, live=False),
     config_parameter('omega_max', 'robot turn-rate bound, true dynamics [rad/s]; |u*|', 0.01, 20.0, live=False),
     config_parameter('radius', 'true obstacle radius [m] (standard set)', 0.01, 100.0, live=False),
+    ParameterSpec('fail_safe_command', _CONFIG_DEFAULTS['fail_safe_command'], 'what the robot is sent when the filter '
+                  'cannot judge (no input yet, stale input, after hold_timeout): stop = a zero twist, the avoid turn '
+                  'at the speed last sent first where the last valid state calls for it (a robot that can stop); '
+                  'stop_turn = v 0, u +omega_max, the study\'s constant-speed Dubins robot (driven at speed '
+                  'whatever linear.x says)'),
     # the levels
     ParameterSpec('standard_alpha', 0.0, 'alpha of the standard set [value units, m]', -10.0, 10.0, live=True),
     ParameterSpec('alpha_offset', 0.0, 'k in alpha = mu + k sigma for a learned set (paper: 0)', -5.0, 10.0,
@@ -117,7 +122,7 @@ class FilterParameters:
         self.use_learned = v['use_learned']
         # clusters of close obstacles are judged with the true radius at the standard level
         self.config = FilterConfig(speed=v['speed'], omega_max=v['omega_max'], radius=v['radius'],
-                                   cluster_alpha=self.standard_alpha,
+                                   fail_safe_command=v['fail_safe_command'], cluster_alpha=self.standard_alpha,
                                    **{name: v[name] for name in LIVE_CONFIG_FIELDS})
         self.rate = v['rate']
         self.state_period = 1.0 / v['state_rate']
