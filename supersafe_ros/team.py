@@ -124,7 +124,7 @@ SENSOR_MODE = {
     'planner': {'pose_type': 'odometry', 'cmd_vel_stamped': True, 'slow_radius': 6.0, 'goal_tolerance': 1.0,
                 'goal_wait': 1.0},
     'safety_filter': {'pose_type': 'odometry', 'detections_type': 'laser_scan', 'cmd_vel_stamped': True,
-                      'robot_radius': 0.1},
+                      'robot_radius': 0.1, 'fail_safe_command': 'stop'},
 }
 
 
@@ -203,7 +203,8 @@ def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
             # fallback (docs/graph_safety.md). A lockstepped robot does not move while /clock
             # waits (a busy machine, a slow rate factor), so the filter counts a stopped /clock
             # as lost only after 20 s (docs/filter_node.md).
-            # its robot is the constant-speed Dubins robot: the fail safe is the stop-turn
+            # its robot is the constant-speed Dubins robot: the fail safe is the stop-turn (a
+            # --sensors scan robot follows its commanded speed and can stop: SENSOR_MODE)
             add('safety_filter', name, {**sim, 'control_period': step, 'fail_safe_command': 'stop_turn',
                                         'clock_stall_timeout': CLUSTER_HOLD_TIMEOUT + 5.0,
                                         'lockstep': True, 'lockstep_silence': CLUSTER_HOLD_TIMEOUT + 5.0,

@@ -16,6 +16,7 @@ def test_scan_robots_planners_and_filters_are_wired_to_odometry_and_the_scan():
         assert f.remaps == {'pose': 'odom', 'detections': 'scan'}
         assert f.params['detections_type'] == 'laser_scan' and f.params['cmd_vel_stamped'] is True
         assert f.params['lockstep'] is True, 'still lockstepped'
+        assert f.params['fail_safe_command'] == 'stop', 'a robot that follows its speed can stop'
     for p in by_kind(layout, 'planner'):
         assert p.remaps['pose'] == 'odom' and p.params['slow_radius'] > 0
     (clock,) = by_kind(layout, 'sim_clock')
@@ -28,7 +29,8 @@ def test_the_default_team_is_unchanged():
     layout = team_layout(2)
     for node in layout:
         for key in SENSOR_MODE.get(node.kind, {}):
-            assert key not in node.params
-    assert all('detections' not in f.remaps for f in by_kind(layout, 'safety_filter'))
+            assert key not in node.params or key == 'fail_safe_command'
+    assert all('detections' not in f.remaps and f.params['fail_safe_command'] == 'stop_turn'
+               for f in by_kind(layout, 'safety_filter'))
     with pytest.raises(ValueError, match='sensors'):
         team_layout(2, sensors='lidar')
