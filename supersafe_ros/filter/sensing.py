@@ -155,12 +155,14 @@ def covering_discs(points, inflation, cell: float, max_radius: float) -> np.ndar
         return NO_DISCS.copy()
     if not (cell > 0 and math.isfinite(cell)):
         raise ValueError(f'cell must be finite and > 0, got {cell}')
-    infl = np.broadcast_to(np.asarray(inflation, dtype=float), (len(p),))
+    infl = np.asarray(inflation, dtype=float)
+    infl = np.full(len(p), float(infl)) if infl.ndim == 0 else infl.reshape(len(p))
     ij = np.floor(p / cell).astype(np.int64)
     lo = ij.min(axis=0) - 1
     span = int(ij[:, 1].max() - lo[1]) + 2          # a column of empty cells on either side
     key = (ij[:, 0] - lo[0]) * span + (ij[:, 1] - lo[1])
-    order = np.argsort(key, kind='stable')          # the one sort: points by cell
+    # the one sort: points by cell (keys of a sensor's reach fit 16 bits: numpy sorts those by radix, O(M))
+    order = np.argsort(key.astype(np.uint16) if key.max() < 2 ** 16 else key, kind='stable')
     ks, ps, fs = key[order], p[order], infl[order]
     first = np.r_[True, ks[1:] != ks[:-1]]
     start = np.flatnonzero(first)                   # each cell's first point
