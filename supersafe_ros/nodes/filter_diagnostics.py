@@ -33,6 +33,25 @@ def foreign_publishers(node, topic: str, expected: str) -> list:
     return sorted({i.topic_type for i in infos} - {expected})
 
 
+class StatusCopies:
+    """A /diagnostics status of each robot of its own, refilled from the robot's state message
+    (``rosmsg.refill_diagnostic``: a few us, not a new message of ~20 KeyValues): the state's
+    object is refilled by every decision, perhaps on another thread, and is not changed here."""
+
+    def __init__(self):
+        self._copies = {}
+
+    def of(self, key, state, name: str, hardware_id: str, message: str | None = None):
+        values = {kv.key: kv.value for kv in state.values}
+        old = self._copies.get(key)
+        text = state.message if message is None else message
+        status = (rosmsg.make_diagnostic(name, values, text, state.level[0]) if old is None else
+                  rosmsg.refill_diagnostic(old, name, values, text, state.level[0]))
+        status.hardware_id = hardware_id
+        self._copies[key] = status
+        return status
+
+
 class FilterDiagnostics:
     """See the module. ``inputs``: [(topic, message class)] the node subscribes; at most
     ``checks`` of them are looked up in the graph per publish, in turn (a fleet's thousands of

@@ -55,7 +55,7 @@ from std_msgs.msg import Float64MultiArray
 from ..filter import FAIL_SAFE, step_many, update_commands, update_detections_all, update_poses
 from ..ros_io import cdr, fleetmsg, rosmsg
 from .common import ParameterSpec, declare_all, run_node
-from .filter_diagnostics import FilterDiagnostics
+from .filter_diagnostics import FilterDiagnostics, StatusCopies
 from .filter_state import FleetThrottle
 from .filter_wiring import FilterWiring
 from .managed import node_classes
@@ -174,6 +174,7 @@ class FleetSafetyFilter:
         if self.batched:
             inputs += [('fleet/poses', PoseArray), ('fleet/detections', PoseArray),
                        ('fleet/cmd_vel_nav', Float64MultiArray)]
+        self._copies = StatusCopies()
         self.diagnostics = FilterDiagnostics(self, self._statuses, inputs, w.complain)
         self.get_logger().info(
             f'filtering {self.n} robots ({", ".join(self.namespaces[:5])}{", ..." if self.n > 5 else ""}) '
@@ -336,15 +337,14 @@ class FleetSafetyFilter:
         outs, w, node = self._last_outs, self.wiring, self.get_fully_qualified_name()
         out = []
         for i, ns in enumerate(self.namespaces):
+            name = f'{node}: {ns}'
             if outs is None:
-                status = DiagnosticStatus(level=DiagnosticStatus.ERROR, message='no decision yet' if self.active
-                                          else 'inactive: no cmd_vel')
-            else:
-                status = w.state_message(ns, outs[i])
-                if not self.active:
-                    status.message = f'inactive (lifecycle): no cmd_vel; last: {status.message}'
-            status.name, status.hardware_id = f'{node}: {ns}', ns
-            out.append(status)
+                out.append(DiagnosticStatus(level=DiagnosticStatus.ERROR, name=name, hardware_id=ns,
+                                            message='no decision yet' if self.active else 'inactive: no cmd_vel'))
+                continue
+            state = w.state_message(ns, outs[i])
+            out.append(self._copies.of(i, state, name, ns, None if self.active else
+                                       f'inactive (lifecycle): no cmd_vel; last: {state.message}'))
         return out
 
     def decide(self, t=None):

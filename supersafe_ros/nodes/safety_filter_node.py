@@ -75,7 +75,7 @@ from ..filter.lockstep import GIVE_UP, LockstepAnswers
 from ..ros_io import cdr, rosmsg, sensors
 from ..ros_io.direct_take import DirectTake
 from .common import ParameterSpec, declare_all, run_node
-from .filter_diagnostics import FilterDiagnostics
+from .filter_diagnostics import FilterDiagnostics, StatusCopies
 from .filter_inputs import (INPUT_PARAMETERS, RANGE_SENSORS, PoseHistory, SensorDiscs, check_types,
                             command_message_type, message_type, pose_of)
 from .filter_state import HoldSummary, StateThrottle
@@ -170,6 +170,7 @@ class SafetyFilter:
             # clock has passed is known as such (_clock_passed); a thread of its own would not be
             for msg_type, topic, callback, raw, qos in inputs:
                 self.create_subscription(msg_type, topic, self._locked(callback), qos, raw=raw)
+        self._copies = StatusCopies()
         self.diagnostics = FilterDiagnostics(self, self._statuses, [(i[1], i[0]) for i in inputs], w.complain)
         if self.require_detections:
             self.get_logger().info('filtering cmd_vel_nav -> cmd_vel; waiting for the first pose and detections '
@@ -201,17 +202,16 @@ class SafetyFilter:
 
     def _statuses(self) -> list:
         """This robot's status on /diagnostics: its last state (see filter_diagnostics)."""
-        out = self._last_out
-        if out is None:
-            status = DiagnosticStatus(level=DiagnosticStatus.ERROR, name=self.name,
-                                      message='no decision yet' if self.active else 'inactive: no cmd_vel')
-        else:
-            status = self.wiring.state_message(self.name, out)
-            if not self.active:
-                status.message = f'inactive (lifecycle): no cmd_vel; last: {status.message}'
-        status.name = f'{self.name}: {self.get_namespace()}'
-        status.hardware_id = self.get_namespace()
-        return [status]
+        ns = self.get_namespace()
+        name = f'{self.name}: {ns}'
+        with self.lock:     # (the state message is refilled by decide, on the inputs' thread too)
+            out = self._last_out
+            if out is not None:
+                state = self.wiring.state_message(self.name, out)
+                return [self._copies.of(0, state, name, ns, None if self.active else
+                                        f'inactive (lifecycle): no cmd_vel; last: {state.message}')]
+        return [DiagnosticStatus(level=DiagnosticStatus.ERROR, name=name, hardware_id=ns,
+                                 message='no decision yet' if self.active else 'inactive: no cmd_vel')]
 
     def _say_ready(self):
         """Make the latched safety_filter/ready publisher (once; on the executor's thread)."""
