@@ -315,3 +315,6 @@ def test_a_world_of_several_sizes_counts_each_obstacle_by_its_own_radius():
     assert w.update_pose('r0', (xy[0][0] + 1.0, xy[0][1], 0.0))['crashed'] == [], 'outside 0.8'
     assert small != big
     assert WorldConfig().radii == () and WorldConfig().radius_of([0, 5]).tolist() == [1.8, 1.8], 'the study\'s world'
+    assert WorldConfig(radii=(0.0,)).radii == (), "config/world.yaml's [0.0]: one radius"
+    with pytest.raises(ValueError, match='radii'):
+        WorldConfig(radii=(1.0, -1.0))

@@ -71,8 +71,8 @@ class WorldNode(Node):
             n_obstacles=p('n_obstacles', d.n_obstacles, 'number of obstacles', 0, 1000),
             radius=p('radius', d.radius, 'obstacle radius [m]', 0.01, 100.0),
             # [0.0] (the default) = every obstacle of radius
-            radii=tuple(r for r in p('radii', [0.0], 'obstacle i has radius radii[i mod len] (several sizes in '
-                                     'turn) [m]; [0.0] = every obstacle of radius') if r > 0),
+            radii=tuple(p('radii', [0.0], 'obstacle i has radius radii[i mod len] (several sizes in turn) [m]; '
+                          '[0.0] = every obstacle of radius')),
             crash_tolerance=live('crash_tolerance', d.crash_tolerance,
                                  'a robot this close to the rim, inside, only grazes: not a crash [m]',
                                  0.0, 10.0),

@@ -48,6 +48,7 @@ class WorldConfig:
     n_obstacles: int = 10
     radius: float = 1.8
     # obstacle id i has radius radii[i % len(radii)] (sizes in turn); () = every one of ``radius``
+    # (zeros are dropped: config/world.yaml's [0.0], a parameter list cannot be empty)
     radii: tuple = ()
     crash_tolerance: float = 0.05   # a graze this close to the rim is not a crash
     spacing: float = 2.0            # extra gap between obstacle discs
@@ -68,7 +69,7 @@ class WorldConfig:
                 raise ValueError(f'{name} must be positive and finite, got {v}')
         if self.goal_x >= self.half_width:
             raise ValueError('goal_x must lie inside the field (< half_width)')
-        object.__setattr__(self, 'radii', tuple(float(r) for r in self.radii))
+        object.__setattr__(self, 'radii', tuple(float(r) for r in self.radii if r != 0.0))
         if not all(math.isfinite(r) and r > 0 for r in self.radii):
             raise ValueError(f'radii must be positive and finite, got {self.radii}')
         if self.goal_x - self.goal_margin <= self.largest_radius:
