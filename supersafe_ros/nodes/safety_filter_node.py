@@ -18,6 +18,14 @@ Topics (relative; run it in the robot's namespace such as /robot_0):
   pub  safety_filter/ready      std_msgs/Empty              latched; the publisher appears once the
                                                             filter has valid detections (at once with
                                                             require_detections false)
+  pub  /diagnostics             diagnostic_msgs/DiagnosticArray  1 Hz, this robot's status (filter_diagnostics)
+
+The message types above are the defaults: ``pose_type`` (Odometry, PoseWithCovarianceStamped),
+``detections_type`` (MarkerArray, LaserScan, PointCloud2: sensor-data QoS) and
+``cmd_vel_stamped`` (TwistStamped both ways) choose others (``filter_inputs``). A pose or scan
+stamped farther than ``stamp_tolerance`` from the node's clock is refused (failing safe). As
+a managed node (``ManagedSafetyFilterNode``, executable managed_safety_filter; ``managed``)
+it publishes no cmd_vel unless active.
 
 Before its first valid detections, and whenever they are stale, the filter fails safe: a
 detections message means "the sensor has looked", and none (or an old one) means nothing
