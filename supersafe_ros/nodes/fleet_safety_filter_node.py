@@ -18,6 +18,9 @@ fleet manager or simulator that holds every robot's state; robot i = robots[i]:
   pub  fleet/safety_filter/state  diagnostic_msgs/DiagnosticArray  one status per robot whose action
                                                              changed or whose state is due (state_rate)
 (fleet/... are relative to the node's namespace.)
+  pub  /diagnostics            diagnostic_msgs/DiagnosticArray  1 Hz, a status per robot (filter_diagnostics)
+As a managed node (``ManagedFleetSafetyFilterNode``, executable managed_fleet_safety_filter;
+``managed``) it publishes no cmd_vel unless active.
 
 Every decision of every robot is made in ONE vectorised ``filter.step_many``
 call per tick. Ticks: every ``fleet/poses`` message (the batched reply), and a
