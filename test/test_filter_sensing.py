@@ -110,3 +110,18 @@ def test_the_work_is_bounded_for_a_100k_point_cloud():
     discs = sensing.covering_discs(points, 0.3, 0.5, 2.5)
     assert covered(points[::97], 0.3, discs)
     assert len(discs) <= (40 / 0.5 + 1) ** 2
+
+
+def test_a_large_disc_seen_from_one_side_is_covered_whole_with_its_depth():
+    """The visible arc of a disc of radius 2.6 and its shadows 5.2 deep: the discs hold the
+    whole obstacle, its unseen back and flanks included."""
+    from supersafe_ros.sim.laser import beam_angles, ray_cast
+    angles = beam_angles(360)
+    r = ray_cast((0.0, 0.0, 0.0), angles, [(6.0, 0.5)], [2.6], 10.0)
+    pts = sensing.scan_points(r, float(angles[0]), float(angles[1] - angles[0]), 0.05, 10.0)
+    discs = sensing.covering_discs(pts, 0.1, 0.5, 6.0, sensing.shadows(pts, (0.0, 0.0), 5.2))
+    a = np.linspace(-np.pi, np.pi, 200)
+    rim = np.column_stack([6.0 + 2.6 * np.cos(a), 0.5 + 2.6 * np.sin(a)])
+    assert covered(rim, 0.0, discs), 'every point of the obstacle is inside a disc'
+    surface_only = sensing.covering_discs(pts, 0.1, 0.5, 6.0)
+    assert not covered(rim, 0.0, surface_only), 'the surface alone leaves its back out'

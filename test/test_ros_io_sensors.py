@@ -64,7 +64,7 @@ def sensor(**over):
 
 
 def test_a_scan_is_placed_with_the_nearest_pose_and_its_mount():
-    s = sensor(sensor_x=1.0, robot_radius=0.2)
+    s = sensor(sensor_x=1.0, robot_radius=0.2, obstacle_depth=0.0)
     s.history.add(10.0, (5.0, 0.0, math.pi / 2))
     s.history.add(10.1, (5.0, 0.3, math.pi / 2))
     ranges = np.full(8, np.inf)
@@ -85,3 +85,14 @@ def test_a_scan_without_a_pose_near_its_stamp_or_too_long_is_refused():
         s.discs(scan([1.0] * 10), 2.0, FilterConfig(), 0.5)
     with pytest.raises(rosmsg.MessageError, match='exceeds max_sensor_points'):
         s.discs(scan([1.0] * 101), 0.0, FilterConfig(), 0.5)
+
+
+def test_each_return_also_covers_what_lies_behind_it_on_its_beam():
+    s = sensor(obstacle_depth=2.0, robot_radius=0.1)
+    s.history.add(0.0, (0.0, 0.0, 0.0))
+    ranges = np.full(8, np.inf)
+    ranges[4] = 3.0                          # straight ahead: the return at (3, 0)
+    (disc,) = s.discs(scan(ranges), 0.0, FilterConfig(), 0.5)
+    for x in (3.0, 4.0, 5.0):               # the segment to 2 m behind it
+        assert math.hypot(disc[0] - x, disc[1]) + 0.1 <= disc[2] + 1e-9
+    assert math.hypot(disc[0], disc[1]) > disc[2], 'the robot is not inside'

@@ -17,14 +17,24 @@ message's returns become a few such discs, in bounded work, without a new value 
    robot's centre lies within ``v dt + rho w_max dt`` of where it is placed
    (``stamp_slack``): every return is inflated by that slack as well, and placing it with the
    nearest pose is sound (conservative) whatever the robot did between the stamps.
-3. **Inflated returns**: a return is a point obstacle; the robot (a disc of ``robot_radius``
-   about its centre) touches it iff its centre is within ``robot_radius`` of the point, so
-   each return is the disc (p, robot_radius + slack).
+3. **Inflated returns and what lies behind them**: a return is a point of an object's
+   surface; the robot (a disc of ``robot_radius`` about its centre) touches it iff its centre
+   is within ``robot_radius`` of the point, so each return is the disc (p, robot_radius +
+   slack). The sensor does not see the object's far side, and an object's part that the
+   robot cannot see now may be what it meets next (a robot turning round a large obstacle
+   sees its flank only once beside it). Every point of a convex object lies on a beam behind
+   the first surface that beam meets, at most the object's depth (its diameter) behind it.
+   So each return stands for the segment from p to p + ``obstacle_depth`` u (``shadows``, u
+   the beam's direction): with ``obstacle_depth`` at least the diameter of the objects about,
+   the discs hold every point of each object the sensor has seen a part of (up to the beams'
+   angular gaps at its limbs, which the inflation bounds). ``obstacle_depth`` 0 judges the
+   surface alone.
 4. **Groups and covering discs** (``covering_discs``): the returns are binned into square
    cells of side ``cell``; occupied cells that touch (the 8 neighbours) form a group (the
    connected components of the occupied cells: close returns, whatever their order). A
-   group's disc has its centre c at the middle of its returns' bounding box and the radius
-   ``max_i |p_i - c| + inflation``: it contains every inflated return of its group, and,
+   group's disc has its centre c at the middle of its returns' (and their far ends') bounding
+   box and the radius ``max_i |p_i - c| + inflation`` over both ends: it contains every
+   inflated return of its group and its shadow segment, and,
    being convex, every segment between two of them (the surface a sensor saw between
    neighbouring beams). A group whose disc would be wider than ``max_radius`` (a wall) is
    covered cell by cell instead (centre = the middle of the cell's returns' box, the same
@@ -146,10 +156,22 @@ def stamp_slack(points_map, pose, dt: float, speed: float, omega_max: float) -> 
     return speed * dt + rho * omega_max * dt
 
 
-def covering_discs(points, inflation, cell: float, max_radius: float) -> np.ndarray:
+def shadows(points_map, origin, depth: float) -> np.ndarray:
+    """The far end of each return's shadow: the point ``depth`` behind it along its beam from
+    the sensor at ``origin`` (see the module, 3)."""
+    p = np.asarray(points_map, dtype=float).reshape(-1, 2)
+    u = p - np.asarray(origin, dtype=float).reshape(1, 2)
+    n = np.hypot(u[:, 0], u[:, 1])
+    n[n == 0.0] = 1.0
+    return p + (depth / n)[:, None] * u
+
+
+def covering_discs(points, inflation, cell: float, max_radius: float, behind=None) -> np.ndarray:
     """(K, 3) discs [x, y, r] covering the returns ``points`` (M, 2), each inflated by
     ``inflation`` (a number or one per point): see the module, 4. ``cell`` > 0 is the
-    grouping distance; a group wider than ``max_radius`` is covered cell by cell."""
+    grouping distance; a group wider than ``max_radius`` is covered cell by cell.
+    ``behind`` (M, 2), if given: each return's far end (``shadows``); a return's disc then
+    covers the segment from it to its far end too (grouped by the return)."""
     p = np.asarray(points, dtype=float).reshape(-1, 2)
     if len(p) == 0:
         return NO_DISCS.copy()
@@ -164,11 +186,12 @@ def covering_discs(points, inflation, cell: float, max_radius: float) -> np.ndar
     # the one sort: points by cell (keys of a sensor's reach fit 16 bits: numpy sorts those by radix, O(M))
     order = np.argsort(key.astype(np.uint16) if key.max() < 2 ** 16 else key, kind='stable')
     ks, ps, fs = key[order], p[order], infl[order]
+    bs = ps if behind is None else np.asarray(behind, dtype=float).reshape(-1, 2)[order]
     first = np.r_[True, ks[1:] != ks[:-1]]
     start = np.flatnonzero(first)                   # each cell's first point
     cell_of = np.cumsum(first) - 1                  # each (sorted) point's cell
-    cell_lo = np.minimum.reduceat(ps, start, axis=0)
-    cell_hi = np.maximum.reduceat(ps, start, axis=0)
+    cell_lo = np.minimum(np.minimum.reduceat(ps, start, axis=0), np.minimum.reduceat(bs, start, axis=0))
+    cell_hi = np.maximum(np.maximum.reduceat(ps, start, axis=0), np.maximum.reduceat(bs, start, axis=0))
     comp = _touching(ks[start], span)               # each cell's group
     k = int(comp.max()) + 1
     group_lo = np.full((k, 2), np.inf)
@@ -176,7 +199,7 @@ def covering_discs(points, inflation, cell: float, max_radius: float) -> np.ndar
     np.minimum.at(group_lo, comp, cell_lo)
     np.maximum.at(group_hi, comp, cell_hi)
     centre = (group_lo + group_hi) / 2.0
-    cell_r = _farthest(ps, fs, centre[comp][cell_of], start)
+    cell_r = _farthest(ps, bs, fs, centre[comp][cell_of], start)
     radius = np.zeros(k)
     np.maximum.at(radius, comp, cell_r)
     wide = radius > max_radius
@@ -185,16 +208,21 @@ def covering_discs(points, inflation, cell: float, max_radius: float) -> np.ndar
     # the wide groups (walls), cell by cell
     split = wide[comp]
     cell_centre = (cell_lo + cell_hi) / 2.0
-    own_r = _farthest(ps, fs, cell_centre[cell_of], start)
+    own_r = _farthest(ps, bs, fs, cell_centre[cell_of], start)
     return np.vstack([np.column_stack([centre[~wide], radius[~wide]]),
                       np.column_stack([cell_centre[split], own_r[split]])])
 
 
-def _farthest(points, inflation, centres, start) -> np.ndarray:
-    """Per run of ``points`` (runs begin at ``start``): the largest distance from a point to its
-    row of ``centres`` plus that point's inflation."""
+def _farthest(points, far_ends, inflation, centres, start) -> np.ndarray:
+    """Per run of ``points`` (runs begin at ``start``): the largest distance from a point or its
+    far end to its row of ``centres``, plus that point's inflation (a disc holding both ends
+    holds the segment between them)."""
     d = points - centres
-    return np.maximum.reduceat(np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]) + inflation, start)
+    reach = np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1])
+    if far_ends is not points:
+        e = far_ends - centres
+        reach = np.maximum(reach, np.sqrt(e[:, 0] * e[:, 0] + e[:, 1] * e[:, 1]))
+    return np.maximum.reduceat(reach + inflation, start)
 
 
 def _touching(keys, span: int) -> np.ndarray:

@@ -53,6 +53,9 @@ INPUT_PARAMETERS = (
                   -100.0, 100.0),
     ParameterSpec('sensor_yaw', 0.0, 'laser_scan / point_cloud2: the sensor\'s yaw in the robot\'s frame '
                   '[rad]', -7.0, 7.0),
+    ParameterSpec('obstacle_depth', 0.0, 'laser_scan / point_cloud2: each return stands for this much of its '
+                  'beam behind it too (the far side the sensor cannot see: at least the diameter of the '
+                  'objects about; 0 = the surface alone) [m]', 0.0, 100.0),
     ParameterSpec('sensor_cell', 0.5, 'laser_scan / point_cloud2: returns in touching cells of this size '
                   'are one group, covered by one disc [m]', 0.01, 100.0),
     ParameterSpec('sensor_max_disc_radius', 2.5, 'laser_scan / point_cloud2: a group whose disc would be '
@@ -121,6 +124,7 @@ class SensorDiscs:
         self.cell = p['sensor_cell']
         self.max_disc_radius = p['sensor_max_disc_radius']
         self.max_points = p['max_sensor_points']
+        self.depth = p['obstacle_depth']
 
     def returns(self, msg) -> np.ndarray:
         """(M, 2) returns of a scan or cloud in its frame; MessageError if refused."""
@@ -141,5 +145,9 @@ class SensorDiscs:
             raise MessageError(f'no pose within {max_pose_gap:g} s of the scan\'s stamp (nearest {gap:.3g} s '
                                'away)')
         in_map = sensing.to_map(points, pose, self.mount)
-        slack = sensing.stamp_slack(in_map, pose, gap, config.speed, config.omega_max)
-        return sensing.covering_discs(in_map, self.robot_radius + slack, self.cell, self.max_disc_radius)
+        behind = None
+        if self.depth > 0:
+            behind = sensing.shadows(in_map, sensing.to_map([(0.0, 0.0)], pose, self.mount)[0], self.depth)
+        # (the far end is the farther from the robot: its slack holds for the whole segment)
+        slack = sensing.stamp_slack(in_map if behind is None else behind, pose, gap, config.speed, config.omega_max)
+        return sensing.covering_discs(in_map, self.robot_radius + slack, self.cell, self.max_disc_radius, behind)
