@@ -124,7 +124,8 @@ SENSOR_MODE = {
     'planner': {'pose_type': 'odometry', 'cmd_vel_stamped': True, 'slow_radius': 6.0, 'goal_tolerance': 1.0,
                 'goal_wait': 1.0},
     'safety_filter': {'pose_type': 'odometry', 'detections_type': 'laser_scan', 'cmd_vel_stamped': True,
-                      'robot_radius': 0.1, 'fail_safe_command': 'stop'},
+                      'robot_radius': 0.1, 'fail_safe_command': 'stop',
+                      'obstacle_depth': 5.2},         # the largest obstacle's diameter: its far side
 }
 
 

@@ -24,17 +24,21 @@ message's returns become a few such discs, in bounded work, without a new value 
    robot cannot see now may be what it meets next (a robot turning round a large obstacle
    sees its flank only once beside it). Every point of a convex object lies on a beam behind
    the first surface that beam meets, at most the object's depth (its diameter) behind it.
-   So each return stands for the segment from p to p + ``obstacle_depth`` u (``shadows``, u
-   the beam's direction): with ``obstacle_depth`` at least the diameter of the objects about,
-   the discs hold every point of each object the sensor has seen a part of (up to the beams'
-   angular gaps at its limbs, which the inflation bounds). ``obstacle_depth`` 0 judges the
-   surface alone.
+   So each return stands for the segment from p to p + ``obstacle_depth`` u (u the beam's
+   direction), sampled every h <= 2 x its inflation (``shadows``): every point of the
+   segment is within h/2 of a sample, so the inflated samples hold the whole segment, and
+   the discs below hold the samples. With ``obstacle_depth`` at least the diameter of the
+   objects about, the discs hold every point of each object the sensor has seen a part of
+   (up to the beams' angular gaps at its limbs, which the inflation bounds). The samples
+   stay in a budget (200,000): beyond it the returns are first merged per cell, each cell's
+   by its centre inflated by the cell's half diagonal delta, and by 2 delta depth / rho for
+   the spread of their beams over the depth (rho: the centre's range), and sampled from there.
+   ``obstacle_depth`` 0 judges the surface alone.
 4. **Groups and covering discs** (``covering_discs``): the returns are binned into square
    cells of side ``cell``; occupied cells that touch (the 8 neighbours) form a group (the
    connected components of the occupied cells: close returns, whatever their order). A
-   group's disc has its centre c at the middle of its returns' (and their far ends') bounding
-   box and the radius ``max_i |p_i - c| + inflation`` over both ends: it contains every
-   inflated return of its group and its shadow segment, and,
+   group's disc has its centre c at the middle of its returns' bounding box and the radius
+   ``max_i |p_i - c| + inflation``: it contains every inflated return of its group, and,
    being convex, every segment between two of them (the surface a sensor saw between
    neighbouring beams). A group whose disc would be wider than ``max_radius`` (a wall) is
    covered cell by cell instead (centre = the middle of the cell's returns' box, the same
@@ -156,22 +160,49 @@ def stamp_slack(points_map, pose, dt: float, speed: float, omega_max: float) -> 
     return speed * dt + rho * omega_max * dt
 
 
-def shadows(points_map, origin, depth: float) -> np.ndarray:
-    """The far end of each return's shadow: the point ``depth`` behind it along its beam from
-    the sensor at ``origin`` (see the module, 3)."""
+def shadows(points_map, inflation, origin, depth: float, cell: float, budget: int = 200_000):
+    """(points, inflation) standing for each return and its beam ``depth`` behind it, seen from
+    the sensor at ``origin`` (see the module, 3): the segment [p, p + depth u] is sampled every
+    h <= 2 inflation (and <= ``cell``), so the inflated samples hold the whole segment. Past
+    ``budget`` samples the returns are first merged per cell of side ``cell`` (each cell's
+    returns by the cell's centre, inflated by the cell's half diagonal delta more, and by
+    2 delta depth / rho more for the beams' spread over the depth, rho the centre's range),
+    and if the samples are then still further apart than 2 inflation, each sample's inflation
+    grows to half their spacing."""
     p = np.asarray(points_map, dtype=float).reshape(-1, 2)
+    infl = np.broadcast_to(np.asarray(inflation, dtype=float), (len(p),)).copy()
+    if len(p) == 0 or depth <= 0.0:
+        return p, infl
+    least = float(infl.min())
+    h = min(cell, 2.0 * least) if least > 0 else cell / 4.0
+    n = int(math.ceil(depth / h))
+    if len(p) * (n + 1) > budget:
+        keys, inverse = np.unique(np.floor(p / cell).astype(np.int64), axis=0, return_inverse=True)
+        inverse = inverse.reshape(-1)
+        merged = np.zeros(len(keys))
+        np.maximum.at(merged, inverse, infl)
+        # a return p within delta of its cell's centre c: its beam's point t behind it is within
+        # delta + t |u_p - u_c| <= delta (1 + 2 t / |c - origin|) of the centre's (|u_p - u_c| <= 2 delta / rho_c)
+        p, delta = (keys + 0.5) * cell, cell * math.sqrt(0.5)
+        rho = np.hypot(*(p - np.asarray(origin, dtype=float).reshape(1, 2)).T)
+        infl = merged + np.where(rho > 2.0 * delta, delta * (1.0 + 2.0 * depth / np.maximum(rho, 1e-12)),
+                                 delta + depth)
+        h = min(cell, 2.0 * float(infl.min()))
+        n = min(int(math.ceil(depth / h)), max(1, budget // max(1, len(p)) - 1))
+        infl = np.maximum(infl, depth / n / 2.0)    # fewer samples than 2 inflation apart: each holds more
     u = p - np.asarray(origin, dtype=float).reshape(1, 2)
-    n = np.hypot(u[:, 0], u[:, 1])
-    n[n == 0.0] = 1.0
-    return p + (depth / n)[:, None] * u
+    norm = np.hypot(u[:, 0], u[:, 1])
+    norm[norm == 0.0] = 1.0
+    u /= norm[:, None]
+    steps = np.arange(n + 1) * (depth / n)                     # 0 (the return) .. depth
+    samples = p[:, None, :] + steps[None, :, None] * u[:, None, :]
+    return samples.reshape(-1, 2), np.repeat(infl, n + 1)
 
 
-def covering_discs(points, inflation, cell: float, max_radius: float, behind=None) -> np.ndarray:
+def covering_discs(points, inflation, cell: float, max_radius: float) -> np.ndarray:
     """(K, 3) discs [x, y, r] covering the returns ``points`` (M, 2), each inflated by
     ``inflation`` (a number or one per point): see the module, 4. ``cell`` > 0 is the
-    grouping distance; a group wider than ``max_radius`` is covered cell by cell.
-    ``behind`` (M, 2), if given: each return's far end (``shadows``); a return's disc then
-    covers the segment from it to its far end too (grouped by the return)."""
+    grouping distance; a group wider than ``max_radius`` is covered cell by cell."""
     p = np.asarray(points, dtype=float).reshape(-1, 2)
     if len(p) == 0:
         return NO_DISCS.copy()
@@ -186,12 +217,11 @@ def covering_discs(points, inflation, cell: float, max_radius: float, behind=Non
     # the one sort: points by cell (keys of a sensor's reach fit 16 bits: numpy sorts those by radix, O(M))
     order = np.argsort(key.astype(np.uint16) if key.max() < 2 ** 16 else key, kind='stable')
     ks, ps, fs = key[order], p[order], infl[order]
-    bs = ps if behind is None else np.asarray(behind, dtype=float).reshape(-1, 2)[order]
     first = np.r_[True, ks[1:] != ks[:-1]]
     start = np.flatnonzero(first)                   # each cell's first point
     cell_of = np.cumsum(first) - 1                  # each (sorted) point's cell
-    cell_lo = np.minimum(np.minimum.reduceat(ps, start, axis=0), np.minimum.reduceat(bs, start, axis=0))
-    cell_hi = np.maximum(np.maximum.reduceat(ps, start, axis=0), np.maximum.reduceat(bs, start, axis=0))
+    cell_lo = np.minimum.reduceat(ps, start, axis=0)
+    cell_hi = np.maximum.reduceat(ps, start, axis=0)
     comp = _touching(ks[start], span)               # each cell's group
     k = int(comp.max()) + 1
     group_lo = np.full((k, 2), np.inf)
@@ -199,7 +229,7 @@ def covering_discs(points, inflation, cell: float, max_radius: float, behind=Non
     np.minimum.at(group_lo, comp, cell_lo)
     np.maximum.at(group_hi, comp, cell_hi)
     centre = (group_lo + group_hi) / 2.0
-    cell_r = _farthest(ps, bs, fs, centre[comp][cell_of], start)
+    cell_r = _farthest(ps, fs, centre[comp][cell_of], start)
     radius = np.zeros(k)
     np.maximum.at(radius, comp, cell_r)
     wide = radius > max_radius
@@ -208,21 +238,16 @@ def covering_discs(points, inflation, cell: float, max_radius: float, behind=Non
     # the wide groups (walls), cell by cell
     split = wide[comp]
     cell_centre = (cell_lo + cell_hi) / 2.0
-    own_r = _farthest(ps, bs, fs, cell_centre[cell_of], start)
+    own_r = _farthest(ps, fs, cell_centre[cell_of], start)
     return np.vstack([np.column_stack([centre[~wide], radius[~wide]]),
                       np.column_stack([cell_centre[split], own_r[split]])])
 
 
-def _farthest(points, far_ends, inflation, centres, start) -> np.ndarray:
-    """Per run of ``points`` (runs begin at ``start``): the largest distance from a point or its
-    far end to its row of ``centres``, plus that point's inflation (a disc holding both ends
-    holds the segment between them)."""
+def _farthest(points, inflation, centres, start) -> np.ndarray:
+    """Per run of ``points`` (runs begin at ``start``): the largest distance from a point to its
+    row of ``centres`` plus that point's inflation."""
     d = points - centres
-    reach = np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1])
-    if far_ends is not points:
-        e = far_ends - centres
-        reach = np.maximum(reach, np.sqrt(e[:, 0] * e[:, 0] + e[:, 1] * e[:, 1]))
-    return np.maximum.reduceat(reach + inflation, start)
+    return np.maximum.reduceat(np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]) + inflation, start)
 
 
 def _touching(keys, span: int) -> np.ndarray:
