@@ -125,7 +125,8 @@ SENSOR_MODE = {
                 'goal_wait': 1.0},
     'safety_filter': {'pose_type': 'odometry', 'detections_type': 'laser_scan', 'cmd_vel_stamped': True,
                       'robot_radius': 0.1, 'fail_safe_command': 'stop',
-                      'obstacle_depth': 5.2},         # the largest obstacle's diameter: its far side
+                      'obstacle_depth': 5.2,          # the largest obstacle's diameter: its far side
+                      'sensor_max_disc_radius': 1.6},  # wide groups in pieces about the library's radius
 }
 
 

@@ -40,11 +40,11 @@ def test_every_inflated_return_is_inside_a_disc(seed):
     discs = sensing.covering_discs(points, infl, 0.5, 2.5)
     assert covered(points, infl, discs)
     assert len(discs) < len(points) / 2, 'close returns share a disc'
-    # no disc wider than the limit, but the cells of a wide group (at most a cell's half diagonal)
-    assert np.all(discs[:, 2] <= max(2.5, 0.5 * math.sqrt(2) / 2 + infl.max()) + 1e-9)
+    # no disc wider than the limit (the pieces of a wide group: the limit plus their inflation)
+    assert np.all(discs[:, 2] <= 2.5 + infl.max() + 1e-9)
 
 
-def test_a_wall_is_covered_cell_by_cell_not_by_one_disc_over_the_robot():
+def test_a_wall_is_covered_in_pieces_not_by_one_disc_over_the_robot():
     wall = np.column_stack([np.linspace(-10, 10, 400), np.full(400, 2.0)])
     discs = sensing.covering_discs(wall, 0.3, 0.5, 2.5)
     assert covered(wall, 0.3, discs)

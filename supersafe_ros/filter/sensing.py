@@ -40,9 +40,12 @@ message's returns become a few such discs, in bounded work, without a new value 
    group's disc has its centre c at the middle of its returns' bounding box and the radius
    ``max_i |p_i - c| + inflation``: it contains every inflated return of its group, and,
    being convex, every segment between two of them (the surface a sensor saw between
-   neighbouring beams). A group whose disc would be wider than ``max_radius`` (a wall) is
-   covered cell by cell instead (centre = the middle of the cell's returns' box, the same
-   radius rule), so a long wall does not become one disc over the robot. Every disc contains
+   neighbouring beams). A group whose disc would be wider than ``max_radius`` (a wall, a
+   large object with its beams) is covered in pieces instead: its returns binned into
+   squares of side ``max_radius`` sqrt 2, each square's by one disc (the same rule: radius at
+   most ``max_radius`` + inflation), so a long wall does not become one disc over the robot,
+   nor a swarm of small discs each easy to avoid alone (with ``max_radius`` <= ``cell`` /
+   sqrt 2, cell by cell). Every disc contains
    its inflated returns: the union of the discs contains every inflated return, so a robot
    kept out of every disc touches no return (the filter's guarantee for discs carries over
    to what the sensor saw).
@@ -216,7 +219,8 @@ def _occupied(points, cell: float):
 def covering_discs(points, inflation, cell: float, max_radius: float) -> np.ndarray:
     """(K, 3) discs [x, y, r] covering the returns ``points`` (M, 2), each inflated by
     ``inflation`` (a number or one per point): see the module, 4. ``cell`` > 0 is the
-    grouping distance; a group wider than ``max_radius`` is covered cell by cell."""
+    grouping distance; a group wider than ``max_radius`` is covered in pieces of at most that
+    radius (plus inflation)."""
     p = np.asarray(points, dtype=float).reshape(-1, 2)
     if len(p) == 0:
         return NO_DISCS.copy()
@@ -249,12 +253,19 @@ def covering_discs(points, inflation, cell: float, max_radius: float) -> np.ndar
     wide = radius > max_radius
     if not wide.any():
         return np.column_stack([centre, radius])
-    # the wide groups (walls), cell by cell
-    split = wide[comp]
-    cell_centre = (cell_lo + cell_hi) / 2.0
-    own_r = _farthest(ps, fs, cell_centre[cell_of], start)
-    return np.vstack([np.column_stack([centre[~wide], radius[~wide]]),
-                      np.column_stack([cell_centre[split], own_r[split]])])
+    # the wide groups (walls, a large object with its beams): in pieces of at most max_radius
+    # (squares of side max_radius sqrt 2, their half diagonal), not cell by cell: each piece
+    # is an obstacle of about the library's size, not a swarm of small discs each easy alone
+    in_wide = wide[comp][cell_of]
+    coarse = max_radius * math.sqrt(2.0)
+    if coarse <= cell:
+        cell_centre = (cell_lo + cell_hi) / 2.0
+        own_r = _farthest(ps, fs, cell_centre[cell_of], start)
+        split = wide[comp]
+        return np.vstack([np.column_stack([centre[~wide], radius[~wide]]),
+                          np.column_stack([cell_centre[split], own_r[split]])])
+    pieces = covering_discs(ps[in_wide], fs[in_wide], coarse, 0.0)     # (0: every piece its own disc)
+    return np.vstack([np.column_stack([centre[~wide], radius[~wide]]), pieces])
 
 
 def _farthest(points, inflation, centres, start) -> np.ndarray:

@@ -59,7 +59,7 @@ INPUT_PARAMETERS = (
     ParameterSpec('sensor_cell', 0.5, 'laser_scan / point_cloud2: returns in touching cells of this size '
                   'are one group, covered by one disc [m]', 0.01, 100.0),
     ParameterSpec('sensor_max_disc_radius', 2.5, 'laser_scan / point_cloud2: a group whose disc would be '
-                  'wider is covered cell by cell (walls) [m]', 0.01, 1000.0),
+                  'wider is covered in pieces of at most this radius (walls, large objects) [m]', 0.01, 1000.0),
     ParameterSpec('max_sensor_points', 1_000_000, 'laser_scan / point_cloud2: a message with more beams or '
                   'points is refused unread (failing safe) [points]', 1, 100_000_000),
 )
