@@ -15,6 +15,7 @@ from supersafe_ros.reach.grid import Grid
 from supersafe_ros.reach.sets import Disc
 from supersafe_ros.reach.solver import solve_avoid
 
+pytestmark = pytest.mark.usefixtures('decision_path')   # every test: robot alone, and in a fleet
 R = 1.8
 
 
