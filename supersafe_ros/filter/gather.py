@@ -103,7 +103,7 @@ def gather(filters, t) -> RobotColumns:
     rb.filters, rb.configs, rb.failing = filters, configs, ~judged[use]
     rb.speed, rb.bang, rb.margin, rb.cluster_alpha = speed, bang, margin, cluster_alpha
     rb.dets = det_values
-    rb.radii = list(map(_RADII, (f.detections for f in filters)))
+    rb.radii = list(map(_RADII, dets)) if m == n else [d.radii for d in map(attrgetter('detections'), filters)]
     rb.poses = np.array(pose_values, dtype=float).reshape(m, 3)
     rb.overriding = np.fromiter((f.overriding for f in filters), dtype=bool, count=m)
     compensate = compensate != 0.0

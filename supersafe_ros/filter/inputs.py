@@ -1,6 +1,8 @@
-"""What a filter knows of its robot: the newest pose, detections and planner command (each
+"""What a filter knows of its robot: the newest pose, detections (discs of the configured
+radius or their own, ``filter.discs``) and planner command (turn rate and linear.x; each
 with when it arrived and whether a newer one was rejected), whether it is overriding, and the
-commands it sent (to propagate an old pose to now, ``filter.propagation``).
+commands it sent with the speed the robot drives under each (to propagate an old pose to
+now, ``filter.propagation``).
 
 ``RobotFilter`` is one robot's input state; ``update_poses``, ``update_commands`` and
 ``update_detections_all`` feed many robots at once (the fleet node's batched topics: one
@@ -307,15 +309,16 @@ def _accept_rows(filters, name, rows, take, t, stamp, linears=None) -> None:
     same next window, made once."""
     windows = '_pose_intervals' if name == 'pose' else '_command_intervals'
     made = {}      # (window before, previous stamp) -> window after (kept alive here: ids stay unique)
-    lin = itertools.repeat(None) if linears is None else linears
-    for f, row, ok, v in zip(filters, rows, take.tolist(), lin):
+    if name == 'command':      # each command's linear.x (None: not given), in a pass of its own
+        for f, v, ok in zip(filters, itertools.repeat(None) if linears is None else linears, take.tolist()):
+            if ok:
+                f.command.linear = v
+    for f, row, ok in zip(filters, rows, take.tolist()):
         if not ok:
             continue
         inp = f.pose if name == 'pose' else f.command
         previous = inp.stamp if inp.value is not None else None
         inp.value, inp.t, inp.rejected, inp.stamp, inp.note = row, t, '', stamp, ''
-        if name == 'command':
-            inp.linear = v
         if previous is not None and stamp > previous:
             before = getattr(f, windows)
             after = made.get((before, previous))
@@ -343,12 +346,11 @@ def _store_detections(filters, c, radii, origin, t, safe_set, cfg, solve_cluster
         radii = radii[kept]
     if origin is not None:
         kept = origin if kept is None else origin[kept]
-    solve = bool(solve_clusters)
-    for f in filters:
+    solve, t = bool(solve_clusters), float(t)
+    for f in filters:       # _Input.accept, and what was made of the message
         inp = f.detections
-        inp.accept(c, t)
-        inp.kept, inp.dropped, inp.note, inp.dropped_safely = kept, dropped, note, safe
-        inp.radii, inp.solve_clusters = radii, solve
+        (inp.value, inp.t, inp.stamp, inp.rejected, inp.note, inp.kept, inp.dropped, inp.dropped_safely, inp.radii,
+         inp.solve_clusters) = c, t, t, '', note, kept, dropped, safe, radii, solve
 
 
 def _limited(c, robots, t, safe_set, cfg):
