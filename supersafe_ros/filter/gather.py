@@ -146,11 +146,15 @@ def gather(filters, t) -> RobotColumns:
     clipped = np.where(clipped > -bang, clipped, -bang)
     rb.planned = np.where(fresh, clipped, 0.0)
     # the speeds: the planner's clipped to [0, speed] (planned_speed), driven (drive_speed), last sent
+    # (a robot with nothing sent shows _NEVER's speed, 0; linear.x not given: the speed)
     linear = list(map(_LINEAR, commands))
-    linear = np.array([math.inf if v is None else v for v in linear] if None in linear else linear, dtype=float)
-    rb.constant, rb.held = constant, np.where(constant, speed, np.where(last[:, 0] < math.inf, last[:, 2], 0.0))
-    rb.drive = np.where(constant, speed, np.where(rb.failing, rb.held,
-                                                  np.where(fresh, py_max(0.0, py_min(speed, linear)), 0.0)))
+    if linear.count(None) == m:
+        planned_v = speed
+    else:
+        linear = np.array([math.inf if v is None else v for v in linear] if None in linear else linear, dtype=float)
+        planned_v = py_max(0.0, np.minimum(speed, linear))      # (min(speed, v): equal only when equal)
+    rb.constant, rb.held = constant, np.where(constant, speed, last[:, 2])
+    rb.drive = np.where(constant, speed, np.where(rb.failing, rb.held, np.where(fresh, planned_v, 0.0)))
     # measured period: the larger median of the pose and command intervals (each > 0; none: 0)
     windows = ([f._pose_intervals for f in filters], [f._command_intervals for f in filters])
     measured = py_max(*(np.array([0.0 if w.middle is None else w.middle for w in ws], dtype=float)

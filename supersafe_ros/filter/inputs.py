@@ -17,8 +17,9 @@ from __future__ import annotations
 from bisect import bisect_left, insort
 from collections import deque
 from dataclasses import dataclass, field
-import itertools
+from itertools import repeat
 import math
+from operator import attrgetter, is_
 
 import numpy as np
 
@@ -29,6 +30,7 @@ from .nearby import drop_note, message_reach, within_limit
 from .types import FilterConfig, FilterOutput, SafeSet
 
 PERIOD_SAMPLES = 16    # intervals in the median that measures the control period
+_COMMAND, _LINEAR = attrgetter('command'), attrgetter('linear')
 
 
 @dataclass
@@ -309,14 +311,16 @@ def _accept_rows(filters, name, rows, take, t, stamp, linears=None) -> None:
     same next window, made once."""
     windows = '_pose_intervals' if name == 'pose' else '_command_intervals'
     made = {}      # (window before, previous stamp) -> window after (kept alive here: ids stay unique)
-    if name == 'command':      # each command's linear.x (None: not given), in a pass of its own
-        for f, v, ok in zip(filters, itertools.repeat(None) if linears is None else linears, take.tolist()):
+    pose = name == 'pose'
+    if not pose and (linears is not None or not all(map(is_, map(_LINEAR, map(_COMMAND, filters)), repeat(None)))):
+        # each command's linear.x (None: not given), in a pass of its own (the pose rows' loop as before)
+        for f, v, ok in zip(filters, repeat(None) if linears is None else linears, take.tolist()):
             if ok:
                 f.command.linear = v
     for f, row, ok in zip(filters, rows, take.tolist()):
         if not ok:
             continue
-        inp = f.pose if name == 'pose' else f.command
+        inp = f.pose if pose else f.command
         previous = inp.stamp if inp.value is not None else None
         inp.value, inp.t, inp.rejected, inp.stamp, inp.note = row, t, '', stamp, ''
         if previous is not None and stamp > previous:
