@@ -117,10 +117,14 @@ def gather(filters, t) -> RobotColumns:
     sents = [f.sent for f in filters]
     last = np.fromiter(itertools.chain.from_iterable(s[-1] if s else _NEVER for s in sents), dtype=float,
                        count=3 * m).reshape(m, 3)
-    prev = np.fromiter(itertools.chain.from_iterable(s[-2] if len(s) > 1 else _NEVER for s in sents),
-                       dtype=float, count=3 * m).reshape(m, 3)
     moving = compensate & (t > t0)
     one = moving & (last[:, 0] <= t0)                        # nothing sent since the pose: one arc
+    # the command before the last, read only for the robots that may need it (most need none)
+    others = np.flatnonzero(moving & ~one)
+    prev = np.zeros((m, 3))
+    prev[others] = np.fromiter(itertools.chain.from_iterable(
+        sents[i][-2] if len(sents[i]) > 1 else _NEVER for i in others.tolist()), dtype=float,
+        count=3 * len(others)).reshape(-1, 3)
     two = moving & ~one & (prev[:, 0] <= t0) & (t0 < last[:, 0]) & (last[:, 0] < t)   # one command since
     rest = np.flatnonzero(moving & ~one & ~two).tolist()
     plans = [filters[i].segments_since(float(t0[i]), t) for i in rest]
