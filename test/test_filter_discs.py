@@ -65,6 +65,8 @@ def test_checked_discs():
                 [[0, 0, 1e9]]):
         with pytest.raises(ValueError):
             checked_discs(np.array(bad, dtype=float), R)
+    with pytest.raises(ValueError, match='no ring'):         # a configured radius of 0 covers nothing
+        checked_discs(np.array([[0.0, 0.0, 0.5]]), 0.0)
 
 
 def test_a_smaller_disc_acts_later_by_the_difference_of_radii(standard):

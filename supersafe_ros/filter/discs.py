@@ -58,6 +58,9 @@ def checked_discs(rows, radius):
     big = r > radius
     if not big.any():
         return np.ascontiguousarray(c[:, :2]), r.copy(), None
+    if not radius > 0.0:
+        raise ValueError(f'detections of radius up to {float(r.max()):g} m, but the value function\'s radius is '
+                         f'{radius:g}: no ring of its discs can cover them')
     counts = np.ones(len(c), dtype=np.intp)
     counts[big] = ring_size(r[big], radius)
     total = int(counts.sum())

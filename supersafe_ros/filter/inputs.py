@@ -337,7 +337,7 @@ def update_detections_all(filters, rows, t, safe_set=None, solve_clusters=True) 
     frames and spatial index; radii against the first robot's ``radius``). Beyond
     ``max_detections`` (the first robot's) the nearest to any robot's pose are kept."""
     cfg = filters[0].config if filters else None
-    c, radii, origin = checked_discs(rows, cfg.radius if cfg is not None else 0.0)
+    c, radii, origin = checked_discs(rows, cfg.radius if cfg is not None else math.inf)    # (no robot: checked only)
     _store_detections(filters, c, radii, origin, float(t), safe_set, cfg, solve_clusters)
 
 
