@@ -599,3 +599,63 @@ def test_the_first_robot_failing_safe_far_from_obstacles_says_no_obstacle_is_nea
     outs = step_many([f, robot(pose=far)], standard, T + 1.0)
     assert outs[0].action == FAIL_SAFE and outs[0].linear == 0.0
     assert outs[0].reason.endswith('no obstacle near the last valid state: stop-turn'), outs[0].reason
+
+
+# -- the planner's speed and the fail-safe command (issue 31) ------------------------------------
+def test_no_input_at_all_is_a_zero_twist_or_the_stop_turn(standard):
+    """Before any input (the lone node's watchdog): 'stop' sends (0, 0), 'stop_turn' (0, +w_max)
+    (kills the spread's branches swapped, and the stop-turn's turn kept for a robot that can
+    stop)."""
+    for mode, turn in (('stop', 0.0), ('stop_turn', 0.5)):
+        out = RobotFilter(FilterConfig(fail_safe_command=mode, omega_max=0.5)).step(standard, T)
+        assert (out.action, out.linear, out.omega) == (FAIL_SAFE, 0.0, turn), mode
+        assert out.reason.endswith('stop-turn' if mode == 'stop_turn' else 'stop (zero twist)')
+    with pytest.raises(ValueError, match='fail_safe_command'):
+        FilterConfig(fail_safe_command='spin')
+
+
+def test_the_first_decision_failing_safe_avoids_at_the_speed_sent_so_far_none(standard):
+    """A robot that can stop, never sent a command, failing safe where the law acts on its
+    last valid state: the avoid turn in place (the speed last sent: none, 0), not at its
+    largest speed (kills ``held`` read as the configured speed)."""
+    f = robot(pose=at(-2.6, -0.3, 0.0), cmd=None, pose_timeout=0.5, hold_timeout=1.0, detections_timeout=5.0)
+    f.update_detections(np.array([OBSTACLE]), T + 0.6)
+    out = f.step(standard, T + 0.6)
+    assert out.action == FAIL_SAFE and 'avoiding obstacle 0' in out.reason
+    assert out.linear == 0.0 and abs(out.omega) == 1.0
+
+
+def test_a_constant_speed_robot_is_propagated_at_its_speed_after_a_stop_turn(standard):
+    """The stop-turn sends linear.x 0, but the Dubins robot drives on at its speed: its pose is
+    propagated at the speed (kills recording the linear.x sent for a constant-speed robot); a
+    robot that can stop sent 0 is propagated standing still."""
+    moved = {}
+    for mode in ('stop_turn', 'stop'):
+        f = RobotFilter(FilterConfig(fail_safe_command=mode, pose_timeout=0.5, hold_timeout=1.0))
+        f.step(standard, T)                                  # no input: the fail safe, linear.x 0
+        f.update_pose(at(-7.0, 3.0, 0.0), T + 0.05, stamp=T)
+        f.update_detections(np.array([OBSTACLE]), T + 0.05)
+        f.update_command(0.0, T + 0.05, 2.0)
+        moved[mode] = f.step(standard, T + 0.05).value
+    expected = DubinsCar(3.0, 1.0).flow(np.array([-7.0, 3.0, 0.0]), 1.0, 0.05)     # the stop-turn, at 3 m/s
+    assert moved['stop_turn'] == pytest.approx(evaluate_pairs(standard.vf, expected[None])[0][0])
+    assert moved['stop'] == pytest.approx(evaluate_pairs(standard.vf, np.array([[-7.0, 3.0, 0.0]]))[0][0])
+
+
+def test_an_override_on_a_loiter_fallback_turns_in_place_for_a_robot_that_can_stop(standard):
+    """A cluster governed by its loiter fallback (a circle drawn at full speed): a robot that
+    can stop turns in place, a constant-speed robot turns at its speed; a union row or a
+    pair keeps the planner's speed (kills the fallback test dropped or inverted)."""
+    from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore
+    never = ClusterStore(ClusterSettings(), fallback_only=True)
+    row = np.array([[OBSTACLE[0], OBSTACLE[1]], [OBSTACLE[0] + 4.5, OBSTACLE[1]]])     # head on, along the row
+    seen = {}
+    for mode in ('stop', 'stop_turn'):
+        for x in np.linspace(-9.0, -3.0, 25):
+            f = robot(pose=at(x, 0.0, 0.0), detections=row, cmd=None, fail_safe_command=mode)
+            f.update_command(0.0, T, 1.5)
+            out = f.step(standard, T, never)
+            if out.action == OVERRIDE:
+                seen.setdefault((mode, out.source), out.linear)
+    assert seen[('stop', 'cluster-fallback')] == 0.0 and seen[('stop_turn', 'cluster-fallback')] == 3.0
+    assert seen.get(('stop', 'standard'), 1.5) == 1.5

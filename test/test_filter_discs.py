@@ -15,6 +15,7 @@ from supersafe_ros.reach.grid import Grid
 from supersafe_ros.reach.sets import Disc
 from supersafe_ros.reach.solver import solve_avoid
 
+pytestmark = pytest.mark.usefixtures('decision_path')   # every test: robot alone, and in a fleet
 R = 1.8
 
 
@@ -64,6 +65,8 @@ def test_checked_discs():
                 [[0, 0, 1e9]]):
         with pytest.raises(ValueError):
             checked_discs(np.array(bad, dtype=float), R)
+    with pytest.raises(ValueError, match='no ring'):         # a configured radius of 0 covers nothing
+        checked_discs(np.array([[0.0, 0.0, 0.5]]), 0.0)
 
 
 def test_a_smaller_disc_acts_later_by_the_difference_of_radii(standard):
@@ -139,3 +142,20 @@ def test_discs_of_three_sizes_never_collide(standard):
     res = run_trials(layout_trials(layouts, rng), lambda fs, t: step_many(fs, standard, t, store), step=0.1,
                      rng=np.random.default_rng(12))
     assert res.collisions == 0 and res.overrides > 0, res.summary()
+
+
+def test_many_discs_with_radii_are_narrowed_and_named_by_their_rows(standard):
+    """More than the 64 a robot judges whole: the nearby search keeps each disc's radius and
+    names a ring by its disc's row in the message, as with the large disc alone."""
+    far = np.column_stack([np.linspace(60.0, 160.0, 80), np.full(80, 40.0), np.full(80, 0.5)])
+    rows = np.vstack([far[:40], [[10.0, 5.0, 4.0]], far[40:]])        # the large disc is row 40
+    pose = at(-7.0, 0.0, 0.0)
+    outs = []
+    for dets in (rows, rows[40:41]):
+        f = RobotFilter(FilterConfig(clusters=False))
+        f.update_pose(pose, 0.0)
+        f.update_detections(dets, 0.0)
+        f.update_command(0.0, 0.0)
+        outs.append(f.step(standard, 0.0))
+    assert outs[0].action == outs[1].action == 'override'
+    assert outs[0].obstacle_index == 40 and outs[1].obstacle_index == 0 and outs[0].value == outs[1].value

@@ -39,7 +39,7 @@ def step_many(filters, safe_set: SafeSet, t, clusters=None) -> Decisions:
 
     Robots that can be judged use their current pose and detections; robots that
     fail safe use their last valid pose and detections if younger than
-    ``hold_timeout``, else the stop-turn policy. ``clusters``: the ClusterStore
+    ``hold_timeout``, else ``fail_safe_command``. ``clusters``: the ClusterStore
     for obstacles judged together (None: the process's shared store for the
     robots' configuration; see ``filter.cluster``). Returns ``Decisions``: the
     commands as lists, each robot's ``FilterOutput`` built when read.

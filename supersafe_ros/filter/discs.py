@@ -29,7 +29,9 @@ geometry keys the same solved value whatever its members' radii.
 """
 from __future__ import annotations
 
+from itertools import repeat
 import math
+from operator import is_
 
 import numpy as np
 
@@ -56,6 +58,9 @@ def checked_discs(rows, radius):
     big = r > radius
     if not big.any():
         return np.ascontiguousarray(c[:, :2]), r.copy(), None
+    if not radius > 0.0:
+        raise ValueError(f'detections of radius up to {float(r.max()):g} m, but the value function\'s radius is '
+                         f'{radius:g}: no ring of its discs can cover them')
     counts = np.ones(len(c), dtype=np.intp)
     counts[big] = ring_size(r[big], radius)
     total = int(counts.sum())
@@ -101,7 +106,7 @@ def pair_shifts(radii, configs, counts, position=None):
     every robot's discs are of its configured radius. ``radii``: per robot its detections'
     radii (None: all its radius); ``position``: per pair its index in its robot's detections
     (None: pair j of a robot is its detection j; ``filter.nearby`` narrows a robot's many)."""
-    if all(r is None for r in radii):
+    if all(map(is_, radii, repeat(None))):     # (most decisions: checked in C)
         return None
     out = np.zeros(int(np.sum(counts)))
     start = 0

@@ -103,7 +103,7 @@ def gather(filters, t) -> RobotColumns:
     rb.filters, rb.configs, rb.failing = filters, configs, ~judged[use]
     rb.speed, rb.bang, rb.margin, rb.cluster_alpha = speed, bang, margin, cluster_alpha
     rb.dets = det_values
-    rb.radii = list(map(_RADII, (f.detections for f in filters)))
+    rb.radii = list(map(_RADII, dets)) if m == n else [d.radii for d in map(attrgetter('detections'), filters)]
     rb.poses = np.array(pose_values, dtype=float).reshape(m, 3)
     rb.overriding = np.fromiter((f.overriding for f in filters), dtype=bool, count=m)
     compensate = compensate != 0.0
@@ -117,10 +117,14 @@ def gather(filters, t) -> RobotColumns:
     sents = [f.sent for f in filters]
     last = np.fromiter(itertools.chain.from_iterable(s[-1] if s else _NEVER for s in sents), dtype=float,
                        count=3 * m).reshape(m, 3)
-    prev = np.fromiter(itertools.chain.from_iterable(s[-2] if len(s) > 1 else _NEVER for s in sents),
-                       dtype=float, count=3 * m).reshape(m, 3)
     moving = compensate & (t > t0)
     one = moving & (last[:, 0] <= t0)                        # nothing sent since the pose: one arc
+    # the command before the last, read only for the robots that may need it (most need none)
+    others = np.flatnonzero(moving & ~one)
+    prev = np.zeros((m, 3))
+    prev[others] = np.fromiter(itertools.chain.from_iterable(
+        sents[i][-2] if len(sents[i]) > 1 else _NEVER for i in others.tolist()), dtype=float,
+        count=3 * len(others)).reshape(-1, 3)
     two = moving & ~one & (prev[:, 0] <= t0) & (t0 < last[:, 0]) & (last[:, 0] < t)   # one command since
     rest = np.flatnonzero(moving & ~one & ~two).tolist()
     plans = [filters[i].segments_since(float(t0[i]), t) for i in rest]
@@ -146,11 +150,15 @@ def gather(filters, t) -> RobotColumns:
     clipped = np.where(clipped > -bang, clipped, -bang)
     rb.planned = np.where(fresh, clipped, 0.0)
     # the speeds: the planner's clipped to [0, speed] (planned_speed), driven (drive_speed), last sent
+    # (a robot with nothing sent shows _NEVER's speed, 0; linear.x not given: the speed)
     linear = list(map(_LINEAR, commands))
-    linear = np.array([math.inf if v is None else v for v in linear] if None in linear else linear, dtype=float)
-    rb.constant, rb.held = constant, np.where(constant, speed, np.where(last[:, 0] < math.inf, last[:, 2], 0.0))
-    rb.drive = np.where(constant, speed, np.where(rb.failing, rb.held,
-                                                  np.where(fresh, py_max(0.0, py_min(speed, linear)), 0.0)))
+    if linear.count(None) == m:
+        planned_v = speed
+    else:
+        linear = np.array([math.inf if v is None else v for v in linear] if None in linear else linear, dtype=float)
+        planned_v = py_max(0.0, np.minimum(speed, linear))      # (min(speed, v): equal only when equal)
+    rb.constant, rb.held = constant, np.where(constant, speed, last[:, 2])
+    rb.drive = np.where(constant, speed, np.where(rb.failing, rb.held, np.where(fresh, planned_v, 0.0)))
     # measured period: the larger median of the pose and command intervals (each > 0; none: 0)
     windows = ([f._pose_intervals for f in filters], [f._command_intervals for f in filters])
     measured = py_max(*(np.array([0.0 if w.middle is None else w.middle for w in ws], dtype=float)

@@ -1,6 +1,8 @@
-"""What a filter knows of its robot: the newest pose, detections and planner command (each
+"""What a filter knows of its robot: the newest pose, detections (discs of the configured
+radius or their own, ``filter.discs``) and planner command (turn rate and linear.x; each
 with when it arrived and whether a newer one was rejected), whether it is overriding, and the
-commands it sent (to propagate an old pose to now, ``filter.propagation``).
+commands it sent with the speed the robot drives under each (to propagate an old pose to
+now, ``filter.propagation``).
 
 ``RobotFilter`` is one robot's input state; ``update_poses``, ``update_commands`` and
 ``update_detections_all`` feed many robots at once (the fleet node's batched topics: one
@@ -15,8 +17,9 @@ from __future__ import annotations
 from bisect import bisect_left, insort
 from collections import deque
 from dataclasses import dataclass, field
-import itertools
+from itertools import repeat
 import math
+from operator import attrgetter, is_
 
 import numpy as np
 
@@ -27,6 +30,7 @@ from .nearby import drop_note, message_reach, within_limit
 from .types import FilterConfig, FilterOutput, SafeSet
 
 PERIOD_SAMPLES = 16    # intervals in the median that measures the control period
+_COMMAND, _LINEAR = attrgetter('command'), attrgetter('linear')
 
 
 @dataclass
@@ -307,15 +311,18 @@ def _accept_rows(filters, name, rows, take, t, stamp, linears=None) -> None:
     same next window, made once."""
     windows = '_pose_intervals' if name == 'pose' else '_command_intervals'
     made = {}      # (window before, previous stamp) -> window after (kept alive here: ids stay unique)
-    lin = itertools.repeat(None) if linears is None else linears
-    for f, row, ok, v in zip(filters, rows, take.tolist(), lin):
+    pose = name == 'pose'
+    if not pose and (linears is not None or not all(map(is_, map(_LINEAR, map(_COMMAND, filters)), repeat(None)))):
+        # each command's linear.x (None: not given), in a pass of its own (the pose rows' loop as before)
+        for f, v, ok in zip(filters, repeat(None) if linears is None else linears, take.tolist()):
+            if ok:
+                f.command.linear = v
+    for f, row, ok in zip(filters, rows, take.tolist()):
         if not ok:
             continue
-        inp = f.pose if name == 'pose' else f.command
+        inp = f.pose if pose else f.command
         previous = inp.stamp if inp.value is not None else None
         inp.value, inp.t, inp.rejected, inp.stamp, inp.note = row, t, '', stamp, ''
-        if name == 'command':
-            inp.linear = v
         if previous is not None and stamp > previous:
             before = getattr(f, windows)
             after = made.get((before, previous))
@@ -330,7 +337,7 @@ def update_detections_all(filters, rows, t, safe_set=None, solve_clusters=True) 
     frames and spatial index; radii against the first robot's ``radius``). Beyond
     ``max_detections`` (the first robot's) the nearest to any robot's pose are kept."""
     cfg = filters[0].config if filters else None
-    c, radii, origin = checked_discs(rows, cfg.radius if cfg is not None else 0.0)
+    c, radii, origin = checked_discs(rows, cfg.radius if cfg is not None else math.inf)    # (no robot: checked only)
     _store_detections(filters, c, radii, origin, float(t), safe_set, cfg, solve_clusters)
 
 
@@ -343,12 +350,11 @@ def _store_detections(filters, c, radii, origin, t, safe_set, cfg, solve_cluster
         radii = radii[kept]
     if origin is not None:
         kept = origin if kept is None else origin[kept]
-    solve = bool(solve_clusters)
-    for f in filters:
+    solve, t = bool(solve_clusters), float(t)
+    for f in filters:       # _Input.accept, and what was made of the message
         inp = f.detections
-        inp.accept(c, t)
-        inp.kept, inp.dropped, inp.note, inp.dropped_safely = kept, dropped, note, safe
-        inp.radii, inp.solve_clusters = radii, solve
+        (inp.value, inp.t, inp.stamp, inp.rejected, inp.note, inp.kept, inp.dropped, inp.dropped_safely, inp.radii,
+         inp.solve_clusters) = c, t, t, '', note, kept, dropped, safe, radii, solve
 
 
 def _limited(c, robots, t, safe_set, cfg):

@@ -119,7 +119,7 @@ def set_fields(safe_set) -> dict:
 def explain(problem, cfg, w, v, a, set_fields, tab, k, kind, fresh, horizon, age, solving, lost) -> FilterOutput:
     """One robot's FilterOutput: its command (w, v, a) and why, from the table row ``k`` that it
     names (-1: none) and how it acted on it (``kind``, see ``law.govern``); ``lost``: no recent
-    valid state (stop-turn)."""
+    valid state (the fail-safe command)."""
     common = dict(set_fields, pose_age=age, lookahead=horizon, clusters_solving=solving)
     if k < 0:
         common.update(obstacle_index=-1, obstacle_xy=(math.nan, math.nan), value=math.inf)
