@@ -44,6 +44,9 @@ setup(
     entry_points={
         'console_scripts': [
             'supersafe = supersafe_ros.cli:main',
+            # the safety filter as a managed (lifecycle) node, for Nav2's lifecycle_manager
+            'managed_safety_filter = supersafe_ros.nodes.safety_filter_node:main_managed',
+            'managed_fleet_safety_filter = supersafe_ros.nodes.fleet_safety_filter_node:main_managed',
         ] + [f'{name} = supersafe_ros.nodes.{name}:main' for name in NODES],
     },
 )

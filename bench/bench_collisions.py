@@ -8,6 +8,10 @@ Sections (run all by default, or name some):
   False), "after" = the filter as shipped.
 * ``layouts`` - rows (4.5 m), cups (3-3.6 m gaps) and random dense layouts: the
   smallest per-obstacle value (clusters off) against the cluster values.
+* ``speeds``  - planners that slow, stop, wait and speed up (``trials.speed_profiles``)
+  through single discs, rows, cups and random dense layouts, clusters by union values,
+  7.3 % stale decisions; and discs of three radii (0.4, 1.8, 3.5 m; the largest as a
+  ring of 1.8 m discs): collisions, and the most a robot was sent beyond its planner.
 * ``latency`` - a new cluster's value: solve time and request -> in force (the
   control loop keeps deciding meanwhile, on the fallback), in a background thread.
 * ``graph``   - the real graph (``supersafe team --no-supervisor --no-learner``,
@@ -15,6 +19,7 @@ Sections (run all by default, or name some):
   each --steps, counting crashes deeper than 1 cm (world.crash_tolerance 0.01).
 
     .venv/bin/python bench/bench_collisions.py replay layouts latency --encounters 2000
+    .venv/bin/python bench/bench_collisions.py speeds --encounters 400
     .venv/bin/python bench/bench_collisions.py graph --robot-hours 1 --robots 4 --steps 0.2 0.05
 
 Prints the figures and the machine's load (timings depend on it).
@@ -29,7 +34,7 @@ import numpy as np
 from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore
 from supersafe_ros.filter import FilterConfig, RobotFilter, SafeSet, step_many
 from supersafe_ros.filter.trials import (cup_layout, layout_trials, random_layout, row_layout, run_trials,
-                                         single_disc_trials, standard_guard)
+                                         single_disc_trials, speed_profiles, standard_guard)
 from supersafe_ros.reach.grid import Grid
 from supersafe_ros.reach.library import load_or_solve
 
@@ -95,6 +100,33 @@ def layouts(args, safe):
                       f'[{time.perf_counter() - t0:.0f} s]', flush=True)
 
 
+def speeds(args, safe):
+    n = args.encounters
+    rng = np.random.default_rng(31)
+    sets = {
+        'single disc': [np.zeros((1, 2))] * n,
+        'row 4.5 m': [row_layout(4.5)] * n,
+        'cup 3-3.6 m gaps': [cup_layout(rng) for _ in range(max(n // 20, 1))] * 20,
+        'random dense (3-6 discs, gaps >= 0.3 m)': [random_layout(rng, int(rng.integers(3, 7)), half=6.0,
+                                                                  min_gap=0.3)
+                                                    for _ in range(max(n // 20, 1))] * 20,
+        'radii 0.4, 1.8, 3.5 m': [np.stack([rng.permutation([-9.0, 0.0, 9.0]), rng.uniform(-2, 2, 3),
+                                            [0.4, 1.8, 3.5]], axis=1) for _ in range(n)],
+    }
+    print(f'== speeds: planners that slow, stop, wait and speed up (speed_profiles), {STALE:.1%} stale '
+          f'decisions, cluster values ==')
+    for step in args.steps:
+        for name, lays in sets.items():
+            encounters = layout_trials(lays, np.random.default_rng(4))
+            store = ClusterStore(ClusterSettings(disk_cache=False), background=False)
+            t0 = time.perf_counter()
+            r = run_trials(encounters, lambda fs, t: step_many(fs, safe, t, store), step=step,
+                           stale_probability=STALE, rng=np.random.default_rng(5), time_limit=40.0,
+                           speeds=speed_profiles(np.random.default_rng(6), len(encounters)))
+            print(f'step {step:4.2f}  {name:40s}: {r.summary()}, at most {r.max_speed_excess:g} m/s beyond '
+                  f'the planner  [{time.perf_counter() - t0:.0f} s]', flush=True)
+
+
 def latency(args, safe):
     """A robot meets a new cluster; its filter keeps deciding at 50 Hz (wall time)
     while the background solve runs: time from first detection to the union in force."""
@@ -156,7 +188,7 @@ def graph(args):
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('sections', nargs='*', default=['replay', 'layouts', 'latency'],
-                    help='replay layouts latency graph (default: the ROS-free three)')
+                    help='replay layouts speeds latency graph (default: the ROS-free three)')
     ap.add_argument('--encounters', type=int, default=1000, help='approaches per replay/layout row')
     ap.add_argument('--steps', type=float, nargs='+', default=[0.05, 0.2])
     ap.add_argument('--robot-hours', type=float, default=0.5, help='graph: robot-hours over all steps')
@@ -165,9 +197,10 @@ def main():
     ap.add_argument('--timeout', type=float, default=0.0, help='graph: wall seconds per step (0: none)')
     args = ap.parse_args()
     print(f'bench_collisions: {load()}', flush=True)
-    safe = standard_set() if set(args.sections) & {'replay', 'layouts', 'latency'} else None
+    safe = standard_set() if set(args.sections) & {'replay', 'layouts', 'speeds', 'latency'} else None
     for section in args.sections:
         {'replay': lambda: replay(args, safe), 'layouts': lambda: layouts(args, safe),
+         'speeds': lambda: speeds(args, safe),
          'latency': lambda: latency(args, safe), 'graph': lambda: graph(args)}[section]()
     return 0
 

@@ -8,7 +8,7 @@ use_sim_time, ``set``), which win.
 
 Arguments (``ros2 launch supersafe_ros team.launch.py --show-args``): robots (2),
 rate_factor (10.0), step (0.05), seed (0), duration (0 = run until stopped),
-use_sim_time (true), supervisor / learner / filter (true), learner_store ('' = a fresh
+use_sim_time (true), supervisor / learner / filter (true), sensors (none | scan), learner_store ('' = a fresh
 store for this launch), params_file (''), set ('' ; e.g. "supervisor.mu=1.0 world.n_obstacles=6"),
 discovery_range (LOCALHOST), colorized_output (0).
 
@@ -30,6 +30,8 @@ ARGUMENTS = [
     ('supervisor', 'true', 'start the simulated supervisor'),
     ('learner', 'true', 'start the learner'),
     ('filter', 'true', 'start the safety filters (false: the planner drives the robot; testing only)'),
+    ('sensors', 'none', 'none: the study\'s robots; scan: robots that publish only odometry and a laser scan '
+                        'and take TwistStamped, planners that slow and stop, filters that read them'),
     ('learner_store', '', "the learner's intervention file ('' = a fresh file for this launch under "
                           '$XDG_DATA_HOME/supersafe_ros/runs/; name a file to resume a subject)'),
     ('params_file', '', 'a ROS 2 parameter file applied to every node after its config file '
@@ -67,7 +69,7 @@ def _nodes(context):
         overrides=parse_overrides(arg('set').split()),
         with_filter=_flag(arg('filter')), with_learner=_flag(arg('learner')),
         with_supervisor=_flag(arg('supervisor')), use_sim_time=_flag(arg('use_sim_time')),
-        learner_store=arg('learner_store') or None)
+        learner_store=arg('learner_store') or None, sensors=arg('sensors'))
     extra = [arg('params_file')] if arg('params_file') else []
     config = config_dir()
     actions = []

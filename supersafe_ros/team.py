@@ -117,13 +117,26 @@ class NodeSpec:
 CLUSTER_HOLD_TIMEOUT = 15.0
 
 
+# sensors 'scan': what the robots, planners and filters are told (beside their config files)
+SENSOR_MODE = {
+    'world': {'radii': [0.8, 1.8, 2.6]},        # obstacles of three sizes
+    'dubins_robot': {'sensors': 'scan', 'cmd_vel_stamped': True, 'follow_speed': True, 'timeout_behavior': 'stop'},
+    'planner': {'pose_type': 'odometry', 'cmd_vel_stamped': True, 'slow_radius': 6.0, 'goal_tolerance': 1.0,
+                'goal_wait': 1.0},
+    'safety_filter': {'pose_type': 'odometry', 'detections_type': 'laser_scan', 'cmd_vel_stamped': True,
+                      'robot_radius': 0.1, 'fail_safe_command': 'stop',
+                      'obstacle_depth': 5.2,          # the largest obstacle's diameter: its far side
+                      'sensor_max_disc_radius': 1.6},  # wide groups in pieces about the library's radius
+}
+
+
 def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
                 duration: float = 0.0, overrides: dict | None = None, step: float | None = None,
                 with_filter: bool = True, with_learner: bool = True,
                 with_supervisor: bool = True,
                 learner_store: str | Path | None = None,
                 use_sim_time: bool = True,
-                console_port: int | None = None) -> list[NodeSpec]:
+                console_port: int | None = None, sensors: str = 'none') -> list[NodeSpec]:
     """Every node of a team, in start order (the sim clock last).
 
     ``overrides``: {node kind: {param: value}} applied to every node of that kind
@@ -140,7 +153,16 @@ def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
     the simulation sets it here, for every node it starts, the filters and the learner
     included.
     ``console_port``: also run the supervisor console (web page) on this port.
+    ``sensors``: 'none' (the study's robots: PoseStamped pose, PoseArray detections, Twist,
+    constant speed) or 'scan': robots that publish only what a real one does (``odom``
+    Odometry, ``scan`` LaserScan, TwistStamped cmd_vel, driving at the commanded speed) in a
+    world of obstacles of three sizes, a planner that slows near its goal and stops there a
+    moment, and filters that read odometry, the scan and TwistStamped (SENSOR_MODE); the
+    world, learner, supervisor and console as in 'none'.
     """
+    if sensors not in ('none', 'scan'):
+        raise ValueError(f"sensors must be 'none' or 'scan', got {sensors!r}")
+    scan = sensors == 'scan'
     if n_robots < 1:
         raise ValueError('a team needs at least one robot')
     overrides = overrides or {}
@@ -160,7 +182,8 @@ def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
     # read the clock only for timeouts and statistics: they follow /clock_coarse and
     # are spared a /clock callback every step
     coarse = {'/clock': '/clock_coarse'}
-    add('world', None, {**sim, 'robots': robots, 'seed': seed}, coarse)
+    add('world', None, {**sim, 'robots': robots, 'seed': seed, **(SENSOR_MODE['world'] if scan else {})},
+        coarse)
     # one step of the clock = one robot step (lockstep acknowledges every step)
     if step is None:
         step = float(overrides.get('sim_clock', {}).get('step', 0.05))
@@ -169,8 +192,10 @@ def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
     for i, (name, pose) in enumerate(zip(robots, start_poses(n_robots))):
         add('dubins_robot', name, {
             **sim, 'initial_x': pose[0], 'initial_y': pose[1], 'initial_theta': pose[2],
-            'seed': seed * 1000 + i + 1, 'rate': 1.0 / step})
-        add('planner', name, sim, coarse if with_filter else {**coarse, 'cmd_vel_nav': 'cmd_vel'})
+            'seed': seed * 1000 + i + 1, 'rate': 1.0 / step, **(SENSOR_MODE['dubins_robot'] if scan else {})})
+        planner_remaps = {**coarse, **({'pose': 'odom'} if scan else {})}
+        add('planner', name, {**sim, **(SENSOR_MODE['planner'] if scan else {})},
+            planner_remaps if with_filter else {**planner_remaps, 'cmd_vel_nav': 'cmd_vel'})
         if with_filter:
             # lockstep: the filter answers each pose once, on that pose (the robot's step
             # acknowledgement), so each command holds exactly one step: the look-ahead is
@@ -180,10 +205,14 @@ def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
             # fallback (docs/graph_safety.md). A lockstepped robot does not move while /clock
             # waits (a busy machine, a slow rate factor), so the filter counts a stopped /clock
             # as lost only after 20 s (docs/filter_node.md).
-            add('safety_filter', name, {**sim, 'control_period': step,
+            # its robot is the constant-speed Dubins robot: the fail safe is the stop-turn (a
+            # --sensors scan robot follows its commanded speed and can stop: SENSOR_MODE)
+            add('safety_filter', name, {**sim, 'control_period': step, 'fail_safe_command': 'stop_turn',
                                         'clock_stall_timeout': CLUSTER_HOLD_TIMEOUT + 5.0,
                                         'lockstep': True, 'lockstep_silence': CLUSTER_HOLD_TIMEOUT + 5.0,
-                                        'cluster_hold_timeout': CLUSTER_HOLD_TIMEOUT})
+                                        'cluster_hold_timeout': CLUSTER_HOLD_TIMEOUT,
+                                        **(SENSOR_MODE['safety_filter'] if scan else {})},
+                {'pose': 'odom', 'detections': 'scan'} if scan else None)
     if with_learner:
         add('learner', None, {**sim, 'robots': robots,
                               **({'store_path': str(learner_store)} if learner_store else {})},
@@ -208,6 +237,9 @@ def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
     if with_learner:
         publishers.append('/safe_set/value_function=1')
     pose_readers = 2 + int(with_filter) + int(with_supervisor)   # world, planner, filter, supervisor
+    odom_readers = 0
+    if scan:     # planner and filter read odom instead
+        pose_readers, odom_readers = pose_readers - 1 - int(with_filter), 1 + int(with_filter)
     observers = ['/world/step_done'] + (['/supervisor/step_done'] if with_supervisor else [])
     add('sim_clock', None, {
         'use_sim_time': False, 'robots': robots, 'observers': observers,
@@ -217,6 +249,7 @@ def team_layout(n_robots: int = 2, rate_factor: float = 10.0, seed: int = 0,
         'duration': float(duration), 'step': step, 'wait_for_publishers': publishers,
         # every robot's and filter's /clock reader, so that no one misses the first steps
         'wait_for_subscriptions': [f'/{r}/pose={pose_readers}' for r in robots]
+        + [f'/{r}/odom={odom_readers}' for r in robots if odom_readers]
         + [f'/clock={len(robots) * (1 + int(with_filter))}']})
     return layout
 

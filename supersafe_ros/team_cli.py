@@ -38,6 +38,9 @@ def add_parser(subparsers):
     parser.add_argument('--no-filter', action='store_true',
                         help='wire cmd_vel_nav straight into cmd_vel (testing only)')
     parser.add_argument('--no-learner', action='store_true', help='leave the learner out')
+    parser.add_argument('--sensors', choices=('none', 'scan'), default='none',
+                        help='scan: robots that publish only odometry and a laser scan and take TwistStamped, '
+                        'planners that slow and stop at their goals, filters reading them (docs/topics.md)')
     parser.add_argument('--no-supervisor', action='store_true', help='leave the supervisor out')
     parser.add_argument('--console', action='store_true',
                         help='also serve the supervisor console (a web page) and print its URL')
@@ -75,7 +78,7 @@ def run(args) -> int:
         with_supervisor=not args.no_supervisor,
         learner_store=args.learner_store or log_dir / 'interventions.jsonl',
         params_files=[p.resolve() for p in args.params_file],
-        console_port=args.console_port if args.console else None)
+        console_port=args.console_port if args.console else None, sensors=args.sensors)
     record = getattr(args, 'record', None)
     if record is not None and record.exists() and (not record.is_dir() or any(record.iterdir())):
         print(f'--record {record}: exists and is not an empty folder; a bag is never overwritten')

@@ -45,7 +45,7 @@ def s3_data() -> Path:
 def decision_path(request, monkeypatch):
     """Run a test's ``RobotFilter.step`` calls through each path of ``step_many``: a robot alone
     takes the one-robot path (``_decide_one``, Python scalars); beside a robot with no inputs
-    (left out of the law: it only gets the stop-turn) it takes the vectorised path. Every
+    (left out of the law: it only gets the fail safe) it takes the vectorised path. Every
     single-robot expectation then holds for both."""
     from supersafe_ros.filter import RobotFilter, step_many
     if request.param != 'alone':

@@ -4,7 +4,11 @@ reference the vectorised one must equal decision for decision (test_filter_vecto
 and ``govern_one``, the per-robot rule the fleet's ``law.govern`` replaced. Only the imports differ, the control
 period is computed from the filter's interval deques here (as it was), not from its cache,
 and propagate_poses wraps theta when no robot has an arc (as filter.propagation does since: a
-robot's state must not depend on the other robots' plans).
+robot's state must not depend on the other robots' plans). Since issue 31 it also follows the
+planner's speed (``_drive``: the holds at the speed the robot drives, the arcs at the speeds
+sent) and a robot that can stop (fail_safe_command 'stop': a zero twist, the avoid turn at
+the speed last sent where the law would act on its last valid state, in place on a loiter
+fallback); a constant-speed robot ('stop_turn') decides as before.
 """
 from __future__ import annotations
 
@@ -55,12 +59,34 @@ def propagate_poses(filters, use, t):
     if depth == 0:      # (added later: theta wrapped as a zero-length arc would, see filter.propagation)
         states[:, 2] = wrap_angle(states[:, 2])
         return states, ages
-    speed = np.array([filters[i].config.speed for i in use])
     for k in range(depth):
         omega = np.array([p[k][0] if k < len(p) else 0.0 for p in plans])
         dt = np.array([p[k][1] if k < len(p) else 0.0 for p in plans])
+        speed = np.array([p[k][2] if k < len(p) else 0.0 for p in plans])
         states = arc_flow(states, speed, omega, dt)
     return states, ages
+
+
+def _held(f) -> float:
+    """The speed the robot drives under the last command sent."""
+    cfg = f.config
+    if cfg.fail_safe_command == 'stop_turn':
+        return cfg.speed
+    return f.sent[-1][2] if f.sent else 0.0
+
+
+def _drive(f, t, failing) -> float:
+    """The speed of the command judged: a constant-speed robot's speed; failing safe, the speed
+    last sent; else the planner's clipped to [0, speed] (not given: the speed), 0 if silent."""
+    cfg = f.config
+    if cfg.fail_safe_command == 'stop_turn':
+        return cfg.speed
+    if failing:
+        return _held(f)
+    if f.command.value is None or t - f.command.t > cfg.cmd_timeout:
+        return 0.0
+    v = f.command.linear
+    return cfg.speed if v is None else max(0.0, min(cfg.speed, v))
 
 
 def _pairs(filters, use, states):
@@ -108,7 +134,8 @@ def step_many_reference(filters, safe_set: SafeSet, t, clusters=None) -> list:
     rel, robot, obstacle = _pairs(filters, usable, states)
     value, turn = evaluate_pairs(safe_set.vf, rel)
     horizons = {i: _lookahead(filters[i]) for i in usable}
-    turn, value_next = _sampled_control(filters, safe_set.vf, rel, robot, t, horizons, turn)
+    drives = {i: _drive(filters[i], t, bool(problems[i])) for i in usable}
+    turn, value_next = _sampled_control(filters, safe_set.vf, rel, robot, t, horizons, turn, drives)
     # pairs are grouped by robot, in order: robot i's pairs are [first[i], last[i])
     first = {int(i): int(k) for i, k in zip(*np.unique(robot, return_index=True))} if len(robot) else {}
 
@@ -120,22 +147,34 @@ def step_many_reference(filters, safe_set: SafeSet, t, clusters=None) -> list:
         cfg = f.config
         c = _Constraints.of_pairs(f, i, first, value, turn, value_next, obstacle, alpha, safe_set.source)
         if i in state_of and cfg.clusters and len(f.detections.value) > 1:
-            _add_cluster_constraints(c, f, state_of[i], horizons[i], t, clusters)
+            _add_cluster_constraints(c, f, state_of[i], horizons[i], t, clusters, drives[i])
         common = dict(alpha=alpha, source=safe_set.source, omega_max_set=set_omega,
                       pose_age=float(age_of.get(i, 0.0)), lookahead=float(horizons.get(i, 0.0)),
                       clusters_solving=c.solving)
+        constant = cfg.fail_safe_command == 'stop_turn'
         if problems[i]:
-            f.overriding = False   # re-enter by the law once inputs are back
             k = c.smallest()
+            avoid = k >= 0
+            if not constant:       # a robot that can stop avoids only where the law would act
+                k_gov, kind_gov = c.governing(f.overriding, cfg.clear_margin) if i in usable else (-1, '')
+                avoid = bool(kind_gov)
+                k = k_gov if avoid else k
+            f.overriding = False   # re-enter by the law once inputs are back
             common.update(c.describe(k, f))
-            if k >= 0:
-                out.append(FilterOutput(cfg.omega_max * c.turn[k], cfg.speed, FAIL_SAFE,
+            stop = 'stop-turn' if constant else 'stop (zero twist)'
+            if avoid:
+                speed = cfg.speed if constant else _held(f)
+                out.append(FilterOutput(cfg.omega_max * c.turn[k], speed, FAIL_SAFE,
                                         f'{problems[i]}; avoiding {c.label(k)} from the last '
-                                        f'valid state (V={c.value[k]:.3g})', **common))
+                                        f'valid state (V={c.value[k]:.3g}) at {speed:g} m/s', **common))
+            elif k >= 0:
+                out.append(FilterOutput(0.0, 0.0, FAIL_SAFE,
+                                        f'{problems[i]}; clear of {c.label(k)} at the last valid state '
+                                        f'(V={c.value[k]:.3g} > alpha={c.level[k]:.3g}): {stop}', **common))
             else:
                 why = 'no recent valid state' if i not in usable else 'no obstacle near the last valid state'
-                out.append(FilterOutput(cfg.omega_max, 0.0, FAIL_SAFE,
-                                        f'{problems[i]}; {why}: stop-turn', **common))
+                out.append(FilterOutput(cfg.omega_max if constant else 0.0, 0.0, FAIL_SAFE,
+                                        f'{problems[i]}; {why}: {stop}', **common))
             continue
         k, kind = c.governing(f.overriding, cfg.clear_margin)
         common.update(c.describe(k, f))
@@ -149,7 +188,11 @@ def step_many_reference(filters, safe_set: SafeSet, t, clusters=None) -> list:
                        f'within {horizons[i]:.3g} s ({c.label(k)})')
             else:
                 why = f'V={c.value[k]:.3g} <= alpha+margin={lv + cfg.clear_margin:.3g}: not clear yet'
-            out.append(FilterOutput(cfg.omega_max * c.turn[k], cfg.speed, OVERRIDE, why, **common))
+            speed = drives[i]
+            if not constant and c.source[k] == 'cluster-fallback':
+                why += '; turning in place (the loiter circle is drawn at full speed)'
+                speed = 0.0
+            out.append(FilterOutput(cfg.omega_max * c.turn[k], speed, OVERRIDE, why, **common))
             continue
         f.overriding = False
         if f.command.value is None or t - f.command.t > cfg.cmd_timeout:
@@ -161,9 +204,9 @@ def step_many_reference(filters, safe_set: SafeSet, t, clusters=None) -> list:
                    f'clear: V={c.value[k]:.3g} > alpha={c.level[k]:.3g}')
             # the robot's bound, whatever the planner asked (angular.z = 1e30 goes out as w_max)
             omega = clip(f.command.value, cfg.omega_max)
-            out.append(FilterOutput(omega, cfg.speed, PASS, why, **common))
+            out.append(FilterOutput(omega, drives[i], PASS, why, **common))
     for f, o in zip(filters, out):
-        f.record_sent(o.omega, t)
+        f.record_sent(o.omega, t, f.config.speed if f.config.fail_safe_command == 'stop_turn' else o.linear)
     return out
 
 
@@ -257,7 +300,7 @@ class _Constraints:
         return d
 
 
-def _add_cluster_constraints(c: _Constraints, f, state, horizon, t, store) -> None:
+def _add_cluster_constraints(c: _Constraints, f, state, horizon, t, store, drive) -> None:
     """Cluster constraints of robot ``f`` at its (propagated) ``state``."""
     from supersafe_ros.filter import cluster as cl
     cfg = f.config
@@ -279,13 +322,13 @@ def _add_cluster_constraints(c: _Constraints, f, state, horizon, t, store) -> No
     # period (a pass never leaves the robot where no held turn keeps V above the level)
     u = planned_turn(f, t)
     w = cfg.omega_max
-    speed = np.full(3, cfg.speed)
+    speed = np.full(3, drive)
     hold = np.full(3, horizon)
     ahead = arc_flow(state[None], speed[:1], np.array([u]), hold[:1])[0]
     # (added later: the turn's bangs are held at least st.turn_hold, one heading cell of the
     # cluster grid: a shorter hold's two ends read alike between its nodes)
     turn_hold = max(horizon, st.turn_hold)
-    points = arc_flow(np.stack([state, state, ahead, ahead]), np.full(4, cfg.speed),
+    points = arc_flow(np.stack([state, state, ahead, ahead]), np.full(4, drive),
                       np.array([w, -w, w, -w]), np.array([turn_hold, turn_hold, horizon, horizon]))
     for gi, (g, (key, origin, angle, centres)) in enumerate(zip(groups, frames)):
         group = ('cluster', gi)
@@ -313,7 +356,7 @@ def _add_cluster_constraints(c: _Constraints, f, state, horizon, t, store) -> No
                 c.add(v[0], 0.0, turn[0], v[1], nearest, 'cluster-fallback', len(g), group)
 
 
-def _sampled_control(filters, vf: ValueFunction, rel, robot, t, horizons, turn):
+def _sampled_control(filters, vf: ValueFunction, rel, robot, t, horizons, turn, drives):
     """The avoid turn and the lookahead value of every pair, for commands held over H.
 
     H is the robot's lookahead (>= its control period). A command holds for H, so:
@@ -335,7 +378,7 @@ def _sampled_control(filters, vf: ValueFunction, rel, robot, t, horizons, turn):
         return turn, np.zeros(0)
     # per-robot values, repeated over each robot's pairs (pairs are grouped by robot)
     robots, counts = np.unique(robot, return_counts=True)
-    per = np.array([(planned_turn(filters[i], t), horizons[i], filters[i].config.speed,
+    per = np.array([(planned_turn(filters[i], t), horizons[i], drives[i],
                      filters[i].config.omega_max) for i in robots], dtype=float).reshape(-1, 4)
     omega, horizon, speed, bang = (np.repeat(per[:, c], counts) for c in range(4))
     if not np.any(horizon > 0):

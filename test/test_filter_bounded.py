@@ -264,17 +264,34 @@ def test_commands_beyond_the_robots_limits_are_clipped_and_said(standard):
         assert out.omega == sent and out.action == 'pass'
         assert f'angular.z={raw:.6g} beyond w_max=1: clipped to {sent:g}' == out.cmd_clipped
         assert out.record()['cmd_clipped'] == out.cmd_clipped
-    f.update_command(0.5, 0.0, 0.0)             # a stop the Dubins robot cannot make
-    out = f.step(standard, 0.01)
+    # the planner's speed, clipped to [0, speed]; a reverse command is sent as 0
+    cases = ((0.0, 0.0, ''), (1.2, 1.2, ''), (3.0, 3.0, ''), (7.5, 3.0, 'linear.x=7.5 beyond speed=3: clipped to 3'),
+             (-0.4, 0.0, 'linear.x=-0.4 is reverse: sent as 0'))
+    for raw, sent, said in cases:
+        f.update_command(0.5, 0.0, raw)
+        out = f.step(standard, 0.01)
+        assert out.omega == 0.5 and out.linear == sent and out.cmd_clipped.startswith(said), (raw, out)
+        assert bool(out.cmd_clipped) == bool(said)
+    f.update_command(0.5, 0.0)                  # linear.x not given: the speed
+    assert f.step(standard, 0.01).linear == 3.0
+    dubins = RobotFilter(FilterConfig(fail_safe_command='stop_turn'))
+    dubins.update_pose((100.0, 100.0, 0.0), 0.0)
+    dubins.update_detections(np.zeros((0, 2)), 0.0)
+    dubins.update_command(0.5, 0.0, 0.0)        # a stop the constant-speed Dubins robot cannot make
+    out = dubins.step(standard, 0.01)
     assert out.omega == 0.5 and out.linear == 3.0 and "linear.x=0 is not the robot's speed 3" in out.cmd_clipped
     f.update_command(0.5, 0.0, 3.0)
     assert f.step(standard, 0.01).cmd_clipped == ''
     with pytest.raises(ValueError):
         f.update_command(math.inf, 0.02, 3.0)
     out = f.step(standard, 0.03)
-    assert out.omega == 0.5 and 'angular.z=inf is not finite: rejected' in out.cmd_clipped
+    assert out.omega == 0.5 and 'angular.z=inf' in out.cmd_clipped and 'rejected' in out.cmd_clipped
+    with pytest.raises(ValueError):
+        f.update_command(0.1, 0.02, math.nan)   # a speed not finite: rejected, the previous kept
+    out = f.step(standard, 0.03)
+    assert out.omega == 0.5 and out.linear == 3.0 and 'linear.x=nan' in out.cmd_clipped
     # batched: only the rows beyond their robot's limits are said, the next command clears them
-    fleet = [RobotFilter(FilterConfig(omega_max=w)) for w in (1.0, 0.5, 1.0, 1.0)]
+    fleet = [RobotFilter(FilterConfig(omega_max=w, fail_safe_command='stop_turn')) for w in (1.0, 0.5, 1.0, 1.0)]
     for r in fleet:
         r.update_pose((100.0, 100.0, 0.0), 0.0)
         r.update_detections(np.zeros((0, 2)), 0.0)
@@ -303,3 +320,15 @@ def test_a_cluster_too_large_to_solve_is_never_requested_and_judged_by_its_fallb
         assert not store.requested and not store.values and not store.errors
         assert out.action == 'override' and out.source == 'cluster-fallback', out
         assert f'a cluster of {count if count <= NEAR_QUERY_MIN else len(f._near_pick[2])} obstacles' in out.reason
+    # a robot that can stop: its speed passed, beyond [0, speed] clipped and said
+    movers = [RobotFilter(FilterConfig()) for _ in range(4)]
+    for r in movers:
+        r.update_pose((100.0, 100.0, 0.0), 0.0)
+        r.update_detections(np.zeros((0, 2)), 0.0)
+    assert update_commands(movers, [0.1] * 4, 0.0, linears=[2.0, 4.0, -1.0, 0.0]) == [1, 2]
+    outs = step_many(movers, standard, 0.01)
+    assert outs.linear == [2.0, 3.0, 0.0, 0.0]
+    said = [o.cmd_clipped.split(':')[0] for o in outs]
+    assert said == ['', 'linear.x=4 beyond speed=3', 'linear.x=-1 is reverse', '']
+    with pytest.raises(ValueError):
+        update_commands(movers, [0.1] * 4, 0.02, linears=[1.0, math.inf, 1.0, 1.0])

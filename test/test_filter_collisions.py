@@ -12,7 +12,7 @@ import pytest
 from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore, canonical, components, to_frame
 from supersafe_ros.filter import FilterConfig, RobotFilter, SafeSet, step_many
 from supersafe_ros.filter.trials import (cup_layout, layout_trials, random_layout, row_layout, run_trials,
-                                         single_disc_trials, standard_guard)
+                                         single_disc_trials, speed_profiles, standard_guard)
 from supersafe_ros.reach.dynamics import DubinsCar
 from supersafe_ros.reach.grid import Grid
 from supersafe_ros.reach.sets import Disc
@@ -253,3 +253,21 @@ def test_the_lockstep_look_ahead_of_one_study_step_never_collides(standard, stor
                    config=config, rng=np.random.default_rng(23))
     assert r.collisions == 0 and r.trapped == 0, r.summary()
     assert r.overrides > 0
+
+
+@pytest.mark.parametrize('step', [0.05, 0.2])
+def test_planners_that_slow_stop_wait_and_speed_up_never_collide(standard, store, step):
+    """The value functions are solved at the largest speed; planners that slow, stop and wait,
+    and speed up again (speed_profiles), at both step sizes of the trials and with stale
+    poses: no collision with a detected obstacle (single discs, rows, cups and dense layouts,
+    clusters by their union's value), and no robot sent faster than its planner asked."""
+    rng = np.random.default_rng(31)
+    n = 8 if step < 0.1 else 14
+    layouts = ([np.zeros((1, 2))] * n + [row_layout(4.5)] * n + [cup_layout(rng) for _ in range(n)]
+               + [random_layout(rng, 4, half=5.0, min_gap=0.3) for _ in range(n)])
+    encounters = layout_trials(layouts, rng)
+    speeds = speed_profiles(np.random.default_rng(32), len(encounters))
+    res = run_trials(encounters, cluster_guard(standard, store), step=step, stale_probability=STALE,
+                     rng=np.random.default_rng(33), speeds=speeds, time_limit=40.0)
+    assert res.collisions == 0, res.summary()
+    assert res.max_speed_excess == 0.0 and res.overrides > 0

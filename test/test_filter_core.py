@@ -75,7 +75,8 @@ def test_hysteresis_keeps_overriding_until_clear(standard):
 
 
 def test_stale_pose_fails_safe_with_avoid_control_then_stop_turn(standard):
-    f = robot(pose=at(-3.0, -0.6, 0.0), cmd=0.9, pose_timeout=0.5, hold_timeout=1.0, detections_timeout=5.0)
+    f = robot(pose=at(-3.0, -0.6, 0.0), cmd=0.9, pose_timeout=0.5, hold_timeout=1.0, detections_timeout=5.0,
+              fail_safe_command='stop_turn')
     first = f.step(standard, 0.0)
     assert first.action == OVERRIDE and first.omega == -1.0
     f.update_detections(np.array([OBSTACLE]), 0.9)
@@ -91,15 +92,39 @@ def test_stale_pose_fails_safe_with_avoid_control_then_stop_turn(standard):
     assert 'stop-turn' in out.reason
 
 
+def test_a_robot_that_can_stop_fails_safe_with_the_avoid_turn_at_its_speed_then_stops(standard):
+    """fail_safe_command 'stop': from a last valid state the law acts on, the avoid turn at the
+    speed last sent (the planner's 1.2 m/s, not the largest 3); past hold_timeout a zero twist."""
+    f = robot(pose=at(-2.6, -0.3, 0.0), cmd=None, pose_timeout=0.5, hold_timeout=1.0, detections_timeout=5.0)
+    f.update_command(0.9, 0.0, 1.2)
+    first = f.step(standard, 0.0)
+    assert first.action == OVERRIDE and first.omega == -1.0 and first.linear == 1.2
+    f.update_detections(np.array([OBSTACLE]), 0.9)
+    out = f.step(standard, 0.7)        # pose 0.7 s old: stale, but within the hold window
+    assert out.action == FAIL_SAFE and 'pose stale' in out.reason and 'avoiding obstacle 0' in out.reason
+    # the last valid state moved on by the 0.7 s of right turn sent since, at the speed sent
+    moved = DubinsCar(1.2, 1.0).flow(np.array([-2.6, -0.3, 0.0]), -1.0, 0.7)
+    value, _ = evaluate_pairs(standard.vf, moved[None])
+    assert out.value == pytest.approx(value[0]) and abs(out.omega) == 1.0 and out.linear == 1.2
+    out = f.step(standard, 1.5)        # beyond the hold window: stop
+    assert (out.action, out.linear, out.omega) == (FAIL_SAFE, 0.0, 0.0) and 'stop (zero twist)' in out.reason
+
+
 def test_stale_pose_does_not_forward_the_planner(standard):
     # near enough to be on the obstacle's grid: the avoid control of the last state
-    f = robot(pose=at(-7.5, 6.0, 0.0), cmd=0.3, pose_timeout=0.1)
+    f = robot(pose=at(-7.5, 6.0, 0.0), cmd=0.3, pose_timeout=0.1, fail_safe_command='stop_turn')
     out = f.step(standard, 0.2)
     assert out.action == FAIL_SAFE and abs(out.omega) == 1.0 and 'avoiding obstacle 0' in out.reason
     # off every obstacle's grid: nothing to avoid, stop-turn
-    g = robot(pose=at(-9.0, 6.0, 0.0), cmd=0.3, pose_timeout=0.1)
+    g = robot(pose=at(-9.0, 6.0, 0.0), cmd=0.3, pose_timeout=0.1, fail_safe_command='stop_turn')
     out = g.step(standard, 0.2)
     assert out.action == FAIL_SAFE and out.linear == 0.0 and out.omega == 1.0 and 'stop-turn' in out.reason
+    # a robot that can stop: clear of the obstacle there (the law would not act), and off the grid: a zero twist
+    for pose, said in (((-7.5, 6.0, 0.0), 'clear of obstacle 0'), ((-9.0, 6.0, 0.0), 'no obstacle near')):
+        h = robot(pose=at(*pose), cmd=0.3, pose_timeout=0.1)
+        out = h.step(standard, 0.2)
+        assert (out.action, out.linear, out.omega) == (FAIL_SAFE, 0.0, 0.0), out.reason
+        assert said in out.reason and 'stop (zero twist)' in out.reason
 
 
 def test_values_and_turns_agree_with_an_independent_computation(standard):

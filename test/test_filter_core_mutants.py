@@ -92,8 +92,8 @@ def test_an_input_exactly_timeout_old_is_not_stale(standard):
 
 
 # -- what the robot did since its pose (segments_since) ------------------------------------------
-def sent_filter(cmd=None, sent=()):
-    f = RobotFilter(FilterConfig())
+def sent_filter(cmd=None, sent=(), **cfg):
+    f = RobotFilter(FilterConfig(**cfg))
     if cmd is not None:
         f.update_command(cmd, T - 1.0)
     for ts, w in sent:
@@ -102,7 +102,24 @@ def sent_filter(cmd=None, sent=()):
 
 
 def segments(f, t0, t1):
-    return [(w, round(d, 12)) for w, d in f.segments_since(t0, t1)]
+    return [(w, round(d, 12)) for w, d, _ in f.segments_since(t0, t1)]
+
+
+def test_segments_carry_the_speed_each_command_was_sent_with():
+    """Each arc at the speed recorded with its command; before any: the planner's speed
+    (clipped to [0, speed], not given: the speed), else 0, or a constant-speed robot's speed
+    (kills a speed taken from the wrong command, and the idle speed's two branches)."""
+    f = sent_filter()
+    f.record_sent(0.4, T, 1.0)
+    f.record_sent(-0.6, T + 0.1, 2.5)
+    assert [v for _, _, v in f.segments_since(T + 0.05, T + 0.3)] == [1.0, 2.5]
+    assert [v for _, _, v in sent_filter().segments_since(T, T + 0.1)] == [0.0]
+    assert [v for _, _, v in sent_filter(fail_safe_command='stop_turn').segments_since(T, T + 0.1)] == [3.0]
+    assert [v for _, _, v in sent_filter(cmd=0.2).segments_since(T, T + 0.1)] == [3.0]
+    g = sent_filter()
+    for linear, v in ((1.5, 1.5), (-2.0, 0.0), (9.0, 3.0)):
+        g.update_command(0.2, T - 1.0, linear)
+        assert [s for _, _, s in g.segments_since(T, T + 0.1)] == [v]
 
 
 def test_segments_before_any_command_sent():
@@ -343,7 +360,8 @@ def test_inputs_older_than_hold_timeout_but_not_stale_are_judged(standard, pose_
 def test_a_last_valid_state_exactly_hold_timeout_old_is_still_avoided_from(standard, stale):
     """Fail safe with the last valid pose and detections up to hold_timeout old, inclusive
     (kills ``<`` for either input)."""
-    f = RobotFilter(FilterConfig(pose_timeout=0.5, detections_timeout=0.5, hold_timeout=1.0))
+    f = RobotFilter(FilterConfig(pose_timeout=0.5, detections_timeout=0.5, hold_timeout=1.0,
+                                 fail_safe_command='stop_turn'))
     f.update_pose(at(-6.0, 3.0, 0.0), 0.0 if stale == 'pose' else 1.0)
     f.update_detections(np.array([OBSTACLE]), 0.0 if stale == 'detections' else 1.0)
     f.update_command(0.0, 1.0)
@@ -499,15 +517,15 @@ def test_batched_poses_with_a_repeated_stamp_do_not_shorten_the_measured_period(
 
 
 def test_batched_detections_accept_none_and_reject_malformed():
-    """No detections is (0, 2); non-finite centres and rows that are not (x, y) are rejected
-    (kills the empty case read as size 1, replaced by None, (1, 2) or (0, 3), and ``and`` for
-    ``or`` in the shape/finite check)."""
+    """No detections is (0, 2); non-finite centres, rows that are neither (x, y) nor (x, y, r)
+    and radii that are not > 0 are rejected (kills the empty case read as size 1, replaced by
+    None, (1, 2) or (0, 3), and ``and`` for ``or`` in the shape/finite check)."""
     from supersafe_ros.filter import update_detections_all
     filters = [RobotFilter(), RobotFilter()]
     for empty in ([], np.zeros((0, 2))):
         update_detections_all(filters, empty, T)
         assert all(f.detections.value.shape == (0, 2) for f in filters)
-    for bad in ([[np.nan, 0.0]], [[0.0, 1.0, 2.0]], [0.0, 1.0]):
+    for bad in ([[np.nan, 0.0]], [[0.0, 1.0, 2.0, 3.0]], [0.0, 1.0], [[0.0, 1.0, 0.0]], [[0.0, 1.0, np.nan]]):
         with pytest.raises(ValueError):
             update_detections_all(filters, bad, T)
 
@@ -577,7 +595,67 @@ def test_the_first_robot_failing_safe_far_from_obstacles_says_no_obstacle_is_nea
     reason tells the state was valid but clear, also for the fleet's first robot (kills a
     row test that takes row 0 for "no recent valid state")."""
     far = at(OBSTACLE[0] - 30.0, OBSTACLE[1], 0.0)
-    f = robot(pose=far, pose_timeout=0.5, hold_timeout=2.0, detections_timeout=5.0)
+    f = robot(pose=far, pose_timeout=0.5, hold_timeout=2.0, detections_timeout=5.0, fail_safe_command='stop_turn')
     outs = step_many([f, robot(pose=far)], standard, T + 1.0)
     assert outs[0].action == FAIL_SAFE and outs[0].linear == 0.0
     assert outs[0].reason.endswith('no obstacle near the last valid state: stop-turn'), outs[0].reason
+
+
+# -- the planner's speed and the fail-safe command (issue 31) ------------------------------------
+def test_no_input_at_all_is_a_zero_twist_or_the_stop_turn(standard):
+    """Before any input (the lone node's watchdog): 'stop' sends (0, 0), 'stop_turn' (0, +w_max)
+    (kills the spread's branches swapped, and the stop-turn's turn kept for a robot that can
+    stop)."""
+    for mode, turn in (('stop', 0.0), ('stop_turn', 0.5)):
+        out = RobotFilter(FilterConfig(fail_safe_command=mode, omega_max=0.5)).step(standard, T)
+        assert (out.action, out.linear, out.omega) == (FAIL_SAFE, 0.0, turn), mode
+        assert out.reason.endswith('stop-turn' if mode == 'stop_turn' else 'stop (zero twist)')
+    with pytest.raises(ValueError, match='fail_safe_command'):
+        FilterConfig(fail_safe_command='spin')
+
+
+def test_the_first_decision_failing_safe_avoids_at_the_speed_sent_so_far_none(standard):
+    """A robot that can stop, never sent a command, failing safe where the law acts on its
+    last valid state: the avoid turn in place (the speed last sent: none, 0), not at its
+    largest speed (kills ``held`` read as the configured speed)."""
+    f = robot(pose=at(-2.6, -0.3, 0.0), cmd=None, pose_timeout=0.5, hold_timeout=1.0, detections_timeout=5.0)
+    f.update_detections(np.array([OBSTACLE]), T + 0.6)
+    out = f.step(standard, T + 0.6)
+    assert out.action == FAIL_SAFE and 'avoiding obstacle 0' in out.reason
+    assert out.linear == 0.0 and abs(out.omega) == 1.0
+
+
+def test_a_constant_speed_robot_is_propagated_at_its_speed_after_a_stop_turn(standard):
+    """The stop-turn sends linear.x 0, but the Dubins robot drives on at its speed: its pose is
+    propagated at the speed (kills recording the linear.x sent for a constant-speed robot); a
+    robot that can stop sent 0 is propagated standing still."""
+    moved = {}
+    for mode in ('stop_turn', 'stop'):
+        f = RobotFilter(FilterConfig(fail_safe_command=mode, pose_timeout=0.5, hold_timeout=1.0))
+        f.step(standard, T)                                  # no input: the fail safe, linear.x 0
+        f.update_pose(at(-7.0, 3.0, 0.0), T + 0.05, stamp=T)
+        f.update_detections(np.array([OBSTACLE]), T + 0.05)
+        f.update_command(0.0, T + 0.05, 2.0)
+        moved[mode] = f.step(standard, T + 0.05).value
+    expected = DubinsCar(3.0, 1.0).flow(np.array([-7.0, 3.0, 0.0]), 1.0, 0.05)     # the stop-turn, at 3 m/s
+    assert moved['stop_turn'] == pytest.approx(evaluate_pairs(standard.vf, expected[None])[0][0])
+    assert moved['stop'] == pytest.approx(evaluate_pairs(standard.vf, np.array([[-7.0, 3.0, 0.0]]))[0][0])
+
+
+def test_an_override_on_a_loiter_fallback_turns_in_place_for_a_robot_that_can_stop(standard):
+    """A cluster governed by its loiter fallback (a circle drawn at full speed): a robot that
+    can stop turns in place, a constant-speed robot turns at its speed; a union row or a
+    pair keeps the planner's speed (kills the fallback test dropped or inverted)."""
+    from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore
+    never = ClusterStore(ClusterSettings(), fallback_only=True)
+    row = np.array([[OBSTACLE[0], OBSTACLE[1]], [OBSTACLE[0] + 4.5, OBSTACLE[1]]])     # head on, along the row
+    seen = {}
+    for mode in ('stop', 'stop_turn'):
+        for x in np.linspace(-9.0, -3.0, 25):
+            f = robot(pose=at(x, 0.0, 0.0), detections=row, cmd=None, fail_safe_command=mode)
+            f.update_command(0.0, T, 1.5)
+            out = f.step(standard, T, never)
+            if out.action == OVERRIDE:
+                seen.setdefault((mode, out.source), out.linear)
+    assert seen[('stop', 'cluster-fallback')] == 0.0 and seen[('stop_turn', 'cluster-fallback')] == 3.0
+    assert seen.get(('stop', 'standard'), 1.5) == 1.5

@@ -92,7 +92,8 @@ def build_fleet(seed, n):
                                control_period=float(rng.choice([0.0, 0.0, 0.05])),
                                compensate_delay=bool(rng.random() < 0.85),
                                clusters=bool(rng.random() < 0.8),
-                               cluster_alpha=float(rng.choice([0.0, 0.0, 0.2])))
+                               cluster_alpha=float(rng.choice([0.0, 0.0, 0.2])),
+                               fail_safe_command=str(rng.choice(['stop', 'stop_turn'])))
             if len(pool) < 4:
                 pool.append(cfg)
         f = RobotFilter(cfg, name=f'r{i}')
@@ -111,7 +112,7 @@ def build_fleet(seed, n):
             for k in range(int(rng.integers(1, 5))):
                 tk = t - 0.02 * (4 - k)
                 f.update_pose(pose, tk, stamp=tk - rng.uniform(0.0, 0.01))
-                f.record_sent(float(rng.uniform(-1, 1)), tk)
+                f.record_sent(float(rng.uniform(-1, 1)), tk, float(rng.choice([0.0, 1.5, 3.0])))
             age = {'fresh': 0.0, 'delayed': rng.uniform(0.01, 0.3), 'stale': rng.uniform(0.6, 0.95),
                    'lost': 1.5, 'rejected': 0.0}[pose_kind]
             f.update_pose(pose, t - age, stamp=t - age - rng.uniform(0.0, 0.12))
@@ -125,7 +126,8 @@ def build_fleet(seed, n):
         cmd_kind = rng.choice(['fresh'] * 6 + ['wide', 'silent', 'none'])
         if cmd_kind != 'none':
             w = float(rng.uniform(-3, 3) if cmd_kind == 'wide' else rng.uniform(-1, 1))
-            f.update_command(w, t - (0.8 if cmd_kind == 'silent' else rng.uniform(0, 0.1)))
+            linear = rng.choice([None, 3.0, float(rng.uniform(-1.0, 4.0)), 0.0])     # the planner's speed
+            f.update_command(w, t - (0.8 if cmd_kind == 'silent' else rng.uniform(0, 0.1)), linear)
         f.overriding = bool(rng.random() < 0.3)
         filters.append(f)
     return filters, t
@@ -141,7 +143,7 @@ def advance(filters, outs, rng, t, dt):
             moved = (x + 3.0 * dt * math.cos(th), y + 3.0 * dt * math.sin(th), th2)
             f.update_pose(moved, t, stamp=t - (0.02 if r[1] < 0.3 else 0.0))
         if r[2] < 0.5:
-            f.update_command(float(rng.uniform(-1.5, 1.5)), t)
+            f.update_command(float(rng.uniform(-1.5, 1.5)), t, float(rng.uniform(-0.5, 3.5)))
         if r[3] < 0.05 and f.detections.value is not None:
             f.update_detections(f.detections.value.copy(), t)   # a new detections array, same centres
 
@@ -602,7 +604,8 @@ def test_the_better_bang_turns_left_on_ties_within_the_tolerance():
 def test_robots_with_equal_but_distinct_configurations_keep_their_own_fields(standard):
     """Two configurations that compare equal (0.0 == -0.0) are still two: each robot's command
     carries its own turn bound's sign, as when it is decided alone."""
-    fleet = [RobotFilter(FilterConfig(omega_max=-0.0), name='a'), RobotFilter(FilterConfig(omega_max=0.0), name='b')]
+    fleet = [RobotFilter(FilterConfig(omega_max=w, fail_safe_command='stop_turn'), name=n)
+             for w, n in ((-0.0, 'a'), (0.0, 'b'))]
     assert fleet[0].config == fleet[1].config
     out = step_many(fleet, standard, 10.0)        # no inputs yet: stop-turn at +w_max
     alone = [step_many([RobotFilter(f.config)], standard, 10.0).omega[0] for f in fleet]

@@ -32,7 +32,7 @@ LIVE = {
     'safety_filter.yaml': {'standard_alpha', 'alpha_offset', 'use_learned', 'pose_timeout', 'detections_timeout',
                            'hold_timeout', 'cmd_timeout', 'clear_margin', 'lookahead', 'control_period', 'rate',
                            'state_rate', 'max_value_function_bytes', 'clock_stall_timeout', 'publish_on_pose',
-                           'max_detections'},
+                           'max_detections', 'stamp_tolerance'},
 }
 LIVE['fleet_safety_filter.yaml'] = LIVE['safety_filter.yaml'] - {'publish_on_pose'}
 
@@ -58,9 +58,11 @@ def test_every_value_in_the_config_file_is_the_nodes_default(name):
 def test_filter_config_fields_take_their_defaults_from_filter_config():
     config_defaults = {f.name: f.default for f in fields(FilterConfig)}
     from_config = [p for p in FILTER_PARAMETERS if p.name in config_defaults]
-    assert {p.name for p in from_config} == {'speed', 'omega_max', 'radius', *(p.name for p in CONFIG_PARAMETERS)}
+    assert {p.name for p in from_config} == {'speed', 'omega_max', 'radius', 'fail_safe_command',
+                                             *(p.name for p in CONFIG_PARAMETERS)}
     for p in from_config:
-        kind = int if p.name == 'max_detections' else float      # a count: an integer parameter
+        # a count: an integer parameter; a choice: a string
+        kind = {'max_detections': int, 'fail_safe_command': str}.get(p.name, float)
         assert p.default == config_defaults[p.name] and type(p.default) is kind, p.name
 
 

@@ -108,7 +108,7 @@ def test_per_robot_topics_are_a_drop_in_with_one_step_per_tick(setup, monkeypatc
     spin.until(lambda: d.states['robot_2'], 5.0, 'a state of robot_2')
     st2 = d.newest('robot_2')
     assert st2['action'] == 'fail_safe' and 'no pose received yet' in st2['reason']
-    assert d.out['robot_2'][-1].linear.x == 0.0     # stop-turn
+    assert (d.out['robot_2'][-1].linear.x, d.out['robot_2'][-1].angular.z) == (0.0, 0.0)    # stop: a zero twist
     # every tick decided the three robots in one call
     assert calls and set(calls) == {3}
 
@@ -474,16 +474,17 @@ def test_100000_detections_on_both_interfaces_keep_every_tick_answered(setup):
 def test_commands_beyond_the_robots_limits_are_clipped_and_said_on_both_interfaces(setup):
     node, d, spin = setup
     rows, st = batched_tick(d, spin, [FAR, FAR, FAR], [0.1, 0.1, 0.1], actions('pass', 'pass', 'pass'), 'passing')
-    d.fleet_cmd.publish(fleetmsg.commands_to_msg([(3.0, 1e30), (0.5, 0.2), (3.0, -0.1)]))
+    d.fleet_cmd.publish(fleetmsg.commands_to_msg([(3.0, 1e30), (4.5, 0.2), (0.5, -0.1)]))
     spin.spin_for(0.05)
     d.fleet_out.clear()
     d.fleet_poses.publish(fleet_poses([FAR, FAR, FAR]))
     said = lambda st: 'angular.z=1e+30' in st.get('/robot_0', {}).get('cmd_clipped', '')  # noqa: E731
     spin.until(lambda: d.fleet_out and said(d.fleet_newest()), 10.0, 'the batched clip said')
-    assert np.asarray(d.fleet_out[-1].data) == pytest.approx([3.0, 1.0, 3.0, 0.2, 3.0, -0.1])
+    # the planner's speed passed (robot_2: 0.5 m/s), beyond the robot's largest clipped (robot_1)
+    assert np.asarray(d.fleet_out[-1].data) == pytest.approx([3.0, 1.0, 3.0, 0.2, 0.5, -0.1])
     st = d.fleet_newest()
     assert st['/robot_0']['cmd_clipped'] == 'angular.z=1e+30 beyond w_max=1: clipped to 1'
-    assert st['/robot_1']['cmd_clipped'] == "linear.x=0.5 is not the robot's speed 3: it drives at 3"
+    assert st['/robot_1']['cmd_clipped'] == 'linear.x=4.5 beyond speed=3: clipped to 3'
     assert st['/robot_2']['cmd_clipped'] == ''
     spin.until(lambda: d.rosout.has('fleet_safety_filter', "fleet/cmd_vel_nav beyond the robot's limits for 2 "
                                     'robot(s)', 'angular.z=1e+30'), 10.0, 'the batched WARN')

@@ -84,11 +84,11 @@ def test_stale_pose_fails_safe_on_the_watchdog(setup):
     exchange(driver, spin, state(-7.5, 7.0, 0.0), 0.3, want=passing(0.3))
     driver.out.clear()
     driver.states.clear()
-    # no more poses or planner commands: the watchdog keeps publishing, first the avoid
-    # control of the last state, then stop-turn
-    spin.until(lambda: driver.states and 'stop-turn' in driver.last_state()['reason'], 3.0, 'stop-turn')
+    # no more poses or planner commands: the watchdog keeps publishing, a zero twist (the
+    # default fail_safe_command, stop: the last state was clear)
+    spin.until(lambda: driver.states and 'stop (zero twist)' in driver.last_state()['reason'], 3.0, 'stop')
     assert driver.states[-1].level == bytes([2])
-    assert driver.out[-1].linear.x == 0.0 and driver.out[-1].angular.z == pytest.approx(1.0)
+    assert driver.out[-1].linear.x == 0.0 and driver.out[-1].angular.z == 0.0
     actions = {rosmsg.diagnostic_values(s)['action'] for s in driver.states}
     assert 'pass' in actions and 'fail_safe' in actions
 
@@ -348,7 +348,7 @@ def test_every_parameter_is_declared_from_its_table_live_or_read_only(setup):
 
 def test_a_command_beyond_the_robots_limits_is_clipped_and_said(setup):
     """angular.z = +-1e30 goes out as +-w_max (as before), and the state's cmd_clipped and a
-    WARN name the raw value; a linear.x that is not the robot's speed is said too."""
+    WARN name the raw value; a linear.x beyond the robot's speed is clipped and said too."""
     from graph_support import Rosout
     node, driver, spin = setup
     rosout = Rosout(driver.node)
@@ -366,9 +366,10 @@ def test_a_command_beyond_the_robots_limits_is_clipped_and_said(setup):
         except AssertionError:
             continue
     assert said()
-    driver.cmd.publish(rosmsg.turn_rate_to_twist(0.2, 0.5))     # a speed the robot does not drive
-    spin.until(lambda: driver.states and "linear.x=0.5 is not the robot's speed 3" in driver.last_state().get(
+    driver.cmd.publish(rosmsg.turn_rate_to_twist(0.2, 4.5))     # beyond the robot's largest speed
+    spin.until(lambda: driver.states and 'linear.x=4.5 beyond speed=3: clipped to 3' in driver.last_state().get(
         'cmd_clipped', ''), 5.0, 'the linear.x said')
+    assert driver.out[-1].linear.x == 3.0
     out, st, msg = exchange(driver, spin, state(-7.5, 7.0, 0.0), 0.3, want=passing(0.3))
     assert st['cmd_clipped'] == '' and st['detections_dropped'] == '0' and st['detections_dropped_reason'] == ''
 
@@ -409,6 +410,23 @@ def feed_until(driver, spin, done, what, detections=None, pose=None, cmd=0.3, ti
 def passed(cmd):
     return lambda states: bool(states) and states[-1]['action'] == 'pass' and \
         float(states[-1]['cmd_angular_z']) == pytest.approx(cmd)
+
+
+@pytest.mark.parametrize('mode, turn', [('stop', 0.0), ('stop_turn', 1.0)])
+def test_a_lone_filter_with_no_input_sends_its_fail_safe_command(ros_context, mode, turn):
+    """No input at all: the watchdog sends fail_safe_command, decided by the core (a zero
+    twist for a robot that can stop, the Dubins stop-turn (0, +omega_max) for the study's)."""
+    node, driver, ready, spin = fresh_filter(ros_context, f'/robot_blind_{mode}', fail_safe_command=mode)
+    try:
+        spin.until(lambda: len(driver.out) >= 3 and driver.states, 10.0, 'three watchdog commands')
+        assert all((o.linear.x, o.angular.z) == (0.0, turn) for o in driver.out), driver.out
+        st = driver.last_state()
+        assert st['action'] == 'fail_safe' and 'no pose received yet' in st['reason']
+        assert ('stop-turn' if mode == 'stop_turn' else 'stop (zero twist)') in st['reason']
+    finally:
+        spin.shutdown()
+        node.destroy_node()
+        driver.node.destroy_node()
 
 
 def test_a_filter_without_detections_fails_safe_and_is_not_ready_until_they_come(ros_context):

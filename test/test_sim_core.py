@@ -88,7 +88,31 @@ def test_robot_rejects_bad_parameters():
     with pytest.raises(ValueError):
         RobotSim([0.0, 0.0, 0.0], speed=-1.0)
     with pytest.raises(ValueError):
-        RobotSim([0.0, 0.0, 0.0], timeout_behavior='stop')
+        RobotSim([0.0, 0.0, 0.0], timeout_behavior='spin')
+
+
+def test_a_robot_that_follows_its_speed_drives_the_commanded_arc_at_it_and_stops_when_told():
+    r = RobotSim([0.0, 0.0, 0.0], speed=3.0, omega_max=1.0, follow_speed=True, timeout_behavior='stop')
+    fixed = RobotSim([0.0, 0.0, 0.0], speed=3.0, omega_max=1.0)
+    r.advance(0.0)
+    fixed.advance(0.0)
+    r.command(0.5, 0.0, linear=1.0)
+    fixed.command(0.5, 0.0)
+    r.advance(0.2)
+    fixed.advance(0.2)
+    assert r.state[2] == pytest.approx(fixed.state[2]), 'the same turn'
+    assert np.allclose(r.state[:2], fixed.state[:2] / 3.0), 'a third of the arc at a third of the speed'
+    r.command(0.0, 0.2, linear=7.0)            # clipped to [0, speed]
+    assert r.linear(0.2) == 3.0
+    r.command(0.0, 0.2, linear=-1.0)
+    assert r.linear(0.2) == 0.0
+    before = r.state.copy()
+    r.advance(0.4)
+    assert np.allclose(r.state, before), 'linear.x 0: it stands'
+    r.command(0.0, 0.4, linear=2.0)
+    assert r.linear(1.5) == 0.0, "timed out with 'stop': it stops"
+    with pytest.raises(ValueError):
+        r.command(0.0, 0.5, linear=float('nan'))
 
 
 # ----- sensor ---------------------------------------------------------------------------
@@ -292,3 +316,23 @@ def test_world_intervention_with_no_robot_near_is_a_false_positive():
     w.update_pose('a', [-10.0, 0.0, 0.0])                   # 10 m away: not near
     rec, _ = w.intervene(0, time=1.0)
     assert rec.near_robots == () and rec.false_positive     # nobody needed saving
+
+
+def test_the_laser_sees_the_nearest_surface_within_range():
+    from supersafe_ros.sim.laser import beam_angles, ray_cast
+    angles = beam_angles(4)                           # -pi, -pi/2, 0, pi/2
+    r = ray_cast((0.0, 0.0, 0.0), angles, [(5.0, 0.0), (8.0, 0.0), (0.0, -20.0)], [1.0, 2.0, 1.0], 10.0)
+    assert r[2] == pytest.approx(4.0), 'the nearer disc hides the farther'
+    assert np.isinf(r[1]), 'beyond range_max: no return'
+    assert np.isinf(r[0]) and np.isinf(r[3])
+    inside = ray_cast((5.0, 0.0, 0.0), angles, [(5.0, 0.0)], [1.0], 10.0)
+    assert np.allclose(inside, 1.0), 'from inside a disc: its far side'
+
+
+def test_the_planner_slows_near_its_goal_and_stops_on_it():
+    from supersafe_ros.sim.planner import approach_speed
+    assert approach_speed(20.0, 3.0, 8.0, 1.0) == 3.0
+    assert approach_speed(4.0, 3.0, 8.0, 1.0) == pytest.approx(1.5)
+    assert approach_speed(1.2, 3.0, 8.0, 1.0) == pytest.approx(0.6), 'the floor: it reaches the goal'
+    assert approach_speed(0.9, 3.0, 8.0, 1.0) == 0.0
+    assert approach_speed(0.5, 3.0, 0.0, 0.0) == 3.0, 'the defaults: the study\'s constant speed'

@@ -299,3 +299,22 @@ def test_config_accepts_the_limits():
 def test_the_world_needs_a_robot():
     with pytest.raises(ValueError):
         World(WorldConfig(), [])
+
+
+def test_a_world_of_several_sizes_counts_each_obstacle_by_its_own_radius():
+    from supersafe_ros.sim.world import World, WorldConfig
+    cfg = WorldConfig(n_obstacles=6, radii=(0.8, 1.8, 2.6))
+    w = World(cfg, ['r0'], seed=3)
+    ids, xy = w.obstacle_arrays()
+    assert cfg.radius_of(ids).tolist() == [0.8, 1.8, 2.6, 0.8, 1.8, 2.6]
+    big = int(ids[2])
+    centre = xy[2]
+    assert w.update_pose('r0', (centre[0] + 2.0, centre[1], 0.0))['crashed'] == [big], 'inside 2.6 (not 1.8)'
+    small = int(ids[0])
+    w.update_pose('r0', (-30.0, 0.0, 0.0))
+    assert w.update_pose('r0', (xy[0][0] + 1.0, xy[0][1], 0.0))['crashed'] == [], 'outside 0.8'
+    assert small != big
+    assert WorldConfig().radii == () and WorldConfig().radius_of([0, 5]).tolist() == [1.8, 1.8], 'the study\'s world'
+    assert WorldConfig(radii=(0.0,)).radii == (), "config/world.yaml's [0.0]: one radius"
+    with pytest.raises(ValueError, match='radii'):
+        WorldConfig(radii=(1.0, -1.0))

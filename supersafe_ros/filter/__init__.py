@@ -5,7 +5,9 @@ Where the decision is made: ``RobotFilter.step`` (one robot) or ``step_many`` (a
 
 * ``types``: FilterConfig, SafeSet, FilterOutput, the actions;
 * ``inputs``: RobotFilter, one robot's inputs and what it sent; batched input updates;
-* ``propagation``: a pose propagated to now along the Dubins arcs of the commands sent;
+* ``discs``: obstacles of their own radius (the value shift, rings for discs larger than R);
+* ``propagation``: a pose propagated to now along the Dubins arcs of the commands sent, each
+  at the speed sent with it;
 * ``gather``: every robot's inputs read into columns once per decision;
 * ``pairs``: V at every (robot, obstacle) pair, now and after the lookahead's holds;
 * ``cluster_rows``: the union value (or loiter fallback) of close obstacles, per robot;

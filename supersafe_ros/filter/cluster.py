@@ -270,6 +270,17 @@ class ClusterStore:
         self.ready = threading.Event()     # the solver (thread and worker process) is up
         self._saved = 0                    # values written to the disk cache
 
+    def fallback_twin(self) -> 'ClusterStore':
+        """A store of the same settings that never solves (``fallback_only``; itself if it is
+        one): the store of detections that change every message (``RobotFilter.update_detections``
+        with ``solve_clusters=False``), judged by the loiter fallback with no solve queued."""
+        if self.fallback_only:
+            return self
+        twin = self.__dict__.get('_twin')
+        if twin is None:
+            twin = self._twin = ClusterStore(self.settings, background=False, fallback_only=True)
+        return twin
+
     def get(self, key):
         with self._lock:
             v = self.values.get(key)

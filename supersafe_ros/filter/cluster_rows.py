@@ -10,6 +10,13 @@ detections: one constraint row (``filter.law.ConstraintTable``) with
 
 Robots given one detections array (the fleet node's batched topic) share its cluster
 frames; robots sent equal arrays share them by content (``cluster_frames``).
+
+Detections that change every message (discs from a laser scan or a point cloud, taken with
+``solve_clusters=False``) are judged with the store's ``fallback_twin``: their clusters by
+the loiter fallback alone, which is sound for any layout, and no union solve is queued (a
+new geometry each message would queue one per message, none in force in time): the work per
+message stays bounded (clusters of at most ``cluster.SOLVE_MEMBERS_MAX`` get a canonical
+frame, larger ones none).
 """
 from __future__ import annotations
 
@@ -236,6 +243,8 @@ def _entries(filters, configs, dets, store_arg, frames=None) -> list:
             store = stores.get(id(cfg))
             if store is None:
                 store = stores[id(cfg)] = default_cluster_store(cfg)
+        if not f.detections.solve_clusters:      # input that changes every message: the fallback only
+            store = store.fallback_twin()
         fr = frames[row] if frames is not None else None
         if fr is None:
             cache = f.__dict__.get('_cluster_cache')

@@ -16,9 +16,13 @@ fleet's, with one robot's rows.
 """
 from __future__ import annotations
 
+from itertools import repeat
+from operator import attrgetter, is_
+
 import numpy as np
 
 from .cluster_rows import cluster_rows
+from .discs import pair_shifts
 from .gather import gather, gather_one, judged
 from .law import ConstraintTable
 from .nearby import NEAR_QUERY_MIN, narrow
@@ -27,13 +31,15 @@ from .pairs import FEW_PAIRS, pair_reads, pair_turns, pair_values, robot_pair_va
 from .propagation import follow
 from .types import SafeSet
 
+_DETECTIONS, _KEPT = attrgetter('detections'), attrgetter('kept')
+
 
 def step_many(filters, safe_set: SafeSet, t, clusters=None) -> Decisions:
     """One decision per robot filter, with one vectorised evaluation of the law.
 
     Robots that can be judged use their current pose and detections; robots that
     fail safe use their last valid pose and detections if younger than
-    ``hold_timeout``, else the stop-turn policy. ``clusters``: the ClusterStore
+    ``hold_timeout``, else ``fail_safe_command``. ``clusters``: the ClusterStore
     for obstacles judged together (None: the process's shared store for the
     robots' configuration; see ``filter.cluster``). Returns ``Decisions``: the
     commands as lists, each robot's ``FilterOutput`` built when read.
@@ -44,12 +50,13 @@ def step_many(filters, safe_set: SafeSet, t, clusters=None) -> Decisions:
             return decide_one(filters[0], problem, safe_set, t, clusters)
     rb = gather(filters, t)
     m = len(rb.use)
-    states = follow(rb.poses, rb.omega_arcs, rb.dt_arcs, rb.speed)
-    horizon, planned, speed, bang, dets = rb.horizon, rb.planned, rb.speed, rb.bang, rb.dets
+    states = follow(rb.poses, rb.omega_arcs, rb.dt_arcs, rb.speed_arcs)
+    # the holds the law judges are driven at the speed the robot drives under them (gather.drive_speed)
+    horizon, planned, speed, bang, dets = rb.horizon, rb.planned, rb.drive, rb.bang, rb.dets
     counts = np.fromiter(map(len, dets), dtype=np.intp, count=m)
     narrowed = None
     if m and counts.max() > NEAR_QUERY_MIN:
-        narrowed = narrow(rb.filters, rb.configs, dets, states, horizon, speed, rb.margin, safe_set, clusters)
+        narrowed = narrow(rb.filters, rb.configs, dets, states, horizon, rb.speed, rb.margin, safe_set, clusters)
         dets = narrowed.dets
         counts = np.fromiter(map(len, dets), dtype=np.intp, count=m)
     n_pairs = int(counts.sum())
@@ -63,8 +70,13 @@ def step_many(filters, safe_set: SafeSet, t, clusters=None) -> Decisions:
         rel[:, 2] = states[pair_robot, 2]
     else:
         centres, rel = np.zeros((0, 2)), np.zeros((0, 3))
+    alpha = float(safe_set.alpha)
+    shift = pair_shifts(rb.radii, rb.configs, counts, narrowed.position if narrowed is not None else None)
     value, value_next = pair_reads(safe_set.vf, rel, planned[pair_robot], horizon[pair_robot], speed[pair_robot],
-                                   bang[pair_robot], float(safe_set.alpha))
+                                   bang[pair_robot], alpha if shift is None else alpha - shift)
+    if shift is not None:        # discs of their own radius (filter.discs): V_r = V_R + (R - r)
+        value += shift
+        value_next += shift
 
     def pair_turns_of(p) -> np.ndarray:
         r = pair_robot[p]
@@ -75,6 +87,7 @@ def step_many(filters, safe_set: SafeSet, t, clusters=None) -> Decisions:
     if narrowed is None:
         tab, n_groups = constraint_table(pair_robot, np.arange(n_pairs) - start[pair_robot], counts, value,
                                          value_next, centres, float(safe_set.alpha), cl, pair_turns_of)
+        name_by_message(tab, rb.filters, rb.dets)
     else:
         tab, n_groups = constraint_table(pair_robot, narrowed.position, narrowed.counts, value, value_next, centres,
                                          float(safe_set.alpha), cl, pair_turns_of)
@@ -87,7 +100,7 @@ def decide_one(f, problem, safe_set: SafeSet, t, clusters) -> Decisions:
     table, law and outputs, its few pairs read in Python floats (``pairs.robot_pair_values``,
     the same values bit for bit), or with numpy when more than FEW_PAIRS are near."""
     rb, (x, y, th) = gather_one(f, problem, t)
-    horizon, planned, speed, bang = (float(a[0]) for a in (rb.horizon, rb.planned, rb.speed, rb.bang))
+    horizon, planned, speed, bang = (float(a[0]) for a in (rb.horizon, rb.planned, rb.drive, rb.bang))
     det = f.detections.value
     narrowed = None
     if len(det) > NEAR_QUERY_MIN:
@@ -105,12 +118,17 @@ def decide_one(f, problem, safe_set: SafeSet, t, clusters) -> Decisions:
                                               np.full(n_pairs, speed), np.full(n_pairs, bang))
     else:
         value, turn, value_next = (np.array(a, dtype=float) for a in pairs)
+    shift = pair_shifts(rb.radii, rb.configs, [n_pairs], narrowed.position if narrowed is not None else None)
+    if shift is not None:        # discs of their own radius (filter.discs): V_r = V_R + (R - r)
+        value += shift
+        value_next += shift
     start = np.zeros(1, np.intp)
-    cl = cluster_rows([f], rb.configs, np.array([[x, y, th]]), rb.planned, rb.horizon, rb.speed, rb.bang,
+    cl = cluster_rows([f], rb.configs, np.array([[x, y, th]]), rb.planned, rb.horizon, rb.drive, rb.bang,
                       rb.cluster_alpha, [det], start, clusters, narrowed.frames if narrowed is not None else None)
     if narrowed is None:
         tab, n_groups = constraint_table(np.zeros(n_pairs, np.intp), np.arange(n_pairs), np.array([n_pairs]), value,
                                          value_next, det, float(safe_set.alpha), cl, lambda p: turn[p])
+        name_by_message(tab, [f], [det])
     else:
         tab, n_groups = constraint_table(np.zeros(n_pairs, np.intp), narrowed.position, narrowed.counts, value,
                                          value_next, det, float(safe_set.alpha), cl, lambda p: turn[p])
@@ -150,3 +168,17 @@ def constraint_table(pair_robot, position, counts, value, value_next, centres, a
 
     tab.turns_of = turns_of
     return tab, n_pairs + cl['n_groups']
+
+
+def name_by_message(tab, filters, dets) -> None:
+    """The table's obstacles named by their rows in the robots' detections messages, where a
+    robot's detections are not the message's rows one for one (``detections.kept``: discs split
+    into covering rings, ``filter.discs``); ``filter.nearby`` names those it narrows itself."""
+    inputs = list(map(_DETECTIONS, filters))
+    if all(map(is_, map(_KEPT, inputs), repeat(None))):      # (most decisions: checked in C)
+        return
+    for i, (inp, det) in enumerate(zip(inputs, dets)):
+        kept = inp.kept
+        if kept is not None and inp.value is det:
+            rows = np.flatnonzero(tab.robot == i)
+            tab.obstacle[rows] = kept[tab.obstacle[rows]]

@@ -25,13 +25,15 @@ class RobotColumns:
     configurations, problems ('' if judged), turn bound and history kept; for the M robots
     whose (last valid) state enters the law (``use``, their rows), everything the law needs."""
 
-    __slots__ = ('filters', 'use', 'problems', 'all_configs', 'all_bang', 'all_keep', 'configs', 'failing',
-                 'poses', 'omega_arcs', 'dt_arcs', 'age', 'dets', 'horizon', 'planned', 'speed', 'bang',
-                 'overriding', 'margin', 'fresh', 'cluster_alpha')
+    __slots__ = ('filters', 'use', 'problems', 'all_configs', 'all_bang', 'all_keep', 'all_constant', 'configs',
+                 'failing', 'poses', 'omega_arcs', 'dt_arcs', 'speed_arcs', 'age', 'dets', 'horizon', 'planned',
+                 'speed', 'bang', 'overriding', 'margin', 'fresh', 'cluster_alpha', 'radii', 'drive', 'held',
+                 'constant')
 
 
-_NEVER = (math.inf, 0.0)      # the (time, turn) a robot with no such command sent shows: no arc starts then
-_VALUE, _T, _STAMP, _REJECTED = (attrgetter(a) for a in ('value', 't', 'stamp', 'rejected'))
+_NEVER = (math.inf, 0.0, 0.0)   # the (time, turn, speed) a robot with no such command sent shows: no arc starts then
+_VALUE, _T, _STAMP, _REJECTED, _RADII, _LINEAR = (attrgetter(a) for a in (
+    'value', 't', 'stamp', 'rejected', 'radii', 'linear'))
 
 
 def judged(f, t):
@@ -68,9 +70,10 @@ def gather(filters, t) -> RobotColumns:
     n = len(filters)
     configs = [f.config for f in filters]
     (pose_timeout, det_timeout, hold, bang_all, compensate, cmd_timeout, look, period, speed, margin,
-     cluster_alpha, rb.all_keep) = _config_columns(configs, (
+     cluster_alpha, rb.all_keep, constant_all) = _config_columns(configs, (
         'pose_timeout', 'detections_timeout', 'hold_timeout', 'omega_max', 'compensate_delay', 'cmd_timeout',
-        'lookahead', 'control_period', 'speed', 'clear_margin', 'cluster_alpha', 'sent_kept'))
+        'lookahead', 'control_period', 'speed', 'clear_margin', 'cluster_alpha', 'sent_kept', 'constant_speed'))
+    rb.all_constant = constant_all != 0.0
     rb.all_configs, rb.all_bang = configs, bang_all
     poses, dets = [f.pose for f in filters], [f.detections for f in filters]
     pose_t = np.fromiter(map(_T, poses), dtype=float, count=n)
@@ -92,13 +95,15 @@ def gather(filters, t) -> RobotColumns:
         filters, configs, poses, pose_values, det_values = (
             [x[i] for i in use.tolist()] for x in (filters, configs, poses, pose_values, det_values))
         pose_t = pose_t[use]
-        (hold, compensate, cmd_timeout, look, period, speed, bang, margin, cluster_alpha) = (
-            c[use] for c in (hold, compensate, cmd_timeout, look, period, speed, bang_all, margin, cluster_alpha))
+        (hold, compensate, cmd_timeout, look, period, speed, bang, margin, cluster_alpha, constant) = (
+            c[use] for c in (hold, compensate, cmd_timeout, look, period, speed, bang_all, margin, cluster_alpha,
+                             rb.all_constant))
     else:
-        bang = bang_all
+        bang, constant = bang_all, rb.all_constant
     rb.filters, rb.configs, rb.failing = filters, configs, ~judged[use]
     rb.speed, rb.bang, rb.margin, rb.cluster_alpha = speed, bang, margin, cluster_alpha
     rb.dets = det_values
+    rb.radii = list(map(_RADII, dets)) if m == n else [d.radii for d in map(attrgetter('detections'), filters)]
     rb.poses = np.array(pose_values, dtype=float).reshape(m, 3)
     rb.overriding = np.fromiter((f.overriding for f in filters), dtype=bool, count=m)
     compensate = compensate != 0.0
@@ -111,25 +116,29 @@ def gather(filters, t) -> RobotColumns:
     t0 = t - age
     sents = [f.sent for f in filters]
     last = np.fromiter(itertools.chain.from_iterable(s[-1] if s else _NEVER for s in sents), dtype=float,
-                       count=2 * m).reshape(m, 2)
-    prev = np.fromiter(itertools.chain.from_iterable(s[-2] if len(s) > 1 else _NEVER for s in sents),
-                       dtype=float, count=2 * m).reshape(m, 2)
+                       count=3 * m).reshape(m, 3)
     moving = compensate & (t > t0)
     one = moving & (last[:, 0] <= t0)                        # nothing sent since the pose: one arc
+    # the command before the last, read only for the robots that may need it (most need none)
+    others = np.flatnonzero(moving & ~one)
+    prev = np.zeros((m, 3))
+    prev[others] = np.fromiter(itertools.chain.from_iterable(
+        sents[i][-2] if len(sents[i]) > 1 else _NEVER for i in others.tolist()), dtype=float,
+        count=3 * len(others)).reshape(-1, 3)
     two = moving & ~one & (prev[:, 0] <= t0) & (t0 < last[:, 0]) & (last[:, 0] < t)   # one command since
     rest = np.flatnonzero(moving & ~one & ~two).tolist()
     plans = [filters[i].segments_since(float(t0[i]), t) for i in rest]
     depth = max([len(p) for p in plans] + [2 if two.any() else 1 if one.any() else 0])
-    omegas, dts = np.zeros((depth, m)), np.zeros((depth, m))
+    omegas, dts, speeds = np.zeros((depth, m)), np.zeros((depth, m)), np.zeros((depth, m))
     if depth:
-        omegas[0, one], dts[0, one] = last[one, 1], t - t0[one]
-        omegas[0, two], dts[0, two] = prev[two, 1], last[two, 0] - t0[two]
+        omegas[0, one], dts[0, one], speeds[0, one] = last[one, 1], t - t0[one], last[one, 2]
+        omegas[0, two], dts[0, two], speeds[0, two] = prev[two, 1], last[two, 0] - t0[two], prev[two, 2]
     if depth > 1:
-        omegas[1, two], dts[1, two] = last[two, 1], t - last[two, 0]
+        omegas[1, two], dts[1, two], speeds[1, two] = last[two, 1], t - last[two, 0], last[two, 2]
     for i, arcs in zip(rest, plans):
-        for k, (w, d) in enumerate(arcs):
-            omegas[k, i], dts[k, i] = w, d
-    rb.omega_arcs, rb.dt_arcs = omegas, dts
+        for k, (w, d, v) in enumerate(arcs):
+            omegas[k, i], dts[k, i], speeds[k, i] = w, d, v
+    rb.omega_arcs, rb.dt_arcs, rb.speed_arcs = omegas, dts, speeds
 
     # command_fresh, planned_turn (clipped as clip) and the lookahead
     commands = [f.command for f in filters]
@@ -140,6 +149,16 @@ def gather(filters, t) -> RobotColumns:
     clipped = np.where(value < bang, value, bang)
     clipped = np.where(clipped > -bang, clipped, -bang)
     rb.planned = np.where(fresh, clipped, 0.0)
+    # the speeds: the planner's clipped to [0, speed] (planned_speed), driven (drive_speed), last sent
+    # (a robot with nothing sent shows _NEVER's speed, 0; linear.x not given: the speed)
+    linear = list(map(_LINEAR, commands))
+    if linear.count(None) == m:
+        planned_v = speed
+    else:
+        linear = np.array([math.inf if v is None else v for v in linear] if None in linear else linear, dtype=float)
+        planned_v = py_max(0.0, np.minimum(speed, linear))      # (min(speed, v): equal only when equal)
+    rb.constant, rb.held = constant, np.where(constant, speed, last[:, 2])
+    rb.drive = np.where(constant, speed, np.where(rb.failing, rb.held, np.where(fresh, planned_v, 0.0)))
     # measured period: the larger median of the pose and command intervals (each > 0; none: 0)
     windows = ([f._pose_intervals for f in filters], [f._command_intervals for f in filters])
     measured = py_max(*(np.array([0.0 if w.middle is None else w.middle for w in ws], dtype=float)
@@ -160,6 +179,42 @@ def planned_turn(f, t, fresh=None) -> float:
     if fresh is None:
         fresh = command_fresh(f, t)
     return clip(f.command.value, f.config.omega_max) if fresh else 0.0
+
+
+def planned_speed(linear, cfg) -> float:
+    """The speed the filter passes for a planner's ``linear``.x: clipped to [0, speed] (a reverse
+    command is sent as 0: the value functions model forward motion only); None (not given) or
+    a constant-speed robot (``FilterConfig.constant_speed``): the speed."""
+    speed = cfg.speed
+    if linear is None or cfg.constant_speed:
+        return speed
+    return max(0.0, min(speed, linear))
+
+
+def idle_speed(cfg) -> float:
+    """The speed of a robot never commanded: 0, or a constant-speed robot's speed."""
+    return cfg.speed if cfg.constant_speed else 0.0
+
+
+def held_speed(f) -> float:
+    """The speed the robot drives under the last command sent (``idle_speed`` if none; a
+    constant-speed robot's speed)."""
+    cfg = f.config
+    if cfg.constant_speed:
+        return cfg.speed
+    return f.sent[-1][2] if f.sent else 0.0
+
+
+def drive_speed(f, t, fresh, failing) -> float:
+    """The speed the robot drives at while the command judged holds: a constant-speed robot's
+    speed; failing safe, the speed last sent (``held_speed``); else the planner's (``planned_speed``),
+    0 if the planner is silent (a zero twist)."""
+    cfg = f.config
+    if cfg.constant_speed:
+        return cfg.speed
+    if failing:
+        return held_speed(f)
+    return planned_speed(f.command.linear, cfg) if fresh else 0.0
 
 
 def clip(value, bound) -> float:
@@ -188,16 +243,21 @@ def gather_one(f, problem, t):
     rb = RobotColumns()
     age, arcs = plan(f, t)
     x, y, th = f.pose.value.tolist()
-    for omega, dt in arcs:
-        x, y, th = arc(x, y, th, cfg.speed, omega, dt)
+    for omega, dt, v in arcs:
+        x, y, th = arc(x, y, th, v, omega, dt)
     if not arcs:
         th = wrap(th)
     fresh = command_fresh(f, t)
     # the one row's float columns, made in one call (views of one array)
-    (rb.bang, rb.all_keep, rb.speed, rb.margin, rb.cluster_alpha, rb.age, rb.horizon, rb.planned) = np.array(
+    (rb.bang, rb.all_keep, rb.speed, rb.margin, rb.cluster_alpha, rb.age, rb.horizon, rb.planned, rb.drive,
+     rb.held) = np.array(
         [[cfg.omega_max], [cfg.sent_kept], [cfg.speed], [cfg.clear_margin], [cfg.cluster_alpha], [age],
-         [f.lookahead()], [planned_turn(f, t, fresh)]], dtype=float)
+         [f.lookahead()], [planned_turn(f, t, fresh)], [drive_speed(f, t, fresh, bool(problem))], [held_speed(f)]],
+        dtype=float)
     rb.all_bang = rb.bang
-    rb.failing, rb.overriding, rb.fresh = np.array([[bool(problem)], [f.overriding], [fresh]])
+    rb.failing, rb.overriding, rb.fresh, rb.constant = np.array(
+        [[bool(problem)], [f.overriding], [fresh], [cfg.constant_speed]])
+    rb.all_constant = rb.constant
     rb.filters, rb.use, rb.problems, rb.configs, rb.all_configs = [f], _ONE, [problem], [cfg], [cfg]
+    rb.radii = [f.detections.radii]
     return rb, (x, y, th)

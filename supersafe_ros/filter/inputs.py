@@ -1,6 +1,8 @@
-"""What a filter knows of its robot: the newest pose, detections and planner command (each
+"""What a filter knows of its robot: the newest pose, detections (discs of the configured
+radius or their own, ``filter.discs``) and planner command (turn rate and linear.x; each
 with when it arrived and whether a newer one was rejected), whether it is overriding, and the
-commands it sent (to propagate an old pose to now, ``filter.propagation``).
+commands it sent with the speed the robot drives under each (to propagate an old pose to
+now, ``filter.propagation``).
 
 ``RobotFilter`` is one robot's input state; ``update_poses``, ``update_commands`` and
 ``update_detections_all`` feed many robots at once (the fleet node's batched topics: one
@@ -15,16 +17,20 @@ from __future__ import annotations
 from bisect import bisect_left, insort
 from collections import deque
 from dataclasses import dataclass, field
+from itertools import repeat
 import math
+from operator import attrgetter, is_
 
 import numpy as np
 
 from .decide import step_many
-from .gather import clip
+from .discs import checked_discs
+from .gather import clip, idle_speed, planned_speed
 from .nearby import drop_note, message_reach, within_limit
 from .types import FilterConfig, FilterOutput, SafeSet
 
 PERIOD_SAMPLES = 16    # intervals in the median that measures the control period
+_COMMAND, _LINEAR = attrgetter('command'), attrgetter('linear')
 
 
 @dataclass
@@ -40,6 +46,9 @@ class _Input:
     kept: object = None           # detections: the message's indices of those kept (None: all)
     dropped: int = 0              # detections: how many of the message were dropped
     dropped_safely: bool = True   # detections: all of them beyond any robot's reach (nearby.drop_note)
+    radii: object = None          # detections: each one's radius (M,), None: all the configured radius
+    linear: object = None         # command: the planner's linear.x (None: not given, taken as the speed)
+    solve_clusters: bool = True   # detections: their clusters' union values may be solved (filter.cluster_rows)
 
     def accept(self, value, t, stamp=None):
         self.value, self.t, self.rejected, self.note = value, float(t), '', ''
@@ -66,7 +75,7 @@ class RobotFilter:
         self.detections = _Input()
         self.command = _Input()
         self.overriding = False
-        self.sent = deque()    # (decision time, turn rate) of the commands sent, oldest first
+        self.sent = deque()    # (decision time, turn rate, speed driven) of the commands sent, oldest first
         self._pose_intervals = _NO_INTERVALS      # windows of the last intervals (immutable: robots
         self._command_intervals = _NO_INTERVALS   # fed by one message share them)
 
@@ -97,39 +106,46 @@ class RobotFilter:
         """Record a pose message the caller could not convert (wrong frame, bad quaternion)."""
         self.pose.reject(reason, t)
 
-    def update_detections(self, centres, t, safe_set=None) -> None:
-        """Obstacle centres (N, 2) in map, N >= 0; raises ValueError if malformed.
+    def update_detections(self, rows, t, safe_set=None, solve_clusters=True) -> None:
+        """Obstacles in map, N >= 0: (N, 2) centres, each of the configured ``radius``, or
+        (N, 3) rows [x, y, r] of their own radius r (finite, > 0; ``filter.discs``: a disc
+        larger than ``radius`` is judged as a ring of discs of that radius); raises ValueError
+        (and records it) if malformed.
 
         More than ``max_detections``: the nearest to the robot's pose are kept, the rest
         dropped, and ``detections.note`` says whether that is safe (they are farther than
         any can constrain the robot while judged, by ``safe_set``'s grid; unknown without).
+
+        ``solve_clusters``: False for detections that change every message (discs made from
+        a laser scan or a point cloud): their clusters are judged by the loiter fallback and
+        the per-disc rows, never by a union value solved in the background (a new geometry per
+        message would queue a solve per message and none would be in force in time).
         """
-        c = _checked_centres(centres)
-        if c is None:
-            reason = f'detections must be finite (N, 2) centres, got shape {np.shape(centres)}'
-            self.detections.reject(reason, t)
-            raise ValueError(reason)
-        c, kept, dropped, (note, safe) = _limited(c, [self], t, safe_set, self.config)
-        inp = self.detections
-        inp.accept(c, t)
-        inp.kept, inp.dropped, inp.note, inp.dropped_safely = kept, dropped, note, safe
+        try:
+            c, radii, origin = checked_discs(rows, self.config.radius)
+        except ValueError as exc:
+            self.detections.reject(str(exc), t)
+            raise
+        _store_detections([self], c, radii, origin, t, safe_set, self.config, solve_clusters)
 
     def reject_detections(self, reason, t) -> None:
         self.detections.reject(reason, t)
 
     def update_command(self, omega, t, linear=None) -> None:
-        """The planner's turn rate (and ``linear.x``, if given); a non-finite turn rate is
-        rejected and the previous kept. ``command.note`` says what was beyond the robot's
-        limits (``command_excess``): the decision clips the turn rate and drives at the
-        robot's speed."""
+        """The planner's turn rate and ``linear.x`` (None: not given, taken as ``speed``); a
+        command not finite is rejected and the previous kept. ``command.note`` says what was
+        beyond the robot's limits (``command_excess``): the decision clips the turn rate to
+        +-omega_max and the speed to [0, speed] (``gather.planned_speed``)."""
         w = float(omega)
-        if not math.isfinite(w):
-            reason = f'planner command is not finite ({w})'
+        v = None if linear is None else float(linear)
+        if not math.isfinite(w) or (v is not None and not math.isfinite(v)):
+            reason = f'planner command is not finite (angular.z={w}, linear.x={v})'
             self.command.reject(reason, t)
-            self.command.note = f'angular.z={w} is not finite: rejected, the previous command kept'
+            self.command.note = f'{reason}: rejected, the previous command kept'
             raise ValueError(reason)
         previous = self.command.t if self.command.value is not None else None
         self.command.accept(w, t)
+        self.command.linear = v
         excess = command_excess(w, linear, self.config)
         if excess:
             self.command.note = excess
@@ -172,37 +188,43 @@ class RobotFilter:
         return step_many([self], safe_set, t, clusters)[0]
 
     # -- what the robot did since its pose ---------------------------------------------
-    def record_sent(self, omega, t) -> None:
-        """Remember a command sent at ``t`` (step_many does this for every decision)."""
-        self.sent.append((float(t), float(omega)))
+    def record_sent(self, omega, t, speed=None) -> None:
+        """Remember a command sent at ``t`` and the speed the robot drives under it (None: the
+        configured speed; step_many does this for every decision)."""
+        self.sent.append((float(t), float(omega), float(self.config.speed if speed is None else speed)))
         keep = self.config.sent_kept
         while len(self.sent) > 1 and self.sent[1][0] <= t - keep:
             self.sent.popleft()
 
     def segments_since(self, t0, t1):
-        """[(turn rate, duration)] the robot held from ``t0`` to ``t1``, by the commands sent.
+        """[(turn rate, duration, speed)] the robot held from ``t0`` to ``t1``, by the commands
+        sent.
 
-        A command counts from the time it was sent until the next one. Before the
-        first command remembered: the planner's current command (clipped), else 0.
+        A command counts from the time it was sent until the next one. Before the first
+        command remembered: the planner's current command (clipped, ``gather.planned_speed``),
+        else a turn of 0 at the speed of a robot never commanded (``gather.idle_speed``).
         """
         if t1 <= t0:
             return []
-        w = self.config.omega_max
-        before = clip(self.command.value, w) if self.command.value is not None else 0.0
+        cfg = self.config
+        if self.command.value is not None:
+            before = (clip(self.command.value, cfg.omega_max), planned_speed(self.command.linear, cfg))
+        else:
+            before = (0.0, idle_speed(cfg))
         inside = []      # commands sent in (t0, t1), newest first
         current = before
-        for ts, omega in reversed(self.sent):
+        for ts, omega, speed in reversed(self.sent):
             if ts >= t1:
                 continue
             if ts <= t0:
-                current = omega
+                current = (omega, speed)
                 break
-            inside.append((ts, omega))
+            inside.append((ts, (omega, speed)))
         segments, start = [], t0
-        for ts, omega in reversed(inside):
-            segments.append((current, ts - start))
-            start, current = ts, omega
-        segments.append((current, t1 - start))
+        for ts, command in reversed(inside):
+            segments.append((current[0], ts - start, current[1]))
+            start, current = ts, command
+        segments.append((current[0], t1 - start, current[1]))
         return segments
 
 
@@ -225,22 +247,24 @@ def update_poses(filters, states, t, stamp=None, skip=None) -> None:
 def update_commands(filters, omegas, t, skip=None, linears=None) -> list:
     """``filters[i].update_command(omegas[i], t, linears[i])`` for every robot whose ``skip[i]``
     is falsy (the fleet node's batched commands; ``linears``: their linear.x, None: not
-    judged); the rows beyond their robot's limits (``command.note`` says how). Raises
-    ValueError before updating anyone if a turn rate to take is not finite."""
+    given, taken as the speed); the rows beyond their robot's limits (``command.note`` says
+    how). Raises ValueError before updating anyone if a command to take is not finite."""
     n = len(filters)
     w = np.asarray(omegas, dtype=float).reshape(n)
     take = _taken(filters, skip)
-    if not np.all(np.isfinite(w[take])):
+    lin = None if linears is None else np.asarray(linears, dtype=float).reshape(n)
+    if not np.all(np.isfinite(w[take])) or (lin is not None and not np.all(np.isfinite(lin[take]))):
         raise ValueError('planner commands are not finite')
     t = float(t)
-    _accept_rows(filters, 'command', w.tolist(), take, t, t)
+    _accept_rows(filters, 'command', w.tolist(), take, t, t, None if lin is None else lin.tolist())
     # the rows beyond their robot's limits get a note (the few: the rest were cleared above)
     bound = np.fromiter((f.config.omega_max for f in filters), dtype=float, count=n)
     off = (w > bound) | (w < -bound)
-    if linears is not None:
+    if lin is not None:
         speed = np.fromiter((f.config.speed for f in filters), dtype=float, count=n)
-        off |= ~(np.abs(np.asarray(linears, dtype=float).reshape(n) - speed) <= _SPEED_TOLERANCE * np.maximum(
-            1.0, speed))
+        constant = np.fromiter((f.config.constant_speed for f in filters), dtype=bool, count=n)
+        off |= np.where(constant, ~(np.abs(lin - speed) <= _SPEED_TOLERANCE * np.maximum(1.0, speed)),
+                        (lin > speed) | (lin < 0.0))
     beyond = np.flatnonzero(off & take).tolist()
     for i in beyond:
         f = filters[i]
@@ -253,15 +277,25 @@ _SPEED_TOLERANCE = 1e-9     # a linear.x this close (relatively) to the robot's 
 
 def command_excess(omega, linear, cfg) -> str:
     """What of a planner command (turn rate ``omega``, ``linear``.x or None) is beyond the
-    robot's limits ('' if nothing): a turn rate beyond +-omega_max (the decision clips it), a
-    linear.x that is not the robot's speed (a Dubins robot drives at its speed whatever the
-    planner asks; the filter sends its speed, or 0 for the stop-turn)."""
+    robot's limits ('' if nothing): a turn rate beyond +-omega_max (the decision clips it); a
+    linear.x beyond ``speed`` (clipped to it) or below 0 (a reverse command: sent as 0, the
+    value functions model forward motion only); for a constant-speed robot
+    (``constant_speed``, the study's Dubins robot) a linear.x that is not its speed (it
+    drives at its speed whatever the planner asks)."""
     bound, speed = cfg.omega_max, cfg.speed
     parts = []
     if omega > bound or omega < -bound:
         parts.append(f'angular.z={omega:.6g} beyond w_max={bound:g}: clipped to {clip(omega, bound):g}')
-    if linear is not None and not abs(linear - speed) <= _SPEED_TOLERANCE * max(1.0, speed):
-        parts.append(f'linear.x={linear:.6g} is not the robot\'s speed {speed:g}: it drives at {speed:g}')
+    if linear is None:
+        pass
+    elif cfg.constant_speed:
+        if not abs(linear - speed) <= _SPEED_TOLERANCE * max(1.0, speed):
+            parts.append(f'linear.x={linear:.6g} is not the robot\'s speed {speed:g}: it drives at {speed:g}')
+    elif linear > speed:
+        parts.append(f'linear.x={linear:.6g} beyond speed={speed:g}: clipped to {speed:g}')
+    elif linear < 0.0:
+        parts.append(f'linear.x={linear:.6g} is reverse: sent as 0 (the value functions model forward motion '
+                     f'only; the robot stops, turning as asked)')
     return '; '.join(parts)
 
 
@@ -269,17 +303,24 @@ def _taken(filters, skip) -> np.ndarray:
     return np.ones(len(filters), bool) if skip is None else ~np.array([bool(b) for b in skip], dtype=bool)
 
 
-def _accept_rows(filters, name, rows, take, t, stamp) -> None:
-    """Each taken row becomes its filter's newest ``name`` input (pose or command), arrived at
-    ``t`` and describing ``stamp``; the interval since the previous stamp feeds the measured
-    control period (as ``update_pose`` / ``update_command`` do). Robots with the same window
-    and the same previous stamp get the same next window, made once."""
+def _accept_rows(filters, name, rows, take, t, stamp, linears=None) -> None:
+    """Each taken row becomes its filter's newest ``name`` input (pose or command, with its
+    linear.x ``linears[i]`` if given), arrived at ``t`` and describing ``stamp``; the interval
+    since the previous stamp feeds the measured control period (as ``update_pose`` /
+    ``update_command`` do). Robots with the same window and the same previous stamp get the
+    same next window, made once."""
     windows = '_pose_intervals' if name == 'pose' else '_command_intervals'
     made = {}      # (window before, previous stamp) -> window after (kept alive here: ids stay unique)
+    pose = name == 'pose'
+    if not pose and (linears is not None or not all(map(is_, map(_LINEAR, map(_COMMAND, filters)), repeat(None)))):
+        # each command's linear.x (None: not given), in a pass of its own (the pose rows' loop as before)
+        for f, v, ok in zip(filters, repeat(None) if linears is None else linears, take.tolist()):
+            if ok:
+                f.command.linear = v
     for f, row, ok in zip(filters, rows, take.tolist()):
         if not ok:
             continue
-        inp = f.pose if name == 'pose' else f.command
+        inp = f.pose if pose else f.command
         previous = inp.stamp if inp.value is not None else None
         inp.value, inp.t, inp.rejected, inp.stamp, inp.note = row, t, '', stamp, ''
         if previous is not None and stamp > previous:
@@ -290,30 +331,30 @@ def _accept_rows(filters, name, rows, take, t, stamp) -> None:
             setattr(f, windows, after)
 
 
-def update_detections_all(filters, centres, t, safe_set=None) -> None:
-    """``update_detections(centres, t, safe_set)`` for every robot, with one array shared by all
-    (the fleet node's batched detections; robots that share it share its cluster frames and
-    spatial index). Beyond ``max_detections`` (the first robot's) the nearest to any robot's
-    pose are kept."""
-    c = _checked_centres(centres)
-    if c is None:
-        raise ValueError(f'detections must be finite (N, 2) centres, got shape {np.shape(centres)}')
-    t = float(t)
-    c, kept, dropped, (note, safe) = _limited(c, filters, t, safe_set, filters[0].config if filters else None)
-    for f in filters:
+def update_detections_all(filters, rows, t, safe_set=None, solve_clusters=True) -> None:
+    """``update_detections(rows, t, safe_set, solve_clusters)`` for every robot, with one array
+    shared by all (the fleet node's batched detections; robots that share it share its cluster
+    frames and spatial index; radii against the first robot's ``radius``). Beyond
+    ``max_detections`` (the first robot's) the nearest to any robot's pose are kept."""
+    cfg = filters[0].config if filters else None
+    c, radii, origin = checked_discs(rows, cfg.radius if cfg is not None else math.inf)    # (no robot: checked only)
+    _store_detections(filters, c, radii, origin, float(t), safe_set, cfg, solve_clusters)
+
+
+def _store_detections(filters, c, radii, origin, t, safe_set, cfg, solve_clusters) -> None:
+    """The checked discs (``discs.checked_discs``) become every filter's detections, at most
+    ``max_detections`` of them (``_limited``); ``kept``: the message's rows of those kept
+    (None: row i is row i)."""
+    c, kept, dropped, (note, safe) = _limited(c, filters, t, safe_set, cfg)
+    if kept is not None and radii is not None:
+        radii = radii[kept]
+    if origin is not None:
+        kept = origin if kept is None else origin[kept]
+    solve, t = bool(solve_clusters), float(t)
+    for f in filters:       # _Input.accept, and what was made of the message
         inp = f.detections
-        inp.accept(c, t)
-        inp.kept, inp.dropped, inp.note, inp.dropped_safely = kept, dropped, note, safe
-
-
-def _checked_centres(centres):
-    """``centres`` as finite (N, 2) floats, or None if they are not."""
-    c = np.asarray(centres, dtype=float)
-    if c.size == 0:
-        return np.zeros((0, 2))
-    if c.ndim != 2 or c.shape[1] != 2 or not np.all(np.isfinite(c)):
-        return None
-    return c
+        (inp.value, inp.t, inp.stamp, inp.rejected, inp.note, inp.kept, inp.dropped, inp.dropped_safely, inp.radii,
+         inp.solve_clusters) = c, t, t, '', note, kept, dropped, safe, radii, solve
 
 
 def _limited(c, robots, t, safe_set, cfg):

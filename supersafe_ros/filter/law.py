@@ -13,12 +13,19 @@ Within a cluster whose own (sound) row acts, its members' single-obstacle rows a
 aside, so the union's avoid turn is never traded for a single member's. The governing
 row (``govern``) is the first kind with a hit, in the order enter, ahead, stay, and within
 it the smallest score (V - alpha, or V_next - alpha), the first in the robot's list on
-ties. The command (``decide_rows``):
+ties. The command (``decide_rows``), s the planner's speed clipped to [0, speed]
+(``gather.drive_speed``; 0 for a silent planner):
 
-    fail safe  inputs stale/invalid: the avoid turn of the row with the smallest V - alpha
-               from the last valid state, else stop-turn (v = 0, u = +w_max)
-    override   a governing row: u* = w_max x turn of that row, v = speed
-    pass       the planner's command clipped to +-w_max (silent planner: zero twist)
+    fail safe  inputs stale/invalid, from the last valid state (``FilterConfig.fail_safe_command``):
+               'stop': the avoid turn of its governing row at the speed last sent, where
+               the law would act on it, else a zero twist (v = 0, u = 0);
+               'stop_turn' (a constant-speed Dubins robot): the avoid turn of the row with
+               the smallest V - alpha at speed, else the stop-turn (v = 0, u = +w_max)
+    override   a governing row: u* = w_max x turn of that row, v = s (a robot that can stop
+               turns in place on a cluster's loiter fallback: its circle is drawn at speed)
+    pass       the planner's command clipped to +-w_max, v = s (silent planner: zero twist)
+
+A constant-speed robot's s is its speed (whatever the planner asks).
 
 The avoid turn of a pair is the minimally invasive law's u* = w_max sign(dV/dtheta)
 (``avoid_turn``; ties left), and with a hold H the bang whose hold ends at the larger V
@@ -182,25 +189,33 @@ def smallest(tab, m) -> np.ndarray:
     return first_min(tab.robot, tab.position, tab.value - tab.level, np.isfinite(tab.value), m)
 
 
-def decide_rows(tab, m, n_groups, overriding, margin, failing, fresh, planned, bang, speed):
+def decide_rows(tab, m, n_groups, overriding, margin, failing, fresh, planned, bang, drive, held, constant):
     """The rule for the M robot rows of ``tab``: (omega, linear, action code 0 pass / 1
     override / 2 fail safe, overrides, the row each robot names, why it governs (``KINDS``)).
 
-    ``overriding``, ``margin``, ``failing``, ``fresh``, ``planned``, ``bang``, ``speed``: per
-    robot row (``failing``: inputs stale or invalid, its last valid state judged instead;
-    ``planned``: the planner's command clipped, 0 if silent). Avoid turns are read
-    (``tab.turns_of``) only for the robots that avoid.
+    ``overriding``, ``margin``, ``failing``, ``fresh``, ``planned``, ``bang``, ``drive``,
+    ``held``, ``constant``: per robot row (``failing``: inputs stale or invalid, its last
+    valid state judged instead; ``planned``: the planner's turn clipped, 0 if silent;
+    ``drive``: the speed of the command judged, ``gather.drive_speed``; ``held``: the speed
+    last sent; ``constant``: a constant-speed robot, failing safe with the stop-turn). Avoid
+    turns are read (``tab.turns_of``) only for the robots that avoid.
     """
     k_gov, kind = govern(tab, overriding, margin, n_groups, m)
     k_small = smallest(tab, m)
-    overrides = ~failing & (kind > 0)
-    named = np.where(overrides, k_gov, k_small)      # the constraint each robot's output names
-    avoid = named >= 0
-    avoiding = overrides | (failing & avoid)
+    acts = kind > 0
+    overrides = ~failing & acts
+    # failing safe: a constant-speed robot avoids the nearest constraint (the smallest V - alpha)
+    # of its last valid state; a robot that can stop avoids the one the law would act on, else stops
+    by_law = overrides | (failing & ~constant & acts)
+    named = np.where(by_law, k_gov, k_small)      # the constraint each robot's output names
+    avoiding = by_law | (failing & constant & (k_small >= 0))
     turn = np.zeros(m)
     turn[avoiding] = tab.turns_of(named[avoiding])
-    omega = np.where(avoiding, bang * turn, np.where(failing, bang, planned))
-    stopped = (failing & ~avoid) | (~failing & ~overrides & ~fresh)
-    linear = np.where(stopped, 0.0, speed)
+    omega = np.where(avoiding, bang * turn, np.where(failing & constant, bang, np.where(failing, 0.0, planned)))
+    linear = np.where(failing, np.where(avoiding, held, 0.0), np.where(overrides | fresh, drive, 0.0))
+    if overrides.any() and not constant.all():     # a robot that can stop: in place on a loiter fallback
+        loiter = overrides & ~constant
+        loiter[loiter] = tab.fallback[named[loiter]]
+        linear[loiter] = 0.0
     code = np.where(failing, 2, np.where(overrides, 1, 0))
     return omega, linear, code, overrides, named, kind

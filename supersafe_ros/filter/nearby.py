@@ -140,11 +140,14 @@ def narrow(filters, configs, dets, states, horizon, speed, margin, safe_set, sto
     out = Narrowed()
     out.dets, out.frames, out.counts = list(dets), [None] * len(dets), counts
     position = [None if n > NEAR_QUERY_MIN else np.arange(n) for n in counts.tolist()]      # (big: below)
-    names = list(position)
+    names = [p if p is None or f.detections.kept is None or f.detections.value is not det else f.detections.kept
+             for p, f, det in zip(position, filters, dets)]    # (a robot's discs split into rings: filter.discs)
     shared, radii, found = {}, {}, {}
     for i in big.tolist():       # each robot's index, store and radius (robots of a fleet share them)
         f, cfg, det = filters[i], configs[i], dets[i]
         store = (store_arg if store_arg is not None else default_cluster_store(cfg)) if cfg.clusters else None
+        if store is not None and not f.detections.solve_clusters:     # (as cluster_rows._entries)
+            store = store.fallback_twin()
         st = store.settings if store is not None else settings_of(cfg)
         index = _index(f, det, st.link_distance if store is not None else None, shared)
         key = (st, float(speed[i]), float(horizon[i]), float(margin[i]))

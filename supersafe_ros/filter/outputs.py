@@ -49,26 +49,31 @@ class Decisions(Sequence):
 
 def outputs(filters, rb, safe_set, t, tab, n_groups, solving) -> Decisions:
     """Every robot's command (as lists), its filter's state (overriding, the command
-    remembered as sent), and a builder of its FilterOutput: the law (``law.decide_rows``)
-    over the table's rows, spread back to all robots (a robot with no recent valid state
-    gets the stop-turn)."""
+    remembered as sent, with the speed the robot drives under it: the linear.x sent, a
+    constant-speed robot's speed), and a builder of its FilterOutput: the law
+    (``law.decide_rows``) over the table's rows, spread back to all robots (a robot with no
+    recent valid state stops: a zero twist, or a constant-speed robot's stop-turn)."""
     n, use = len(filters), rb.use
     m = len(use)
     omega, linear, code, over, named, kind = decide_rows(
-        tab, m, n_groups, rb.overriding, rb.margin, rb.failing, rb.fresh, rb.planned, rb.bang, rb.speed)
-    if m < n:       # spread to every robot (rows of ``use`` in place; no recent valid state: stop-turn)
+        tab, m, n_groups, rb.overriding, rb.margin, rb.failing, rb.fresh, rb.planned, rb.bang, rb.drive, rb.held,
+        rb.constant)
+    moved = np.where(rb.constant, rb.speed, linear)
+    if m < n:       # spread to every robot (rows of ``use`` in place; no recent valid state: stop)
         rows = np.full(n, -1, dtype=np.intp)
         rows[use] = np.arange(m)
-        spread = rb.all_bang.copy(), np.zeros(n), np.full(n, 2), np.zeros(n, bool)
-        for full, part in zip(spread, (omega, linear, code, over)):
+        all_speed = np.fromiter((c.speed for c in rb.all_configs), dtype=float, count=n)
+        spread = (np.where(rb.all_constant, rb.all_bang, 0.0), np.zeros(n), np.full(n, 2), np.zeros(n, bool),
+                  np.where(rb.all_constant, all_speed, 0.0))
+        for full, part in zip(spread, (omega, linear, code, over, moved)):
             full[use] = part
-        omega, linear, code, over = spread
+        omega, linear, code, over, moved = spread
         rows = rows.tolist()
     else:
         rows = range(n)
     omega, linear, over = omega.tolist(), linear.tolist(), over.tolist()
     action = _ACTIONS[code].tolist()
-    record_all(filters, omega, over, t, rb.all_keep)
+    record_all(filters, omega, over, t, rb.all_keep, moved.tolist())
     problems, configs = rb.problems, rb.all_configs      # configs as at the decision (a parameter change
     common = set_fields(safe_set)                        # replaces a robot's)
     fresh, kind, named, ages, horizon = rb.fresh.tolist(), kind.tolist(), named.tolist(), rb.age, rb.horizon
@@ -91,15 +96,15 @@ def outputs(filters, rb, safe_set, t, tab, n_groups, solving) -> Decisions:
     return Decisions(omega, linear, action, describe)
 
 
-def record_all(filters, omega, over, t, keep) -> None:
-    """Each robot's ``overriding = over[i]`` and ``record_sent(omega[i], t)``, in one loop (a
-    fleet's tick: the method's call and its configuration lookups cost more than its work);
-    ``keep``: each robot's ``config.sent_kept``."""
+def record_all(filters, omega, over, t, keep, moved) -> None:
+    """Each robot's ``overriding = over[i]`` and ``record_sent(omega[i], t, moved[i])``, in one
+    loop (a fleet's tick: the method's call and its configuration lookups cost more than its
+    work); ``keep``: each robot's ``config.sent_kept``."""
     ts = float(t)
-    for f, w, o, cut in zip(filters, omega, over, (t - keep).tolist()):
+    for f, w, o, cut, v in zip(filters, omega, over, (t - keep).tolist(), moved):
         f.overriding = o  # failing safe clears it: re-enter by the law once inputs are back
         sent = f.sent
-        sent.append((ts, w))
+        sent.append((ts, w, v))
         while len(sent) > 1 and sent[1][0] <= cut:
             sent.popleft()
 
@@ -114,7 +119,7 @@ def set_fields(safe_set) -> dict:
 def explain(problem, cfg, w, v, a, set_fields, tab, k, kind, fresh, horizon, age, solving, lost) -> FilterOutput:
     """One robot's FilterOutput: its command (w, v, a) and why, from the table row ``k`` that it
     names (-1: none) and how it acted on it (``kind``, see ``law.govern``); ``lost``: no recent
-    valid state (stop-turn)."""
+    valid state (the fail-safe command)."""
     common = dict(set_fields, pose_age=age, lookahead=horizon, clusters_solving=solving)
     if k < 0:
         common.update(obstacle_index=-1, obstacle_xy=(math.nan, math.nan), value=math.inf)
@@ -130,11 +135,14 @@ def explain(problem, cfg, w, v, a, set_fields, tab, k, kind, fresh, horizon, age
         label = (f'a cluster of {members} obstacles ({source}, nearest {obstacle})' if members > 1
                  else f'obstacle {obstacle}')
     if problem:
-        if k >= 0:
-            why = f'{problem}; avoiding {label} from the last valid state (V={value:.3g})'
+        stop = 'stop-turn' if cfg.constant_speed else 'stop (zero twist)'
+        if k >= 0 and (cfg.constant_speed or kind > 0):     # (law.decide_rows: which fail safe avoids)
+            why = f'{problem}; avoiding {label} from the last valid state (V={value:.3g}) at {v:g} m/s'
+        elif k >= 0:
+            why = f'{problem}; clear of {label} at the last valid state (V={value:.3g} > alpha={level:.3g}): {stop}'
         else:
             why = f'{problem}; {"no recent valid state" if lost else "no obstacle near the last valid state"}' \
-                  ': stop-turn'
+                  f': {stop}'
     elif a == OVERRIDE:
         how = KINDS[kind]
         if how == 'enter':
@@ -144,9 +152,11 @@ def explain(problem, cfg, w, v, a, set_fields, tab, k, kind, fresh, horizon, age
                    f'within {horizon:.3g} s ({label})')
         else:
             why = f'V={value:.3g} <= alpha+margin={level + cfg.clear_margin:.3g}: not clear yet'
+        if not cfg.constant_speed and tab.fallback[k]:
+            why += '; turning in place (the loiter circle is drawn at full speed)'
     elif not fresh:
-        # Nav2 style: no input, zero twist (a Dubins robot drives straight on; the filter still
-        # guards it against every detected obstacle)
+        # Nav2 style: no input, zero twist (a constant-speed Dubins robot drives straight on; the
+        # filter still guards it against every detected obstacle)
         why = 'clear; planner silent: zero command'
     else:
         # the robot's bound, whatever the planner asked (angular.z = 1e30 goes out as w_max)

@@ -57,8 +57,9 @@ def pair_values(vf: ValueFunction, rel, omega, horizon, speed, bang):
 def pair_reads(vf: ValueFunction, rel, omega, horizon, speed, bang, level=math.inf):
     """(V, V next) of ``pair_values``: V at the pair's state and where the planner's hold and
     both bangs after it end, in one read; V next only where it can be at or below ``level``
-    (the pairs' alpha; +inf: everywhere), else a lower bound above it (so the row never looks
-    ahead: the same decisions).
+    (the pairs' alpha, or per pair (N,): the level less the pair's ``discs.value_shift``;
+    +inf: everywhere), else a lower bound above it (so the row never looks ahead: the same
+    decisions).
 
     The holds end within 2 speed H of the pair's state, so no read there can be below
     ``vf.radial_minimum`` over that band of radii: a pair whose bound is above the level
@@ -83,7 +84,10 @@ def pair_reads(vf: ValueFunction, rel, omega, horizon, speed, bang, level=math.i
         value[near] = vf.value(rel, outside=np.inf)
         return value, value_next
     horizon, speed = horizon[near], speed[near]
-    if level < math.inf:
+    per_pair = np.ndim(level) > 0
+    if per_pair or level < math.inf:
+        if per_pair:
+            level = level[near]
         radius, travel = np.hypot(rel[:, 0], rel[:, 1]), 2.0 * speed * horizon
         bound = vf.radial_minimum(radius - travel, radius + travel)
         held = np.flatnonzero((horizon > 0) & ~(bound > level + 1e-6))     # read unless above the level

@@ -2,10 +2,12 @@
 
 A pose describes the robot at its stamp, not at the decision: in a lockstep graph the
 filter may decide at step k on the pose of step k-1, and a real robot's pose is some
-milliseconds old. The filter knows what the robot did since: it sent the commands. So it
-propagates the pose over its age (decision time - stamp, at most ``hold_timeout``) along
-exact Dubins arcs under the commands it sent (``plan``, ``follow``), and judges the
-robot's state *now*. The same arcs give the lookahead's holds (``bang_ends``).
+milliseconds old. The filter knows what the robot did since: it sent the commands, each
+with the speed the robot drives under it (``RobotFilter.record_sent``: the linear.x sent,
+or a constant-speed robot's speed). So it propagates the pose over its age (decision time -
+stamp, at most ``hold_timeout``) along exact Dubins arcs under the commands it sent, each at
+its own speed (``plan``, ``follow``), and judges the robot's state *now*. The same arcs give
+the lookahead's holds (``bang_ends``).
 
 Dubins arc of turn rate w held for dt from (x, y, th), speed v:
 
@@ -45,15 +47,15 @@ def bang_ends(states, speed, bang, hold) -> np.ndarray:
                     np.tile(hold, 2))
 
 
-def follow(states, omegas, dts, speed) -> np.ndarray:
-    """``states`` (N, 3) moved along their robots' plans at ``speed`` (N,): arc k of robot i
-    holds ``omegas[k, i]`` for ``dts[k, i]`` (``gather``'s arcs; shorter plans padded with
+def follow(states, omegas, dts, speeds) -> np.ndarray:
+    """``states`` (N, 3) moved along their robots' plans: arc k of robot i holds ``omegas[k, i]``
+    for ``dts[k, i]`` at ``speeds[k, i]`` (``gather``'s arcs; shorter plans padded with
     zero-length arcs, which only wrap theta); with no arcs at all, theta wrapped all the same
     (a robot's state does not depend on the other robots' plans)."""
     if len(omegas) == 0:
         states[:, 2] = wrap_angle(states[:, 2])
         return states
-    for omega, dt in zip(omegas, dts):
+    for omega, dt, speed in zip(omegas, dts, speeds):
         states = arc_flow(states, speed, omega, dt)
     return states
 
@@ -75,8 +77,8 @@ def wrap(theta):
 
 
 def plan(f, t):
-    """(pose age, [(turn rate, duration)] held from the pose's stamp to ``t``) of one robot;
-    (0, ()) without delay compensation."""
+    """(pose age, [(turn rate, duration, speed)] held from the pose's stamp to ``t``) of one
+    robot; (0, ()) without delay compensation."""
     if not f.config.compensate_delay:
         return 0.0, ()
     pose = f.pose
@@ -86,8 +88,8 @@ def plan(f, t):
     # segments_since's answer in the two common cases: nothing sent since the pose (one arc),
     # or one command sent since (a robot deciding on a pose older than its last decision)
     if sent and sent[-1][0] <= t0 and t > t0:
-        return age, ((sent[-1][1], t - t0),)
+        return age, ((sent[-1][1], t - t0, sent[-1][2]),)
     if len(sent) > 1 and sent[-2][0] <= t0 < sent[-1][0] < t:
         ts = sent[-1][0]
-        return age, ((sent[-2][1], ts - t0), (sent[-1][1], t - ts))
+        return age, ((sent[-2][1], ts - t0, sent[-2][2]), (sent[-1][1], t - ts, sent[-1][2]))
     return age, f.segments_since(t0, t)

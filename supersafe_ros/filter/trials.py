@@ -10,13 +10,16 @@ vectorised filter call per tick.
 One tick of ``step`` seconds, as in the lockstep team graph:
 
 1. the robot is at x_k (time t_k = k step) and publishes its pose stamped t_k;
-2. the planner steers for the goal from x_k (``goal_seeking_turn_rate``);
+2. the planner steers for the goal from x_k (``goal_seeking_turn_rate``), at its speed
+   (``speeds``: the robot's largest ``speed`` throughout, or a profile that slows, stops,
+   waits and speeds up, ``speed_profiles``);
 3. the filter decides at t_k; with probability ``stale_probability`` its pose
    callback has not run yet and it holds the pose of step k-1 (stamped t_{k-1}),
    the race measured in the team graph (7.3 % of decisions near obstacles);
-4. the robot moves along the exact arc of the filter's command (clipped to
-   +-w_max) to x_{k+1}; the distance to every disc is checked at
-   ``substeps`` points along the arc.
+4. the robot moves along the exact arc of the filter's command (turn clipped to
+   +-w_max; the linear.x it was sent, clipped to [0, speed], or for a constant-speed
+   robot, ``FilterConfig.constant_speed``, its speed) to x_{k+1}; the distance to every
+   disc is checked at ``substeps`` points along the arc.
 
 A collision is an entry deeper than ``depth`` into a disc (counted once per
 entry). A trial ends when the robot crosses its goal line; one that has not
@@ -28,16 +31,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..reach.dynamics import DubinsCar
 from ..reach.grid import wrap_angle
 from .decide import step_many
 from .inputs import RobotFilter
+from .propagation import arc_flow
 from .types import FilterConfig
 
 
 @dataclass(frozen=True)
 class CollisionTrial:
-    """One approach: discs (K, 2), a start state, a goal point and the goal line's normal.
+    """One approach: discs (K, 2) centres of ``run_trials``' radius or (K, 3) [x, y, r] of
+    their own radius, a start state, a goal point and the goal line's normal.
 
     The trial is done when (p - goal) . direction >= 0.
     """
@@ -61,6 +65,7 @@ class TrialResult:
     stale_decisions: int = 0
     overrides: int = 0
     sim_time: float = 0.0          # robot-seconds simulated
+    max_speed_excess: float = 0.0  # the most a robot was sent beyond its planner's speed [m/s]
     depths: list = field(default_factory=list)
 
     def add(self, other: 'TrialResult') -> None:
@@ -68,6 +73,7 @@ class TrialResult:
                      'stale_decisions', 'overrides', 'sim_time'):
             setattr(self, name, getattr(self, name) + getattr(other, name))
         self.max_depth = max(self.max_depth, other.max_depth)
+        self.max_speed_excess = max(self.max_speed_excess, other.max_speed_excess)
         self.depths.extend(other.depths)
 
     def summary(self) -> str:
@@ -122,8 +128,10 @@ def layout_trials(layouts, rng, margin=10.0, offset=None) -> list:
     """
     out = []
     for discs in layouts:
-        discs = np.asarray(discs, dtype=float).reshape(-1, 2)
-        extent = float(np.max(np.hypot(discs[:, 0], discs[:, 1]))) + 1.8
+        discs = np.asarray(discs, dtype=float)
+        discs = discs.reshape(-1, discs.shape[-1] if discs.ndim == 2 else 2)
+        rim = discs[:, 2] if discs.shape[1] == 3 else 1.8
+        extent = float(np.max(np.hypot(discs[:, 0], discs[:, 1]) + rim))
         phi = rng.uniform(-np.pi, np.pi)
         d, nrm = np.array([np.cos(phi), np.sin(phi)]), np.array([-np.sin(phi), np.cos(phi)])
         spread = extent if offset is None else offset
@@ -135,21 +143,49 @@ def layout_trials(layouts, rng, margin=10.0, offset=None) -> list:
     return out
 
 
+def speed_profiles(rng, n, speed=3.0, kinds=('slow', 'stop_and_go', 'ramp', 'random')):
+    """A planner's speed per trial that is not the robot's largest: ``speeds(t, idx)`` -> the
+    linear.x of trials ``idx`` at time t, each trial one of ``kinds`` (drawn in turn) with its
+    own phase: 'slow' a constant fraction of ``speed`` (0.1 to 0.9), 'stop_and_go' waits
+    stopped and drives at full speed in turns (0.3 to 2 s each: a planner that stops at a
+    door and goes on), 'ramp' accelerates from 0 to full speed and brakes to a crawl over a
+    few seconds, 'random' a new speed in [0, speed] every 0.2 to 1 s (0 one time in four)."""
+    kind = np.array([kinds[i % len(kinds)] for i in range(n)])
+    fraction = rng.uniform(0.1, 0.9, n)
+    on, off, phase = rng.uniform(0.3, 2.0, n), rng.uniform(0.3, 2.0, n), rng.uniform(0.0, 4.0, n)
+    period = rng.uniform(2.0, 6.0, n)
+    hold = rng.uniform(0.2, 1.0, n)
+    table = rng.uniform(0.0, speed, (n, 256))
+    table[rng.random((n, 256)) < 0.25] = 0.0
+
+    def speeds(t, idx):
+        k = kind[idx]
+        cycle = np.mod(t + phase[idx], on[idx] + off[idx])
+        wave = 0.5 - 0.5 * np.cos(2.0 * np.pi * (t + phase[idx]) / period[idx])
+        slot = np.minimum((t / hold[idx]).astype(int), table.shape[1] - 1)
+        return np.select([k == 'slow', k == 'stop_and_go', k == 'ramp'],
+                         [fraction[idx] * speed, np.where(cycle < off[idx], 0.0, speed), speed * wave],
+                         table[idx, slot])
+    return speeds
+
+
 def run_trials(trials, guard, step=0.05, stale_probability=0.0, late_probability=0.0,
                config=None, rng=None,
                radius=1.8, depth=0.01, deep=0.05, time_limit=30.0, substeps=4,
-               omega_max=1.0, speed=3.0, gain=2.0) -> TrialResult:
+               omega_max=1.0, speed=3.0, gain=2.0, speeds=None) -> TrialResult:
     """Run every trial to its goal line (or the time limit) under ``guard``.
 
     ``late_probability``: the filter's reply misses its step (the lockstep moved on
     on an earlier reply), so the robot holds its previous command one step longer.
+    ``speeds``: the planner's linear.x, ``speeds(t, idx)`` for the trials ``idx`` still
+    running (``speed_profiles``); None: ``speed`` throughout. The robot drives at the
+    linear.x it was sent (clipped to [0, speed]), a constant-speed robot at ``speed``.
 
     ``guard(filters, t)`` returns one FilterOutput per filter: e.g.
     ``lambda fs, t: step_many(fs, safe_set, t)`` or a ``cluster.LayoutGuard``.
     """
     rng = rng if rng is not None else np.random.default_rng(0)
     config = config or FilterConfig(speed=speed, omega_max=omega_max)
-    car = DubinsCar(speed, omega_max)
     n = len(trials)
     state = np.array([e.start for e in trials], dtype=float).reshape(n, 3)
     goal = np.array([e.goal for e in trials], dtype=float).reshape(n, 2)
@@ -157,10 +193,15 @@ def run_trials(trials, guard, step=0.05, stale_probability=0.0, late_probability
     filters = [RobotFilter(config, f'robot_{i}') for i in range(n)]
     previous = state.copy()
     applied = np.zeros(n)                           # the command the robot holds
+    applied_speed = np.zeros(n)
     width = max(len(e.discs) for e in trials)
     discs = np.full((n, width, 2), 1e9)             # padded: far-away fillers never collide
+    radii = np.full((n, width), float(radius))
     for i, e in enumerate(trials):
-        discs[i, :len(e.discs)] = e.discs
+        d = np.asarray(e.discs, dtype=float)
+        discs[i, :len(d)] = d[:, :2]
+        if d.shape[1] == 3:
+            radii[i, :len(d)] = d[:, 2]
     inside = np.zeros((n, width), dtype=bool)
     deepest = np.zeros((n, width))
     active = np.ones(n, dtype=bool)
@@ -183,6 +224,7 @@ def run_trials(trials, guard, step=0.05, stale_probability=0.0, late_probability
         error = wrap_angle(np.arctan2(goal[idx, 1] - state[idx, 1], goal[idx, 0] - state[idx, 0])
                            - state[idx, 2])
         planned = np.clip(gain * error, -omega_max, omega_max)
+        linear = np.full(len(idx), float(speed)) if speeds is None else np.asarray(speeds(t, idx), dtype=float)
         for j, i in enumerate(idx):
             f = filters[i]
             if stale[j]:
@@ -190,19 +232,23 @@ def run_trials(trials, guard, step=0.05, stale_probability=0.0, late_probability
             else:
                 f.update_pose(state[i], t, stamp=t)
             f.update_detections(trials[i].discs, t)
-            f.update_command(float(planned[j]), t)
+            f.update_command(float(planned[j]), t, None if speeds is None else float(linear[j]))
         outs = guard([filters[i] for i in idx], t)
         decided = np.clip(np.array([o.omega for o in outs]), -omega_max, omega_max)
+        driven = np.full(len(idx), float(speed)) if config.constant_speed else \
+            np.clip(np.array([o.linear for o in outs]), 0.0, speed)
         late = rng.random(len(idx)) < late_probability if k > 0 else np.zeros(len(idx), bool)
         omega = np.where(late, applied[idx], decided)
-        applied[idx] = decided
+        v = np.where(late, applied_speed[idx], driven)
+        applied[idx], applied_speed[idx] = decided, driven
+        res.max_speed_excess = max(res.max_speed_excess, float(np.max(driven - linear, initial=0.0)))
         res.decisions += len(idx)
         res.stale_decisions += int(stale.sum())
         res.overrides += sum(o.action != 'pass' for o in outs)
         previous[idx] = state[idx]
         for s in range(1, substeps + 1):
-            pts = car.flow(state[idx], omega, step * s / substeps)
-            d = radius - np.linalg.norm(pts[:, None, :2] - discs[idx], axis=2)   # depth into each disc
+            pts = arc_flow(state[idx], v, omega, np.full(len(idx), step * s / substeps))
+            d = radii[idx] - np.linalg.norm(pts[:, None, :2] - discs[idx], axis=2)   # depth into each disc
             entered = (d > depth) & ~inside[idx]
             res.collisions += int(entered.sum())
             inside[idx] |= d > depth
@@ -212,7 +258,7 @@ def run_trials(trials, guard, step=0.05, stale_probability=0.0, late_probability
             if left.any():
                 close(left)
                 inside[left] = False
-        state[idx] = car.flow(state[idx], omega, step)
+        state[idx] = arc_flow(state[idx], v, omega, np.full(len(idx), step))
         res.sim_time += step * len(idx)
         across = np.einsum('ij,ij->i', state[idx, :2] - goal[idx], direction[idx]) >= 0.0
         active[idx[across]] = False

@@ -1,7 +1,8 @@
 """The filter's shared vocabulary: its configuration, the safe set in force, and what one
 decision says (the ``types`` header of nav2_collision_monitor, for this filter).
 
-* ``FilterConfig``: timeouts, hysteresis margin, lookahead, cluster settings of one robot;
+* ``FilterConfig``: speed bound, timeouts, hysteresis margin, lookahead, cluster settings,
+  fail-safe command of one robot;
 * ``SafeSet``: a value function V and the level alpha at or below which the filter acts;
 * ``FilterOutput``: the command of one decision and why (``record()`` for the state topic);
 * the actions ``PASS``, ``OVERRIDE``, ``FAIL_SAFE`` and their diagnostic levels.
@@ -17,6 +18,11 @@ PASS = 'pass'
 OVERRIDE = 'override'
 FAIL_SAFE = 'fail_safe'
 
+# fail_safe_command: a robot that can stop (a zero twist), or the study's constant-speed Dubins
+# robot (the stop-turn v = 0, u = +omega_max, which it drives at its speed)
+STOP, STOP_TURN = 'stop', 'stop_turn'
+FAIL_SAFE_COMMANDS = (STOP, STOP_TURN)
+
 # max_detections is at least this (more than filter.nearby.NEAR_QUERY_MIN: a message it cut is narrowed)
 MAX_DETECTIONS_LEAST = 100
 
@@ -29,7 +35,10 @@ LEVEL_OF_ACTION = {PASS: LEVEL_OK, OVERRIDE: LEVEL_WARN, FAIL_SAFE: LEVEL_ERROR}
 class FilterConfig:
     """Parameters of the filter (times in seconds, rates in rad/s)."""
 
-    speed: float = 3.0               # robot speed (informative in the Twist)
+    # the robot's largest forward speed, the v of the value functions: the planner's linear.x is
+    # passed clipped to [0, speed] (fail_safe_command 'stop'; 'stop_turn': a constant-speed Dubins
+    # robot, always at speed)
+    speed: float = 3.0
     omega_max: float = 1.0           # the robot's turn-rate bound: |u*| = omega_max
     pose_timeout: float = 0.5        # a pose older than this is stale
     detections_timeout: float = 1.0  # detections older than this are stale
@@ -50,6 +59,12 @@ class FilterConfig:
     cluster_alpha: float = 0.0       # the union's level (the standard set's alpha)
     # a detections message keeps at most this many, the nearest to the robot (filter.nearby)
     max_detections: int = 10000
+    # what a robot that can stop does when the filter cannot judge (FAIL_SAFE_COMMANDS): 'stop', a
+    # zero twist (the avoid turn at the speed last sent first, where the last valid state calls
+    # for it); 'stop_turn', the study's constant-speed Dubins robot: v = 0, u = +omega_max (the
+    # avoid turn at speed first, where an obstacle is near the last valid state), the robot
+    # modelled at ``speed`` whatever linear.x says
+    fail_safe_command: str = 'stop'
 
     def __post_init__(self):
         for name in ('speed', 'omega_max', 'pose_timeout', 'detections_timeout', 'hold_timeout',
@@ -66,6 +81,15 @@ class FilterConfig:
         if not (math.isfinite(m) and m == int(m) and m >= MAX_DETECTIONS_LEAST):
             raise ValueError(f'max_detections must be an integer >= {MAX_DETECTIONS_LEAST}, got {self.max_detections}')
         object.__setattr__(self, 'max_detections', int(self.max_detections))
+        if self.fail_safe_command not in FAIL_SAFE_COMMANDS:
+            raise ValueError(f'fail_safe_command must be one of {", ".join(FAIL_SAFE_COMMANDS)}, got '
+                             f'{self.fail_safe_command!r}')
+
+    @property
+    def constant_speed(self) -> bool:
+        """A constant-speed Dubins robot (``fail_safe_command`` 'stop_turn'): it drives at
+        ``speed`` whatever linear.x says, and the fail safe is the stop-turn."""
+        return self.fail_safe_command == STOP_TURN
 
     @property
     def sent_kept(self) -> float:
@@ -100,7 +124,7 @@ class FilterOutput:
     """What one step decided."""
 
     omega: float                 # turn rate to command (angular.z)
-    linear: float                # linear.x to command (speed, or 0 for stop-turn)
+    linear: float                # linear.x to command (the planner's, clipped to [0, speed]; 0 to stop)
     action: str                  # pass | override | fail_safe
     reason: str
     obstacle_index: int = -1     # index in the last detections, -1 if none

@@ -188,6 +188,8 @@ def declare(node, name, default, description, lo=None, hi=None, step=0, read_onl
         elif isinstance(default, float):
             desc.floating_point_range = [FloatingPointRange(from_value=float(lo), to_value=float(hi),
                                                             step=float(step))]
+    if node.has_parameter(name):     # a managed node configured again: the value in force
+        return node.get_parameter(name).value
     return node.declare_parameter(name, default, desc).value
 
 
@@ -281,6 +283,13 @@ class LiveParameters:
         # applied under it (a node whose callbacks run on several threads)
         self._lock = lock if lock is not None else nullcontext()
         node.add_on_set_parameters_callback(self._on_set)
+        self._registered = True
+
+    def close(self) -> None:
+        """No longer applied (a managed node cleaned up)."""
+        if self._registered:
+            self._node.remove_on_set_parameters_callback(self._on_set)
+            self._registered = False
 
     def add(self, name, apply, check=None) -> None:
         self._entries[name] = (apply, check)

@@ -14,6 +14,16 @@ Topics (relative; run it in a namespace such as /robot_0):
                                                      none before the robot knows the world
   pub  step_done          rosgraph_msgs/Clock        lockstep acknowledgement (see sim_clock_node)
 
+``sensors: scan`` makes it a robot that publishes what a real one does: every step
+``odom`` (nav_msgs/Odometry, frame ``frame_id``, child base_link, the speed and turn rate it
+drove) and ``scan`` (sensor_msgs/LaserScan, frame base_link, ``scan_beams`` beams round the
+full circle ray-cast against the world's discs of their own radii, ``sim.laser``; range_max =
+``sensor_range``), both with the step's stamp, and no ``detections``. An obstacle the sensor
+misses for the trip (``miss_probability``) is left out of the ray cast: this approach the
+scan does not see it. ``pose`` stays (the simulator's ground truth, for the world and the
+supervisor). ``cmd_vel_stamped`` takes geometry_msgs/TwistStamped on cmd_vel;
+``follow_speed`` drives at the commanded linear.x clipped to [0, speed] (otherwise at speed).
+
 Steps run on a timer of the node's clock: with use_sim_time they follow /clock.
 Each step integrates the exact arc from the previous step time under the command
 in force, but never more than ``max_step`` (default: one period, 1/rate): when sim
@@ -40,12 +50,16 @@ import math
 from rclpy.clock import Clock as RosClock, ClockType
 from rclpy.node import Node
 
-from geometry_msgs.msg import PoseArray, PoseStamped, PoseWithCovarianceStamped, Twist
+from geometry_msgs.msg import PoseArray, PoseStamped, PoseWithCovarianceStamped, Twist, TwistStamped
+from nav_msgs.msg import Odometry
 from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import LaserScan
 from visualization_msgs.msg import MarkerArray
+
 
 from ..ros_io import rosmsg
 from ..sim.dubins_sim import LossySensor, RobotSim, TIMEOUT_BEHAVIORS
+from ..sim.laser import beam_angles, ray_cast
 from .common import LiveParameters, declare, run_node
 from .markers import ObstacleMarkers
 
@@ -82,10 +96,18 @@ class DubinsRobotNode(Node):
         self.live.add('detections_period', lambda v: setattr(self, 'detections_period', v))
         self.lockstep = p('lockstep', True, 'acknowledge each step on step_done (for sim_clock_node)')
         self.frame = p('frame_id', rosmsg.MAP_FRAME, 'frame of pose and detections')
+        self.sensors = p('sensors', 'none', 'none: detections (PoseArray of centres); scan: odom (Odometry) and '
+                         'scan (LaserScan) instead')
+        if self.sensors not in ('none', 'scan'):
+            raise ValueError(f"sensors must be 'none' or 'scan', got {self.sensors!r}")
+        beams = p('scan_beams', 360, 'sensors scan: beams round the full circle', 4, 100000)
+        stamped = p('cmd_vel_stamped', False, 'cmd_vel is geometry_msgs/TwistStamped (false: Twist)')
+        follow = p('follow_speed', False, 'drive at the commanded linear.x clipped to [0, speed] (false: at '
+                   'speed whatever linear.x says)')
 
         self.robot = RobotSim([x0, y0, th0], speed=speed, omega_max=w_max,
                               command_timeout=timeout, timeout_behavior=behavior,
-                              max_step=max_step if max_step > 0 else 1.0 / rate)
+                              max_step=max_step if max_step > 0 else 1.0 / rate, follow_speed=follow)
         self.sensor = LossySensor(sensor_range=rng_, miss_probability=miss, seed=seed)
         self.obstacles = ObstacleMarkers()
         self.world_known = False    # the obstacle set has arrived: the sensor can look
@@ -95,9 +117,14 @@ class DubinsRobotNode(Node):
         self.steps = 0
 
         self.pose_pub = self.create_publisher(PoseStamped, 'pose', rosmsg.QOS_STREAM)
-        self.det_pub = self.create_publisher(PoseArray, 'detections', rosmsg.QOS_STREAM)
+        if self.sensors == 'scan':
+            self.angles = beam_angles(beams)
+            self.odom_pub = self.create_publisher(Odometry, 'odom', rosmsg.QOS_STREAM)
+            self.scan_pub = self.create_publisher(LaserScan, 'scan', rosmsg.QOS_STREAM)
+        else:
+            self.det_pub = self.create_publisher(PoseArray, 'detections', rosmsg.QOS_STREAM)
         self.ack_pub = self.create_publisher(Clock, 'step_done', rosmsg.QOS_ACK)
-        self.create_subscription(Twist, 'cmd_vel', self.on_cmd, rosmsg.QOS_STREAM)
+        self.create_subscription(TwistStamped if stamped else Twist, 'cmd_vel', self.on_cmd, rosmsg.QOS_STREAM)
         self.create_subscription(PoseStamped, 'goal', self.on_goal, rosmsg.QOS_LATCHED)
         self.create_subscription(MarkerArray, '/obstacle_markers', self.on_markers,
                                  rosmsg.QOS_LATCHED)
@@ -121,17 +148,23 @@ class DubinsRobotNode(Node):
             self.start_timer.cancel()      # stepping: detections go with the poses
             return
         if self.world_known:
+            stamp = self.get_clock().now().to_msg()
+            if self.sensors == 'scan':
+                self.publish_odometry(self.robot.state, 0.0, stamp)
+                self.publish_scan(self.robot.state, stamp)
+                return
             ids, xy = self.obstacles.arrays()
             _, seen = self.sensor.sense(self.robot.state[:2], ids, xy)
-            self.det_pub.publish(rosmsg.xy_to_posearray(seen, self.get_clock().now().to_msg(), self.frame))
+            self.det_pub.publish(rosmsg.xy_to_posearray(seen, stamp, self.frame))
 
     def now_s(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9
 
-    def on_cmd(self, msg: Twist):
+    def on_cmd(self, msg):
+        twist = msg.twist if isinstance(msg, TwistStamped) else msg
         try:
-            omega = rosmsg.twist_turn_rate(msg)
-            self.robot.command(omega, self.now_s())
+            omega = rosmsg.twist_turn_rate(twist)
+            self.robot.command(omega, self.now_s(), twist.linear.x)
         except ValueError as exc:
             self.get_logger().error(f'cmd_vel rejected: {exc}; keeping the previous command',
                                     throttle_duration_sec=1.0)
@@ -183,13 +216,40 @@ class DubinsRobotNode(Node):
         self.steps += 1
         msg_stamp = stamp.to_msg()
         self.pose_pub.publish(rosmsg.state_to_pose(state, msg_stamp, self.frame))
-        if self.world_known:
+        if self.sensors == 'scan':
+            self.publish_odometry(state, now, msg_stamp)
+            if self.world_known:
+                self.publish_scan(state, msg_stamp)
+        elif self.world_known:
             self.publish_detections(state, now, msg_stamp)
         if self.lockstep:
             if self.robot.mode(now) == 'commanded':
                 self.pending_ack = stamp.nanoseconds   # acknowledged when the reply arrives
             else:
                 self.ack(stamp.nanoseconds)
+
+    def publish_odometry(self, state, now, msg_stamp):
+        msg = Odometry()
+        msg.header.stamp, msg.header.frame_id, msg.child_frame_id = msg_stamp, self.frame, 'base_link'
+        msg.pose.pose = rosmsg.state_to_pose(state).pose
+        moving = self.robot.mode(now) != 'parked'
+        msg.twist.twist.linear.x = self.robot.linear(now) if moving else 0.0
+        msg.twist.twist.angular.z = float(self.robot.control(now) or 0.0)
+        self.odom_pub.publish(msg)
+
+    def publish_scan(self, state, msg_stamp):
+        """The ranges to the obstacles this trip's sensor does not miss (sim.laser)."""
+        ids, xy = self.obstacles.arrays()
+        seen_ids, seen = self.sensor.sense(state[:2], ids, xy)
+        radii = [self.obstacles.radii[i] for i in seen_ids.tolist()]
+        msg = LaserScan()
+        msg.header.stamp, msg.header.frame_id = msg_stamp, 'base_link'
+        msg.angle_min, msg.angle_increment = float(self.angles[0]), float(self.angles[1] - self.angles[0])
+        msg.angle_max = float(self.angles[-1])
+        msg.range_min, msg.range_max = 0.05, float(self.sensor.sensor_range)
+        # an obstacle is seen by its centre's distance (sense); the cast sees its surface within range
+        msg.ranges = ray_cast(state, self.angles, seen, radii, self.sensor.sensor_range + 1e-9).tolist()
+        self.scan_pub.publish(msg)
 
     def publish_detections(self, state, now, msg_stamp):
         ids, xy = self.obstacles.arrays()

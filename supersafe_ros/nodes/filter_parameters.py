@@ -36,7 +36,7 @@ CONFIG_PARAMETERS = (
     config_parameter('pose_timeout', 'a pose older than this is stale [s]', 0.001, 60.0, live=True),
     config_parameter('detections_timeout', 'detections older than this are stale [s]', 0.001, 60.0, live=True),
     config_parameter('hold_timeout', 'fail safe with the avoid control of the last valid state while it is '
-                     'younger than this, then stop-turn [s]', 0.0, 60.0, live=True),
+                     'younger than this, then fail_safe_command [s]', 0.0, 60.0, live=True),
     config_parameter('cmd_timeout', 'planner silent longer than this: zero command [s]', 0.001, 60.0, live=True),
     config_parameter('clear_margin', 'hysteresis: keep overriding until V > alpha + margin', 0.0, 10.0,
                      live=True),
@@ -52,13 +52,25 @@ CONFIG_PARAMETERS = (
 )
 LIVE_CONFIG_FIELDS = tuple(p.name for p in CONFIG_PARAMETERS)
 
+# a stamp from another clock (issue 31, the nodes' half; a block of its own)
+STAMP_PARAMETERS = (
+    ParameterSpec('stamp_tolerance', 1.0, 'a pose or sensor message stamped farther than this from the node\'s '
+                  'clock is refused with an ERROR (another clock, a clock jump): failing safe [s]',
+                  0.001, 1e9, live=True),
+)
+
 # in the order they are declared
 FILTER_PARAMETERS = (
     # the true dynamics and obstacle: the standard set (read-only)
-    config_parameter('speed', 'robot speed, true dynamics [m/s] (standard set; linear.x)', 0.01, 100.0,
-                     live=False),
+    config_parameter('speed', 'the robot\'s largest forward speed, true dynamics [m/s] (the standard set\'s v): '
+                     'the planner\'s linear.x is passed clipped to [0, speed]', 0.01, 100.0, live=False),
     config_parameter('omega_max', 'robot turn-rate bound, true dynamics [rad/s]; |u*|', 0.01, 20.0, live=False),
     config_parameter('radius', 'true obstacle radius [m] (standard set)', 0.01, 100.0, live=False),
+    ParameterSpec('fail_safe_command', _CONFIG_DEFAULTS['fail_safe_command'], 'what the robot is sent when the filter '
+                  'cannot judge (no input yet, stale input, after hold_timeout): stop = a zero twist, the avoid turn '
+                  'at the speed last sent first where the last valid state calls for it (a robot that can stop); '
+                  'stop_turn = v 0, u +omega_max, the study\'s constant-speed Dubins robot (driven at speed '
+                  'whatever linear.x says)'),
     # the levels
     ParameterSpec('standard_alpha', 0.0, 'alpha of the standard set [value units, m]', -10.0, 10.0, live=True),
     ParameterSpec('alpha_offset', 0.0, 'k in alpha = mu + k sigma for a learned set (paper: 0)', -5.0, 10.0,
@@ -85,6 +97,7 @@ FILTER_PARAMETERS = (
     ParameterSpec('standard_shape', [65, 65, 42], 'standard set grid: nodes (nx, ny, ntheta)'),
     ParameterSpec('standard_horizon', 3.0, 'standard set horizon [s] (as the library; 0 = to convergence)',
                   0.0, 1000.0),
+    *STAMP_PARAMETERS,
 )
 
 
@@ -109,7 +122,7 @@ class FilterParameters:
         self.use_learned = v['use_learned']
         # clusters of close obstacles are judged with the true radius at the standard level
         self.config = FilterConfig(speed=v['speed'], omega_max=v['omega_max'], radius=v['radius'],
-                                   cluster_alpha=self.standard_alpha,
+                                   fail_safe_command=v['fail_safe_command'], cluster_alpha=self.standard_alpha,
                                    **{name: v[name] for name in LIVE_CONFIG_FIELDS})
         self.rate = v['rate']
         self.state_period = 1.0 / v['state_rate']
@@ -120,6 +133,7 @@ class FilterParameters:
         self.cache_dir = v['cache_dir']
         self.standard_lo, self.standard_hi = v['standard_lo'], v['standard_hi']
         self.standard_shape, self.standard_horizon = v['standard_shape'], v['standard_horizon']
+        self.stamp_tolerance = v['stamp_tolerance']
 
     def keep_current(self, lock, effects: dict) -> LiveParameters:
         """Register every live parameter (and use_sim_time); ``effects``: name -> what puts a
@@ -142,6 +156,7 @@ class FilterParameters:
         live.add('max_value_function_bytes', self._setter('max_value_function_bytes', int, effects))
         live.add('clock_stall_timeout', self._setter('clock_stall_timeout', float, effects))
         live.add('use_sim_time', self._setter('use_sim_time', bool, effects))   # rclpy switches the node clock
+        live.add('stamp_tolerance', self._setter('stamp_tolerance', float, effects))
         return live
 
     def _setter(self, name, kind, effects):

@@ -141,10 +141,20 @@ class FilterWiring:
 
     def stamp(self, header_stamp, tau) -> float | None:
         """A message's header stamp on the filter's time base (None: unstamped or unusable).
-        In wall mode the ROS clock is the system clock (time.time)."""
+        In wall mode the ROS clock is the system clock (time.time). MessageError if the stamp
+        is farther than ``stamp_tolerance`` from that clock (another clock: ``sec: 100``
+        against the wall's 1.7e9, or a clock that jumped): such a message describes no time
+        the filter knows."""
         stamp_s = header_stamp.sec + header_stamp.nanosec * 1e-9
         ros = self.node.get_clock().now().nanoseconds * 1e-9 if self.time.sim else time.time()
-        return self.time.stamp_to_tau(stamp_s, ros, tau)
+        tau_stamp = self.time.stamp_to_tau(stamp_s, ros, tau)
+        tolerance = self.params.stamp_tolerance
+        if tau_stamp is not None and abs(ros - stamp_s) > tolerance:
+            raise rosmsg.MessageError(
+                f'stamp {stamp_s:.9g} s is {ros - stamp_s:+.6g} s from the node\'s clock ({ros:.9g} s, '
+                f'{"sim" if self.time.sim else "system"} time): another clock or a clock jump '
+                f'(stamp_tolerance {tolerance:g} s)')
+        return tau_stamp
 
     def close(self):
         self.sets.close()

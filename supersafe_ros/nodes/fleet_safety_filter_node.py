@@ -18,6 +18,9 @@ fleet manager or simulator that holds every robot's state; robot i = robots[i]:
   pub  fleet/safety_filter/state  diagnostic_msgs/DiagnosticArray  one status per robot whose action
                                                              changed or whose state is due (state_rate)
 (fleet/... are relative to the node's namespace.)
+  pub  /diagnostics            diagnostic_msgs/DiagnosticArray  1 Hz, a status per robot (filter_diagnostics)
+As a managed node (``ManagedFleetSafetyFilterNode``, executable managed_fleet_safety_filter;
+``managed``) it publishes no cmd_vel unless active.
 
 Every decision of every robot is made in ONE vectorised ``filter.step_many``
 call per tick. Ticks: every ``fleet/poses`` message (the batched reply), and a
@@ -55,8 +58,10 @@ from std_msgs.msg import Float64MultiArray
 from ..filter import FAIL_SAFE, step_many, update_commands, update_detections_all, update_poses
 from ..ros_io import cdr, fleetmsg, rosmsg
 from .common import ParameterSpec, declare_all, run_node
+from .filter_diagnostics import FilterDiagnostics, StatusCopies
 from .filter_state import FleetThrottle
 from .filter_wiring import FilterWiring
+from .managed import node_classes
 
 # this node's own parameters (the filter's are in filter_parameters), in the order declared
 PARAMETERS = (
@@ -117,9 +122,15 @@ def take_newest_counted(sub):
         newest, count = got[0], count + 1
 
 
-class FleetSafetyFilterNode(Node):
-    def __init__(self, node_name='fleet_safety_filter', **kwargs):
-        super().__init__(node_name, **kwargs)
+class FleetSafetyFilter:
+    """The filter of a fleet on a node (``self``: a Node or a LifecycleNode); ``build()`` makes
+    it (the plain node in its constructor, the managed one on configure). It decides only
+    while ``active``."""
+
+    active = True
+
+    def build(self):
+        node_name = self.get_name()
         p = declare_all(self, PARAMETERS)
         self.per_robot, self.batched = p['per_robot_topics'], p['batched_topics']
         self.namespaces = [robot_namespace(r) for r in p['robots']]
@@ -160,6 +171,14 @@ class FleetSafetyFilterNode(Node):
                                                          rosmsg.QOS_STREAM)
         self.timer = None
         self._set_rate(w.rate)
+        self._last_outs = None
+        inputs = [(f'{ns}/{topic}', kind) for ns in self.namespaces if self.per_robot
+                  for topic, kind in (('pose', PoseStamped), ('detections', PoseArray), ('cmd_vel_nav', Twist))]
+        if self.batched:
+            inputs += [('fleet/poses', PoseArray), ('fleet/detections', PoseArray),
+                       ('fleet/cmd_vel_nav', Float64MultiArray)]
+        self._copies = StatusCopies()
+        self.diagnostics = FilterDiagnostics(self, self._statuses, inputs, w.complain)
         self.get_logger().info(
             f'filtering {self.n} robots ({", ".join(self.namespaces[:5])}{", ..." if self.n > 5 else ""}) '
             f'in one step per tick at {w.rate:g} Hz; per-robot topics {"on" if self.per_robot else "off"}, '
@@ -294,12 +313,12 @@ class FleetSafetyFilterNode(Node):
                 header_stamp = data.header.stamp
             else:
                 states, bad, header_stamp = fleetmsg.posearray_cdr_to_states(data, self.n, w.frame)
+            stamp = w.stamp(header_stamp, t)
         except ValueError as exc:
             for f in w.filters:
                 f.reject_pose(str(exc), t)
             w.complain('fleet poses', f'fleet/poses rejected: {exc}; failing safe (every robot)', level='error')
         else:
-            stamp = w.stamp(header_stamp, t)
             for f, why in zip(w.filters, bad):
                 if why:
                     f.reject_pose(why, t)
@@ -316,7 +335,24 @@ class FleetSafetyFilterNode(Node):
             return   # the batched poses are ticking (a late one is not a missing one)
         self.decide()
 
+    def _statuses(self) -> list:
+        """Each robot's status on /diagnostics: its last state (see filter_diagnostics)."""
+        outs, w, node = self._last_outs, self.wiring, self.get_fully_qualified_name()
+        out = []
+        for i, ns in enumerate(self.namespaces):
+            name = f'{node}: {ns}'
+            if outs is None:
+                out.append(DiagnosticStatus(level=DiagnosticStatus.ERROR, name=name, hardware_id=ns,
+                                            message='no decision yet' if self.active else 'inactive: no cmd_vel'))
+                continue
+            state = w.state_message(ns, outs[i])
+            out.append(self._copies.of(i, state, name, ns, None if self.active else
+                                       f'inactive (lifecycle): no cmd_vel; last: {state.message}'))
+        return out
+
     def decide(self, t=None):
+        if not self.active:
+            return None            # a managed node, inactive: no cmd_vel (managed.py)
         w = self.wiring
         if t is None:       # a tick of the timer's: the batched inputs that wait are taken first
             self._drain_batched()
@@ -343,6 +379,7 @@ class FleetSafetyFilterNode(Node):
                 arr.status = [w.state_message(self.namespaces[i], outs[i]) for i in due]
                 self.fleet_state_pub.publish(arr)
         self._tell_story(outs)
+        self._last_outs = outs
         return outs
 
     def _tell_story(self, outs):
@@ -367,11 +404,20 @@ class FleetSafetyFilterNode(Node):
 
     def close(self):
         self.wiring.close()
+        self.wiring.live.close()
         self.io.destroy_node()
+
+
+FleetSafetyFilterNode, ManagedFleetSafetyFilterNode = node_classes(FleetSafetyFilter, 'fleet_safety_filter',
+                                                                   'FleetSafetyFilter')
 
 
 def main(args=None):
     return run_node(FleetSafetyFilterNode, args)
+
+
+def main_managed(args=None):
+    return run_node(ManagedFleetSafetyFilterNode, args)
 
 
 if __name__ == '__main__':

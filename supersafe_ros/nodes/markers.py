@@ -28,7 +28,9 @@ def obstacles_to_markers(ids, xy, radius: float, stamp=None, frame=rosmsg.MAP_FR
     if stamp is not None:   # an empty set still says when it took effect (the learner orders by it)
         clear.header.stamp = stamp
     out.markers.append(clear)
-    for oid, (x, y) in zip(np.asarray(ids).tolist(), np.asarray(xy, dtype=float).reshape(-1, 2)):
+    ids = np.asarray(ids).reshape(-1)
+    radii = np.broadcast_to(np.asarray(radius, dtype=float), ids.shape)     # one radius, or one each
+    for oid, (x, y), r in zip(ids.tolist(), np.asarray(xy, dtype=float).reshape(-1, 2), radii.tolist()):
         m = Marker()
         m.header.frame_id = frame
         if stamp is not None:
@@ -40,7 +42,7 @@ def obstacles_to_markers(ids, xy, radius: float, stamp=None, frame=rosmsg.MAP_FR
         m.pose.position.x = float(x)
         m.pose.position.y = float(y)
         m.pose.orientation.w = 1.0
-        m.scale.x = m.scale.y = 2.0 * float(radius)
+        m.scale.x = m.scale.y = 2.0 * float(r)
         m.scale.z = 0.5
         m.color.r, m.color.g, m.color.b, m.color.a = 0.8, 0.2, 0.1, 0.9
         out.markers.append(m)

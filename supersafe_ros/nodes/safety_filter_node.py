@@ -18,6 +18,14 @@ Topics (relative; run it in the robot's namespace such as /robot_0):
   pub  safety_filter/ready      std_msgs/Empty              latched; the publisher appears once the
                                                             filter has valid detections (at once with
                                                             require_detections false)
+  pub  /diagnostics             diagnostic_msgs/DiagnosticArray  1 Hz, this robot's status (filter_diagnostics)
+
+The message types above are the defaults: ``pose_type`` (Odometry, PoseWithCovarianceStamped),
+``detections_type`` (MarkerArray, LaserScan, PointCloud2: sensor-data QoS) and
+``cmd_vel_stamped`` (TwistStamped both ways) choose others (``filter_inputs``). A pose or scan
+stamped farther than ``stamp_tolerance`` from the node's clock is refused (failing safe). As
+a managed node (``ManagedSafetyFilterNode``, executable managed_safety_filter; ``managed``)
+it publishes no cmd_vel unless active.
 
 Before its first valid detections, and whenever they are stale, the filter fails safe: a
 detections message means "the sensor has looked", and none (or an old one) means nothing
@@ -62,20 +70,24 @@ from __future__ import annotations
 import threading
 import time
 
-from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data
 
 from diagnostic_msgs.msg import DiagnosticStatus
-from geometry_msgs.msg import PoseArray, PoseStamped, Twist
+from geometry_msgs.msg import Twist, TwistStamped
 from std_msgs.msg import Empty
 
 import numpy as np
 
 from ..filter import FAIL_SAFE
 from ..filter.lockstep import GIVE_UP, LockstepAnswers
-from ..ros_io import cdr, rosmsg
+from ..ros_io import cdr, rosmsg, sensors
 from ..ros_io.direct_take import DirectTake
 from .common import ParameterSpec, declare_all, run_node
+from .filter_diagnostics import FilterDiagnostics, StatusCopies
+from .filter_inputs import (INPUT_PARAMETERS, RANGE_SENSORS, PoseHistory, SensorDiscs, check_types,
+                            command_message_type, message_type, pose_of)
 from .filter_state import HoldSummary, StateThrottle
+from .managed import node_classes
 from .filter_wiring import VALUE_FUNCTION_TOPIC, FilterWiring  # noqa: F401  (the topic, re-exported for tests)
 from .markers import LevelSetMarkerPublisher
 
@@ -100,19 +112,30 @@ PARAMETERS = (
     ParameterSpec('require_detections', True, 'fail safe until detections arrive and whenever they are stale; '
                   'false = a robot without an obstacle sensor: every pose comes with "no obstacle" and '
                   'detections is not subscribed'),
+    *INPUT_PARAMETERS,
 )
 NO_DETECTIONS = np.zeros((0, 2))
 
 
-class SafetyFilterNode(Node):
-    def __init__(self, node_name='safety_filter', **kwargs):
-        super().__init__(node_name, **kwargs)
+class SafetyFilter:
+    """The filter of one robot on a node (``self``: a Node or a LifecycleNode); ``build()``
+    makes it (the plain node in its constructor, the managed one on configure). It decides
+    only while ``active``."""
+
+    active = True
+
+    def build(self):
         # every callback that reads or changes the filter holds this lock (the inputs may be
         # taken by a thread of their own, below; parameters change under it too)
         self.lock = threading.RLock()
         self.wiring = w = FilterWiring(self, [self.get_namespace()], on_rate=self._set_rate, lock=self.lock)
         self.filter = w.filters[0]
         p = declare_all(self, PARAMETERS)
+        check_types(p)
+        self.types = p
+        self.poses = PoseHistory()
+        self.sensor = SensorDiscs(p, self.poses) if p['detections_type'] in RANGE_SENSORS else None
+        self._cmd_frame = ''              # the planner's TwistStamped frame, stamped on cmd_vel
         self.publish_on_pose = p['publish_on_pose']
         w.live.add('publish_on_pose', lambda v: setattr(self, 'publish_on_pose', bool(v)))
         self.lockstep = p['lockstep']
@@ -129,7 +152,8 @@ class SafetyFilterNode(Node):
         self.ready_pub = None          # safety_filter/ready: made once the filter can judge
         self._inputs_ready = not self.require_detections
 
-        self.cmd_pub = self.create_publisher(Twist, 'cmd_vel', rosmsg.QOS_STREAM)
+        self.cmd_pub = self.create_publisher(command_message_type(p['cmd_vel_stamped']), 'cmd_vel',
+                                             rosmsg.QOS_STREAM)
         self.state_pub = self.create_publisher(DiagnosticStatus, 'safety_filter/state', rosmsg.QOS_STREAM)
         self.timer = None
         self._set_rate(w.rate)
@@ -139,19 +163,12 @@ class SafetyFilterNode(Node):
                 self, lambda: (w.safe_set, self.filter.pose.value, self.filter.detections.value),
                 p['level_set_rate'])
         self.direct = None
-        # (type, topic, callback, raw): all three raw, read straight from their CDR bytes (ros_io.cdr),
-        # no message objects built (on the path from pose to cmd_vel; for detections of any size). Ready together,
-        # they are taken in this order (the executor's: the order made), so a command is judged on
-        # the detections that came with it.
-        inputs = ((PoseStamped, 'pose', self.on_pose, True), (PoseArray, 'detections', self.on_detections, True),
-                  (Twist, 'cmd_vel_nav', self.on_command, True))
-        if not self.require_detections:
-            inputs = tuple(i for i in inputs if i[1] != 'detections')
+        inputs = self._inputs(p)
         if p['direct_take'] and not self.lockstep:
             self.direct = DirectTake(self, self.lock)
             try:
-                for msg_type, topic, callback, raw in inputs:
-                    self.direct.add(msg_type, topic, callback, rosmsg.QOS_STREAM, raw=raw)
+                for msg_type, topic, callback, raw, qos in inputs:
+                    self.direct.add(msg_type, topic, callback, qos, raw=raw)
             except BaseException:
                 self.direct.close()
                 raise
@@ -159,8 +176,10 @@ class SafetyFilterNode(Node):
         else:
             # lockstep: the executor reads /clock before a pose that waits with it, so a pose the
             # clock has passed is known as such (_clock_passed); a thread of its own would not be
-            for msg_type, topic, callback, raw in inputs:
-                self.create_subscription(msg_type, topic, self._locked(callback), rosmsg.QOS_STREAM, raw=raw)
+            for msg_type, topic, callback, raw, qos in inputs:
+                self.create_subscription(msg_type, topic, self._locked(callback), qos, raw=raw)
+        self._copies = StatusCopies()
+        self.diagnostics = FilterDiagnostics(self, self._statuses, [(i[1], i[0]) for i in inputs], w.complain)
         if self.require_detections:
             self.get_logger().info('filtering cmd_vel_nav -> cmd_vel; waiting for the first pose and detections '
                                    '(failing safe until then)')
@@ -168,6 +187,39 @@ class SafetyFilterNode(Node):
             self._say_ready()
             self.get_logger().info('filtering cmd_vel_nav -> cmd_vel; require_detections false: no obstacle '
                                    'sensor, every pose is judged with no obstacle; waiting for the first pose')
+
+    def _inputs(self, p) -> tuple:
+        """(type, topic, callback, raw, qos) of each input, as ``p`` (the parameters) say. The
+        default types are read raw, straight from their CDR bytes (ros_io.cdr), no message
+        objects built (on the path from pose to cmd_vel; for detections of any size); the others
+        are decoded by rclpy. Ready together, they are taken in this order (the executor's: the
+        order made), so a command is judged on the detections that came with it."""
+        pose_raw = p['pose_type'] == 'pose_stamped'
+        inputs = [(message_type(p['pose_type']), 'pose', self.on_pose if pose_raw else self.on_pose_message,
+                   pose_raw, rosmsg.QOS_STREAM)]
+        if self.require_detections:
+            kind = p['detections_type']
+            callback = {'pose_array': self.on_detections, 'marker_array': self.on_markers}.get(
+                kind, self.on_range_sensor)
+            qos = qos_profile_sensor_data if kind in RANGE_SENSORS else rosmsg.QOS_STREAM
+            inputs.append((message_type(kind), 'detections', callback, kind == 'pose_array', qos))
+        stamped = p['cmd_vel_stamped']
+        inputs.append((command_message_type(stamped), 'cmd_vel_nav',
+                       self.on_stamped_command if stamped else self.on_command, not stamped, rosmsg.QOS_STREAM))
+        return tuple(inputs)
+
+    def _statuses(self) -> list:
+        """This robot's status on /diagnostics: its last state (see filter_diagnostics)."""
+        ns = self.get_namespace()
+        name = f'{self.name}: {ns}'
+        with self.lock:     # (the state message is refilled by decide, on the inputs' thread too)
+            out = self._last_out
+            if out is not None:
+                state = self.wiring.state_message(self.name, out)
+                return [self._copies.of(0, state, name, ns, None if self.active else
+                                        f'inactive (lifecycle): no cmd_vel; last: {state.message}')]
+        return [DiagnosticStatus(level=DiagnosticStatus.ERROR, name=name, hardware_id=ns,
+                                 message='no decision yet' if self.active else 'inactive: no cmd_vel')]
 
     def _say_ready(self):
         """Make the latched safety_filter/ready publisher (once; on the executor's thread)."""
@@ -214,19 +266,41 @@ class SafetyFilterNode(Node):
         msg = None
         try:
             msg = cdr.pose_stamped(data)
-            self.filter.update_pose(rosmsg.pose_to_state(msg, w.frame), t, stamp=w.stamp(msg.header.stamp, t))
+            self._take_pose(rosmsg.pose_to_state(msg, w.frame), t, w.stamp(msg.header.stamp, t))
             if not self.require_detections:
                 self.filter.update_detections(NO_DETECTIONS, t)
         except ValueError as exc:   # MessageError is a ValueError
             self.filter.reject_pose(str(exc), t)
             w.complain('pose', f'pose rejected: {exc}; failing safe', level='error')
+        self._answer_pose(t, None if msg is None else msg.header.stamp)
+
+    def _answer_pose(self, t, stamp):
+        """After a pose (``stamp``: its header's, None if unreadable): lockstep answers it,
+        else with ``publish_on_pose`` decide."""
         if self.lockstep:
             self.answers.new_pose(time.monotonic())
-            if msg is not None and self._clock_passed(msg.header.stamp):
+            if stamp is not None and self._clock_passed(stamp):
                 return
             self.decide(t, answers_pose=True)
         elif self.publish_on_pose:
             self.decide(t)
+
+    def on_pose_message(self, msg):
+        """An Odometry or PoseWithCovarianceStamped (pose_type): its pose.pose in its header's frame."""
+        w = self.wiring
+        t = w.now()
+        try:
+            self._take_pose(pose_of(msg, w.frame), t, w.stamp(msg.header.stamp, t))
+            if not self.require_detections:
+                self.filter.update_detections(NO_DETECTIONS, t)
+        except ValueError as exc:
+            self.filter.reject_pose(str(exc), t)
+            w.complain('pose', f'pose rejected: {exc}; failing safe', level='error')
+        self._answer_pose(t, msg.header.stamp)
+
+    def _take_pose(self, state, t, stamp):
+        self.filter.update_pose(state, t, stamp=stamp)
+        self.poses.add(t if stamp is None else stamp, state)
 
     def _clock_passed(self, stamp) -> bool:
         """Lockstep with sim time: True (and said) if /clock is already past this pose, which
@@ -249,22 +323,70 @@ class SafetyFilterNode(Node):
         t = w.now()
         try:
             xy = rosmsg.checked_xy(*cdr.pose_array_xy(data, 'detections'), w.frame)
-            self.filter.update_detections(xy, t, w.safe_set)
-            self._inputs_ready = True      # the watchdog (executor thread) says so
         except ValueError as exc:
-            self.filter.reject_detections(str(exc), t)
-            w.complain('detections', f'detections rejected: {exc}; failing safe', level='error')
+            self._refuse_detections(exc, t)
             return
+        self._take_detections(xy, t)
+
+    def on_markers(self, msg):
+        """A MarkerArray (detections_type marker_array): the full current set of discs, each of
+        its own radius (ros_io.sensors.marker_discs)."""
+        w = self.wiring
+        t = w.now()
+        try:
+            discs, _ = sensors.marker_discs(msg, w.frame)
+        except ValueError as exc:
+            self._refuse_detections(exc, t)
+            return
+        self._take_detections(discs, t)
+
+    def on_range_sensor(self, msg):
+        """A LaserScan or PointCloud2 (detections_type): its returns as covering discs in map,
+        placed with the pose nearest its stamp (filter_inputs.SensorDiscs); a message with no
+        return in range is "looked, nothing seen"."""
+        w = self.wiring
+        t = w.now()
+        if not self.poses.stamps:       # starting: the scan came before the first pose (said once, not an error)
+            self.filter.reject_detections('no pose received yet to place the returns with', t)
+            w.complain('detections before pose', 'a scan before the first pose: waiting for a pose to place its '
+                       'returns with (failing safe until then)', level='info')
+            return
+        try:
+            stamp = w.stamp(msg.header.stamp, t)
+            discs = self.sensor.discs(msg, t if stamp is None else stamp, w.config, w.config.pose_timeout)
+        except ValueError as exc:
+            self._refuse_detections(exc, t)
+            return
+        self._take_detections(discs, t, solve_clusters=False)     # new geometry every message: no union solve
+
+    def _refuse_detections(self, exc, t):
+        self.filter.reject_detections(str(exc), t)
+        self.wiring.complain('detections', f'detections rejected: {exc}; failing safe', level='error')
+
+    def _take_detections(self, rows, t, solve_clusters=True):
+        w = self.wiring
+        try:
+            self.filter.update_detections(rows, t, w.safe_set, solve_clusters=solve_clusters)
+        except ValueError as exc:
+            self._refuse_detections(exc, t)
+            return
+        self._inputs_ready = True      # the watchdog (executor thread) says so
         d = self.filter.detections
         if d.dropped:
             w.complain('detections dropped', d.note, level='warn' if d.dropped_safely else 'error')
 
+    def on_stamped_command(self, msg):
+        """A TwistStamped (cmd_vel_stamped): its twist judged as on_command's; its frame is the
+        frame of the cmd_vel sent."""
+        self._cmd_frame = msg.header.frame_id
+        self.on_command(msg.twist)
+
     def on_command(self, data):
-        """A serialized Twist (raw subscription)."""
+        """A serialized Twist (raw subscription), or a Twist."""
         w = self.wiring
         t = w.now()
         try:
-            msg = cdr.twist(data)
+            msg = data if isinstance(data, Twist) else cdr.twist(data)
             self.filter.update_command(rosmsg.twist_turn_rate(msg), t, msg.linear.x)
         except ValueError as exc:
             w.complain('cmd', f'cmd_vel_nav rejected: {exc}; the previous command stays in force until it is '
@@ -297,6 +419,8 @@ class SafetyFilterNode(Node):
         """Decide at ``t`` and publish, unless the lockstep rules hold the answer (a cluster
         near the robot is being solved): then the watchdog decides again, and None is
         returned. ``answers_pose``: this is the answer to a lockstepped pose."""
+        if not self.active:
+            return None            # a managed node, inactive: no cmd_vel (managed.py)
         w = self.wiring
         t = w.now() if t is None else t
         out = self.filter.step(w.safe_set, t)
@@ -307,7 +431,7 @@ class SafetyFilterNode(Node):
             w.complain('cluster_hold', f'{verdict.why}: answering with the fallback until it lands', level='warn')
         elif verdict.held_for is not None:
             self._holds.held(verdict.held_for)
-        self.cmd_pub.publish(cdr.twist_bytes(float(out.linear), float(out.omega)))   # serialized: no Twist built
+        self._publish_command(out)
         now = time.monotonic()
         self._last_publish = now
         self.decisions += 1
@@ -316,6 +440,16 @@ class SafetyFilterNode(Node):
         if self._throttle.due(now, out.action, w.set_update, w.state_period):
             self.state_pub.publish(w.state_message(self.name, out))
         return out
+
+    def _publish_command(self, out):
+        if self.types['cmd_vel_stamped']:
+            msg = TwistStamped()
+            msg.header.stamp = self.get_clock().now().to_msg()      # the decision's time
+            msg.header.frame_id = self._cmd_frame
+            msg.twist.linear.x, msg.twist.angular.z = float(out.linear), float(out.omega)
+            self.cmd_pub.publish(msg)
+        else:
+            self.cmd_pub.publish(cdr.twist_bytes(float(out.linear), float(out.omega)))   # serialized: no Twist built
 
     def _tell_story(self, out):
         """One log line per change of the fail-safe state (not one per decision): nothing while
@@ -341,16 +475,25 @@ class SafetyFilterNode(Node):
             self.direct.close()
         self._holds.flush()
         self.wiring.close()
+        self.wiring.live.close()
 
     def destroy_node(self):
-        if self.direct is not None:
+        if getattr(self, 'direct', None) is not None:
             self.direct.close()          # its thread stops before the handles it waits on go
-        self.wiring.sets.close()
+        if getattr(self, 'wiring', None) is not None:
+            self.wiring.sets.close()
         return super().destroy_node()
+
+
+SafetyFilterNode, ManagedSafetyFilterNode = node_classes(SafetyFilter, 'safety_filter', 'SafetyFilter')
 
 
 def main(args=None):
     return run_node(SafetyFilterNode, args)
+
+
+def main_managed(args=None):
+    return run_node(ManagedSafetyFilterNode, args)
 
 
 if __name__ == '__main__':

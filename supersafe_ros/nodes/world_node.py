@@ -70,6 +70,9 @@ class WorldNode(Node):
                      0.1, 1e4),
             n_obstacles=p('n_obstacles', d.n_obstacles, 'number of obstacles', 0, 1000),
             radius=p('radius', d.radius, 'obstacle radius [m]', 0.01, 100.0),
+            # [0.0] (the default) = every obstacle of radius
+            radii=tuple(p('radii', [0.0], 'obstacle i has radius radii[i mod len] (several sizes in turn) [m]; '
+                          '[0.0] = every obstacle of radius')),
             crash_tolerance=live('crash_tolerance', d.crash_tolerance,
                                  'a robot this close to the rim, inside, only grazes: not a crash [m]',
                                  0.0, 10.0),
@@ -137,7 +140,7 @@ class WorldNode(Node):
         self.create_timer(heartbeat, self.stats_heartbeat, clock=RosClock(clock_type=ClockType.STEADY_TIME))
         self.publish_obstacles()
         self.publish_stats()
-        self.get_logger().info(f'world: {cfg.n_obstacles} obstacles r={cfg.radius}, '
+        self.get_logger().info(f'world: {cfg.n_obstacles} obstacles r={cfg.radii or cfg.radius}, '
                                f'robots {self.robots}')
 
     def set_config(self, name, value):
@@ -150,7 +153,8 @@ class WorldNode(Node):
         ids, xy = self.world.obstacle_arrays()
         stamp = self.get_clock().now().to_msg()
         self.obstacles_pub.publish(rosmsg.xy_to_posearray(xy, stamp))
-        self.markers_pub.publish(obstacles_to_markers(ids, xy, self.world.config.radius, stamp))
+        radii = self.world.config.radius_of(ids) if self.world.config.radii else self.world.config.radius
+        self.markers_pub.publish(obstacles_to_markers(ids, xy, radii, stamp))
 
     def publish_goal(self, robot):
         goal = self.world.robots[robot].goal

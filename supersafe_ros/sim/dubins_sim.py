@@ -43,7 +43,7 @@ import numpy as np
 from ..reach.dynamics import DubinsCar
 from ..reach.grid import wrap_angle
 
-TIMEOUT_BEHAVIORS = ('loiter', 'straight')
+TIMEOUT_BEHAVIORS = ('loiter', 'straight', 'stop')
 
 
 def base_seed(seed: int | None) -> int:
@@ -79,6 +79,8 @@ class RobotSim:
     max_step: float | None = None           # most sim time integrated per step (None: no cap)
     paused: float = 0.0                     # sim time skipped in pauses so far
     last_pause: float = 0.0                 # sim time skipped by the last advance()
+    follow_speed: bool = False              # drive at the commanded linear.x (in [0, speed]), not at speed
+    last_linear: float | None = None        # linear.x of the last accepted command (clipped)
 
     def __post_init__(self):
         self.state = np.asarray(self.state, dtype=float).reshape(3).copy()
@@ -94,14 +96,17 @@ class RobotSim:
             raise ValueError(f'timeout_behavior must be one of {TIMEOUT_BEHAVIORS}, '
                              f'got {self.timeout_behavior!r}')
 
-    def command(self, omega: float, now: float) -> float:
-        """Accept a turn-rate command at sim time ``now``; returns the clipped rate.
+    def command(self, omega: float, now: float, linear: float | None = None) -> float:
+        """Accept a turn-rate command (and ``linear``.x, used with ``follow_speed``, clipped to
+        [0, speed]) at sim time ``now``; returns the clipped rate.
 
-        Raises ValueError for a non-finite rate (the previous command stays).
+        Raises ValueError for a non-finite rate or linear.x (the previous command stays).
         """
-        if not math.isfinite(omega):
-            raise ValueError(f'turn rate is not finite ({omega})')
+        if not math.isfinite(omega) or (linear is not None and not math.isfinite(linear)):
+            raise ValueError(f'command is not finite (angular.z {omega}, linear.x {linear})')
         clipped = float(np.clip(omega, -self.omega_max, self.omega_max))
+        if linear is not None:
+            self.last_linear = float(np.clip(linear, 0.0, self.speed))
         self.last_command = clipped
         self.last_command_time = float(now)
         return clipped
@@ -131,6 +136,16 @@ class RobotSim:
             return self.omega_max if self.timeout_behavior == 'loiter' else 0.0
         return self.last_command
 
+    def linear(self, now: float) -> float:
+        """Forward speed at ``now``: ``speed``; with ``follow_speed`` the commanded linear.x while
+        commanded; 0 timed out with timeout_behavior 'stop'."""
+        mode = self.mode(now)
+        if mode == 'timeout' and self.timeout_behavior == 'stop':
+            return 0.0
+        if mode != 'commanded' or not self.follow_speed or self.last_linear is None:
+            return self.speed
+        return self.last_linear
+
     def advance(self, now: float) -> np.ndarray:
         """Integrate from the last step time to ``now`` under the current control.
 
@@ -146,6 +161,7 @@ class RobotSim:
             return self.state
         dt = now - self.time
         u = self.control(self.time)  # the command in force during the step
+        v = self.linear(self.time)
         # (a relative 1e-6 of slack: clock steps in ns do not pause on rounding)
         if self.max_step is not None and dt > self.max_step * (1.0 + 1e-6):
             self.last_pause = dt - self.max_step
@@ -154,7 +170,10 @@ class RobotSim:
             if self.last_command_time is not None:
                 self.last_command_time += self.last_pause
         if u is not None:
-            self.state = self.dynamics.flow(self.state, u, dt)
+            moved = self.dynamics.flow(self.state, u, dt)
+            if v != self.speed:     # the arc's displacement scales with the speed, its turn does not
+                moved[:2] = self.state[:2] + (moved[:2] - self.state[:2]) * (v / self.speed)
+            self.state = moved
         self.time = now
         return self.state
 

@@ -57,7 +57,7 @@ class EfficiencyMeter:
         xy = np.array([x, y])
         if obstacles_xy is not None and len(obstacles_xy):
             d = np.hypot(*(np.asarray(obstacles_xy, dtype=float).reshape(-1, 2) - xy).T)
-            self.min_clearance = min(self.min_clearance, float(d.min()) - radius)
+            self.min_clearance = min(self.min_clearance, float((d - radius).min()))   # (radius: one, or each's)
         if self._last is None:
             self._last = (x, y, t)
             return

@@ -6,8 +6,9 @@ x = +-goal_x with a random y; the trip is complete when the robot crosses that l
 (a Dubins car cannot always hit a point, but it can always cross a line), and the
 next goal is on the other side.
 
-Obstacles: discs of radius ``radius``; ``n_obstacles`` centres are sampled uniformly
-between the goal lines with at least ``2 radius + spacing`` between centres. An
+Obstacles: discs of radius ``radius`` (or, with ``radii``, obstacle i of radii[i mod len]:
+several sizes in turn); ``n_obstacles`` centres are sampled uniformly between the goal
+lines with at least ``2 radius + spacing`` (the largest radius) between centres. An
 intervention removes one obstacle and spawns a replacement with the same spacing
 rule and at least ``respawn_clearance`` from every robot (rejection sampling; if
 no place qualifies after ``max_tries`` the clearance is halved, and so on, so the
@@ -46,6 +47,9 @@ class WorldConfig:
     goal_x: float = 16.0
     n_obstacles: int = 10
     radius: float = 1.8
+    # obstacle id i has radius radii[i % len(radii)] (sizes in turn); () = every one of ``radius``
+    # (zeros are dropped: config/world.yaml's [0.0], a parameter list cannot be empty)
+    radii: tuple = ()
     crash_tolerance: float = 0.05   # a graze this close to the rim is not a crash
     spacing: float = 2.0            # extra gap between obstacle discs
     goal_margin: float = 4.0        # obstacles keep this far inside the goal lines
@@ -65,10 +69,24 @@ class WorldConfig:
                 raise ValueError(f'{name} must be positive and finite, got {v}')
         if self.goal_x >= self.half_width:
             raise ValueError('goal_x must lie inside the field (< half_width)')
-        if self.goal_x - self.goal_margin <= self.radius:
+        object.__setattr__(self, 'radii', tuple(float(r) for r in self.radii if r != 0.0))
+        if not all(math.isfinite(r) and r > 0 for r in self.radii):
+            raise ValueError(f'radii must be positive and finite, got {self.radii}')
+        if self.goal_x - self.goal_margin <= self.largest_radius:
             raise ValueError('goal_margin leaves no room for obstacles')
         if self.n_obstacles < 0:
             raise ValueError('n_obstacles must be >= 0')
+
+    @property
+    def largest_radius(self) -> float:
+        return max(self.radii) if self.radii else self.radius
+
+    def radius_of(self, ids) -> np.ndarray:
+        """The radii of obstacles ``ids`` (int array)."""
+        ids = np.asarray(ids, dtype=int)
+        if not self.radii:
+            return np.full(ids.shape, self.radius)
+        return np.asarray(self.radii)[ids % len(self.radii)]
 
 
 @dataclass
@@ -134,9 +152,9 @@ class World:
 
     def _spawn(self, clearance: float) -> int:
         c = self.config
-        min_gap = 2 * c.radius + c.spacing
+        min_gap = 2 * c.largest_radius + c.spacing
         xmax = c.goal_x - c.goal_margin
-        ymax = c.half_height - c.radius
+        ymax = c.half_height - c.largest_radius
         robots = self._robot_xy()
         _, others = self.obstacle_arrays()
         relax = 1.0
@@ -188,12 +206,12 @@ class World:
         r.position = s
         events = {'trip': False, 'crashed': []}
         ids, xy = self.obstacle_arrays()
+        radii = self.config.radius_of(ids) if self.config.radii else self.config.radius
         if time is not None:
-            self.meters[name].pose(s, time, r.goal, self.filter_actions[name] == OVERRIDE, xy,
-                                   self.config.radius)
+            self.meters[name].pose(s, time, r.goal, self.filter_actions[name] == OVERRIDE, xy, radii)
         if len(ids):
             inside_now = set(ids[np.hypot(*(xy - s[:2]).T)
-                                 < self.config.radius - self.config.crash_tolerance].tolist())
+                                 < radii - self.config.crash_tolerance].tolist())
             for oid in sorted(inside_now - r.inside):
                 r.crashes += 1
                 events['crashed'].append(int(oid))

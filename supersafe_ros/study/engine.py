@@ -80,12 +80,13 @@ def robot_params() -> RobotParams:
 
 def filter_config(step: float) -> FilterConfig:
     """safety_filter.yaml with the team's lockstep overrides (team.team_layout): the
-    command holds one step, so the look-ahead is max(the step, the config's lookahead)."""
+    command holds one step, so the look-ahead is max(the step, the config's lookahead); the
+    robots are constant-speed Dubins robots (fail_safe_command 'stop_turn')."""
     p = node_params('safety_filter')
     keys = ('speed', 'omega_max', 'radius', 'pose_timeout', 'detections_timeout', 'hold_timeout',
             'cmd_timeout', 'clear_margin', 'lookahead')
     return FilterConfig(**{k: float(p[k]) for k in keys}, cluster_alpha=float(p['standard_alpha']),
-                        control_period=float(step))
+                        control_period=float(step), fail_safe_command='stop_turn')
 
 
 def supervisor_vf(w_max: float):

@@ -1,0 +1,99 @@
+"""/diagnostics of a filter node (diagnostic_msgs/DiagnosticArray, for the diagnostic aggregator)
+and a watch over who publishes what on its input topics.
+
+``FilterDiagnostics(node, statuses, inputs)`` publishes every ``period`` steady seconds (1 Hz)
+one DiagnosticStatus per robot: ``statuses()`` gives them (the robot's last state message: OK
+pass, WARN override, ERROR fail safe, the reason saying which input is stale or refused),
+named ``<node>: <robot>``. Before the same publish it looks at the graph: a publisher on an
+input topic whose type is not the one the filter reads (a TwistStamped planner on
+``cmd_vel_nav`` while Twist is expected) is logged as a WARN naming both types, and every
+status of the node says so (at least WARN) while that publisher stays.
+"""
+from __future__ import annotations
+
+from rclpy.clock import Clock, ClockType
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+
+from ..ros_io import rosmsg
+
+DIAGNOSTICS_TOPIC = '/diagnostics'
+WARN = DiagnosticStatus.WARN[0]
+
+
+def type_name(msg_type) -> str:
+    """'geometry_msgs/msg/Twist' for the class geometry_msgs.msg.Twist (the graph's spelling)."""
+    module = msg_type.__module__.split('.')
+    return f'{module[0]}/msg/{msg_type.__name__}'
+
+
+def foreign_publishers(node, topic: str, expected: str) -> list:
+    """Types of the publishers on ``topic`` (as ``node`` resolves it) other than ``expected``."""
+    infos = node.get_publishers_info_by_topic(node.resolve_topic_name(topic))
+    return sorted({i.topic_type for i in infos} - {expected})
+
+
+class StatusCopies:
+    """A /diagnostics status of each robot of its own, refilled from the robot's state message
+    (``rosmsg.refill_diagnostic``: a few us, not a new message of ~20 KeyValues): the state's
+    object is refilled by every decision, perhaps on another thread, and is not changed here."""
+
+    def __init__(self):
+        self._copies = {}
+
+    def of(self, key, state, name: str, hardware_id: str, message: str | None = None):
+        values = {kv.key: kv.value for kv in state.values}
+        old = self._copies.get(key)
+        text = state.message if message is None else message
+        status = (rosmsg.make_diagnostic(name, values, text, state.level[0]) if old is None else
+                  rosmsg.refill_diagnostic(old, name, values, text, state.level[0]))
+        status.hardware_id = hardware_id
+        self._copies[key] = status
+        return status
+
+
+class FilterDiagnostics:
+    """See the module. ``inputs``: [(topic, message class)] the node subscribes; at most
+    ``checks`` of them are looked up in the graph per publish, in turn (a fleet's thousands of
+    topics cost the same each second as one robot's few)."""
+
+    def __init__(self, node, statuses, inputs, complain, period: float = 1.0, checks: int = 24):
+        self.node = node
+        self.statuses = statuses
+        self.inputs = [(topic, type_name(t)) for topic, t in inputs]
+        self.complain = complain
+        self.checks = int(checks)
+        self._next = 0             # the first input of the next look
+        self._found = {}           # topic -> its note, while a foreign publisher stays
+        self.notes = []            # the input topics' foreign publishers, said in every status
+        self.published = 0
+        self.pub = node.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, rosmsg.QOS_STREAM)
+        self.timer = node.create_timer(period, self.publish, clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    def check_graph(self) -> list:
+        n = len(self.inputs)
+        for k in range(min(n, self.checks)):
+            topic, expected = self.inputs[(self._next + k) % n]
+            others = foreign_publishers(self.node, topic, expected)
+            if others:
+                self._found[topic] = (f'{topic} has a publisher of {", ".join(others)}; this filter reads '
+                                      f'{expected} there (its messages are not received: the input looks silent)')
+            else:
+                self._found.pop(topic, None)
+        self._next = (self._next + min(n, self.checks)) % n if n else 0
+        self.notes = list(self._found.values())
+        for note in self.notes:
+            self.complain(f'type {note}', note, level='warn')
+        return self.notes
+
+    def publish(self):
+        notes = self.check_graph()
+        out = DiagnosticArray()
+        out.header.stamp = self.node.get_clock().now().to_msg()
+        for status in self.statuses():
+            if notes:
+                status.level = bytes([max(status.level[0], WARN)])
+                status.message = '; '.join([status.message, *notes]) if status.message else '; '.join(notes)
+            out.status.append(status)
+        self.pub.publish(out)
+        self.published += 1

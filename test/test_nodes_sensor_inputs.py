@@ -1,0 +1,278 @@
+"""safety_filter_node's robot-stack inputs at topic level, on the wall clock, through the default
+direct_take path: Odometry + LaserScan / PointCloud2 + TwistStamped, bad input (NaN ranges, a
+malformed or huge cloud, a wrong frame, a pose of another clock), /diagnostics, a foreign
+publisher type, and the managed node's lifecycle through the lifecycle_msgs services."""
+import math
+
+import numpy as np
+import pytest
+from rclpy.node import Node
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from geometry_msgs.msg import Twist, TwistStamped
+from lifecycle_msgs.msg import Transition
+from lifecycle_msgs.srv import ChangeState, GetState
+from nav_msgs.msg import Odometry
+from sensor_msgs.msg import LaserScan, PointCloud2
+
+from supersafe_ros.nodes.safety_filter_node import ManagedSafetyFilterNode, SafetyFilterNode
+from supersafe_ros.ros_io import rosmsg
+
+from graph_support import Rosout, Spinner, matched, params
+from sensor_graph_support import xy_cloud
+
+pytestmark = pytest.mark.ros   # rclpy nodes in this process
+
+
+class Stack:
+    """The test's side: a robot stack's odometry, scan or cloud, and planner; what the filter says."""
+
+    def __init__(self, ctx, ns, detections=LaserScan):
+        self.node = n = Node(f'stack{ns.replace("/", "_")}', context=ctx)
+        self.odom = n.create_publisher(Odometry, f'{ns}/pose', rosmsg.QOS_STREAM)
+        self.det = n.create_publisher(detections, f'{ns}/detections', rosmsg.QOS_STREAM)
+        self.cmd = n.create_publisher(TwistStamped, f'{ns}/cmd_vel_nav', rosmsg.QOS_STREAM)
+        self.out, self.states, self.diagnostics = [], [], []
+        self.subs = [n.create_subscription(TwistStamped, f'{ns}/cmd_vel', self.out.append, rosmsg.QOS_EVERY_SAMPLE),
+                     n.create_subscription(DiagnosticStatus, f'{ns}/safety_filter/state',
+                                           lambda m: self.states.append(rosmsg.diagnostic_values(m)),
+                                           rosmsg.QOS_EVERY_SAMPLE)]
+        self.diag_sub = n.create_subscription(DiagnosticArray, '/diagnostics', self.diagnostics.append,
+                                              rosmsg.QOS_EVERY_SAMPLE)
+        self.rosout = Rosout(n)
+
+    def stamp(self):
+        return self.node.get_clock().now().to_msg()
+
+    def send_pose(self, x=0.0, y=0.0, frame='map', stamp=None):
+        m = Odometry()
+        m.header.frame_id, m.header.stamp = frame, stamp or self.stamp()
+        m.pose.pose = rosmsg.state_to_pose((x, y, 0.0)).pose
+        self.odom.publish(m)
+
+    def send_scan(self, ranges, frame='laser'):
+        m = LaserScan()
+        m.header.frame_id, m.header.stamp = frame, self.stamp()
+        m.angle_min, m.angle_increment = -math.pi, 2 * math.pi / len(ranges)
+        m.angle_max = m.angle_min + m.angle_increment * (len(ranges) - 1)
+        m.range_min, m.range_max = 0.05, 10.0
+        m.ranges = [float(r) for r in ranges]
+        self.det.publish(m)
+
+    def send_cmd(self, linear=1.0, omega=0.0):
+        m = TwistStamped()
+        m.header.frame_id, m.header.stamp = 'base_link', self.stamp()
+        m.twist.linear.x, m.twist.angular.z = linear, omega
+        self.cmd.publish(m)
+
+
+def filter_node(ctx, ns, detections_type='laser_scan', managed=False, **extra):
+    cls = ManagedSafetyFilterNode if managed else SafetyFilterNode
+    return cls(context=ctx, namespace=ns, parameter_overrides=params(
+        pose_type='odometry', detections_type=detections_type, cmd_vel_stamped=True, level_set_markers=False,
+        rate=20.0, **extra))
+
+
+def new_state(spin, stack, count, what, **expected):
+    """Wait for a state message after the first ``count`` that has the ``expected`` values."""
+    spin.until(lambda: any(all(s.get(k) == v for k, v in expected.items()) for s in stack.states[count:]),
+               15.0, what)
+
+
+@pytest.fixture
+def rig(ros_context, request):
+    made = []
+
+    def make(ns, detections=LaserScan, **kw):
+        f = filter_node(ros_context, ns, **kw)
+        s = Stack(ros_context, ns, detections)
+        spin = Spinner(ros_context, f, s.node)
+        made.append((spin, f, s))
+        return f, s, spin
+    yield make
+    for spin, f, s in made:
+        spin.shutdown()
+        f.close()
+        f.destroy_node()
+        s.node.destroy_node()
+
+
+def test_a_scan_becomes_discs_and_bad_scans_fail_safe(rig):
+    f, s, spin = rig('/scan_robot')
+    spin.until(lambda: matched(s.odom, s.det, s.cmd, *s.subs), 15.0, 'the filter to match')
+    assert f.direct is not None, 'the default path: inputs taken by a thread of their own'
+    ranges = np.full(360, np.inf)
+    ranges[170:190] = 4.0                      # a wall 4 m behind, NaN and beyond-range beams elsewhere
+    ranges[10], ranges[20] = np.nan, 50.0
+    for _ in range(3):
+        s.send_pose()
+        s.send_scan(ranges)
+        s.send_cmd(1.0)
+        spin.until(lambda: f.filter.detections.value is not None, 5.0, 'detections')
+    d = f.filter.detections
+    assert d.value is not None and 1 <= len(d.value) <= 20
+    assert np.all(np.hypot(*d.value.T) > 3.0), 'the returns 4 m behind, not at the NaN or 50 m beams'
+    spin.until(lambda: s.out and s.out[-1].twist.linear.x == 1.0, 10.0, 'the planner\'s speed passed')
+    assert s.out[-1].header.frame_id == 'base_link'
+    # looked, nothing seen: fresh, zero obstacles
+    s.send_scan(np.full(360, np.inf))
+    spin.until(lambda: f.filter.detections.value is not None and len(f.filter.detections.value) == 0, 5.0,
+               'an empty scan')
+    # a scan whose geometry is not finite: refused, logged, failing safe
+    n = len(s.states)
+    m = LaserScan()
+    m.header.frame_id, m.header.stamp, m.angle_min, m.angle_increment = 'laser', s.stamp(), math.nan, 0.1
+    m.range_max, m.ranges = 10.0, [1.0] * 10
+    s.det.publish(m)
+    s.send_cmd(1.0)
+    new_state(spin, s, n, 'fail safe on a bad scan', action='fail_safe')
+    spin.until(lambda: s.rosout.has('safety_filter', 'detections rejected', 'not finite'), 10.0, 'the log line')
+
+
+def test_a_pose_of_another_clock_fails_safe_with_an_error(rig):
+    f, s, spin = rig('/clock_robot')
+    spin.until(lambda: matched(s.odom, s.det, s.cmd, *s.subs), 15.0, 'the filter to match')
+    from builtin_interfaces.msg import Time
+    n = len(s.states)
+    s.send_pose(stamp=Time(sec=100))
+    s.send_scan(np.full(360, np.inf))
+    s.send_cmd(1.0)
+    new_state(spin, s, n, 'fail safe', action='fail_safe')
+    spin.until(lambda: s.rosout.has('safety_filter', 'pose rejected', 'another clock'), 10.0, 'the ERROR')
+    # a pose in another frame: refused too
+    s.send_pose(frame='odom')
+    spin.until(lambda: "expected 'map'" in f.filter.pose.rejected, 10.0, 'the wrong frame refused')
+
+
+def test_clouds_malformed_or_huge_are_refused_with_bounded_work(rig):
+    f, s, spin = rig('/cloud_robot', PointCloud2, detections_type='point_cloud2', max_sensor_points=200_000)
+    spin.until(lambda: matched(s.odom, s.det, s.cmd, *s.subs), 15.0, 'the filter to match')
+    rng = np.random.default_rng(0)
+    xy = rng.uniform(-10, 10, (100_000, 2))
+    for dtype in ('<f4', '>f8'):               # float32 little-endian, float64 big-endian
+        before = f.filter.detections.t
+        s.send_pose()
+        s.det.publish(xy_cloud(_header(s), xy, dtype))
+        spin.until(lambda: f.filter.detections.t > before and not f.filter.detections.rejected, 15.0,
+                   f'a {dtype} cloud of 100k points')
+        assert len(f.filter.detections.value) > 100
+    bad = xy_cloud(_header(s), xy[:10])
+    bad.data = bytes(bad.data)[:50]            # shorter than its points
+    s.det.publish(bad)
+    spin.until(lambda: 'shorter than' in f.filter.detections.rejected, 10.0, 'a malformed cloud refused')
+    spin.until(lambda: s.rosout.has('safety_filter', 'detections rejected', 'shorter than'), 10.0, 'and logged')
+    huge = xy_cloud(_header(s), np.zeros((1, 2)))
+    huge.width = 10_000_000                    # claims more points than max_sensor_points: refused unread
+    s.det.publish(huge)
+    spin.until(lambda: 'exceeds max_sensor_points' in f.filter.detections.rejected, 10.0, 'a huge cloud refused')
+
+
+def _header(s):
+    from std_msgs.msg import Header
+    return Header(frame_id='lidar', stamp=s.stamp())
+
+
+def test_diagnostics_and_a_foreign_type_on_an_input(rig):
+    f, s, spin = rig('/diag_robot')
+    import rclpy
+    ctx = rclpy.Context()                   # a participant of its own: one takes one type per topic
+    rclpy.init(context=ctx)
+    other = Node('twist_planner', context=ctx)
+    wrong = other.create_publisher(Twist, '/diag_robot/cmd_vel_nav', rosmsg.QOS_STREAM)
+    spin.until(lambda: any(st.name.endswith('/diag_robot') for a in s.diagnostics for st in a.status), 15.0,
+               '/diagnostics')
+    spin.until(lambda: s.rosout.has('safety_filter', 'geometry_msgs/msg/Twist', 'geometry_msgs/msg/TwistStamped'),
+               15.0, 'the WARN naming both types')
+    ours = [st for a in s.diagnostics for st in a.status if st.name.endswith('/diag_robot')]
+    assert ours[-1].level[0] >= DiagnosticStatus.WARN[0]
+    other.destroy_publisher(wrong)
+    other.destroy_node()
+    ctx.try_shutdown()
+
+
+def test_the_managed_filter_publishes_only_while_active(ros_context):
+    ns = '/managed_robot'
+    f = filter_node(ros_context, ns, managed=True)
+    s = Stack(ros_context, ns)
+    spin = Spinner(ros_context, f, s.node)
+    change = s.node.create_client(ChangeState, f'{ns}/safety_filter/change_state')
+    get = s.node.create_client(GetState, f'{ns}/safety_filter/get_state')
+
+    def call(client, request):
+        spin.until(client.service_is_ready, 15.0, client.srv_name)
+        future = client.call_async(request)
+        spin.until(future.done, 30.0, f'{client.srv_name} to answer')
+        return future.result()
+
+    def transition(tid):
+        assert call(change, ChangeState.Request(transition=Transition(id=tid))).success
+
+    def label():
+        return call(get, GetState.Request()).current_state.label
+    try:
+        assert label() == 'unconfigured'
+        transition(Transition.TRANSITION_CONFIGURE)
+        assert label() == 'inactive'
+        spin.until(lambda: matched(s.odom, s.det, s.cmd), 15.0, 'the configured filter to subscribe')
+        for _ in range(5):
+            s.send_pose()
+            s.send_scan(np.full(360, np.inf))
+            s.send_cmd(1.0)
+            spin.until(lambda: f.filter.pose.value is not None, 5.0, 'inputs taken while inactive')
+        assert f.decisions == 0 and not s.out, 'inactive: no cmd_vel'
+        transition(Transition.TRANSITION_ACTIVATE)
+        assert label() == 'active'
+        spin.until(lambda: len(s.out) >= 3, 10.0, 'cmd_vel once active')
+        transition(Transition.TRANSITION_DEACTIVATE)
+        n = f.decisions
+        s.send_cmd(1.0)
+        spin.until(lambda: f.filter.command.t > 0, 5.0, 'a command taken while inactive')
+        assert f.decisions == n
+        transition(Transition.TRANSITION_CLEANUP)
+        assert label() == 'unconfigured'
+        spin.until(lambda: s.cmd.get_subscription_count() == 0, 10.0, 'subscriptions gone on cleanup')
+        transition(Transition.TRANSITION_CONFIGURE)       # configured again: the parameters read again
+        assert label() == 'inactive'
+    finally:
+        spin.shutdown()
+        f.close()
+        f.destroy_node()
+        s.node.destroy_node()
+
+
+def test_the_managed_fleet_filter_says_each_robot_on_diagnostics_only_once_configured(ros_context):
+    from supersafe_ros.nodes.fleet_safety_filter_node import ManagedFleetSafetyFilterNode
+    f = ManagedFleetSafetyFilterNode(context=ros_context, namespace='/fleet_m', parameter_overrides=params(
+        robots=['fm_0', 'fm_1'], batched_topics=False, rate=20.0))
+    watcher = Node('fleet_watcher', context=ros_context)
+    arrays, out = [], []
+    watcher.create_subscription(DiagnosticArray, '/diagnostics', arrays.append, rosmsg.QOS_EVERY_SAMPLE)
+    cmd = watcher.create_subscription(Twist, '/fm_0/cmd_vel', out.append, rosmsg.QOS_EVERY_SAMPLE)
+    spin = Spinner(ros_context, f, watcher)
+    change = watcher.create_client(ChangeState, '/fleet_m/fleet_safety_filter/change_state')
+
+    def transition(tid):
+        spin.until(change.service_is_ready, 15.0, 'change_state')
+        future = change.call_async(ChangeState.Request(transition=Transition(id=tid)))
+        spin.until(future.done, 60.0, 'the transition')
+        assert future.result().success
+
+    def ours():
+        return [st for a in arrays for st in a.status if st.name.startswith('/fleet_m/fleet_safety_filter')]
+    try:
+        transition(Transition.TRANSITION_CONFIGURE)
+        spin.until(lambda: cmd.get_publisher_count() > 0, 15.0, 'the configured fleet to make its topics')
+        spin.until(lambda: len(ours()) >= 2, 15.0, 'a status per robot')
+        assert not out, 'inactive: no cmd_vel'
+        assert {st.hardware_id for st in ours()} == {'/fm_0', '/fm_1'}
+        transition(Transition.TRANSITION_ACTIVATE)
+        spin.until(lambda: len(out) >= 3, 15.0, 'cmd_vel once active')
+        assert out[-1].linear.x == 0.0 or out[-1].angular.z != 0.0, 'failing safe: no input yet'
+        n = len(arrays)
+        spin.until(lambda: any(st.level[0] == DiagnosticStatus.ERROR[0] and 'no pose' in st.message
+                               for a in arrays[n:] for st in a.status), 15.0, 'ERROR: no input yet')
+    finally:
+        spin.shutdown()
+        f.close()
+        f.destroy_node()
+        watcher.destroy_node()
