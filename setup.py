@@ -34,6 +34,9 @@ setup(
          glob('supersafe_ros/console/static/*')),
     ],
     install_requires=['setuptools', 'numpy', 'scipy', 'matplotlib', 'pyyaml', 'aiohttp'],
+    # colcon test runs pytest (not unittest, which finds 0 tests here) when setup.py names pytest
+    # as a test dependency; setup.cfg's testpaths points it at test/ (README, "In a ROS 2 Jazzy install")
+    extras_require={'test': ['pytest']},
     # the calibrated paper-like population (supersafe study --population paper)
     package_data={'supersafe_ros.console': ['static/*'], 'supersafe_ros.study': ['data/*.json']},
     zip_safe=True,

@@ -26,10 +26,11 @@ import sys
 import tempfile
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'test'))   # hosts_support
 
 from supersafe_ros.rosenv import ensure_local_ros_env  # noqa: E402
 from supersafe_ros import team  # noqa: E402
-from supersafe_ros.hosts.harness import HostsTeam, team_graph  # noqa: E402
+from hosts_support import HostsTeam, team_graph  # noqa: E402
 
 FAST = {'supervisor': {'grid_nxy': 33, 'grid_ntheta': 16},
         'safety_filter': {'standard_shape': [33, 33, 16]},

@@ -149,8 +149,7 @@ def _rss_mb():
 def bench_clicks(hasty_rounds):
     """Phase II, a flood of hasty and far clicks, Phase II: what the learner publishes."""
     from graph_support import Rosout, Spinner
-    from test_nodes_learner_clicks import click_flood, make_learner
-    from test_nodes_learner_first_passage import Driver, play
+    from learner_phase2_support import Driver, click_flood, make_learner, play
     from supersafe_ros.learning.data import PHASE2_OFFSETS
     from supersafe_ros.learning.phase2_stream import phase2_events
     from supersafe_ros.reach.library import PAPER_OMEGAS, LibrarySpec, load_or_build_library
@@ -215,7 +214,7 @@ def bench_clicks(hasty_rounds):
 def bench_junk(n):
     """n junk interventions of five kinds at full speed: counters, log lines, memory."""
     from geometry_msgs.msg import PoseStamped
-    from test_nodes_learner_clicks import JunkSender, make_learner
+    from learner_phase2_support import JunkSender, make_learner
     ctx = _ros_context()
 
     def junk(k):

@@ -55,6 +55,6 @@ case "$target" in
              test/test_sim_efficiency.py ;;&
   # the filter's decision: every module of filter/ that decides (filter/core.py before the split)
   filter|all) run_one filter supersafe_ros/filter/law.py,supersafe_ros/filter/decide.py,supersafe_ros/filter/gather.py,supersafe_ros/filter/pairs.py,supersafe_ros/filter/cluster_rows.py,supersafe_ros/filter/outputs.py,supersafe_ros/filter/inputs.py,supersafe_ros/filter/propagation.py \
-             test/test_filter_core.py test/test_filter_core_mutants.py test/test_filter_law.py \
+             test/test_filter_robot_filter.py test/test_filter_mutants.py test/test_filter_law.py \
              test/test_reach_radial.py test/test_filter_vectorised.py test/test_filter_bounded.py ;;
 esac

@@ -6,6 +6,7 @@ download anything.
 """
 from __future__ import annotations
 
+import asyncio
 import os
 import shutil
 import socket
@@ -91,3 +92,11 @@ def wait_until(predicate, timeout: float, what: str, period: float = 0.1):
 
 def wait_for_server(url: str, timeout: float = 60.0):
     wait_until(lambda: http_status(url, timeout=2.0) == 200, timeout, f'{url} to answer 200')
+
+
+async def closed_by_server(reader, timeout=30.0) -> bool:
+    """The server closed the connection (an end of file, or a reset: it had unread bytes)."""
+    try:
+        return await asyncio.wait_for(reader.read(), timeout) == b''
+    except ConnectionResetError:
+        return True

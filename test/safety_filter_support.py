@@ -1,7 +1,9 @@
 """A test node that drives one safety_filter_node (not a test module).
 
 ``Driver`` plays robot, sensor, planner and learner on the filter's topics in ``NS`` and
-records what the filter publishes; ``state`` places a pose relative to ``OBSTACLE``.
+records what the filter publishes (``on_cmd_vel``/``on_state``: what is kept of each message;
+filter_process_support's driver keeps arrival times); ``state`` places a pose relative to
+``OBSTACLE``.
 """
 import math
 
@@ -26,18 +28,24 @@ def state(rel_x, rel_y, theta):
 class Driver:
     """Plays robot, sensor, planner and learner for one filter; records its outputs."""
 
-    def __init__(self, ctx, ns=NS):
+    def __init__(self, ctx, ns=NS, name='filter_test_driver'):
         from rclpy.node import Node
-        self.node = Node('filter_test_driver', namespace=ns, context=ctx)
+        self.node = Node(name, namespace=ns, context=ctx)
         n = self.node
         self.pose = n.create_publisher(PoseStamped, 'pose', rosmsg.QOS_STREAM)
         self.det = n.create_publisher(PoseArray, 'detections', rosmsg.QOS_STREAM)
         self.cmd = n.create_publisher(Twist, 'cmd_vel_nav', rosmsg.QOS_STREAM)
         self.vf = n.create_publisher(Float32MultiArray, VALUE_FUNCTION_TOPIC, rosmsg.QOS_LATCHED)
         self.out, self.states = [], []
-        self.out_sub = n.create_subscription(Twist, 'cmd_vel', self.out.append, rosmsg.QOS_STREAM)
-        self.state_sub = n.create_subscription(DiagnosticStatus, 'safety_filter/state', self.states.append,
+        self.out_sub = n.create_subscription(Twist, 'cmd_vel', self.on_cmd_vel, rosmsg.QOS_STREAM)
+        self.state_sub = n.create_subscription(DiagnosticStatus, 'safety_filter/state', self.on_state,
                                                rosmsg.QOS_STREAM)
+
+    def on_cmd_vel(self, msg):
+        self.out.append(msg)
+
+    def on_state(self, msg):
+        self.states.append(msg)
 
     def endpoints(self):
         return (self.pose, self.det, self.cmd, self.vf, self.out_sub, self.state_sub)

@@ -16,7 +16,7 @@ import pytest
 
 from supersafe_ros.console.server import MAX_FRAME_BYTES, ConsoleServer
 from supersafe_ros.console.state import MAX_MESSAGE_CHARS, ConsoleState, Field
-from console_support import free_port
+from console_support import closed_by_server, free_port
 
 OBSTACLES = {i: (-10.0 + 2.5 * i, 4.0, 1.8) for i in range(3)}
 
@@ -91,14 +91,6 @@ def test_a_ref_that_is_not_an_integer_or_a_string_is_refused(ref):
                         await ws.send_str(f'{{"type": "ping", "ref": {good}}}')
                         assert strict_json((await reply(ws)).data)['ref'] == echoed
         asyncio.run(run())
-
-
-async def closed_by_server(reader, timeout=30.0) -> bool:
-    """The server closed the connection (an end of file, or a reset: it had unread bytes)."""
-    try:
-        return await asyncio.wait_for(reader.read(), timeout) == b''
-    except ConnectionResetError:
-        return True
 
 
 def test_unfinished_requests_are_timed_out_and_capped():

@@ -30,7 +30,8 @@ import pytest
 
 from supersafe_ros import team
 from supersafe_ros.hosts import netns
-from supersafe_ros.hosts.harness import HostsTeam, missing_from, team_graph
+
+from hosts_support import HostsTeam, missing_from, team_graph
 
 pytestmark = [pytest.mark.root, pytest.mark.ros, pytest.mark.slow,     # teams in namespaces, 30-40 s each
               pytest.mark.skipif(not netns.has_net_admin() or shutil.which('ip') is None,

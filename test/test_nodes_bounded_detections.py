@@ -16,8 +16,8 @@ import pytest
 
 from supersafe_ros.ros_io import cdr, rosmsg
 
+from filter_process_support import OBSTACLE, TimedDriver, filter_process, steady_pass, stop
 from graph_support import Rosout, Spinner, matched
-from test_nodes_safety_filter_process import OBSTACLE, Driver, filter_process, steady_pass, stop
 
 pytestmark = pytest.mark.ros   # rclpy nodes in this process and as processes
 
@@ -42,7 +42,7 @@ def big_detections(round_):
 
 @pytest.fixture
 def driver(ros_context):
-    d = Driver(ros_context)
+    d = TimedDriver(ros_context)
     d.rosout = Rosout(d.node)
     spin = Spinner(ros_context, d.node)
     yield d, spin

@@ -10,7 +10,7 @@ import yaml
 from rclpy.parameter import Parameter
 
 from supersafe_ros.nodes.supervisor_console_node import SupervisorConsoleNode
-from test_console_limits import closed_by_server
+from console_support import closed_by_server
 
 pytestmark = pytest.mark.ros   # rclpy nodes in this process
 

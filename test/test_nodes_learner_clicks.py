@@ -14,67 +14,29 @@
 """
 import math
 
-import numpy as np
 import pytest
-from rclpy.parameter import Parameter
 
 from geometry_msgs.msg import PoseStamped
 
 from supersafe_ros.learning.data import PHASE2_OFFSETS
 from supersafe_ros.learning.phase2_stream import phase2_events
-from supersafe_ros.nodes.learner_node import LearnerNode
-from supersafe_ros.reach.library import PAPER_OMEGAS, LibrarySpec, load_or_build_library
+from supersafe_ros.reach.library import LibrarySpec, load_or_build_library
 from supersafe_ros.ros_io import rosmsg
 from supersafe_ros.sim.watcher import Watcher
 
-from graph_support import Rosout, Spinner, matched
-from test_nodes_learner_first_passage import drive, play
+from graph_support import Spinner, matched
+from learner_phase2_support import (FAR, OMEGAS, SHAPE, STEP, JunkSender, click_flood, drive, make_learner,
+                                    play)
 
 pytestmark = pytest.mark.ros   # rclpy nodes in this process
 
-SHAPE = [41, 41, 24]
-OMEGAS = [float(w) for w in PAPER_OMEGAS]
 W, MU, SIGMA = 0.5, 1.0, 0.3
-STEP = 0.2
 HASTY = 6             # clicks just after the robot passed its obstacle
-FAR = 4               # clicks on obstacles far from the robot (outside the grid)
 
 
 @pytest.fixture(scope='module')
 def library(ros_context):
     return load_or_build_library(LibrarySpec(shape=tuple(SHAPE), omegas=tuple(OMEGAS)))
-
-
-def make_learner(ctx, store, **extra):
-    params = dict(store_path=str(store), library_shape=SHAPE, library_omegas=OMEGAS)
-    params.update(extra)
-    return LearnerNode(context=ctx, parameter_overrides=[Parameter(k, value=v) for k, v in params.items()])
-
-
-def click_flood(t0, first_obstacle, offsets=(2.0, -2.5, 3.0, -2.2, 2.5, -3.0)):
-    """Scenes in the Phase II layout where the person clicks the obstacle only once the robot
-    has passed it (the first pose with x > 0, its stamp and state: what the console sends),
-    and clicks obstacles that are nowhere near the robot (their state far outside the grid)."""
-    t, oid = float(t0), int(first_obstacle)
-    yield ('pose', 'robot_0', t, (-30.0, 0.0, 0.0))
-    for k, y0 in enumerate(offsets):
-        t += STEP
-        yield ('obstacles', t, [oid], np.zeros((1, 2)))
-        x = -8.0
-        while True:
-            t += STEP
-            yield ('pose', 'robot_0', t, (x, y0, 0.0))
-            if x > 0.0:
-                yield ('intervention', oid, t, (x, y0, 0.0))
-                break
-            x += 3.0 * STEP
-        if k < FAR:     # a far click: another obstacle, the robot 25 m away from it
-            yield ('intervention', 900 + k, t, (-25.0, 4.0, 0.0))
-        t += STEP
-        yield ('obstacles', t, [], np.zeros((0, 2)))
-        t += STEP
-        yield ('pose', 'robot_0', t, (-30.0, 0.0, 0.0))
-        oid += 1
 
 
 def test_fits_resume_after_a_click_flood(ros_context, tmp_path, library):
@@ -152,18 +114,6 @@ def test_unstamped_interventions_without_a_clock_are_not_each_others_duplicates(
         node.close()
         node.destroy_node()
         sender.destroy_node()
-
-
-class JunkSender:
-    """A node that publishes on /interventions and reads /rosout, spun with the learner."""
-
-    def __init__(self, ctx, learner):
-        from rclpy.node import Node
-        self.node = Node('junk_sender', context=ctx)
-        self.pub = self.node.create_publisher(PoseStamped, '/interventions', rosmsg.QOS_EVENTS)
-        self.rosout = Rosout(self.node)
-        self.spin = Spinner(ctx, learner, self.node)
-        self.spin.until(lambda: matched(self.pub, self.rosout.sub), 20.0, 'the learner')
 
 
 def test_a_burst_of_junk_is_told_per_reason_on_time_and_in_totals(ros_context, tmp_path):

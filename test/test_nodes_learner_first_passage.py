@@ -11,74 +11,29 @@ exactly and mu within 0.05 in at least 9; each seed's data go through ~reset.
 Also: the encounters survive a restart, and a fit refused by the admissibility
 check is not published.
 """
-import math
-
 import numpy as np
 import pytest
-from rclpy.parameter import Parameter
 
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
-from std_msgs.msg import Float32MultiArray
 from std_srvs.srv import Empty
 from visualization_msgs.msg import MarkerArray
 
 from supersafe_ros.learning.data import PHASE2_OFFSETS
 from supersafe_ros.learning.phase2_stream import phase2_events
-from supersafe_ros.nodes.learner_node import FIT_TOPIC, VALUE_FUNCTION_TOPIC, LearnerNode
-from supersafe_ros.nodes.markers import obstacles_to_markers
-from supersafe_ros.reach.library import PAPER_OMEGAS, LibrarySpec, load_or_build_library
+from supersafe_ros.reach.library import LibrarySpec, load_or_build_library
 from supersafe_ros.ros_io import rosmsg
 from supersafe_ros.ros_io.vfmsg import msg_metadata
 from supersafe_ros.sim.watcher import Watcher
 
 from graph_support import Spinner, matched
+import learner_phase2_support
+from learner_phase2_support import OMEGAS, SHAPE, STEP, drive, play
 
 pytestmark = pytest.mark.ros   # rclpy nodes in this process
 
-SHAPE = [41, 41, 24]
-OMEGAS = [float(w) for w in PAPER_OMEGAS]
 W, MU, SIGMA = 0.5, 1.0, 0.3
 REPEATS = 8            # 8 x 19 offsets = 152 scenes per seed
-STEP = 0.2
-
-
-def stamp_of(t):
-    from builtin_interfaces.msg import Time
-    sec = math.floor(t)
-    return Time(sec=sec, nanosec=min(int(round((t - sec) * 1e9)), 999_999_999))
-
-
-class Driver:
-    def __init__(self, ctx):
-        from rclpy.node import Node
-        self.node = Node('phase2_driver', context=ctx)
-        self.pose_pub = self.node.create_publisher(PoseStamped, '/robot_0/pose', rosmsg.QOS_STREAM)
-        self.markers_pub = self.node.create_publisher(MarkerArray, '/obstacle_markers', rosmsg.QOS_LATCHED)
-        self.iv_pub = self.node.create_publisher(PoseStamped, '/interventions', rosmsg.QOS_EVENTS)
-        self.fits, self.vfs = [], []
-        self.fit_sub = self.node.create_subscription(DiagnosticStatus, FIT_TOPIC,
-                                                     lambda m: self.fits.append(rosmsg.diagnostic_values(m)),
-                                                     rosmsg.QOS_LATCHED)
-        self.vf_sub = self.node.create_subscription(Float32MultiArray, VALUE_FUNCTION_TOPIC, self.vfs.append,
-                                                    rosmsg.QOS_LATCHED)
-        self.reset = self.node.create_client(Empty, '/learner/reset')
-
-    def publish(self, ev):
-        if ev[0] == 'pose':
-            self.pose_pub.publish(rosmsg.state_to_pose(ev[3], stamp_of(ev[2])))
-        elif ev[0] == 'obstacles':
-            self.markers_pub.publish(obstacles_to_markers(ev[2], ev[3], 1.8, stamp_of(ev[1])))
-        else:
-            self.iv_pub.publish(rosmsg.state_to_pose(ev[3], stamp_of(ev[2]), rosmsg.obstacle_frame(ev[1])))
-
-    def fit(self):
-        return self.fits[-1] if self.fits else {}
-
-    def wait_for(self, spin, *more):
-        """Until the learner has matched every topic of the driver's (and ``more`` endpoints)."""
-        spin.until(lambda: matched(self.pose_pub, self.markers_pub, self.iv_pub, self.fit_sub, *more), 20.0,
-                   'learner topics')
 
 
 @pytest.fixture(scope='module')
@@ -87,37 +42,8 @@ def library(ros_context):
 
 
 def make_learner(ctx, store, **extra):
-    params = dict(store_path=str(store), estimator='first-passage', robots=['robot_0'],
-                  library_shape=SHAPE, library_omegas=OMEGAS)
-    params.update(extra)
-    return LearnerNode(context=ctx, parameter_overrides=[Parameter(k, value=v) for k, v in params.items()])
-
-
-def drive(ctx, node):
-    """A Driver for ``node`` and a Spinner over both."""
-    driver = Driver(ctx)
-    return driver, Spinner(ctx, node, driver.node)
-
-
-def play(spin, node, driver, events):
-    """Publish scene by scene; each scene is published at once (the topics then arrive in
-    any interleaving) and the next one waits until the learner has read this one's poses."""
-    scenes, scene, n_iv = [], [], 0
-    for ev in events:
-        scene.append(ev)
-        if ev[0] == 'pose' and ev[3][0] < -20:      # parked: the scene is over
-            scenes.append(scene)
-            scene = []
-    scenes.append(scene)
-    for sc in scenes:
-        for ev in sc:
-            driver.publish(ev)
-            n_iv += ev[0] == 'intervention'
-        last = max(ev[2] for ev in sc if ev[0] == 'pose') if any(e[0] == 'pose' for e in sc) else None
-        if last is not None:
-            spin.until(lambda: node.builder.newest >= last - 1e-6 and node.store.count >= n_iv, 30.0,
-                       'the learner reading the scene')
-    return n_iv
+    return learner_phase2_support.make_learner(ctx, store, **{'estimator': 'first-passage', 'robots': ['robot_0'],
+                                                              **extra})
 
 
 def test_first_passage_recovers_the_supervisor_in_9_of_10_seeds(ros_context, tmp_path, library):

@@ -2,108 +2,19 @@
 and a 50 MB value function decoded and checked off the control path."""
 import os
 import re
-import signal
-import subprocess
-import sys
 import time
-from pathlib import Path
 
 import pytest
 
-from diagnostic_msgs.msg import DiagnosticStatus
-from geometry_msgs.msg import PoseArray, PoseStamped, Twist
-
-from supersafe_ros.ros_io import rosmsg
-
+from filter_process_support import TimedDriver, filter_process, start, steady_pass, stop
 from graph_support import Spinner, matched
 
 pytestmark = pytest.mark.ros   # rclpy nodes in this process and as processes
 
-REPO = Path(__file__).resolve().parents[1]
-CONFIG = REPO / 'config' / 'safety_filter.yaml'
-NS = '/robot_7'
-OBSTACLE = (4.0, -2.0)
-FAR = (OBSTACLE[0] - 7.5, OBSTACLE[1] + 7.0, 0.0)
-
-
-def start(tmp_path, name, argv):
-    log = open(tmp_path / f'{name}.log', 'w')
-    return subprocess.Popen([sys.executable, *argv], stdout=log, stderr=subprocess.STDOUT,
-                            env=dict(os.environ), start_new_session=True)
-
-
-def stop(proc):
-    if proc.poll() is None:
-        os.killpg(proc.pid, signal.SIGINT)
-        try:
-            proc.wait(15)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
-
-
-def filter_process(tmp_path, *params):
-    argv = ['-m', 'supersafe_ros.nodes.safety_filter_node', '--ros-args', '-r', f'__ns:={NS}',
-            '--params-file', str(CONFIG)]
-    for p in params:
-        argv += ['-p', p]
-    return start(tmp_path, 'safety_filter', argv)
-
-
-class Driver:
-    def __init__(self, ctx):
-        from rclpy.node import Node
-        self.node = n = Node('filter_process_driver', namespace=NS, context=ctx)
-        self.pose = n.create_publisher(PoseStamped, 'pose', rosmsg.QOS_STREAM)
-        self.det = n.create_publisher(PoseArray, 'detections', rosmsg.QOS_STREAM)
-        self.cmd = n.create_publisher(Twist, 'cmd_vel_nav', rosmsg.QOS_STREAM)
-        self.out, self.states = [], []
-        self.out_sub = n.create_subscription(Twist, 'cmd_vel', lambda m: self.out.append(time.monotonic()),
-                                             rosmsg.QOS_STREAM)
-        self.state_sub = n.create_subscription(
-            DiagnosticStatus, 'safety_filter/state',
-            lambda m: self.states.append((time.monotonic(), rosmsg.diagnostic_values(m))), rosmsg.QOS_STREAM)
-        self.last_pose = None
-
-    def endpoints(self):
-        return (self.pose, self.det, self.cmd, self.out_sub, self.state_sub)
-
-    def feed(self, poses=True, stamp=True):
-        if poses:
-            msg = rosmsg.state_to_pose(FAR, stamp=self.node.get_clock().now().to_msg() if stamp else None)
-            self.pose.publish(msg)
-            self.last_pose = time.monotonic()
-        self.det.publish(rosmsg.xy_to_posearray([OBSTACLE]))
-        self.cmd.publish(rosmsg.turn_rate_to_twist(0.2, 3.0))
-
-    def feed_until(self, spin, condition, timeout, what, period=0.05, poses=True):
-        deadline = time.monotonic() + timeout
-        next_feed = 0.0
-        while not condition():
-            now = time.monotonic()
-            if now > deadline:
-                raise AssertionError(f'timed out after {timeout} s waiting for {what}')
-            if now >= next_feed:
-                self.feed(poses=poses)
-                next_feed = now + period
-            spin.executor.spin_once(timeout_sec=0.005)
-
-    def newest(self):
-        return self.states[-1][1] if self.states else {}
-
-
-def steady_pass(d, spin):
-    """Feed until the filter passes on fresh poses for 5 states in a row (a busy machine can
-    deliver the first poses late, and the filter rightly calls those stale)."""
-    def settled():
-        last = [s for _, s in d.states[-5:]]
-        return len(last) == 5 and all(s['action'] == 'pass' for s in last)
-    d.feed_until(spin, settled, 60.0, 'five passes in a row')
-
 
 @pytest.fixture
 def driver(ros_context):
-    d = Driver(ros_context)
+    d = TimedDriver(ros_context)
     spin = Spinner(ros_context, d.node)
     yield d, spin
     spin.shutdown()

@@ -65,11 +65,6 @@ class Encounter:
                                  f'got {fp.shape}')
             self.full_pass = fp
 
-    @property
-    def intervention_state(self):
-        """The state where the supervisor intervened, or None."""
-        return self.states[-1] if self.intervened else None
-
 
 def intervention_states(encounters) -> np.ndarray:
     """(N, 3) states of the encounters that ended with an intervention."""

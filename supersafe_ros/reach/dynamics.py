@@ -49,8 +49,3 @@ class DubinsCar:
         ax = np.where(turning, (np.sin(th1) - np.sin(th)) / safe_u, np.cos(th) * dt)
         ay = np.where(turning, (np.cos(th) - np.cos(th1)) / safe_u, np.sin(th) * dt)
         return np.stack([x + self.speed * ax, y + self.speed * ay, wrap_angle(th1)], axis=-1)
-
-    def optimal_avoid_control(self, grad) -> np.ndarray:
-        """u* = omega_max sign(dV/dtheta): the control that raises V fastest."""
-        g = np.asarray(grad, dtype=float)
-        return self.omega_max * np.sign(g[..., 2])

@@ -1,8 +1,11 @@
-"""Tests that kill the mutants of ``supersafe_ros.filter`` (then filter/core.py) that survived the fast tests.
+"""Tests that kill the mutants of ``supersafe_ros.filter`` that survived the fast tests.
+
+The filter was one module then, filter/core.py, since split into the modules of filter/ that
+decide (law, decide, gather, pairs, cluster_rows, outputs, inputs, propagation).
 
 Each test names the mutation it guards against (mutation testing with mutmut,
 ``bash bench/mutation.sh filter``); the equivalent survivors are listed with a reason in
-bench/results/mutation.md. ROS-free and fast, like test_filter_core.py.
+bench/results/mutation.md. ROS-free and fast, like test_filter_robot_filter.py.
 """
 import math
 
@@ -32,7 +35,7 @@ def standard():
 
 
 def robot(t=T, **kw):
-    """filter_support's robot (as test_filter_core.py uses it), on a clock that starts at T."""
+    """filter_support's robot (as test_filter_robot_filter.py uses it), on a clock that starts at T."""
     return _robot(t=t, **kw)
 
 
@@ -145,7 +148,7 @@ def test_segments_with_commands_sent_in_and_after_the_interval():
 
 
 def test_pose_propagated_over_two_commands_on_a_clock_not_starting_at_zero(standard):
-    """The decision-level consequence of the segment durations (test_filter_core's propagation
+    """The decision-level consequence of the segment durations (test_filter_robot_filter's propagation
     test starts at t = 0, where ``ts + start`` equals ``ts - start``)."""
     car = DubinsCar(3.0, 1.0)
     f = robot(pose=at(-6.5, 2.0, -0.3), cmd=0.4, lookahead=0.0)

@@ -1,4 +1,5 @@
-"""A team on K hosts, driven from Python: for the tests and bench/bench_hosts.py.
+"""A team on K hosts, driven from Python: for the tests and bench/bench_hosts.py (test-only,
+so here and not in the package; the benches take support modules from test/ as bench_console does).
 
 ``HostsTeam(argvs, n_hosts)`` places ``team_processes(...)`` over a HostNetwork (or,
 with ``n_hosts=1``, runs them on loopback as `supersafe team` does), starts the
@@ -18,9 +19,10 @@ import sys
 import threading
 import time
 
-from ..team import Team, _die_with_parent, process_name, team_env
-from .netns import HostNetwork
-from .placement import (discovery_server, discovery_server_argv, env_argv, host_ros_env, place)
+from supersafe_ros.hosts.netns import HostNetwork
+from supersafe_ros.hosts.placement import (discovery_server, discovery_server_argv, env_argv, host_ros_env,
+                                           place)
+from supersafe_ros.team import Team, _die_with_parent, process_name, team_env
 
 
 class Probe:

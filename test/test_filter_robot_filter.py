@@ -345,13 +345,13 @@ def test_equal_detections_in_separate_arrays_share_their_cluster_frames(standard
     """Robots sent equal detections in separate messages (the fleet node's per-robot topics)
     compute the cluster frames once; other content gets its own; the cache is bounded; and
     the decisions are those computed without it."""
-    import supersafe_ros.filter.cluster_rows as core
+    import supersafe_ros.filter.cluster_rows as cluster_rows
     from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore
     store = ClusterStore(ClusterSettings(), fallback_only=True)
     pair = [(OBSTACLE[0], OBSTACLE[1]), (OBSTACLE[0] + 4.0, OBSTACLE[1] + 1.0)]      # one cluster
     moved = [(OBSTACLE[0], OBSTACLE[1]), (OBSTACLE[0] + 4.5, OBSTACLE[1] + 1.0)]
     poses = [at(-4.0, 0.5, 0.0), at(-3.0, -1.0, 0.2), at(-5.0, 0.0, -0.1)]
-    core._FRAMES_BY_CONTENT.clear()
+    cluster_rows._FRAMES_BY_CONTENT.clear()
     fleet = [robot(pose=p, detections=d) for p, d in zip(poses, (pair, list(pair), moved))]
     outs = step_many(fleet, standard, 0.0, store)
     a, b, c = (f._cluster_cache[1] for f in fleet)
@@ -359,12 +359,12 @@ def test_equal_detections_in_separate_arrays_share_their_cluster_frames(standard
     assert a is b and a is not c and a.n == c.n == 1 and a.keys != c.keys
     with pytest.raises(ValueError):
         a.frames[0, 0] = 1.0                    # shared, so read-only
-    core._FRAMES_BY_CONTENT.clear()
+    cluster_rows._FRAMES_BY_CONTENT.clear()
     fresh = [robot(pose=p, detections=d) for p, d in zip(poses, (pair, list(pair), moved))]
     again = step_many(fresh, standard, 0.0, store)
     assert [(o.omega, o.action, o.reason) for o in outs] == [(o.omega, o.action, o.reason) for o in again]
-    monkeypatch.setattr(core, '_FRAMES_KEPT', 8)
+    monkeypatch.setattr(cluster_rows, '_FRAMES_KEPT', 8)
     for k in range(30):
         step_many([robot(pose=poses[0], detections=[pair[0], (pair[1][0] + 0.01 * k, pair[1][1])])],
                   standard, 0.0, store)
-        assert len(core._FRAMES_BY_CONTENT) <= 8
+        assert len(cluster_rows._FRAMES_BY_CONTENT) <= 8
