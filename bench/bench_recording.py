@@ -66,7 +66,7 @@ def bench_writer(n: int):
             bag.write('/pose', data, i)
         bag.close()
         dt = time.perf_counter() - t0
-        size = (Path(d) / 'b' / 'b_0.mcap').stat().st_size
+        size = (Path(d) / 'b' / 'b.mcap').stat().st_size
     print(f'writer: {n} PoseStamped in {dt:.3f} s = {n / dt:,.0f} msg/s; file {size / n:.1f} B/msg '
           f'(load {load()})')
 

@@ -55,7 +55,7 @@ def add_parser(subparsers):
                              'with their options or --set; repeatable')
     parser.add_argument('--record', type=Path, default=None, metavar='BAG',
                         help='record every topic to a new rosbag2 MCAP bag folder BAG '
-                             '(ros2 bag play BAG, or open BAG/BAG_0.mcap in Foxglove)')
+                             '(ros2 bag play BAG, or open BAG/BAG.mcap in Foxglove)')
     parser.add_argument('--print-argv', action='store_true', help='print the processes and exit')
     parser.add_argument('--hosts', type=int, default=1, metavar='K',
                         help='run across K >= 2 hosts: private network namespaces this command '

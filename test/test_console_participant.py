@@ -301,7 +301,7 @@ def test_scripted_participant_completes_the_whole_protocol_on_a_laptop_screen(tm
     from bag_support import read_bag
     bags = sorted((tmp_path / 'w1').glob('recording-*'))
     assert [b.name for b in bags] == ['recording-1']
-    _, _, _, messages = read_bag(bags[0] / 'recording-1_0.mcap')
+    _, _, _, messages = read_bag(bags[0] / 'recording-1.mcap')
     frames = [m.header.frame_id for topic, _, _, m, _ in messages if topic == '/interventions']
     assert set(f'obstacle_{o}' for o in handled) <= set(frames) and len(frames) >= len(handled) + 1
 

@@ -1,7 +1,7 @@
 """LearnedSetSelector (filter.set_selector): which safe set is in force, without ROS.
 
 Messages are given as bytes; the decoder here looks them up in a table (the node
-passes ros_io.vfcdr's), the level is alpha = mu + k sigma, the value functions are
+passes ros_io.cdr.serialized_to_value_function), the level is alpha = mu + k sigma, the value functions are
 signed distances to discs (V = l), so "more conservative" is "a larger disc".
 """
 import threading

@@ -1,4 +1,4 @@
-"""Recording to rosbag2-layout MCAP bags: the ROS-free writer, message definitions, and
+"""Recording to rosbag2 bags (MCAP storage): the ROS-free writer, message definitions, and
 the graph recorder at topic level (the test publishes, the recorder records, the bag is
 read back with the mcap reader + mcap_ros2 decoder and with rosbags' rosbag2 reader)."""
 import time
@@ -11,31 +11,22 @@ from geometry_msgs.msg import PoseStamped
 from visualization_msgs.msg import MarkerArray
 
 from supersafe_ros.nodes.markers import obstacles_to_markers
-from supersafe_ros.recording import msgdefs
-from supersafe_ros.recording.bag import BagWriter, qos_profile
+from supersafe_ros.recording.bag import BagWriter, DefinitionNotFound, qos_profile, typestore
 from supersafe_ros.ros_io import rosmsg
 
 from bag_support import read_bag
 from graph_support import Spinner, matched
 
-SEP = '=' * 80 + '\n'
-
 
 # -- message definitions ---------------------------------------------------------------------------
-def test_full_text_is_rosbag2s_concatenation_each_dependency_once():
-    text = msgdefs.full_text('geometry_msgs/msg/PoseStamped')
-    parts = text.split('\n' + SEP)
-    assert parts[0] == msgdefs.msg_text('geometry_msgs/msg/PoseStamped')
-    names = [p.split('\n', 1)[0] for p in parts[1:]]
-    # depth first, sorted at each level, dependency names without /msg/, as rosbag2 writes them
-    assert names == ['MSG: geometry_msgs/Pose', 'MSG: geometry_msgs/Point', 'MSG: geometry_msgs/Quaternion',
-                     'MSG: std_msgs/Header', 'MSG: builtin_interfaces/Time']
-    marker_text = msgdefs.full_text('visualization_msgs/msg/MarkerArray')
-    headers = [line for line in marker_text.splitlines() if line.startswith('MSG: ')]
-    assert len(headers) == len(set(headers)) and 'MSG: visualization_msgs/Marker' in headers
-    assert msgdefs.type_hash('geometry_msgs/msg/PoseStamped').startswith('RIHS01_')
-    with pytest.raises(msgdefs.DefinitionNotFound):
-        msgdefs.full_text('no_such_msgs/msg/Nothing')
+def test_types_come_from_the_jazzy_typestore_and_unknown_ones_are_refused(tmp_path):
+    with BagWriter(tmp_path / 'b') as bag:
+        with pytest.raises(DefinitionNotFound):
+            bag.add_topic('/x', 'no_such_msgs/msg/Nothing')
+        with pytest.raises(DefinitionNotFound):     # another version of the type: not decodable
+            bag.add_topic('/y', 'geometry_msgs/msg/PoseStamped', type_hash='RIHS01_' + '0' * 64)
+        assert not bag.topics
+    assert typestore().hash_rihs01('geometry_msgs/msg/PoseStamped').startswith('RIHS01_')
 
 
 # -- the ROS-free writer ---------------------------------------------------------------------------
@@ -49,21 +40,20 @@ def test_bag_round_trip_with_rosbag2_fields(tmp_path):
         bag.write('/obstacle_markers', serialize_message(markers), 1_000_000_000)
         for i in range(3):
             msg = rosmsg.state_to_pose((0.5 * i, -2.0, 0.25), None, rosmsg.obstacle_frame(7))
-            bag.write('/interventions', serialize_message(msg), 2_000_000_000 + i, 1_500_000_000 + i)
-    assert sorted(p.name for p in bag_dir.iterdir()) == ['metadata.yaml', 'run1_0.mcap']
+            bag.write('/interventions', serialize_message(msg), 2_000_000_000 + i)
+    assert sorted(p.name for p in bag_dir.iterdir()) == ['metadata.yaml', 'run1.mcap']
 
-    header, summary, records, messages = read_bag(bag_dir / 'run1_0.mcap')
+    header, summary, records, messages = read_bag(bag_dir / 'run1.mcap')
     assert header.profile == 'ros2'
     schemas = {s.name: s for s in summary.schemas.values()}
     assert set(schemas) == {'geometry_msgs/msg/PoseStamped', 'visualization_msgs/msg/MarkerArray'}
     assert all(s.encoding == 'ros2msg' for s in schemas.values())
-    assert schemas['geometry_msgs/msg/PoseStamped'].data.decode() == msgdefs.full_text(
-        'geometry_msgs/msg/PoseStamped')
+    assert schemas['geometry_msgs/msg/PoseStamped'].data.decode() == typestore().generate_msgdef(
+        'geometry_msgs/msg/PoseStamped', ros_version=2)[0]
     channels = {c.topic: c for c in summary.channels.values()}
     assert all(c.message_encoding == 'cdr' for c in channels.values())
     qos = yaml.safe_load(channels['/obstacle_markers'].metadata['offered_qos_profiles'])
     assert qos == [latched] and qos[0]['durability'] == 'transient_local'
-    assert channels['/interventions'].metadata['topic_type_hash'].startswith('RIHS01_')
     assert summary.statistics.message_count == 4
 
     # the record rosbag2's MCAP plugin reads its metadata from: BagMetadata, version 9
@@ -71,9 +61,11 @@ def test_bag_round_trip_with_rosbag2_fields(tmp_path):
     on_disk = yaml.safe_load((bag_dir / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
     assert inner == on_disk
     assert on_disk['version'] == 9 and on_disk['storage_identifier'] == 'mcap'
-    assert on_disk['relative_file_paths'] == ['run1_0.mcap'] and on_disk['message_count'] == 4
+    assert on_disk['relative_file_paths'] == ['run1.mcap'] and on_disk['message_count'] == 4
     counts = {t['topic_metadata']['name']: t['message_count'] for t in on_disk['topics_with_message_count']}
     assert counts == {'/interventions': 3, '/obstacle_markers': 1}
+    assert all(t['topic_metadata']['type_description_hash'].startswith('RIHS01_')
+               for t in on_disk['topics_with_message_count'])
     assert on_disk['starting_time']['nanoseconds_since_epoch'] == 1_000_000_000
     assert on_disk['duration']['nanoseconds'] == 1_000_000_002
 
@@ -222,7 +214,7 @@ def test_record_command_records_until_ctrl_c(ros_context, tmp_path):
         node.destroy_node()
     assert proc.returncode == 0, out
     assert 'recorded' in out and str(tmp_path / 'cli_bag') in out
-    _, _, _, messages = read_bag(tmp_path / 'cli_bag' / 'cli_bag_0.mcap')
+    _, _, _, messages = read_bag(tmp_path / 'cli_bag' / 'cli_bag.mcap')
     assert [d.data for topic, _, _, d, _ in messages if topic == '/chatter'] == [f'hello {i}' for i in range(20)]
     with pytest.raises(subprocess.CalledProcessError):     # never overwrites
         subprocess.run([sys.executable, '-m', 'supersafe_ros.cli', 'record', str(tmp_path / 'cli_bag')],

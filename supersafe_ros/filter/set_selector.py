@@ -21,7 +21,7 @@ a level or ``use_learned`` (``set_standard_alpha``, ``set_alpha_offset``,
 force (the control path reads this one reference); ``set_update`` says what happened
 to the last set ((accepted | rejected | ignored | none, why)), ``set_updates`` counts.
 
-No ROS here: the decoder (``ros_io.vfcdr.serialized_to_value_function``), the level
+No ROS here: the decoder (``ros_io.cdr.serialized_to_value_function``), the level
 of a learned set (``learning.levels.learned_alpha``) and the log (debug, info, error)
 are given.
 """

@@ -32,7 +32,7 @@ from ..filter.timebase import FilterTime
 from ..learning.levels import learned_alpha
 from ..ros_io import rosmsg
 from ..ros_io.direct_take import DirectTake
-from ..ros_io.vfcdr import serialized_to_value_function
+from ..ros_io.cdr import serialized_to_value_function
 from .filter_parameters import FilterParameters
 from .filter_state import Complaints, StateReporter
 

@@ -15,7 +15,7 @@ def add_parser(subparsers):
     parser = subparsers.add_parser(
         'record', help='record every topic of a running graph to a rosbag2 MCAP bag folder',
         description=__doc__.splitlines()[0])
-    parser.add_argument('bag', type=Path, help='new bag folder (BAG/metadata.yaml, BAG/BAG_0.mcap)')
+    parser.add_argument('bag', type=Path, help='new bag folder (BAG/metadata.yaml, BAG/BAG.mcap)')
     parser.add_argument('--duration', type=float, default=0.0,
                         help='stop after this many wall seconds (default: until Ctrl-C)')
     parser.add_argument('--domain-id', type=int, default=None, help='ROS_DOMAIN_ID (default: inherited)')

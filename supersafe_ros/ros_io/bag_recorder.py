@@ -1,4 +1,4 @@
-"""Record every topic of a running graph into a rosbag2-layout MCAP bag.
+"""Record every topic of a running graph into a rosbag2 bag (MCAP storage, rosbags' writer).
 
 ``start_recorder(path, domain_id=None) -> RecorderHandle`` starts an rclpy node of its
 own (BackgroundNode: own context, daemon thread) that polls the graph every
@@ -6,11 +6,11 @@ own (BackgroundNode: own context, daemon thread) that polls the graph every
 the bag unchanged) and a QoS adapted to the publishers' offers, as ``ros2 bag record``
 does (reliable only if every publisher is reliable, transient local only if every
 publisher is, so latched topics such as /obstacle_markers arrive in full), and writes
-each message with its receive time (system clock) and source time.
+each message with its receive time (system clock).
 ``handle.stop()`` takes what is still queued, ends the subscriptions and closes the bag
 (metadata.yaml written);
-it returns the BagInfo. Topics with several types, or whose .msg definition is not
-installed, are skipped with a warning (``handle.skipped``).
+it returns the BagInfo. Topics with several types, or whose type ROS 2 Jazzy's typestore
+(rosbags) does not describe, are skipped with a warning (``handle.skipped``).
 
     from supersafe_ros.ros_io.bag_recorder import start_recorder
     rec = start_recorder('runs/p01_bag')          # before or after the graph starts
@@ -34,8 +34,7 @@ import os
 import threading
 import time
 
-from ..recording.bag import BagWriter, qos_profile
-from ..recording.msgdefs import DefinitionNotFound
+from ..recording.bag import BagWriter, DefinitionNotFound, qos_profile
 
 LOG = logging.getLogger(__name__)
 SUBSCRIPTION_DEPTH = 1000   # deep: a Python callback may lag a burst of poses; nothing is dropped
@@ -126,9 +125,7 @@ class TopicRecorder:
         self.node.get_logger().warn(f'not recording {topic}: {why}')
 
     def on_message(self, topic, data: bytes, info):
-        now = self._system.now().nanoseconds
-        source = info.get('source_timestamp') if isinstance(info, dict) else None
-        self.bag.write(topic, data, now, source or now)
+        self.bag.write(topic, data, self._system.now().nanoseconds)
 
 
 class RecorderHandle:

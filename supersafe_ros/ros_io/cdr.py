@@ -10,16 +10,24 @@ errors). ``pose_array_xy`` reads a PoseArray's positions as one numpy array (det
 any size: bounded work, no object per pose). ``pose_array_bytes`` and ``twist_bytes``
 serialize a PoseArray of positions and a Twist.
 
+``serialized_to_value_function`` reads a /safe_set/value_function message: rclpy's
+``deserialize_message`` copies a 50 MB Float32MultiArray into a Python array in one C call
+that holds the GIL for 0.3 s or more, stalling every other thread of the process (the
+filter's control path), so the header is read here and the values are a zero-copy numpy
+view of the bytes; the checks are ``vfmsg.msg_to_value_function``'s own.
+
 Layout (little-endian CDR, ``encapsulation`` = 00 01 00 00; offsets count from the end
 of those 4 bytes, each primitive aligned to its size): Header = int32 sec, uint32
 nanosec, string frame_id (uint32 length with its NUL, the bytes); Pose = 7 float64
 [position x y z, orientation x y z w]; PoseArray = Header, uint32 count, count Poses;
-Twist = 6 float64 [linear x y z, angular x y z]. Any other encapsulation (big-endian,
-XCDR2) is deserialized by rclpy.
+Twist = 6 float64 [linear x y z, angular x y z]; Float32MultiArray = uint32 dim count,
+per dim (string label, uint32 size, uint32 stride), uint32 data_offset, uint32 count,
+count float32. Any other encapsulation (big-endian, XCDR2) is deserialized by rclpy.
 """
 from __future__ import annotations
 
 import struct
+from types import SimpleNamespace
 
 import numpy as np
 from rclpy.serialization import deserialize_message
@@ -31,6 +39,8 @@ _STAMP_LEN = struct.Struct('<iII')
 _COUNT = struct.Struct('<I')
 _POSE = struct.Struct('<7d')
 _TWIST = struct.Struct('<6d')
+_TWO = struct.Struct('<II')
+MAX_DIMENSIONS = 16     # a value function's layout has 3; more is not one
 ENCAPSULATION = b'\x00\x01\x00\x00'
 
 
@@ -181,6 +191,50 @@ def twist(data):
         return Twist(_TWIST.unpack_from(b, 0))
     except struct.error as exc:
         raise MessageError(f'command is not a serialized Twist ({exc})') from None
+
+
+def _string(b, off):
+    """(str, offset after it) of a CDR string at ``off`` (aligned to 4 first); ValueError
+    if its length is 0 (no NUL) or runs past the end."""
+    off = _align(off, 4)
+    (length,) = _COUNT.unpack_from(b, off)
+    if length == 0 or off + 4 + length > len(b):
+        raise ValueError('bad string')
+    return bytes(b[off + 4:off + 3 + length]).decode('utf-8', errors='replace'), off + 4 + length
+
+
+def serialized_to_value_function(data):
+    """ValueFunction from the serialized bytes of a /safe_set/value_function message (bytes, or
+    a numpy uint8 array as ``ros_io.gil_free_take`` gives; the values are a view of it).
+    ValueFunctionMessageError if the bytes are not one."""
+    from .vfmsg import ValueFunctionMessageError, msg_to_value_function
+    if len(data) < 8:
+        raise ValueFunctionMessageError(f'serialized value function of {len(data)} bytes is too short')
+    b = body(data)
+    if b is None:
+        from std_msgs.msg import Float32MultiArray
+        return msg_to_value_function(deserialize_message(bytes(data), Float32MultiArray))
+    try:
+        (n_dims,) = _COUNT.unpack_from(b, 0)
+        if n_dims > MAX_DIMENSIONS:
+            raise ValueFunctionMessageError(f'{n_dims} layout dimensions')
+        dims, off = [], 4
+        for _ in range(n_dims):
+            label, off = _string(b, off)
+            off = _align(off, 4)
+            size, stride = _TWO.unpack_from(b, off)
+            dims.append(SimpleNamespace(label=label, size=size, stride=stride))
+            off += 8
+        off = _align(off, 4)
+        data_offset, count = _TWO.unpack_from(b, off)
+        off += 8
+    except (struct.error, ValueError) as exc:
+        raise ValueFunctionMessageError(f'serialized value function is truncated ({exc})') from None
+    if off + 4 * count > len(b):
+        raise ValueFunctionMessageError(f'serialized value function is truncated: {count} values announced')
+    values = np.frombuffer(b, dtype='<f4', count=count, offset=off)
+    msg = SimpleNamespace(layout=SimpleNamespace(dim=dims, data_offset=data_offset), data=values)
+    return msg_to_value_function(msg)
 
 
 def pose_array_bytes(xy, frame_id: str = 'map', sec: int = 0, nanosec: int = 0) -> bytes:

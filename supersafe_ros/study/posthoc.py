@@ -4,8 +4,9 @@ Every subject plays every condition, so a pair of conditions is compared on the
 subjects' own differences d_i = a_i - b_i (``paired_posthoc``):
 
 * paired t-test on d (scipy.stats.ttest_rel), two-sided; the p values of all pairs are
-  Holm-corrected together (step-down: the k-th smallest of m is multiplied by m - k + 1,
-  then made monotone), so the family-wise error stays at 5 % as with Tukey's method;
+  Holm-corrected together (statsmodels' ``multipletests``; step-down: the k-th smallest
+  of m is multiplied by m - k + 1, then made monotone), so the family-wise error stays at
+  5 % as with Tukey's method;
 * ``mean_difference`` = mean(d) with its 95 % confidence interval mean(d) +- t_{0.975, n-1}
   SD(d) / sqrt(n) (per pair, not adjusted for the family: the Holm p values are);
 * effect sizes: Cohen's d_z = mean(d) / SD(d) (``effect_size``, the paired standardised
@@ -33,17 +34,15 @@ TUKEY_REFERENCE = ('scipy tukey_hsd: the conditions as independent groups (ignor
 
 
 def holm(pvalues) -> np.ndarray:
-    """Holm-adjusted p values (step-down, monotone, capped at 1); NaN stays NaN and does not
-    count towards the family's size."""
+    """Holm-adjusted p values (statsmodels' ``multipletests(method='holm')``: step-down,
+    monotone, capped at 1); NaN stays NaN and does not count towards the family's size
+    (statsmodels would propagate it, so only the finite p values are passed)."""
+    from statsmodels.stats.multitest import multipletests
     p = np.asarray(pvalues, dtype=float)
     out = np.full(p.shape, np.nan)
-    ok = np.flatnonzero(np.isfinite(p))
-    m = len(ok)
-    if m == 0:
-        return out
-    order = ok[np.argsort(p[ok], kind='stable')]
-    adjusted = np.minimum(1.0, np.maximum.accumulate((m - np.arange(m)) * p[order]))
-    out[order] = adjusted
+    ok = np.isfinite(p)
+    if ok.any():
+        out[ok] = multipletests(p[ok], method='holm')[1]
     return out
 
 

@@ -5,7 +5,7 @@ from rclpy.serialization import serialize_message
 
 from supersafe_ros.reach.grid import Grid
 from supersafe_ros.reach.value_function import ValueFunction
-from supersafe_ros.ros_io.vfcdr import serialized_to_value_function
+from supersafe_ros.ros_io.cdr import serialized_to_value_function
 from supersafe_ros.ros_io.vfmsg import ValueFunctionMessageError, msg_to_value_function, value_function_to_msg
 
 
