@@ -411,7 +411,9 @@ class SafetyFilter:
             if out is not None and self._throttle.due(now, out.action, self.wiring.set_update,
                                                       self.wiring.state_period):
                 self.state_pub.publish(self.wiring.state_message(self.name, out))
-        elif now - self._last_publish >= self.period * 0.999:
+        elif now - self._last_publish >= self.period * 0.5:
+            # half a period, not a whole one: the last output went out a little after the
+            # previous tick, so a whole period would skip every other tick (rate / 2)
             self.decide()
 
     # -- output --------------------------------------------------------------------------------
