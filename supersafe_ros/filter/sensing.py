@@ -201,6 +201,27 @@ def shadows(points_map, inflation, origin, depth: float, cell: float, budget: in
     return samples.reshape(-1, 2), np.repeat(infl, n + 1)
 
 
+def range_discs(points, pose, gap: float, mount, robot_radius: float, depth: float, cell: float,
+                max_radius: float, speed: float, omega_max: float) -> np.ndarray:
+    """(K, 3) discs [x, y, r] in map of one message's returns ``points`` (M, 2, the sensor's
+    frame): placed with ``pose``, ``gap`` seconds from the message's stamp (``to_map``,
+    ``stamp_slack`` taken at each beam's far end, which is the farther from the robot), inflated
+    by ``robot_radius`` and the slack, each beam ``depth`` behind its return (``shadows``), and
+    covered by discs (``covering_discs``): the module's steps 2 to 4."""
+    in_map = to_map(points, pose, mount)
+    origin = to_map([(0.0, 0.0)], pose, mount)[0]
+    if depth > 0 and len(in_map):
+        u = in_map - origin
+        n = np.hypot(u[:, 0], u[:, 1])
+        n[n == 0.0] = 1.0
+        far = in_map + depth * u / n[:, None]
+    else:
+        far = in_map
+    slack = stamp_slack(far, pose, gap, speed, omega_max)
+    samples, inflation = shadows(in_map, robot_radius + slack, origin, depth, cell)
+    return covering_discs(samples, inflation, cell, max_radius)
+
+
 def _occupied(points, cell: float):
     """(the occupied cells' (i, j), each point's row in them) of ``points`` binned into cells of
     side ``cell`` (np.unique over rows, by one 16-bit radix sort where the keys fit: O(M))."""
