@@ -29,7 +29,10 @@ message's returns become a few such discs, in bounded work, without a new value 
    segment is within h/2 of a sample, so the inflated samples hold the whole segment, and
    the discs below hold the samples. With ``obstacle_depth`` at least the diameter of the
    objects about, the discs hold every point of each object the sensor has seen a part of
-   (up to the beams' angular gaps at its limbs, which the inflation bounds). The samples
+   (up to the beams' angular gaps at its limbs: a few mm were seen outside), except a part
+   both hidden behind another object and beyond ``range_max`` (a partial view; checked in
+   closed loop by test/test_filter_scan_collisions.py). Holding what was seen is not
+   avoiding it: docs/filter_node.md says what the filter guarantees with these discs. The samples
    stay in a budget (50,000): beyond it the returns are first merged per cell, each cell's
    by its centre inflated by the cell's half diagonal delta, and by 2 delta depth / rho for
    the spread of their beams over the depth (rho: the centre's range), and sampled from there.
