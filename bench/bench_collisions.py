@@ -12,6 +12,12 @@ Sections (run all by default, or name some):
   through single discs, rows, cups and random dense layouts, clusters by union values,
   7.3 % stale decisions; and discs of three radii (0.4, 1.8, 3.5 m; the largest as a
   ring of 1.8 m discs): collisions, and the most a robot was sent beyond its planner.
+* ``scan``    - crossings of a team world (``trials.field_trials``: 10 discs of radii 0.8,
+  1.8, 2.6 m) seen only through a 360-beam laser (``trials.ScanSensor``: the filter node's
+  pipeline, obstacle_depth 5.2, pieces of 1.6 m, 30 % of decisions on the previous scan,
+  discs taken with solve_clusters False), at each --steps: the exact discs seen (the
+  MarkerArray reference), the scan's discs at the node's lookahead (0.1 s) and at the scan
+  team's (0.5 s).
 * ``latency`` - a new cluster's value: solve time and request -> in force (the
   control loop keeps deciding meanwhile, on the fallback), in a background thread.
 * ``graph``   - the real graph (``supersafe team --no-supervisor --no-learner``,
@@ -20,6 +26,7 @@ Sections (run all by default, or name some):
 
     .venv/bin/python bench/bench_collisions.py replay layouts latency --encounters 2000
     .venv/bin/python bench/bench_collisions.py speeds --encounters 400
+    .venv/bin/python bench/bench_collisions.py scan --encounters 100 --steps 0.05 0.1 0.2
     .venv/bin/python bench/bench_collisions.py graph --robot-hours 1 --robots 4 --steps 0.2 0.05
 
 Prints the figures and the machine's load (timings depend on it).
@@ -33,8 +40,8 @@ import numpy as np
 
 from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore
 from supersafe_ros.filter import FilterConfig, RobotFilter, SafeSet, step_many
-from supersafe_ros.filter.trials import (cup_layout, layout_trials, random_layout, row_layout, run_trials,
-                                         single_disc_trials, speed_profiles, standard_guard)
+from supersafe_ros.filter.trials import (ScanSensor, cup_layout, field_trials, layout_trials, random_layout,
+                                         row_layout, run_trials, single_disc_trials, speed_profiles, standard_guard)
 from supersafe_ros.reach.grid import Grid
 from supersafe_ros.reach.library import load_or_solve
 
@@ -127,6 +134,23 @@ def speeds(args, safe):
                   f'the planner  [{time.perf_counter() - t0:.0f} s]', flush=True)
 
 
+def scan(args, safe):
+    print(f'== scan: {args.encounters} crossings of a team world per row (10 discs of radii 0.8, 1.8, 2.6 m), '
+          f'seen through a 360-beam laser, {STALE:.1%} stale poses, 30 % stale scans, seed {args.seed} ==')
+    rows = (('exact discs seen (markers), lookahead 0.1', ScanSensor(stale_probability=0.3, markers=True), 0.1),
+            ('scan discs, lookahead 0.1 (the node default)', ScanSensor(stale_probability=0.3), 0.1),
+            ('scan discs, lookahead 0.5 (the scan team)', ScanSensor(stale_probability=0.3), 0.5))
+    for step in args.steps:
+        for label, sensor, lookahead in rows:
+            t0 = time.perf_counter()
+            r = run_trials(field_trials(args.encounters, np.random.default_rng(args.seed)),
+                           lambda fs, t: step_many(fs, safe, t), step=step, stale_probability=STALE,
+                           config=FilterConfig(lookahead=lookahead), rng=np.random.default_rng(args.seed + 1),
+                           time_limit=40.0, sensor=sensor, safe_set=safe)
+            print(f'step {step:4.2f}  {label:45s}: {r.summary()}  [{time.perf_counter() - t0:.0f} s, {load()}]',
+                  flush=True)
+
+
 def latency(args, safe):
     """A robot meets a new cluster; its filter keeps deciding at 50 Hz (wall time)
     while the background solve runs: time from first detection to the union in force."""
@@ -188,7 +212,7 @@ def graph(args):
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('sections', nargs='*', default=['replay', 'layouts', 'latency'],
-                    help='replay layouts speeds latency graph (default: the ROS-free three)')
+                    help='replay layouts speeds scan latency graph (default: replay layouts latency)')
     ap.add_argument('--encounters', type=int, default=1000, help='approaches per replay/layout row')
     ap.add_argument('--steps', type=float, nargs='+', default=[0.05, 0.2])
     ap.add_argument('--robot-hours', type=float, default=0.5, help='graph: robot-hours over all steps')
@@ -197,10 +221,10 @@ def main():
     ap.add_argument('--timeout', type=float, default=0.0, help='graph: wall seconds per step (0: none)')
     args = ap.parse_args()
     print(f'bench_collisions: {load()}', flush=True)
-    safe = standard_set() if set(args.sections) & {'replay', 'layouts', 'speeds', 'latency'} else None
+    safe = standard_set() if set(args.sections) & {'replay', 'layouts', 'speeds', 'scan', 'latency'} else None
     for section in args.sections:
         {'replay': lambda: replay(args, safe), 'layouts': lambda: layouts(args, safe),
-         'speeds': lambda: speeds(args, safe),
+         'speeds': lambda: speeds(args, safe), 'scan': lambda: scan(args, safe),
          'latency': lambda: latency(args, safe), 'graph': lambda: graph(args)}[section]()
     return 0
 

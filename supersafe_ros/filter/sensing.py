@@ -29,7 +29,10 @@ message's returns become a few such discs, in bounded work, without a new value 
    segment is within h/2 of a sample, so the inflated samples hold the whole segment, and
    the discs below hold the samples. With ``obstacle_depth`` at least the diameter of the
    objects about, the discs hold every point of each object the sensor has seen a part of
-   (up to the beams' angular gaps at its limbs, which the inflation bounds). The samples
+   (up to the beams' angular gaps at its limbs: a few mm were seen outside), except a part
+   both hidden behind another object and beyond ``range_max`` (a partial view; checked in
+   closed loop by test/test_filter_scan_collisions.py). Holding what was seen is not
+   avoiding it: docs/filter_node.md says what the filter guarantees with these discs. The samples
    stay in a budget (50,000): beyond it the returns are first merged per cell, each cell's
    by its centre inflated by the cell's half diagonal delta, and by 2 delta depth / rho for
    the spread of their beams over the depth (rho: the centre's range), and sampled from there.
@@ -199,6 +202,27 @@ def shadows(points_map, inflation, origin, depth: float, cell: float, budget: in
     steps = np.arange(n + 1) * (depth / n)                     # 0 (the return) .. depth
     samples = p[:, None, :] + steps[None, :, None] * u[:, None, :]
     return samples.reshape(-1, 2), np.repeat(infl, n + 1)
+
+
+def range_discs(points, pose, gap: float, mount, robot_radius: float, depth: float, cell: float,
+                max_radius: float, speed: float, omega_max: float) -> np.ndarray:
+    """(K, 3) discs [x, y, r] in map of one message's returns ``points`` (M, 2, the sensor's
+    frame): placed with ``pose``, ``gap`` seconds from the message's stamp (``to_map``,
+    ``stamp_slack`` taken at each beam's far end, which is the farther from the robot), inflated
+    by ``robot_radius`` and the slack, each beam ``depth`` behind its return (``shadows``), and
+    covered by discs (``covering_discs``): the module's steps 2 to 4."""
+    in_map = to_map(points, pose, mount)
+    origin = to_map([(0.0, 0.0)], pose, mount)[0]
+    if depth > 0 and len(in_map):
+        u = in_map - origin
+        n = np.hypot(u[:, 0], u[:, 1])
+        n[n == 0.0] = 1.0
+        far = in_map + depth * u / n[:, None]
+    else:
+        far = in_map
+    slack = stamp_slack(far, pose, gap, speed, omega_max)
+    samples, inflation = shadows(in_map, robot_radius + slack, origin, depth, cell)
+    return covering_discs(samples, inflation, cell, max_radius)
 
 
 def _occupied(points, cell: float):

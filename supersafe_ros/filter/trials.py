@@ -32,6 +32,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..reach.grid import wrap_angle
+from ..sim.laser import beam_angles, ray_cast
+from . import sensing
 from .decide import step_many
 from .inputs import RobotFilter
 from .propagation import arc_flow
@@ -83,6 +85,42 @@ class TrialResult:
                 f'{self.stale_decisions / max(self.decisions, 1):.1%} decisions on the previous pose')
 
 
+@dataclass(frozen=True)
+class ScanSensor:
+    """A robot that sees its layout only through a planar laser, as ``supersafe team --sensors
+    scan`` does: ``beams`` beams round the full circle ray-cast from the robot's centre against
+    the discs whose centre is within ``range_max`` (the simulated robot's sensor,
+    ``sim.laser``), the returns made discs by the filter node's pipeline
+    (``sensing.range_discs``: ``robot_radius``, ``depth``, ``cell``, ``max_radius`` as its
+    ``robot_radius``, ``obstacle_depth``, ``sensor_cell``, ``sensor_max_disc_radius``), placed
+    with the pose of the scan's own step (gap 0). ``stale_probability``: the filter decides
+    with the previous step's scan (its message came after the pose), as in the graph.
+    ``markers``: the filter is given the seen discs themselves (a MarkerArray of the exact
+    obstacles, same range), the reference that tells the covering from the rest."""
+
+    beams: int = 360
+    range_max: float = 10.0
+    robot_radius: float = 0.1
+    depth: float = 5.2
+    cell: float = 0.5
+    max_radius: float = 1.6
+    stale_probability: float = 0.0
+    markers: bool = False
+
+    def discs(self, state, layout, radii, config) -> np.ndarray:
+        """(K, 3) discs the filter is given for a scan taken at ``state`` of ``layout`` (K, 2)
+        centres of ``radii``."""
+        near = np.hypot(layout[:, 0] - state[0], layout[:, 1] - state[1]) <= self.range_max
+        if self.markers:
+            return np.column_stack([layout[near], radii[near]])
+        ranges = ray_cast(state, beam_angles(self.beams), layout[near], radii[near], self.range_max)
+        a = beam_angles(self.beams)
+        ok = np.isfinite(ranges)
+        points = np.column_stack([ranges[ok] * np.cos(a[ok]), ranges[ok] * np.sin(a[ok])])
+        return sensing.range_discs(points, state, 0.0, (0.0, 0.0, 0.0), self.robot_radius, self.depth,
+                                   self.cell, self.max_radius, config.speed, config.omega_max)
+
+
 def single_disc_trials(n, rng, distance=9.0, offset=3.0, heading_noise=0.3) -> list:
     """Approaches to one disc at the origin: start at x = -distance with a lateral offset,
     goal on the far side with another offset, heading roughly at the goal."""
@@ -118,6 +156,30 @@ def random_layout(rng, count, half=7.0, min_gap=0.5, radius=1.8, tries=2000) -> 
             if len(out) == count:
                 break
     return np.array(out)
+
+
+def field_trials(n, rng, radii=(0.8, 1.8, 2.6), count=10, half_x=9.0, half_y=12.0, gap=2.0,
+                 goal_x=16.0) -> list:
+    """Crossings of a team world (``sim.world``): ``count`` discs of ``radii`` in turn, centres
+    uniform in [-half_x, half_x] x [-half_y, half_y] and at least 2 max(radii) + ``gap`` apart;
+    a robot starts on one goal line x = -+goal_x (sides in turn) heading for a random point of
+    the other. ``half_x`` <= goal_x - max(radii) - 4 keeps every start 4 m or more from a rim
+    (above the level whatever its heading)."""
+    out = []
+    big = max(radii)
+    for i in range(n):
+        lay = []
+        for _ in range(20000):
+            p = rng.uniform((-half_x, -half_y), (half_x, half_y))
+            if all(np.hypot(p[0] - q[0], p[1] - q[1]) >= 2 * big + gap for q in lay):
+                lay.append((p[0], p[1], radii[len(lay) % len(radii)]))
+                if len(lay) == count:
+                    break
+        side = 1.0 if i % 2 else -1.0
+        y0, y1 = rng.uniform(-half_y + 1.0, half_y - 1.0, 2)
+        start = (-goal_x * side, y0, float(np.arctan2(y1 - y0, 2 * goal_x * side)))
+        out.append(CollisionTrial(np.array(lay), start, (goal_x * side, y1), (side, 0.0)))
+    return out
 
 
 def layout_trials(layouts, rng, margin=10.0, offset=None) -> list:
@@ -172,7 +234,8 @@ def speed_profiles(rng, n, speed=3.0, kinds=('slow', 'stop_and_go', 'ramp', 'ran
 def run_trials(trials, guard, step=0.05, stale_probability=0.0, late_probability=0.0,
                config=None, rng=None,
                radius=1.8, depth=0.01, deep=0.05, time_limit=30.0, substeps=4,
-               omega_max=1.0, speed=3.0, gain=2.0, speeds=None) -> TrialResult:
+               omega_max=1.0, speed=3.0, gain=2.0, speeds=None, sensor=None, safe_set=None,
+               trace=None) -> TrialResult:
     """Run every trial to its goal line (or the time limit) under ``guard``.
 
     ``late_probability``: the filter's reply misses its step (the lockstep moved on
@@ -180,6 +243,12 @@ def run_trials(trials, guard, step=0.05, stale_probability=0.0, late_probability
     ``speeds``: the planner's linear.x, ``speeds(t, idx)`` for the trials ``idx`` still
     running (``speed_profiles``); None: ``speed`` throughout. The robot drives at the
     linear.x it was sent (clipped to [0, speed]), a constant-speed robot at ``speed``.
+
+    ``sensor``: a ``ScanSensor``: the filter is given the discs of a laser scan of the layout
+    (``solve_clusters=False``, as the node takes them; ``safe_set`` tells it which discs its
+    value function's grid can reach) instead of the layout's discs; collisions are still
+    counted against the layout. ``trace``: a list to which each decision's (trial, t, state,
+    action, discs given) is appended (to look at a crash).
 
     ``guard(filters, t)`` returns one FilterOutput per filter: e.g.
     ``lambda fs, t: step_many(fs, safe_set, t)`` or a ``cluster.LayoutGuard``.
@@ -203,6 +272,7 @@ def run_trials(trials, guard, step=0.05, stale_probability=0.0, late_probability
         if d.shape[1] == 3:
             radii[i, :len(d)] = d[:, 2]
     inside = np.zeros((n, width), dtype=bool)
+    scans = [None] * n                              # with a sensor: the scan's discs each filter holds
     deepest = np.zeros((n, width))
     active = np.ones(n, dtype=bool)
     res = TrialResult(trials=n)
@@ -231,7 +301,12 @@ def run_trials(trials, guard, step=0.05, stale_probability=0.0, late_probability
                 f.update_pose(previous[i], t, stamp=t - step)
             else:
                 f.update_pose(state[i], t, stamp=t)
-            f.update_detections(trials[i].discs, t)
+            if sensor is None:
+                f.update_detections(trials[i].discs, t)
+            else:
+                if k == 0 or rng.random() >= sensor.stale_probability:
+                    scans[i] = sensor.discs(state[i], discs[i], radii[i], config)
+                f.update_detections(scans[i], t, safe_set, solve_clusters=False)
             f.update_command(float(planned[j]), t, None if speeds is None else float(linear[j]))
         outs = guard([filters[i] for i in idx], t)
         decided = np.clip(np.array([o.omega for o in outs]), -omega_max, omega_max)
@@ -245,6 +320,9 @@ def run_trials(trials, guard, step=0.05, stale_probability=0.0, late_probability
         res.decisions += len(idx)
         res.stale_decisions += int(stale.sum())
         res.overrides += sum(o.action != 'pass' for o in outs)
+        if trace is not None:
+            trace.extend((int(i), t, state[i].copy(), o.action, None if scans[i] is None else scans[i])
+                         for i, o in zip(idx.tolist(), outs))
         previous[idx] = state[idx]
         for s in range(1, substeps + 1):
             pts = arc_flow(state[idx], v, omega, np.full(len(idx), step * s / substeps))

@@ -144,16 +144,5 @@ class SensorDiscs:
         if gap > max_pose_gap:
             raise MessageError(f'no pose within {max_pose_gap:g} s of the scan\'s stamp (nearest {gap:.3g} s '
                                'away)')
-        in_map = sensing.to_map(points, pose, self.mount)
-        origin = sensing.to_map([(0.0, 0.0)], pose, self.mount)[0]
-        # (each beam's far end is the farther from the robot: its slack holds for the whole beam)
-        far = in_map if self.depth <= 0 else in_map + self.depth * _unit(in_map - origin)
-        slack = sensing.stamp_slack(far, pose, gap, config.speed, config.omega_max)
-        points, inflation = sensing.shadows(in_map, self.robot_radius + slack, origin, self.depth, self.cell)
-        return sensing.covering_discs(points, inflation, self.cell, self.max_disc_radius)
-
-
-def _unit(v) -> np.ndarray:
-    n = np.hypot(v[:, 0], v[:, 1])
-    n[n == 0.0] = 1.0
-    return v / n[:, None]
+        return sensing.range_discs(points, pose, gap, self.mount, self.robot_radius, self.depth, self.cell,
+                                   self.max_disc_radius, config.speed, config.omega_max)
