@@ -21,6 +21,12 @@ timeouts in reach) with one path and feeds it from this process:
   two cmd_vel, from 0.5 s before the message is published until the filter's state counts
   it rejected.
 
+Then the take alone, apart from the filter (``stall``): in this process a DirectTake
+with one raw subscription to /safe_set/value_function and a thread sleeping 1 ms at a
+time; its longest stall while 50 MB arrive, for the private wait set with the take
+without the GIL (``gil_free_take``), the private wait set with rclpy's take, and the
+public executor (which of the two private pieces the gap comes from).
+
 The two paths run in pairs, the order alternating from pair to pair, at rest and then
 beside two CPU burners (``yes > /dev/null``, started and ended by this bench). Every
 process runs with loopback-only discovery in this shell's ROS_DOMAIN_ID.
@@ -165,6 +171,68 @@ def run(path, samples):
         stop([proc])
 
 
+def stall(variant, rounds):
+    """In this process: a DirectTake with one raw subscription to /safe_set/value_function
+    (``variant``: private + gil_free, private with rclpy's take, public) while another process
+    publishes 50 MB on it, and a thread that sleeps 1 ms at a time: its longest stall from
+    publication to the message's arrival. The take alone, apart from the filter."""
+    import threading
+    from rclpy.node import Node
+    from std_msgs.msg import Float32MultiArray
+    from supersafe_ros.ros_io import rosmsg
+    from supersafe_ros.ros_io.direct_take import DirectTake
+    path, gil_free = {'private': ('private', True), 'private_rclpy_take': ('private', False),
+                      'public': ('public', False)}[variant]
+    out = []
+    for _ in range(rounds):
+        owner = Node('bench_take_stall')
+        arrived = threading.Event()
+        direct = DirectTake(owner, threading.Lock(), suffix='_sets', path=path)
+        direct.add(Float32MultiArray, '/safe_set/value_function', lambda data: arrived.set(), rosmsg.QOS_LATCHED,
+                   raw=True, gil_free=gil_free)
+        direct.start()
+        ticks, stop = [], threading.Event()
+
+        def tick():
+            while not stop.is_set():
+                ticks.append(time.monotonic_ns())
+                time.sleep(0.001)
+        ticker = threading.Thread(target=tick, daemon=True)
+        ticker.start()
+        vf = subprocess.Popen([sys.executable, os.path.abspath(__file__), '--serve-vf'], stdin=subprocess.PIPE,
+                              stdout=subprocess.PIPE, text=True, env=dict(os.environ))
+        try:
+            published = int(vf.stdout.readline().split()[1])
+            if not arrived.wait(60):
+                raise RuntimeError('the 50 MB message did not arrive')
+            stop.set()
+            ticker.join()
+            window = [t for t in ticks if t >= published]
+            out.append(max(np.diff(window)) * 1e-6 if len(window) > 1 else float('nan'))
+        finally:
+            stop.set()
+            vf.stdin.close()
+            vf.wait(10)
+            direct.close()
+            owner.destroy_node()
+    return out
+
+
+def stalls(name, rounds):
+    print(f'[{name}] the take alone: longest stall of a 1 ms ticker while 50 MB arrive, {rounds} rounds '
+          f'each, variants alternating (load {os.getloadavg()[0]:.1f})', flush=True)
+    got = {v: [] for v in ('private', 'private_rclpy_take', 'public')}
+    for k in range(rounds):
+        for v in (list(got) if k % 2 == 0 else list(got)[::-1]):
+            got[v] += stall(v, 1)
+    for v, ms in got.items():
+        what = {'private': 'private wait set, taken without the GIL (gil_free_take)',
+                'private_rclpy_take': 'private wait set, taken by rclpy (GIL held)',
+                'public': 'public executor, taken by rclpy (GIL held)'}[v]
+        print(f"[{name}]   {what}: {', '.join(f'{x:.0f}' for x in ms)} ms", flush=True)
+    print(f'[{name}] load {os.getloadavg()[0]:.1f} at the end', flush=True)
+
+
 def say(r):
     print(f"  {r['path']:7s} CPU/decision {r['cpu_ms']:.2f} ms ({r['decisions']} cmd_vel); pose -> cmd_vel "
           f"median {r['median']:.2f} ms, p99 {r['p99']:.2f} ms (n={r['n']}, {r['lost']} unanswered); "
@@ -202,6 +270,8 @@ def main(argv=None):
     parser.add_argument('--pairs', type=int, default=3, help='pairs (private, public) per condition')
     parser.add_argument('--samples', type=int, default=400, help='latency samples per run')
     parser.add_argument('--only', choices=('rest', 'burners'), help='one condition only')
+    parser.add_argument('--stall-rounds', type=int, default=4, help='rounds of the take-alone stall per variant')
+    parser.add_argument('--no-filter', action='store_true', help='only the take-alone stalls')
     parser.add_argument('--serve-vf', action='store_true', help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.serve_vf:
@@ -212,11 +282,15 @@ def main(argv=None):
     rclpy.init()
     try:
         if args.only in (None, 'rest'):
-            condition('rest', args.pairs, args.samples)
+            if not args.no_filter:
+                condition('rest', args.pairs, args.samples)
+            stalls('rest', args.stall_rounds)
         if args.only in (None, 'burners'):
             burners = [subprocess.Popen(['yes'], stdout=subprocess.DEVNULL) for _ in range(2)]
             try:
-                condition('2 burners', args.pairs, args.samples)
+                if not args.no_filter:
+                    condition('2 burners', args.pairs, args.samples)
+                stalls('2 burners', args.stall_rounds)
             finally:
                 for b in burners:      # only the burners this bench started
                     b.kill()
