@@ -24,12 +24,21 @@ Two ways to serve them (``path``; the filter nodes' read-only parameter ``take_p
   (``ros_io.gil_free_take``) and handed over as a numpy uint8 array, so that a 50 MB message
   does not stop the process's other threads while it is copied (rclpy's take holds the GIL
   for the whole copy; such a subscription gets a DirectTake of its own, ``suffix``).
-  It won clearly against the public path (``bench/bench_take.py``, bench/results/take.md,
-  2026-12-03, 2 cores shared with other work, load 3-9): CPU per decision, the pose ->
-  cmd_vel p99 and, above all, the longest cmd_vel gap while a 50 MB value function arrives
-  (figures in ``PRIVATE_PATH_FIGURES``). When rclpy has no ``_rclpy.WaitSet``, or the wait
-  set cannot be made, or rcl cannot be reached through ctypes, it falls back to the public
-  path with a WARN.
+
+Why the private path is kept (``bench/bench_take.py``, bench/results/take.md, 2026-12-03,
+20 alternating pairs of safety_filter_node processes on 2 shared cores, load 1-18, half
+of them beside two CPU burners): the filter's CPU per decision 1.25-1.88 ms against
+1.67-2.15 ms (lower in 19 of 20 pairs; one private run 2.75 ms), the pose -> cmd_vel
+median lower in 16 of 20 (p99 in only 14 of 20: not a clear win), and the longest
+cmd_vel gap while a 50 MB value function arrives 52-388 ms against 115-1,527 ms (19 of
+20). That gap is the GIL-free take's: a thread of the process stalled 5-56 ms while 50 MB
+were taken without the GIL, 129-1,793 ms while rclpy took them, from the private wait set
+or the public executor alike (16 rounds each).
+
+The public path is the fallback: ``'private'`` turns into ``'public'`` with a WARN when
+rclpy has no ``_rclpy.WaitSet``, the wait set cannot be made, or ctypes cannot reach rcl
+(test/test_ros_io_direct_take.py forces each; the filter's topic-level tests run the
+filter through the first).
 """
 from __future__ import annotations
 
@@ -203,5 +212,8 @@ class DirectTake:
                                              'helper node left in place')
                 return
         if self._executor is not None:
-            self._executor.shutdown(timeout_sec=1.0)
+            try:
+                self._executor.shutdown(timeout_sec=1.0)
+            except Exception:   # noqa: BLE001  the context is gone already: nothing left to stop
+                pass
         self.io.destroy_node()
