@@ -26,14 +26,15 @@ Two ways to serve them (``path``; the filter nodes' read-only parameter ``take_p
   for the whole copy; such a subscription gets a DirectTake of its own, ``suffix``).
 
 Why the private path is kept (``bench/bench_take.py``, bench/results/take.md, 2026-12-03,
-20 alternating pairs of safety_filter_node processes on 2 shared cores, load 1-18, half
+26 alternating pairs of safety_filter_node processes on 2 shared cores, load 1-22, half
 of them beside two CPU burners): the filter's CPU per decision 1.25-1.88 ms against
-1.67-2.15 ms (lower in 19 of 20 pairs; one private run 2.75 ms), the pose -> cmd_vel
-median lower in 16 of 20 (p99 in only 14 of 20: not a clear win), and the longest
-cmd_vel gap while a 50 MB value function arrives 52-388 ms against 115-1,527 ms (19 of
-20). That gap is the GIL-free take's: a thread of the process stalled 5-56 ms while 50 MB
-were taken without the GIL, 129-1,793 ms while rclpy took them, from the private wait set
-or the public executor alike (16 rounds each).
+1.67-2.30 ms (lower in 25 of 26 pairs; one private run 2.75 ms), and the longest cmd_vel
+gap while a 50 MB value function arrives lower in 24 of 26 (52-103 against 115-179 ms on
+the quietest round). The pose -> cmd_vel median was lower in 19 of 26, the p99 in only 16
+of 26 (none of the 3 beside burners in the last, most loaded run): no clear win there.
+The gap is the GIL-free take's: a thread of the process stalled 5-56 ms while 50 MB were
+taken without the GIL, 129-1,793 ms while rclpy took them, from the private wait set or
+the public executor alike (22 rounds each).
 
 The public path is the fallback: ``'private'`` turns into ``'public'`` with a WARN when
 rclpy has no ``_rclpy.WaitSet``, the wait set cannot be made, or ctypes cannot reach rcl

@@ -9,11 +9,12 @@ numpy buffer the caller owns with ``ctypes.memmove``, also without the GIL; the
 middleware's buffer is freed at once.
 
 Kept because it wins clearly over rclpy's public take (``bench/bench_take.py``,
-bench/results/take.md, 2026-12-03, 2 shared cores, load 10-18, half of it beside two CPU
+bench/results/take.md, 2026-12-03, 2 shared cores, load 10-22, half of it beside two CPU
 burners): a thread of the process sleeping 1 ms at a time stalled 5-56 ms while 50 MB were
-taken here, 129-1,793 ms while rclpy took them (16 rounds each); the filter's longest
-cmd_vel gap during a 50 MB value function was 52-388 ms against 115-1,527 ms. rclpy's take
-(``take_path: public``) is the fallback, which the tests cover too.
+taken here, 129-1,793 ms while rclpy took them (22 rounds each); the filter's longest
+cmd_vel gap during a 50 MB value function was shorter than with rclpy's take in 24 of 26
+pairs (52-103 against 115-179 ms on the quietest round). rclpy's take (``take_path:
+public``) is the fallback, which the tests cover too.
 
 This touches rcl's C API directly: ``rcutils_uint8_array_t`` and ``rcutils_allocator_t``
 (their layout has not changed since ROS 2 Foxy) and a ``rmw_message_info_t`` written
