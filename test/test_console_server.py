@@ -12,6 +12,7 @@ import math
 import threading
 
 import pytest
+from aiohttp import web
 
 from supersafe_ros.console.access import HostRules
 from supersafe_ros.console.limits import InterventionLimiter
@@ -423,3 +424,40 @@ def test_page_keeps_keyboard_focus_marks_crashes_answers_empty_clicks_and_shows_
     finally:
         fed.stop.set()
         fed.server.stop()
+
+
+class SlowScriptServer(ConsoleServer):
+    """The session's page, whose session.js arrives ``delay`` s late (a slow disk or a
+    loaded machine): console.js has run long before it."""
+
+    delay = 2.0
+
+    @web.middleware
+    async def _access(self, request, handler):
+        if request.path == '/static/session.js':
+            await asyncio.sleep(self.delay)
+        return await super()._access(request, handler)
+
+
+@pytest.mark.browser
+def test_the_first_message_waits_for_the_pages_other_scripts(browser):
+    # hello carries the session's screen; session.js, which shows it, must be listening by then
+    state = ConsoleState(['robot_0'], Field())
+    state.set_obstacles(OBSTACLES)
+    server = SlowScriptServer(state, lambda oid: {'ok': False, 'message': 'no'}, port=free_port(),
+                              log=lambda *a: None)
+    server.index_page = 'session.html'
+    server.hello_extra = lambda: {'session': {'type': 'session', 'phase': 'phase1', 'waiting': True,
+                                              'seconds': 60}}
+    server.start()
+    try:
+        browser.get(f'http://127.0.0.1:{server.port}/')
+        wait_until(lambda: (page_counts(browser) or [0])[0], 30, 'the page to connect')
+        wait_until(lambda: browser.execute_script('return window.supersafeConsole.renders') > 0, 30,
+                   'the first state to be drawn')
+        # one hello per connection, and nothing else names the screen: it was seen or it is lost
+        assert browser.execute_script('return document.body.dataset.phase') == 'phase1'
+        assert browser.find_element('id', 'phase-title').text.startswith('Part 1 of 3')
+        assert browser.find_element('id', 'start').is_displayed()
+    finally:
+        server.stop()
