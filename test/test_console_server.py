@@ -461,3 +461,34 @@ def test_the_first_message_waits_for_the_pages_other_scripts(browser):
         assert browser.find_element('id', 'start').is_displayed()
     finally:
         server.stop()
+
+
+def test_a_page_that_cannot_take_a_screen_message_is_closed_and_gets_the_screen_on_reconnecting():
+    # the session's screens are pushed once each: a page that missed one (its socket backed
+    # up) would stay, connected, on the old screen; closed, it reconnects to the current one
+    import aiohttp
+    with FedServer('127.0.0.1') as fed:
+        view = {'type': 'session', 'phase': 'phase1', 'waiting': False}
+        fed.server.hello_extra = lambda: {'session': view}
+
+        async def receive(ws):
+            msg = await ws.receive(timeout=10)
+            return json.loads(msg.data) if msg.type == aiohttp.WSMsgType.TEXT else msg.type
+
+        async def run():
+            async with aiohttp.ClientSession() as session:
+                async with session.ws_connect(ws_url(fed)) as slow:
+                    assert (await receive(slow))['session']['phase'] == 'phase1'
+                    # its send buffer is backed up, as if the page had stopped reading
+                    (client,) = fed.server.clients.values()
+                    client.transport = None
+                    async with session.ws_connect(ws_url(fed)) as quick:
+                        assert (await receive(quick))['session']['phase'] == 'phase1'
+                        view.update(phase='phase2', waiting=True)
+                        fed.server.push(view)
+                        assert (await receive(quick)) == view
+                        assert await receive(slow) in (aiohttp.WSMsgType.CLOSE, aiohttp.WSMsgType.CLOSED)
+                # the page reconnects: its hello has the screen it missed
+                async with session.ws_connect(ws_url(fed)) as again:
+                    assert (await receive(again))['session'] == view
+        asyncio.run(run())
