@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import asyncio
 import os
+import select
 import shutil
+import signal
 import socket
 import tempfile
 import time
@@ -100,3 +102,25 @@ async def closed_by_server(reader, timeout=30.0) -> bool:
         return await asyncio.wait_for(reader.read(), timeout) == b''
     except ConnectionResetError:
         return True
+
+
+def dump_stacks(proc, timeout: float = 10.0) -> str:
+    """SIGUSR1 to a running ``supersafe session`` (its stdout a pipe, stderr joined to it):
+    the stack of every thread, read here until the main thread's (printed last) is complete
+    or ``timeout`` passes. A signal sent while the dump is being written could end the
+    process under it: the caller signals only after this returns."""
+    if proc.poll() is not None:
+        return ''
+    proc.send_signal(signal.SIGUSR1)
+    fd, chunks = proc.stdout.fileno(), []
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        ready, _, _ = select.select([fd], [], [], 0.2)
+        if ready:
+            chunk = os.read(fd, 65536)
+            if not chunk:
+                break
+            chunks.append(chunk)
+            if b'in _run_module_as_main' in b''.join(chunks):
+                break
+    return b''.join(chunks).decode(errors='replace')

@@ -27,7 +27,7 @@ import yaml
 from supersafe_ros.console import session as S
 from supersafe_ros.study.design import paper_plan
 from supersafe_ros.study.subjective import TEAM_ITEMS
-from console_support import DESKTOP, LAPTOP, Browser, free_port, wait_for_server, wait_until
+from console_support import DESKTOP, LAPTOP, Browser, dump_stacks, free_port, wait_for_server, wait_until
 
 REPO = Path(__file__).resolve().parents[1]
 SCREENSHOT = REPO / 'docs' / 'img' / 'session_game.png'
@@ -84,14 +84,17 @@ def start_session(out, pid, *options, record=True):
 
 
 def stop(proc) -> str:
-    """End a session left running by a failed test; its output (or '' once communicate() took it)."""
+    """End a session left running by a failed test (a wait that timed out): first every
+    thread's stack (SIGUSR1), then SIGINT; its output (or '' once communicate() took it)."""
+    stacks = ''
     if proc.poll() is None:
+        stacks = dump_stacks(proc)
         proc.send_signal(signal.SIGINT)
         try:
             proc.wait(timeout=20)
         except subprocess.TimeoutExpired:
             proc.kill()
-    return '' if proc.stdout.closed else proc.stdout.read()
+    return stacks + ('' if proc.stdout.closed else proc.stdout.read())
 
 
 class Participant:

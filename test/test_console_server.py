@@ -12,6 +12,7 @@ import math
 import threading
 
 import pytest
+from aiohttp import web
 
 from supersafe_ros.console.access import HostRules
 from supersafe_ros.console.limits import InterventionLimiter
@@ -423,3 +424,71 @@ def test_page_keeps_keyboard_focus_marks_crashes_answers_empty_clicks_and_shows_
     finally:
         fed.stop.set()
         fed.server.stop()
+
+
+class SlowScriptServer(ConsoleServer):
+    """The session's page, whose session.js arrives ``delay`` s late (a slow disk or a
+    loaded machine): console.js has run long before it."""
+
+    delay = 2.0
+
+    @web.middleware
+    async def _access(self, request, handler):
+        if request.path == '/static/session.js':
+            await asyncio.sleep(self.delay)
+        return await super()._access(request, handler)
+
+
+@pytest.mark.browser
+def test_the_first_message_waits_for_the_pages_other_scripts(browser):
+    # hello carries the session's screen; session.js, which shows it, must be listening by then
+    state = ConsoleState(['robot_0'], Field())
+    state.set_obstacles(OBSTACLES)
+    server = SlowScriptServer(state, lambda oid: {'ok': False, 'message': 'no'}, port=free_port(),
+                              log=lambda *a: None)
+    server.index_page = 'session.html'
+    server.hello_extra = lambda: {'session': {'type': 'session', 'phase': 'phase1', 'waiting': True,
+                                              'seconds': 60}}
+    server.start()
+    try:
+        browser.get(f'http://127.0.0.1:{server.port}/')
+        wait_until(lambda: (page_counts(browser) or [0])[0], 30, 'the page to connect')
+        wait_until(lambda: browser.execute_script('return window.supersafeConsole.renders') > 0, 30,
+                   'the first state to be drawn')
+        # one hello per connection, and nothing else names the screen: it was seen or it is lost
+        assert browser.execute_script('return document.body.dataset.phase') == 'phase1'
+        assert browser.find_element('id', 'phase-title').text.startswith('Part 1 of 3')
+        assert browser.find_element('id', 'start').is_displayed()
+    finally:
+        server.stop()
+
+
+def test_a_page_that_cannot_take_a_screen_message_is_closed_and_gets_the_screen_on_reconnecting():
+    # the session's screens are pushed once each: a page that missed one (its socket backed
+    # up) would stay, connected, on the old screen; closed, it reconnects to the current one
+    import aiohttp
+    with FedServer('127.0.0.1') as fed:
+        view = {'type': 'session', 'phase': 'phase1', 'waiting': False}
+        fed.server.hello_extra = lambda: {'session': view}
+
+        async def receive(ws):
+            msg = await ws.receive(timeout=10)
+            return json.loads(msg.data) if msg.type == aiohttp.WSMsgType.TEXT else msg.type
+
+        async def run():
+            async with aiohttp.ClientSession() as session:
+                async with session.ws_connect(ws_url(fed)) as slow:
+                    assert (await receive(slow))['session']['phase'] == 'phase1'
+                    # its send buffer is backed up, as if the page had stopped reading
+                    (client,) = fed.server.clients.values()
+                    client.transport = None
+                    async with session.ws_connect(ws_url(fed)) as quick:
+                        assert (await receive(quick))['session']['phase'] == 'phase1'
+                        view.update(phase='phase2', waiting=True)
+                        fed.server.push(view)
+                        assert (await receive(quick)) == view
+                        assert await receive(slow) in (aiohttp.WSMsgType.CLOSE, aiohttp.WSMsgType.CLOSED)
+                # the page reconnects: its hello has the screen it missed
+                async with session.ws_connect(ws_url(fed)) as again:
+                    assert (await receive(again))['session'] == view
+        asyncio.run(run())

@@ -5,6 +5,7 @@ test_console_participant.py."""
 import csv
 import io
 import json
+import re
 import subprocess
 import sys
 import warnings
@@ -270,8 +271,9 @@ def test_sigint_and_sigterm_before_any_phase_end_the_session_cleanly(tmp_path):
     at once, says how to resume, leaves no traceback and no empty bag."""
     import asyncio
     import signal
-    from console_support import free_port, wait_for_server
+    from console_support import dump_stacks, free_port, wait_for_server
     for sig in (signal.SIGINT, signal.SIGTERM):
+        stacks = ''
         port = free_port()
         proc = subprocess.Popen([sys.executable, '-m', 'supersafe_ros.cli', 'session', '--participant', 's1',
                                  '--out', str(tmp_path), '--port', str(port)],
@@ -280,12 +282,18 @@ def test_sigint_and_sigterm_before_any_phase_end_the_session_cleanly(tmp_path):
             wait_for_server(f'http://127.0.0.1:{port}/', timeout=60)
             if sig == signal.SIGINT:
                 asyncio.run(start_for_another_screen(port))
+            else:       # every thread's stack (a test's evidence of a hang); the session goes on
+                stacks = dump_stacks(proc)
             proc.send_signal(sig)
-            out = proc.communicate(timeout=60)[0]
+            out = stacks + proc.communicate(timeout=60)[0]
         finally:
             if proc.poll() is None:
                 proc.kill()
         assert proc.returncode == 128 + sig, out
+        if sig == signal.SIGTERM:
+            # the main thread (in the session's run) and the web server's thread
+            assert len(re.findall(r'^(Current thread|Thread) 0x[0-9a-f]+', stacks, re.M)) >= 2, stacks
+            assert 'session_runner.py' in stacks and 'server.py' in stacks, stacks
         assert 'interrupted: resume with the same command' in out and 'Traceback' not in out, out
         assert 'Task was destroyed' not in out, out
         assert json.loads((tmp_path / 's1' / 'session.json').read_text())['scenes'] == []

@@ -9,6 +9,7 @@ with no robot near is a false positive.
 import math
 import os
 from pathlib import Path
+import time
 
 import pytest
 
@@ -18,6 +19,7 @@ from console_support import Browser, free_port, wait_for_server, wait_until
 REPO = Path(__file__).resolve().parents[1]
 SCREENSHOT = REPO / 'docs' / 'img' / 'console.png'
 NEAR_DISTANCE = 6.0     # world.yaml
+FIRST_TRIP_SIM_S = 60.0  # simulated s; the first trip comes at about 11 s of the team's clock
 
 
 @pytest.fixture(scope='module')
@@ -59,6 +61,29 @@ def scene(driver):
         return {robots, obstacles, stats};""")
 
 
+def sim_time(monitor) -> float:
+    """The team's simulated clock (/sim/clock_status, once a sim second), 0 before its first."""
+    return float(monitor.snapshot()[1].get('sim_time', 0.0))
+
+
+def wait_for_sim(predicate, monitor, sim_seconds, what, stalled_after=120.0):
+    """Poll ``predicate`` until it holds (returns the sim time then); fail once the team's
+    clock has run ``sim_seconds`` past the start, or has not moved for ``stalled_after``
+    wall seconds. A bound in the team's own time holds however loaded the machine is."""
+    start = moved_at = sim_time(monitor)
+    moved_wall = time.monotonic()
+    while True:
+        now = sim_time(monitor)
+        if predicate():
+            return now
+        if now != moved_at:
+            moved_at, moved_wall = now, time.monotonic()
+        assert now - start <= sim_seconds, f'no {what} within {sim_seconds} simulated s (from {start} s to {now} s)'
+        assert time.monotonic() - moved_wall <= stalled_after, \
+            f'the team\'s clock stood at {now} s for {stalled_after} s waiting for {what}'
+        time.sleep(0.1)
+
+
 def heading(driver, robot):
     return float(driver.find_element('css selector', f'[data-robot="{robot}"]').get_attribute('data-theta'))
 
@@ -79,7 +104,7 @@ def test_page_shows_ten_obstacles_and_the_moving_robots(console_team, tmp_path):
     # the page's counts are the world's counts
     for key in ('score', 'trips', 'crashes', 'interventions'):
         assert scene(driver)['stats'][key].lstrip('-').isdigit()
-    wait_until(lambda: int(scene(driver)['stats']['trips']) >= 1, 90, 'a first trip')
+    wait_for_sim(lambda: int(scene(driver)['stats']['trips']) >= 1, monitor, FIRST_TRIP_SIM_S, 'a first trip')
     wait_until(lambda: all(scene(driver)['stats'][k] == f'{float(monitor.snapshot()[0][k]):g}'
                            for k in ('trips', 'crashes', 'score')), 30, "the page to show the world's counts")
     assert not running.dead()

@@ -16,7 +16,9 @@ Connections: at most ``max_connections`` WebSockets (more get 503). A page recei
 updates only after it asks (``{"type": "watch"}``, which the console's pages send), so a
 connection that only holds a socket open costs nothing but its heartbeat; a watcher that
 does not read (its send buffer is backed up) is skipped until it drains, then gets a
-full snapshot.
+full snapshot. A message of ``push`` (the session's screen) is never skipped silently: a
+page that cannot take it (backed up, or the send fails or takes over 2 s) is closed, so
+it reconnects and its hello carries what it missed (``hello_extra``).
 
 Access (``access.py``): the Host header must name the console (DNS rebinding), a
 browser's Origin must be a page of the console, and a non-loopback bind needs the token
@@ -414,15 +416,36 @@ class ConsoleServer:
             pass
 
     async def _send_all(self, text: str):
-        """A session message to every page (watching or not), with a bound on slow ones."""
+        """A session message to every page (watching or not), with a bound on slow ones: a
+        page that does not get it is closed (it reconnects, and its hello has the screen)."""
         for ws, client in list(self.clients.items()):
-            if client.backed_up():
-                continue
-            try:
-                await asyncio.wait_for(ws.send_str(text), timeout=2.0)
-            except Exception:     # closed or hopelessly slow page: it reconnects
-                self.clients.pop(ws, None)
-                self.watchers.pop(ws, None)
+            if not client.backed_up():
+                try:
+                    await asyncio.wait_for(ws.send_str(text), timeout=2.0)
+                    continue
+                except Exception:     # closed or hopelessly slow page
+                    pass
+            self._drop(ws)
+
+    def _drop(self, ws):
+        """Forget a page that missed a message, and close its socket: left open, the page
+        would wait, connected, for messages that never come."""
+        client = self.clients.pop(ws, None)
+        self.watchers.pop(ws, None)
+        if not ws.closed:
+            task = asyncio.get_running_loop().create_task(
+                self._close_quietly(ws, client.transport if client is not None else None))
+            self._tasks.add(task)
+            task.add_done_callback(self._tasks.discard)
+
+    @staticmethod
+    async def _close_quietly(ws, transport):
+        try:
+            await asyncio.wait_for(ws.close(code=WSCloseCode.TRY_AGAIN_LATER, message=b'missed a message'),
+                                   CLOSE_TIMEOUT)
+        except Exception:     # it does not answer the close: cut the connection
+            if transport is not None:
+                transport.abort()
 
     async def _broadcast(self, delta: dict, full_snapshot):
         texts = {}
@@ -437,8 +460,7 @@ class ConsoleServer:
             try:
                 await ws.send_str(texts[kind])
             except Exception:
-                self.clients.pop(ws, None)
-                self.watchers.pop(ws, None)
+                self._drop(ws)
 
     async def _send_loop(self):
         last = 0.0

@@ -27,10 +27,12 @@ Results: <out>/<ID>/session.json (everything, saved after every step) and, when
 complete, subject.json + learned_vf.npz in the study's subject layout (session.py).
 Ctrl-C (SIGINT) or SIGTERM at any point: the session ends within about a second with
 everything done so far on disk; the same command resumes at the scene or game that was
-running. A complete participant is never overwritten.
+running. A complete participant is never overwritten. SIGUSR1 writes every thread's
+stack to stderr and the session goes on (what a hung session is doing).
 """
 from __future__ import annotations
 
+import faulthandler
 from pathlib import Path
 import signal
 import sys
@@ -291,6 +293,8 @@ def run(args) -> int:
     if args.max_connections < 1 or not args.rate_factor > 0:
         print('session: --max-connections must be >= 1 and --rate-factor > 0', file=sys.stderr)
         return 2
+    # evidence from a session that hangs: `kill -USR1 PID` prints where every thread is
+    faulthandler.register(signal.SIGUSR1, file=sys.stderr, all_threads=True)
     for s in (signal.SIGINT, signal.SIGTERM):
         signal.signal(s, _interrupt)
     try:

@@ -8,7 +8,8 @@
 //   [data-crash="<n>"]         a crash mark on the field (recent crashes)
 //   [data-stat="score|trips|crashes|interventions"]  text = the number
 //   #message                   the line that answers every click
-//   body[data-connected]       'true' while the page's WebSocket is open
+//   body[data-connected]       'true' while the page's WebSocket is open (opened once the
+//                              page and all its scripts have loaded)
 //   window.supersafeConsole    counters: messages, renders, removals (click -> gone, ms), simTime
 'use strict';
 (function () {
@@ -292,5 +293,8 @@
 
   window.supersafeSend = (obj) => ws && ws.readyState === WebSocket.OPEN && ws.send(JSON.stringify(obj));
   document.body.dataset.connected = 'false';
-  connect();
+  // the page's other scripts (session.js) listen for 'supersafe-message': the first message
+  // (hello, with the session's screen) must not arrive before they have loaded and run
+  if (document.readyState === 'complete') connect();
+  else window.addEventListener('load', connect, { once: true });
 })();
