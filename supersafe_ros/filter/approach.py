@@ -49,10 +49,13 @@ closer to its centre than now (the path's distance to c at least |p - c|). The r
 back out of a covering disc's slack but not drive deeper; it is not a proof that the object
 inside that disc is missed (the counts in bench/results/sensors.md say how often it arises).
 
-**Blocked.** A robot the limiter stops (s' = 0 < s) while the law passes would keep the
-planner's turn, often 0 (the planner steers at the goal behind the obstacle): it turns
-instead at omega_max away from the nearest disc that blocks its path at s (left on a tie),
-until a path clears. Where the law overrides, its avoid turn stays.
+**Blocked.** A robot the limiter stops (s' = 0 < s) would keep the law's turn: the planner's,
+often 0 (it steers at the goal behind the obstacle), or the avoid turn, which flips from one
+of an object's pieces to the next at every decision (bench/results/sensors.md). At speed 0
+every turn is safe, so it turns at omega_max in one direction until the law's command has a
+clear path: the direction it was turning in place already, else away from the nearest disc
+that blocks its path at s (left on a tie). (A robot the law itself stops, on a cluster's
+loiter fallback, turns as the law says.)
 
 **Work.** Per robot, only discs that the path at s can reach (|p - c| - r <= s tau) are
 examined (one pass over its discs), and those against J + 1 candidate speeds: O(K + K' J),
@@ -102,7 +105,7 @@ def path_distance(x, y, theta, v, omega, tau, cx, cy):
 
 class Limits:
     """What ``limit`` did, per robot row: ``linear`` and ``omega`` to send, ``limited`` (the
-    speed was cut), ``blocked`` (cut to 0 where the law passed: turning in place away),
+    speed was cut), ``blocked`` (cut to 0: turning in place, ``blocked_turns``),
     ``tau`` and ``obstacle`` (the row in the robot's detections of the nearest disc that cut
     it, -1 if none)."""
 
@@ -173,12 +176,23 @@ def allowed_speeds(states, speeds, turns, tau, dets, radii):
     return out, blocker, away
 
 
+def blocked_turns(filters, away) -> np.ndarray:
+    """The unit turn of each blocked robot (see the module): the sign of the turn it was sent
+    last if that command turned in place (speed 0), else ``away``."""
+    out = np.asarray(away, dtype=float).copy()
+    for j, f in enumerate(filters):
+        sent = f.sent
+        if sent and sent[-1][2] == 0.0 and sent[-1][1] != 0.0:
+            out[j] = 1.0 if sent[-1][1] > 0.0 else -1.0
+    return out
+
+
 def limit(rb, states, dets, omega, linear, action_code):
     """The law's commands ``omega``, ``linear`` (per robot row of ``rb``, ``gather.RobotColumns``,
     its state now ``states`` (M, 3) and its detections ``dets``, all of them, with ``rb.radii``)
     with each speed cut to what its path over tau allows (``allowed_speeds``), for the robots
     whose configuration has ``time_before_collision`` > 0 (robots that can stop); a robot cut to
-    0 where the law passed (``action_code`` 0) turns away at omega_max. None if no robot has it on
+    0 where the law passes or overrides (``action_code`` 0 or 1) turns in place (``blocked_turns``). None if no robot has it on
     (nothing changed)."""
     configs = rb.configs
     if not configs:
@@ -212,7 +226,10 @@ def limit(rb, states, dets, omega, linear, action_code):
     lim.limited[idx] = cut
     lim.obstacle[idx] = blocker
     lim.linear[idx] = speed
-    blocked = cut & (speed == 0.0) & (np.asarray(action_code)[idx] == 0)
+    blocked = cut & (speed == 0.0) & (np.asarray(action_code)[idx] < 2)
     lim.blocked[idx] = blocked
-    lim.omega[idx[blocked]] = np.asarray(rb.bang, dtype=float)[idx[blocked]] * away[blocked]
+    if blocked.any():
+        stuck = idx[blocked]
+        lim.omega[stuck] = np.asarray(rb.bang, dtype=float)[stuck] * blocked_turns(
+            [rb.filters[i] for i in stuck.tolist()], away[blocked])
     return lim
