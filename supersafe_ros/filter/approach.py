@@ -141,7 +141,7 @@ def allowed_speeds(states, speeds, turns, tau, dets, radii):
     r = np.concatenate([np.broadcast_to(np.asarray(rr, dtype=float), (k,)) for rr, k in zip(radii, counts)])
     robot = np.repeat(np.arange(m), counts)
     index = np.arange(len(robot)) - np.repeat(np.cumsum(counts) - counts, counts)
-    x, y, th = states[robot, 0], states[robot, 1], states[robot, 2]
+    x, y = states[robot, 0], states[robot, 1]
     start = np.hypot(centres[:, 0] - x, centres[:, 1] - y)
     reach = out[robot] * tau[robot]
     near = start - r <= reach                      # a disc the path at s can reach (or the robot is inside)
@@ -192,8 +192,8 @@ def limit(rb, states, dets, omega, linear, action_code):
     its state now ``states`` (M, 3) and its detections ``dets``, all of them, with ``rb.radii``)
     with each speed cut to what its path over tau allows (``allowed_speeds``), for the robots
     whose configuration has ``time_before_collision`` > 0 (robots that can stop); a robot cut to
-    0 where the law passes or overrides (``action_code`` 0 or 1) turns in place (``blocked_turns``). None if no robot has it on
-    (nothing changed)."""
+    0 where the law passes or overrides (``action_code`` 0 or 1) turns in place
+    (``blocked_turns``). None if no robot has it on (nothing changed)."""
     configs = rb.configs
     if not configs:
         return None

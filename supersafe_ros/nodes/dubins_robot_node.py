@@ -22,9 +22,10 @@ full circle ray-cast against the world's discs of their own radii, ``sim.laser``
 (``miss_probability``) is left out of the ray cast: this approach the scan does not see it.
 ``detections`` (the centres of the obstacles in the ray cast) still goes out as in 'none': the
 world classifies an intervention as a false positive by what the near robots saw, and a
-scan robot that said nothing would have every intervention near it counted as needed. ``pose`` stays (the simulator's ground truth, for the world and the
-supervisor). ``cmd_vel_stamped`` takes geometry_msgs/TwistStamped on cmd_vel;
-``follow_speed`` drives at the commanded linear.x clipped to [0, speed] (otherwise at speed).
+scan robot that said nothing would have every intervention near it counted as needed.
+``pose`` stays (the simulator's ground truth, for the world and the supervisor).
+``cmd_vel_stamped`` takes geometry_msgs/TwistStamped on cmd_vel; ``follow_speed`` drives at
+the commanded linear.x clipped to [0, speed] (otherwise at speed).
 
 Steps run on a timer of the node's clock: with use_sim_time they follow /clock.
 Each step integrates the exact arc from the previous step time under the command
