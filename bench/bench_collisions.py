@@ -142,6 +142,8 @@ def scan(args, safe):
             ('scan discs, lookahead 0.1 (the node default)', ScanSensor(stale_probability=0.3), 0.1),
             ('scan discs, lookahead 0.5 (the scan team)', ScanSensor(stale_probability=0.3), 0.5),
             # time_before_collision (filter.approach): any value > 0 checks the path over the law's horizon
+            ('exact discs seen (markers), lookahead 0.1, stop before collision',
+             ScanSensor(stale_probability=0.3, markers=True), 0.1, 0.01),
             ('scan discs, lookahead 0.1, stop before collision', ScanSensor(stale_probability=0.3), 0.1, 0.01),
             ('scan discs, lookahead 0.5, stop before collision', ScanSensor(stale_probability=0.3), 0.5, 0.01))
     for step in args.steps:
