@@ -121,7 +121,7 @@ def speeds(args, safe):
                                             [0.4, 1.8, 3.5]], axis=1) for _ in range(n)],
     }
     print(f'== speeds: planners that slow, stop, wait and speed up (speed_profiles), {STALE:.1%} stale '
-          f'decisions, cluster values ==')
+          f'decisions, cluster values, time_before_collision {args.time_before_collision:g} ==')
     for step in args.steps:
         for name, lays in sets.items():
             encounters = layout_trials(lays, np.random.default_rng(4))
@@ -129,7 +129,8 @@ def speeds(args, safe):
             t0 = time.perf_counter()
             r = run_trials(encounters, lambda fs, t: step_many(fs, safe, t, store), step=step,
                            stale_probability=STALE, rng=np.random.default_rng(5), time_limit=40.0,
-                           speeds=speed_profiles(np.random.default_rng(6), len(encounters)))
+                           speeds=speed_profiles(np.random.default_rng(6), len(encounters)),
+                           config=FilterConfig(time_before_collision=args.time_before_collision))
             print(f'step {step:4.2f}  {name:40s}: {r.summary()}, at most {r.max_speed_excess:g} m/s beyond '
                   f'the planner  [{time.perf_counter() - t0:.0f} s]', flush=True)
 
@@ -139,15 +140,24 @@ def scan(args, safe):
           f'seen through a 360-beam laser, {STALE:.1%} stale poses, 30 % stale scans, seed {args.seed} ==')
     rows = (('exact discs seen (markers), lookahead 0.1', ScanSensor(stale_probability=0.3, markers=True), 0.1),
             ('scan discs, lookahead 0.1 (the node default)', ScanSensor(stale_probability=0.3), 0.1),
-            ('scan discs, lookahead 0.5 (the scan team)', ScanSensor(stale_probability=0.3), 0.5))
+            ('scan discs, lookahead 0.5 (the scan team)', ScanSensor(stale_probability=0.3), 0.5),
+            # time_before_collision (filter.approach): any value > 0 checks the path over the law's horizon
+            ('exact discs seen (markers), lookahead 0.1, stop before collision',
+             ScanSensor(stale_probability=0.3, markers=True), 0.1, 0.01),
+            ('scan discs, lookahead 0.1, stop before collision', ScanSensor(stale_probability=0.3), 0.1, 0.01),
+            ('scan discs, lookahead 0.5, stop before collision', ScanSensor(stale_probability=0.3), 0.5, 0.01))
     for step in args.steps:
-        for label, sensor, lookahead in rows:
+        for label, sensor, lookahead, *before in rows:
+            if args.rows and not any(word in label for word in args.rows):
+                continue
             t0 = time.perf_counter()
+            config = FilterConfig(lookahead=lookahead, time_before_collision=before[0] if before else 0.0)
             r = run_trials(field_trials(args.encounters, np.random.default_rng(args.seed)),
                            lambda fs, t: step_many(fs, safe, t), step=step, stale_probability=STALE,
-                           config=FilterConfig(lookahead=lookahead), rng=np.random.default_rng(args.seed + 1),
+                           config=config, rng=np.random.default_rng(args.seed + 1),
                            time_limit=40.0, sensor=sensor, safe_set=safe)
-            print(f'step {step:4.2f}  {label:45s}: {r.summary()}  [{time.perf_counter() - t0:.0f} s, {load()}]',
+            print(f'step {step:4.2f}  {label:50s}: {r.summary()}, at most {r.max_speed_excess:g} m/s beyond the '
+                  f'planner  [{time.perf_counter() - t0:.0f} s, {load()}]',
                   flush=True)
 
 
@@ -218,6 +228,9 @@ def main():
     ap.add_argument('--robot-hours', type=float, default=0.5, help='graph: robot-hours over all steps')
     ap.add_argument('--robots', type=int, default=4)
     ap.add_argument('--seed', type=int, default=1)
+    ap.add_argument('--time-before-collision', type=float, default=0.0,
+                    help='speeds: FilterConfig.time_before_collision (0: off)')
+    ap.add_argument('--rows', nargs='*', default=[], help='scan: only the rows whose label holds one of these')
     ap.add_argument('--timeout', type=float, default=0.0, help='graph: wall seconds per step (0: none)')
     args = ap.parse_args()
     print(f'bench_collisions: {load()}', flush=True)

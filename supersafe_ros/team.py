@@ -128,8 +128,10 @@ SENSOR_MODE = {
                       'obstacle_depth': 5.2,          # the largest obstacle's diameter: its far side
                       'sensor_max_disc_radius': 1.6,  # wide groups in pieces about the library's radius
                       # scan discs move between messages and an object's pieces are judged without a
-                      # union value: a margin that makes crashes rarer (bench_collisions.py scan), no proof
-                      'lookahead': 0.5},
+                      # union value: the speed is cut so that each command's path enters no disc
+                      # within 0.5 s (filter.approach), and the lookahead a margin
+                      # for the law's turns (fewer robots stopped before an obstacle: bench_collisions.py scan)
+                      'time_before_collision': 0.5, 'lookahead': 0.5},
 }
 
 

@@ -161,11 +161,11 @@ def test_robot_detections_within_range_missed_20_percent_per_trip(ros_context):
         driver.destroy_node()
 
 
-def sensor_rig(ros_context, ns):
+def sensor_rig(ros_context, ns, **extra):
     """A parked robot at the origin (sensor range 6 m, no misses) and a driver in ``ns``."""
     robot = DubinsRobotNode(context=ros_context, namespace=ns, parameter_overrides=params(
         use_sim_time=True, initial_x=0.0, initial_y=0.0, initial_theta=0.0, sensor_range=6.0,
-        miss_probability=0.0, seed=5, detections_period=0.25))
+        miss_probability=0.0, seed=5, detections_period=0.25, **extra))
     driver = Node(f'{ns}_world_driver', context=ros_context)
     ctl = Controller(driver, f'/{ns}')
     ctl.answer = False                      # no commands: the robot stays parked
@@ -202,6 +202,25 @@ def test_robot_publishes_no_detections_until_it_knows_the_world(ros_context):
     finally:
         if markers is not None:
             driver.destroy_publisher(markers)
+        spin.shutdown()
+        robot.destroy_node()
+        driver.destroy_node()
+
+
+def test_a_scan_robot_still_says_what_it_saw_for_the_worlds_false_positive_rule(ros_context):
+    """sensors scan: odom and scan for its filter, and detections (the centres in range) for the
+    world, which classifies an intervention by what the near robots saw."""
+    robot, driver, ctl, clock, spin = sensor_rig(ros_context, 'robot_5', sensors='scan')
+    markers = driver.create_publisher(MarkerArray, '/obstacle_markers', rosmsg.QOS_LATCHED)
+    try:
+        markers.publish(obstacles_to_markers(range(20, 23), CENTRES, 1.8))
+        spin.until(lambda: robot.world_known, 10.0, 'the obstacle set to arrive')
+        clock.step(spin)
+        spin.until(lambda: ctl.detections, 5.0, 'detections')
+        xy = rosmsg.posearray_to_xy(ctl.detections[-1])
+        assert sorted(map(tuple, xy.tolist())) == [(0.0, 4.0), (3.0, 0.0)]
+    finally:
+        driver.destroy_publisher(markers)
         spin.shutdown()
         robot.destroy_node()
         driver.destroy_node()

@@ -32,7 +32,7 @@ LIVE = {
     'safety_filter.yaml': {'standard_alpha', 'alpha_offset', 'use_learned', 'pose_timeout', 'detections_timeout',
                            'hold_timeout', 'cmd_timeout', 'clear_margin', 'lookahead', 'control_period', 'rate',
                            'state_rate', 'max_value_function_bytes', 'clock_stall_timeout', 'publish_on_pose',
-                           'max_detections', 'stamp_tolerance'},
+                           'max_detections', 'stamp_tolerance', 'time_before_collision'},
 }
 LIVE['fleet_safety_filter.yaml'] = LIVE['safety_filter.yaml'] - {'publish_on_pose'}
 

@@ -92,7 +92,7 @@ def step_many(filters, safe_set: SafeSet, t, clusters=None) -> Decisions:
         tab, n_groups = constraint_table(pair_robot, narrowed.position, narrowed.counts, value, value_next, centres,
                                          float(safe_set.alpha), cl, pair_turns_of)
         narrowed.rename(tab, start, cl)
-    return outputs(filters, rb, safe_set, t, tab, n_groups, cl['solving'])
+    return outputs(filters, rb, safe_set, t, tab, n_groups, cl['solving'], states, rb.dets)
 
 
 def decide_one(f, problem, safe_set: SafeSet, t, clusters) -> Decisions:
@@ -133,7 +133,7 @@ def decide_one(f, problem, safe_set: SafeSet, t, clusters) -> Decisions:
         tab, n_groups = constraint_table(np.zeros(n_pairs, np.intp), narrowed.position, narrowed.counts, value,
                                          value_next, det, float(safe_set.alpha), cl, lambda p: turn[p])
         narrowed.rename(tab, start, cl)
-    return outputs([f], rb, safe_set, t, tab, n_groups, cl['solving'])
+    return outputs([f], rb, safe_set, t, tab, n_groups, cl['solving'], np.array([[x, y, th]]), [f.detections.value])
 
 
 def constraint_table(pair_robot, position, counts, value, value_next, centres, alpha, cl, pair_turns_of):

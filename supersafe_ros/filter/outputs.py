@@ -10,6 +10,7 @@ import math
 
 import numpy as np
 
+from . import approach
 from .law import KINDS, decide_rows
 from .types import FAIL_SAFE, OVERRIDE, PASS, FilterOutput
 
@@ -47,7 +48,7 @@ class Decisions(Sequence):
         return f'Decisions({list(self)!r})'
 
 
-def outputs(filters, rb, safe_set, t, tab, n_groups, solving) -> Decisions:
+def outputs(filters, rb, safe_set, t, tab, n_groups, solving, states=None, dets=None) -> Decisions:
     """Every robot's command (as lists), its filter's state (overriding, the command
     remembered as sent, with the speed the robot drives under it: the linear.x sent, a
     constant-speed robot's speed), and a builder of its FilterOutput: the law
@@ -58,6 +59,10 @@ def outputs(filters, rb, safe_set, t, tab, n_groups, solving) -> Decisions:
     omega, linear, code, over, named, kind = decide_rows(
         tab, m, n_groups, rb.overriding, rb.margin, rb.failing, rb.fresh, rb.planned, rb.bang, rb.drive, rb.held,
         rb.constant)
+    # time_before_collision: the speed cut so that the command's path enters no disc (filter.approach)
+    limits = approach.limit(rb, states, dets, omega, linear, code) if states is not None else None
+    if limits is not None:
+        omega, linear = limits.omega, limits.linear
     moved = np.where(rb.constant, rb.speed, linear)
     if m < n:       # spread to every robot (rows of ``use`` in place; no recent valid state: stop)
         rows = np.full(n, -1, dtype=np.intp)
@@ -91,6 +96,8 @@ def outputs(filters, rb, safe_set, t, tab, n_groups, solving) -> Decisions:
         out.detections_dropped, out.detections_note = f.detections.dropped, f.detections.note
         if row >= 0 and fresh[row]:      # what of the planner's command was beyond the robot's limits
             out.cmd_clipped = f.command.note
+        if limits is not None and row >= 0:
+            out.reason += limits.note(row)
         return out
 
     return Decisions(omega, linear, action, describe)

@@ -65,11 +65,15 @@ class FilterConfig:
     # avoid turn at speed first, where an obstacle is near the last valid state), the robot
     # modelled at ``speed`` whatever linear.x says
     fail_safe_command: str = 'stop'
+    # a robot that can stop (fail_safe_command 'stop'): > 0 cuts the speed so that the path of each
+    # command, held max(this, the lookahead's horizon) seconds, enters no detected disc (filter.approach,
+    # Nav2 collision_monitor's approach model); 0 = off (the value-function law alone)
+    time_before_collision: float = 0.0
 
     def __post_init__(self):
         for name in ('speed', 'omega_max', 'pose_timeout', 'detections_timeout', 'hold_timeout',
                      'cmd_timeout', 'clear_margin', 'lookahead', 'control_period', 'radius',
-                     'cluster_link'):
+                     'cluster_link', 'time_before_collision'):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0.0):
                 raise ValueError(f'{name} must be finite and >= 0, got {v}')
@@ -84,6 +88,9 @@ class FilterConfig:
         if self.fail_safe_command not in FAIL_SAFE_COMMANDS:
             raise ValueError(f'fail_safe_command must be one of {", ".join(FAIL_SAFE_COMMANDS)}, got '
                              f'{self.fail_safe_command!r}')
+        if self.time_before_collision > 0.0 and self.constant_speed:
+            raise ValueError(f'time_before_collision {self.time_before_collision:g} needs a robot that can stop '
+                             f'(fail_safe_command {STOP!r}): a constant-speed robot cannot slow down')
 
     @property
     def constant_speed(self) -> bool:

@@ -18,11 +18,14 @@ Topics (relative; run it in a namespace such as /robot_0):
 ``odom`` (nav_msgs/Odometry, frame ``frame_id``, child base_link, the speed and turn rate it
 drove) and ``scan`` (sensor_msgs/LaserScan, frame base_link, ``scan_beams`` beams round the
 full circle ray-cast against the world's discs of their own radii, ``sim.laser``; range_max =
-``sensor_range``), both with the step's stamp, and no ``detections``. An obstacle the sensor
-misses for the trip (``miss_probability``) is left out of the ray cast: this approach the
-scan does not see it. ``pose`` stays (the simulator's ground truth, for the world and the
-supervisor). ``cmd_vel_stamped`` takes geometry_msgs/TwistStamped on cmd_vel;
-``follow_speed`` drives at the commanded linear.x clipped to [0, speed] (otherwise at speed).
+``sensor_range``), both with the step's stamp. An obstacle the sensor misses for the trip
+(``miss_probability``) is left out of the ray cast: this approach the scan does not see it.
+``detections`` (the centres of the obstacles in the ray cast) still goes out as in 'none': the
+world classifies an intervention as a false positive by what the near robots saw, and a
+scan robot that said nothing would have every intervention near it counted as needed.
+``pose`` stays (the simulator's ground truth, for the world and the supervisor).
+``cmd_vel_stamped`` takes geometry_msgs/TwistStamped on cmd_vel; ``follow_speed`` drives at
+the commanded linear.x clipped to [0, speed] (otherwise at speed).
 
 Steps run on a timer of the node's clock: with use_sim_time they follow /clock.
 Each step integrates the exact arc from the previous step time under the command
@@ -121,8 +124,8 @@ class DubinsRobotNode(Node):
             self.angles = beam_angles(beams)
             self.odom_pub = self.create_publisher(Odometry, 'odom', rosmsg.QOS_STREAM)
             self.scan_pub = self.create_publisher(LaserScan, 'scan', rosmsg.QOS_STREAM)
-        else:
-            self.det_pub = self.create_publisher(PoseArray, 'detections', rosmsg.QOS_STREAM)
+        # what it saw, for the world's false-positive rule (and a 'none' robot's filter)
+        self.det_pub = self.create_publisher(PoseArray, 'detections', rosmsg.QOS_STREAM)
         self.ack_pub = self.create_publisher(Clock, 'step_done', rosmsg.QOS_ACK)
         self.create_subscription(TwistStamped if stamped else Twist, 'cmd_vel', self.on_cmd, rosmsg.QOS_STREAM)
         self.create_subscription(PoseStamped, 'goal', self.on_goal, rosmsg.QOS_LATCHED)
@@ -152,7 +155,6 @@ class DubinsRobotNode(Node):
             if self.sensors == 'scan':
                 self.publish_odometry(self.robot.state, 0.0, stamp)
                 self.publish_scan(self.robot.state, stamp)
-                return
             ids, xy = self.obstacles.arrays()
             _, seen = self.sensor.sense(self.robot.state[:2], ids, xy)
             self.det_pub.publish(rosmsg.xy_to_posearray(seen, stamp, self.frame))
@@ -220,7 +222,7 @@ class DubinsRobotNode(Node):
             self.publish_odometry(state, now, msg_stamp)
             if self.world_known:
                 self.publish_scan(state, msg_stamp)
-        elif self.world_known:
+        if self.world_known:
             self.publish_detections(state, now, msg_stamp)
         if self.lockstep:
             if self.robot.mode(now) == 'commanded':

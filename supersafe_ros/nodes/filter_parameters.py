@@ -45,6 +45,10 @@ CONFIG_PARAMETERS = (
                      'V <= alpha; never less than the control period [s]', 0.0, 10.0, live=True),
     config_parameter('control_period', 'the robot\'s command hold time [s]; 0 = measure it from pose stamps '
                      'and planner commands', 0.0, 10.0, live=True),
+    config_parameter('time_before_collision', 'a robot that can stop (fail_safe_command stop): cut the speed so '
+                     'that the path of each command, held max(this, the lookahead) s, enters no detected disc '
+                     '(Nav2 collision_monitor\'s approach model; turning in place is always allowed); 0 = off [s]',
+                     0.0, 60.0, live=True),
     # an integer (rclpy refuses 10000.0 for it): FilterConfig takes either
     ParameterSpec('max_detections', _CONFIG_DEFAULTS['max_detections'], 'a detections message keeps at most this '
                   'many, the nearest to the robot (to any robot: fleet/detections); the state and a WARN say how '
