@@ -1,7 +1,8 @@
 """Tests that kill the mutants of ``supersafe_ros.filter`` that survived the fast tests.
 
 The filter was one module then, filter/core.py, since split into the modules of filter/ that
-decide (law, decide, gather, pairs, cluster_rows, outputs, inputs, propagation).
+decide (inputs, gather, commands, propagation, constraints, pairs, cluster_rows, law, outputs, sent,
+decide).
 
 Each test names the mutation it guards against (mutation testing with mutmut,
 ``bash bench/mutation.sh filter``); the equivalent survivors are listed with a reason in

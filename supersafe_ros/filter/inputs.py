@@ -79,6 +79,10 @@ class RobotFilter:
         self.sent = deque()    # (decision time, turn rate, speed driven) of the commands sent, oldest first
         self.pose_intervals = _NO_INTERVALS      # windows of the last intervals (immutable: robots
         self.command_intervals = _NO_INTERVALS   # fed by one message share them)
+        # what a decision derived from this robot's detections array and keeps for the next while
+        # that array is the same (never an input): 'clusters' (cluster_rows), 'near_index' and
+        # 'near_pick' (nearby)
+        self.derived = {}
 
     # -- inputs ------------------------------------------------------------------------
     def update_pose(self, state, t, stamp=None) -> None:
