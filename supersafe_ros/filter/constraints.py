@@ -37,12 +37,14 @@ def constraint_rows(rb, safe_set, clusters):
     ``clusters``: the ClusterStore (None: the process's shared one, ``filter.cluster``)."""
     m = len(rb.use)
     dets, states, lone = rb.dets, rb.states, rb.lone
-    if lone is not None:
-        counts = np.array([len(dets[0])])
+    if lone is not None:       # (a lone robot's count in Python: numpy's max costs more than it)
+        counts = None
+        many = len(dets[0]) > NEAR_QUERY_MIN
     else:
         counts = np.fromiter(map(len, dets), dtype=np.intp, count=m)
+        many = m and counts.max() > NEAR_QUERY_MIN
     narrowed = None
-    if m and counts.max() > NEAR_QUERY_MIN:
+    if many:
         narrowed = narrow(rb.filters, rb.configs, dets, states, rb.horizon, rb.speed, rb.margin, safe_set, clusters)
         dets = narrowed.dets
         counts = np.fromiter(map(len, dets), dtype=np.intp, count=m)
@@ -52,6 +54,8 @@ def constraint_rows(rb, safe_set, clusters):
     if lone is not None:       # a robot's own filter: its few pairs in Python floats
         fast = pair_values_fast(vf, *lone, dets[0].tolist(), float(planned[0]), float(horizon[0]), float(speed[0]),
                                 float(bang[0]), FEW_PAIRS)
+    if counts is None:
+        counts = np.array([len(dets[0])])
     if fast is not None:
         n_pairs = int(counts[0])
         start, pair_robot, centres = _ONE_ROBOT, np.zeros(n_pairs, np.intp), dets[0]
