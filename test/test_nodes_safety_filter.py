@@ -17,20 +17,36 @@ from safety_filter_support import NS, OBSTACLE, SHAPE, Driver, state
 pytestmark = pytest.mark.ros   # rclpy nodes in this process
 
 
-@pytest.fixture(scope='module', params=[True, False], ids=['direct_take', 'executor_takes'])
+# (direct_take, take_path asked, rclpy's private wait set reachable)
+TAKERS = {'private': (True, 'private', True), 'public_by_fallback': (True, 'private', False),
+          'executor_takes': (False, 'public', True)}
+
+
+@pytest.fixture(scope='module', params=list(TAKERS))
 def setup(ros_context, request):
-    """Every test runs twice: pose and cmd_vel_nav taken by their own thread (the default) and by
-    the executor (direct_take false)."""
+    """Every test runs three times: pose and cmd_vel_nav taken by their own thread on the private
+    path (the default), by their own thread on the public path because rclpy lacks the private
+    wait set (the fallback), and by the executor (direct_take false) with the value function
+    on the public path."""
+    import types
+    from supersafe_ros.ros_io import direct_take
+    direct, take_path, private_reachable = TAKERS[request.param]
     params = [Parameter('standard_shape', value=SHAPE), Parameter('pose_timeout', value=0.3),
               Parameter('detections_timeout', value=0.3), Parameter('hold_timeout', value=0.6),
               Parameter('state_rate', value=100.0), Parameter('rate', value=20.0),
-              Parameter('direct_take', value=request.param)]
-    node = SafetyFilterNode(namespace=NS, context=ros_context, parameter_overrides=params)
+              Parameter('direct_take', value=direct), Parameter('take_path', value=take_path)]
+    with pytest.MonkeyPatch.context() as mp:
+        if not private_reachable:        # an rclpy without _rclpy.WaitSet
+            mp.setattr(direct_take, '_rclpy', types.SimpleNamespace())
+        node = SafetyFilterNode(namespace=NS, context=ros_context, parameter_overrides=params)
     driver = Driver(ros_context)
     spin = Spinner(ros_context, node, driver.node)
     spin.client_node = driver.node
     spin.until(lambda: matched(*driver.endpoints()), 10.0, 'filter topics to match')
-    assert (node.direct is not None) == request.param
+    assert (node.direct is not None) == direct
+    in_force = 'private' if take_path == 'private' and private_reachable else 'public'
+    assert node.wiring.sets.path == in_force and (node.direct is None or node.direct.path == in_force)
+    assert node.get_parameter('take_path').value == take_path
     yield node, driver, spin
     spin.shutdown()
     node.destroy_node()
@@ -288,9 +304,13 @@ def test_inputs_are_taken_by_the_helper_node_or_by_the_filter_node(setup):
         takers = {i.node_name for i in driver.node.get_subscriptions_info_by_topic(f'{NS}/{topic}')}
         assert takers == ({io} if node.direct is not None else {node.get_name()}), (topic, takers)
     takers = {i.node_name for i in driver.node.get_subscriptions_info_by_topic(VALUE_FUNCTION_TOPIC)}
-    # value functions: a helper node and thread of their own (taken without the GIL), never the executor
+    # value functions: a helper node and thread of their own (on the private path taken without
+    # the GIL), never the executor
     assert takers == {f'{node.get_name()}_sets'}
-    assert node.wiring.sets._gil_free, 'rcl not reachable through ctypes: rclpy takes the sets'
+    if node.wiring.sets.path == 'private':
+        assert node.wiring.sets._gil_free, 'rcl not reachable through ctypes: rclpy takes the sets'
+    else:
+        assert not node.wiring.sets._gil_free
 
 
 def test_use_learned_turned_off_while_a_set_is_checked_keeps_the_standard_set(setup, monkeypatch):

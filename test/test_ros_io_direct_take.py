@@ -8,7 +8,8 @@ from rclpy.node import Node
 from std_msgs.msg import Int32
 
 from supersafe_ros.ros_io import rosmsg
-from supersafe_ros.ros_io.direct_take import DirectTake
+from supersafe_ros.ros_io import direct_take
+from supersafe_ros.ros_io.direct_take import TAKE_PATHS, DirectTake
 
 pytestmark = pytest.mark.ros   # rclpy nodes in this process
 
@@ -20,7 +21,8 @@ def wait(cond, timeout, what):
         time.sleep(0.005)
 
 
-def test_messages_are_taken_in_order_under_the_lock_and_a_failing_callback_is_said_once(ros_context):
+@pytest.mark.parametrize('path', TAKE_PATHS)
+def test_messages_are_taken_in_order_under_the_lock_and_a_failing_callback_is_said_once(ros_context, path):
     owner = Node('direct_owner', namespace='/dt', context=ros_context)
     talker = Node('direct_talker', namespace='/dt', context=ros_context)
     lock = threading.RLock()
@@ -35,11 +37,12 @@ def test_messages_are_taken_in_order_under_the_lock_and_a_failing_callback_is_sa
             raise RuntimeError(f'bad number {msg.data}')
         got.append(msg.data)
 
-    direct = DirectTake(owner, lock)
+    direct = DirectTake(owner, lock, path=path)
     direct.add(Int32, 'numbers', on_number, rosmsg.QOS_EVENTS)
     pub = talker.create_publisher(Int32, 'numbers', rosmsg.QOS_EVENTS)
     direct.start()
     try:
+        assert direct.path == path
         wait(lambda: pub.get_subscription_count() == 1, 10.0, 'the helper node to subscribe')
         assert direct.io.get_name() == 'direct_owner_io' and direct.io.get_namespace() == '/dt'
         for k in range(40):
@@ -64,6 +67,63 @@ def test_messages_are_taken_in_order_under_the_lock_and_a_failing_callback_is_sa
     with pytest.raises(RuntimeError, match='after start'):
         direct.add(Int32, 'late', on_number, rosmsg.QOS_EVENTS)
     direct.close()                             # twice is harmless
+    owner.destroy_node()
+    talker.destroy_node()
+
+
+def test_an_invalid_path_is_refused(ros_context):
+    owner = Node('direct_owner', context=ros_context)
+    try:
+        with pytest.raises(ValueError, match='private, public'):
+            DirectTake(owner, threading.RLock(), path='fast')
+    finally:
+        owner.destroy_node()
+
+
+@pytest.mark.parametrize('broken', ['no_wait_set', 'wait_set_fails', 'no_rcl_through_ctypes'])
+def test_without_the_private_api_the_public_path_takes_the_messages_and_says_so(ros_context, monkeypatch,
+                                                                                broken):
+    """An rclpy without ``_rclpy.WaitSet``, one whose wait set cannot be made, or an rcl that
+    ctypes cannot reach: a WARN, then the helper's own executor serves the subscriptions (raw
+    ones as bytes)."""
+    import types
+    from std_msgs.msg import Float32MultiArray
+    if broken == 'no_wait_set':
+        monkeypatch.setattr(direct_take, '_rclpy', types.SimpleNamespace())
+    elif broken == 'wait_set_fails':
+        def no_wait_set(*args):
+            raise TypeError('WaitSet() takes other arguments')
+        monkeypatch.setattr(direct_take, '_rclpy', types.SimpleNamespace(WaitSet=no_wait_set))
+    else:
+        from supersafe_ros.ros_io import gil_free_take
+
+        def unreachable(name):
+            raise OSError(f'{name} is not loaded and cannot be found')
+        monkeypatch.setattr(gil_free_take, '_loaded_library', unreachable)
+    owner = Node('fallback_owner', namespace='/fb', context=ros_context)
+    talker = Node('fallback_talker', namespace='/fb', context=ros_context)
+    warnings, got, raw = [], [], []
+    owner.get_logger().warn = lambda text, **k: warnings.append(text)
+    direct = DirectTake(owner, threading.RLock())
+    direct.add(Int32, 'numbers', lambda msg: got.append(msg.data), rosmsg.QOS_EVENTS)
+    direct.add(Float32MultiArray, 'arrays', raw.append, rosmsg.QOS_EVENTS, raw=True, gil_free=True)
+    numbers = talker.create_publisher(Int32, 'numbers', rosmsg.QOS_EVENTS)
+    arrays = talker.create_publisher(Float32MultiArray, 'arrays', rosmsg.QOS_EVENTS)
+    direct.start()
+    try:
+        assert direct.path == 'public' and direct._executor is not None
+        assert len(warnings) == 1 and 'public path' in warnings[0], warnings
+        wait(lambda: numbers.get_subscription_count() == 1 and arrays.get_subscription_count() == 1, 10.0,
+             'the helper node to subscribe')
+        for k in range(5):
+            numbers.publish(Int32(data=k))
+        arrays.publish(Float32MultiArray(data=[1.5, 2.5]))
+        wait(lambda: len(got) == 5 and len(raw) == 1, 10.0, 'every message taken')
+        assert got == list(range(5)) and isinstance(raw[0], bytes) and direct.taken == 6
+        thread = direct._thread
+    finally:
+        direct.close()
+    assert not thread.is_alive()
     owner.destroy_node()
     talker.destroy_node()
 

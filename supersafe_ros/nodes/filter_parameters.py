@@ -20,6 +20,7 @@ from dataclasses import fields, replace
 from ..filter import FilterConfig
 from ..filter.types import MAX_DETECTIONS_LEAST
 from ..ros_io import rosmsg
+from ..ros_io.direct_take import TAKE_PATHS
 from .common import LiveParameters, ParameterSpec, declare_all
 
 _CONFIG_DEFAULTS = {f.name: f.default for f in fields(FilterConfig)}
@@ -89,6 +90,11 @@ FILTER_PARAMETERS = (
                   live=True),
     ParameterSpec('clock_stall_timeout', 2.0, 'with use_sim_time: ROS time standing still longer than this '
                   '[steady s] counts as stopped, and ages follow the wall clock', 0.01, 600.0, live=True),
+    ParameterSpec('take_path', 'private', 'how the inputs taken off the executor (the value function; one '
+                  'robot\'s pose, detections and cmd_vel_nav with direct_take) are taken: private = an rcl wait '
+                  'set of their own and the value function copied without the GIL (rclpy\'s private '
+                  '_rclpy.WaitSet, rcl through ctypes; falls back to public with a WARN when rclpy lacks them); '
+                  'public = the helper node spun by a SingleThreadedExecutor of its own (bench/results/take.md)'),
     # frame and the standard set's grid (read-only)
     ParameterSpec('frame_id', rosmsg.MAP_FRAME, 'frame of pose and detections'),
     ParameterSpec('cache_dir', '', 'value-function cache ("" = $SUPERSAFE_CACHE or ~/.cache/supersafe_ros)'),
@@ -134,6 +140,9 @@ class FilterParameters:
         self.standard_lo, self.standard_hi = v['standard_lo'], v['standard_hi']
         self.standard_shape, self.standard_horizon = v['standard_shape'], v['standard_horizon']
         self.stamp_tolerance = v['stamp_tolerance']
+        self.take_path = v['take_path']
+        if self.take_path not in TAKE_PATHS:
+            raise ValueError(f'take_path must be one of {", ".join(TAKE_PATHS)}, got {self.take_path!r}')
 
     def keep_current(self, lock, effects: dict) -> LiveParameters:
         """Register every live parameter (and use_sim_time); ``effects``: name -> what puts a

@@ -8,7 +8,8 @@
 * the set in force (``filter.set_selector``): ``/safe_set/value_function`` is taken as
   serialized bytes by a thread of its own on a helper node ``<name>_sets``, with the GIL
   released while the bytes are copied (``ros_io.direct_take``, ``gil_free``: rclpy's take
-  held it for the whole copy, 0.2-0.8 s for 50 MB, and the control path stood still), so
+  held it for the whole copy, 0.2-0.8 s for 50 MB, and the control path stood still; the
+  ``take_path`` parameter: ``public`` = rclpy's public API, the GIL held), so
   an oversize message is refused by its length before anything is decoded; then it is
   decoded and checked for admissibility on a worker thread, off the control path; the
   state messages say what became of each set (``set_update``, ``set_update_reason``);
@@ -83,7 +84,7 @@ class FilterWiring:
         self._reporter = StateReporter(self.log, self.selector, self.time, lambda: self.params.config)
         self.state_message = self._reporter.state_message
         # a thread of its own, never the executor's: a 50 MB message is copied there without the GIL
-        self.sets = DirectTake(node, nullcontext(), suffix='_sets')
+        self.sets = DirectTake(node, nullcontext(), suffix='_sets', path=p.take_path)
         try:
             self.sets.add(Float32MultiArray, VALUE_FUNCTION_TOPIC, self.selector.offer, rosmsg.QOS_LATCHED,
                           raw=True, gil_free=True)

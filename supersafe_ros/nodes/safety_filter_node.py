@@ -165,7 +165,7 @@ class SafetyFilter:
         self.direct = None
         inputs = self._inputs(p)
         if p['direct_take'] and not self.lockstep:
-            self.direct = DirectTake(self, self.lock)
+            self.direct = DirectTake(self, self.lock, path=w.params.take_path)
             try:
                 for msg_type, topic, callback, raw, qos in inputs:
                     self.direct.add(msg_type, topic, callback, qos, raw=raw)

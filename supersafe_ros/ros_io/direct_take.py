@@ -1,27 +1,45 @@
-"""Subscriptions served by a thread of their own, off the executor.
+"""Subscriptions served by a thread of their own, off the node's executor.
 
 rclpy's executors rebuild their wait set over every entity of their nodes on each wake-up
 (the parameter services, timers, guard conditions, all subscriptions): about 0.3 ms on this
 class of machine before a callback runs. ``DirectTake`` keeps a few latency-critical
-subscriptions out of that: they live on a helper node that is never added to an executor
-(``<name>_io``, in the same namespace, without parameter services), and a thread waits on an
-rcl wait set holding only them and a stop guard, takes what is ready, and calls the callback
-under ``lock``. The node's executor keeps everything else; callbacks that share state with
-these take the same lock.
+subscriptions out of that: they live on a helper node (``<name>_io``, in the same namespace,
+without parameter services) that the node's executor never sees, served by a thread of
+their own that calls the callback under ``lock``. The node's executor keeps everything
+else; callbacks that share state with these take the same lock.
 
 The helper ignores the process's global ROS arguments (a ``__node:=`` remap would give it
 the owner's name; ``use_sim_time`` would give it a /clock subscription it never reads): it
 subscribes to the names the owner resolves, so the owner's remaps apply.
 
-``rclpy.wait_for_message`` waits on such a wait set the same way (the ``_rclpy.WaitSet`` it
-uses is rclpy's own binding, not public API: this module is the one place that touches it).
+Two ways to serve them (``path``; the filter nodes' read-only parameter ``take_path``):
 
-``add(..., gil_free=True)`` (raw subscriptions): the message is taken by rcl through ctypes
-with the GIL released (``ros_io.gil_free_take``) and handed over as a numpy uint8 array,
-so that a large message (a 50 MB value function) does not stop the process's other
-threads while it is copied; rclpy's take holds the GIL for the whole copy. Such a
-subscription gets a DirectTake of its own (``suffix``), so its copy never delays the
-others.
+* ``'public'``: rclpy's public API only: the helper node is spun by a
+  ``SingleThreadedExecutor`` of its own in its own thread. This is the fallback.
+* ``'private'`` (the filter nodes' default): the thread waits on an rcl wait set holding only
+  these subscriptions and a stop guard and takes what is ready; the wait set is rclpy's
+  private binding ``_rclpy.WaitSet`` (the one ``rclpy.wait_for_message`` uses; this module
+  is the one place that touches it). A raw subscription added with ``gil_free=True`` (the
+  value function) is taken by rcl through ctypes with the GIL released
+  (``ros_io.gil_free_take``) and handed over as a numpy uint8 array, so that a 50 MB message
+  does not stop the process's other threads while it is copied (rclpy's take holds the GIL
+  for the whole copy; such a subscription gets a DirectTake of its own, ``suffix``).
+
+Why the private path is kept (``bench/bench_take.py``, bench/results/take.md, 2026-12-03,
+26 alternating pairs of safety_filter_node processes on 2 shared cores, load 1-22, half
+of them beside two CPU burners): the filter's CPU per decision 1.25-1.88 ms against
+1.67-2.30 ms (lower in 25 of 26 pairs; one private run 2.75 ms), and the longest cmd_vel
+gap while a 50 MB value function arrives lower in 24 of 26 (52-103 against 115-179 ms on
+the quietest round). The pose -> cmd_vel median was lower in 19 of 26, the p99 in only 16
+of 26 (none of the 3 beside burners in the last, most loaded run): no clear win there.
+The gap is the GIL-free take's: a thread of the process stalled 5-56 ms while 50 MB were
+taken without the GIL, 129-1,793 ms while rclpy took them, from the private wait set or
+the public executor alike (22 rounds each).
+
+The public path is the fallback: ``'private'`` turns into ``'public'`` with a WARN when
+rclpy has no ``_rclpy.WaitSet``, the wait set cannot be made, or ctypes cannot reach rcl
+(test/test_ros_io_direct_take.py forces each; the filter's topic-level tests run the
+filter through the first).
 """
 from __future__ import annotations
 
@@ -29,63 +47,103 @@ from contextlib import ExitStack
 import threading
 import traceback
 
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
+
+TAKE_PATHS = ('private', 'public')
 
 
 class DirectTake:
     """``add(msg_type, topic, callback, qos, raw)`` subscriptions (before ``start()``), served
-    until ``close()`` or the context's shutdown. A callback that raises is logged (with its
-    traceback, once per kind of error) and the thread goes on; if the waiting itself fails
-    the thread says so and ends (the owner's inputs then go stale: its watchdog fails safe)."""
+    until ``close()`` or the context's shutdown, on ``path`` (``'private'`` or ``'public'``,
+    see the module; ``self.path`` says which one serves them after a fallback). A callback
+    that raises is logged (with its traceback, once per kind of error) and the thread goes
+    on; if the waiting itself fails the thread says so and ends (the owner's inputs then go
+    stale: its watchdog fails safe)."""
 
-    def __init__(self, node: Node, lock, suffix: str = '_io'):
+    def __init__(self, node: Node, lock, suffix: str = '_io', path: str = 'private'):
+        if path not in TAKE_PATHS:
+            raise ValueError(f'take path must be one of {", ".join(TAKE_PATHS)}, got {path!r}')
         self.node = node
         self.lock = lock
+        self.path = path
         self.io = Node(f'{node.get_name()}{suffix}', namespace=node.get_namespace(), context=node.context,
                        start_parameter_services=False, use_global_arguments=False)
         self._subs = []                      # (subscription, callback)
-        self._gil_free = {}                  # subscription -> GilFreeTaker (or None: rclpy takes)
+        self._gil_free = {}                  # subscription -> GilFreeTaker (private path)
         self._stop = self.io.create_guard_condition(lambda: None)
+        self._wait_set = None
+        self._executor = None
         self._closing = False
         self._closed = False
         self._started = False
         self._thread = None
         self._errors = set()
         self.taken = 0
+        if path == 'private' and not hasattr(_rclpy, 'WaitSet'):
+            self._fall_back('rclpy has no _rclpy.WaitSet')
         node.context.on_shutdown(self._on_shutdown)
+
+    def _fall_back(self, why: str):
+        self.path = 'public'
+        self.node.get_logger().warn(f'{self.io.get_name()}: the private take path is not usable ({why}); its '
+                                    'inputs are taken on the public path (a SingleThreadedExecutor of their own)')
 
     def add(self, msg_type, topic, callback, qos, raw=False, gil_free=False):
         """Subscribe to ``topic`` as the owner resolves it (its namespace and remaps);
-        ``gil_free`` (with ``raw``): taken without the GIL, as a numpy uint8 array."""
+        ``gil_free`` (with ``raw``, on the private path): taken without the GIL, as a numpy
+        uint8 array (else as bytes)."""
         if self._started:
             raise RuntimeError('DirectTake.add after start: the wait set is sized at start')
-        sub = self.io.create_subscription(msg_type, self.node.resolve_topic_name(topic), lambda msg: None,
+        name = self.node.resolve_topic_name(topic)
+        # the public path's executor calls this callback; the private path calls _deliver itself
+        sub = self.io.create_subscription(msg_type, name, lambda msg: self._deliver(name, callback, msg),
                                           qos, raw=raw)
         self._subs.append((sub, callback))
-        if gil_free and raw:
+        if gil_free and raw and self.path == 'private':
             from .gil_free_take import GilFreeTaker
             try:
                 self._gil_free[sub] = GilFreeTaker()
             except (OSError, AttributeError) as exc:
-                self.node.get_logger().warn(f'{sub.topic_name}: rcl not reachable through ctypes ({exc}); '
-                                            'rclpy takes it (holding the GIL while it copies)')
+                self._fall_back(f'rcl not reachable through ctypes: {exc}')
         return sub
 
     def start(self):
         self._started = True
-        self._thread = threading.Thread(target=self._run, name=f'{self.io.get_name()}_take', daemon=True)
+        if self.path == 'private':
+            try:
+                with self.io.context.handle:
+                    self._wait_set = _rclpy.WaitSet(len(self._subs), 1, 0, 0, 0, 0, self.io.context.handle)
+            except Exception as exc:   # noqa: BLE001  a private binding that changed: the public path
+                self._fall_back(f'no rcl wait set: {type(exc).__name__}: {exc}')
+        if self.path == 'public':
+            self._executor = SingleThreadedExecutor(context=self.io.context)
+            self._executor.add_node(self.io)
+            run = self._spin
+        else:
+            run = self._run
+        self._thread = threading.Thread(target=run, name=f'{self.io.get_name()}_take', daemon=True)
         self._thread.start()
 
+    def _spin(self):
+        """The public path: the helper node's own executor."""
+        try:
+            while not self._closing and self.io.context.ok():
+                self._executor.spin_once()
+        except Exception:   # noqa: BLE001  the context going away, or rcl failing: say so and end
+            if not self._closing and self.io.context.ok():
+                self._failed()
+
     def _run(self):
-        subs = self._subs
+        """The private path: a wait set of the subscriptions alone."""
+        subs, wait_set = self._subs, self._wait_set
         try:
             with ExitStack() as handles:     # kept alive while waited on (as rclpy's executor does)
                 handles.enter_context(self.io.context.handle)
                 for sub, _ in subs:
                     handles.enter_context(sub.handle)
                 handles.enter_context(self._stop.handle)
-                wait_set = _rclpy.WaitSet(len(subs), 1, 0, 0, 0, 0, self.io.context.handle)
                 while not self._closing:
                     wait_set.clear_entities()
                     for sub, _ in subs:
@@ -100,8 +158,11 @@ class DirectTake:
                             self._take(sub, callback)
         except Exception:   # noqa: BLE001  the context going away, or rcl failing: say so and end
             if not self._closing:
-                self.node.get_logger().error(f'{self.io.get_name()}: taking inputs failed; they are no longer '
-                                             f'taken (the watchdog fails safe on them): {traceback.format_exc()}')
+                self._failed()
+
+    def _failed(self):
+        self.node.get_logger().error(f'{self.io.get_name()}: taking inputs failed; they are no longer '
+                                     f'taken (the watchdog fails safe on them): {traceback.format_exc()}')
 
     def _take(self, sub, callback):
         taker = self._gil_free.get(sub)
@@ -112,23 +173,24 @@ class DirectTake:
                 taken = sub.handle.take_message(sub.msg_type, sub.raw)
                 message = None if taken is None else taken[0]
         except (RuntimeError, MemoryError) as exc:    # rcl failed to take: nothing was taken
-            self._said(sub, exc, 'take failed')
+            self._said(sub.topic_name, exc, 'take failed')
             return
-        if message is None:
-            return
+        if message is not None:
+            self._deliver(sub.topic_name, callback, message)
+
+    def _deliver(self, topic, callback, message):
         self.taken += 1
         try:
             with self.lock:
                 callback(message)
         except Exception as exc:   # noqa: BLE001  keep serving: the watchdog still stands
-            self._said(sub, exc, 'callback failed')
+            self._said(topic, exc, 'callback failed')
 
-    def _said(self, sub, exc, what):
-        kind = (sub.topic_name, what, type(exc).__name__)
+    def _said(self, topic, exc, what):
+        kind = (topic, what, type(exc).__name__)
         if kind not in self._errors:
             self._errors.add(kind)
-            self.node.get_logger().error(f'{sub.topic_name} {what} (said once per kind): '
-                                         f'{traceback.format_exc()}')
+            self.node.get_logger().error(f'{topic} {what} (said once per kind): {traceback.format_exc()}')
 
     def _on_shutdown(self):
         self._closing = True
@@ -144,10 +206,15 @@ class DirectTake:
         self._closed = self._closing = True
         thread, self._thread = self._thread, None
         if thread is not None:
-            self._stop.trigger()
+            self._stop.trigger()           # wakes either path's wait
             thread.join(timeout=5.0)
             if thread.is_alive():      # a callback stuck: leave its handles alone
                 self.node.get_logger().error(f'{self.io.get_name()}: input thread still busy after 5 s; '
                                              'helper node left in place')
                 return
+        if self._executor is not None:
+            try:
+                self._executor.shutdown(timeout_sec=1.0)
+            except Exception:   # noqa: BLE001  the context is gone already: nothing left to stop
+                pass
         self.io.destroy_node()

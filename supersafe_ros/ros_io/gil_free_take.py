@@ -8,11 +8,19 @@ through ctypes, which releases the GIL for the call, and the bytes are copied in
 numpy buffer the caller owns with ``ctypes.memmove``, also without the GIL; the
 middleware's buffer is freed at once.
 
+Kept because it wins clearly over rclpy's public take (``bench/bench_take.py``,
+bench/results/take.md, 2026-12-03, 2 shared cores, load 10-22, half of it beside two CPU
+burners): a thread of the process sleeping 1 ms at a time stalled 5-56 ms while 50 MB were
+taken here, 129-1,793 ms while rclpy took them (22 rounds each); the filter's longest
+cmd_vel gap during a 50 MB value function was shorter than with rclpy's take in 24 of 26
+pairs (52-103 against 115-179 ms on the quietest round). rclpy's take (``take_path:
+public``) is the fallback, which the tests cover too.
+
 This touches rcl's C API directly: ``rcutils_uint8_array_t`` and ``rcutils_allocator_t``
 (their layout has not changed since ROS 2 Foxy) and a ``rmw_message_info_t`` written
 into a zeroed buffer larger than it (64 bytes in Jazzy). The libraries are the ones
 rclpy has loaded. ``GilFreeTaker()`` raises OSError when they or their symbols cannot
-be found; callers then take with rclpy (``ros_io.direct_take`` does).
+be found; ``ros_io.direct_take`` then falls back to its public path, where rclpy takes.
 """
 from __future__ import annotations
 
