@@ -54,7 +54,7 @@ case "$target" in
   world|all) run_one world supersafe_ros/sim/world.py test/test_sim_core.py test/test_sim_world_rules.py \
              test/test_sim_efficiency.py ;;&
   # the filter's decision: every module of filter/ that decides (filter/core.py before the split)
-  filter|all) run_one filter supersafe_ros/filter/law.py,supersafe_ros/filter/decide.py,supersafe_ros/filter/gather.py,supersafe_ros/filter/pairs.py,supersafe_ros/filter/cluster_rows.py,supersafe_ros/filter/outputs.py,supersafe_ros/filter/inputs.py,supersafe_ros/filter/propagation.py \
+  filter|all) run_one filter supersafe_ros/filter/law.py,supersafe_ros/filter/decide.py,supersafe_ros/filter/gather.py,supersafe_ros/filter/pairs.py,supersafe_ros/filter/cluster_rows.py,supersafe_ros/filter/outputs.py,supersafe_ros/filter/inputs.py,supersafe_ros/filter/propagation.py,supersafe_ros/filter/constraints.py,supersafe_ros/filter/commands.py,supersafe_ros/filter/sent.py \
              test/test_filter_robot_filter.py test/test_filter_mutants.py test/test_filter_law.py \
              test/test_reach_radial.py test/test_filter_vectorised.py test/test_filter_bounded.py ;;
 esac

@@ -44,7 +44,7 @@ def s3_data() -> Path:
 @pytest.fixture(params=['alone', 'beside an idle robot'])
 def decision_path(request, monkeypatch):
     """Run a test's ``RobotFilter.step`` calls through each path of ``step_many``: a robot alone
-    takes the one-robot path (``_decide_one``, Python scalars); beside a robot with no inputs
+    takes the one-robot path (``gather.gather_one_fast``, Python scalars); beside a robot with no inputs
     (left out of the law: it only gets the fail safe) it takes the vectorised path. Every
     single-robot expectation then holds for both."""
     from supersafe_ros.filter import RobotFilter, step_many

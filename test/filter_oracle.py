@@ -18,7 +18,8 @@ import numpy as np
 
 from supersafe_ros.filter import FAIL_SAFE, FilterOutput, OVERRIDE, PASS, SafeSet, default_cluster_store
 
-from supersafe_ros.filter.gather import clip, planned_turn
+from supersafe_ros.filter.commands import clip, planned_turn
+from supersafe_ros.filter.sent import record_sent, segments_since
 
 from supersafe_ros.filter.propagation import arc_flow
 from supersafe_ros.filter.law import evaluate_pairs, tie_tolerance
@@ -26,10 +27,26 @@ from supersafe_ros.reach.grid import wrap_angle
 from supersafe_ros.reach.value_function import ValueFunction
 
 
+def _problem(f, t) -> str:
+    """Why the filter cannot judge the planner's command now ('' if it can): ``RobotFilter.problem``
+    as it was (the one answer is ``gather.problem`` since)."""
+    cfg = f.config
+    for label, inp, timeout in (('pose', f.pose, cfg.pose_timeout),
+                                ('detections', f.detections, cfg.detections_timeout)):
+        if inp.rejected:
+            return f'{label} rejected: {inp.rejected}'
+        if inp.value is None:
+            return f'no {label} received yet'
+        age = t - inp.t     # since arrival: a pose that keeps coming is not lost
+        if age > timeout:
+            return f'{label} stale ({age:.3g} s old > {timeout:g} s)'
+    return ''
+
+
 def _control_period(f) -> float:
     if f.config.control_period > 0.0:
         return f.config.control_period
-    medians = [float(np.median(d)) for d in (f._pose_intervals, f._command_intervals) if d]
+    medians = [float(np.median(d)) for d in (f.pose_intervals, f.command_intervals) if d]
     return max(medians) if medians else 0.0
 
 
@@ -54,7 +71,7 @@ def propagate_poses(filters, use, t):
             continue
         t0 = min(f.pose.t, f.pose.stamp)
         ages[row] = max(0.0, min(t - t0, f.config.hold_timeout))
-        plans.append(f.segments_since(t - ages[row], t))
+        plans.append(segments_since(f, t - ages[row], t))
     depth = max((len(p) for p in plans), default=0)
     if depth == 0:      # (added later: theta wrapped as a zero-length arc would, see filter.propagation)
         states[:, 2] = wrap_angle(states[:, 2])
@@ -120,7 +137,7 @@ def step_many_reference(filters, safe_set: SafeSet, t, clusters=None) -> list:
     robots' configuration; see ``filter.cluster``).
     """
     n = len(filters)  # noqa: F841  (unused, kept: the reference is the old code verbatim)
-    problems = [f.problem(t) for f in filters]
+    problems = [_problem(f, t) for f in filters]
     usable = []   # robots whose (last valid) state enters the law
     for i, f in enumerate(filters):
         if not problems[i]:
@@ -206,7 +223,7 @@ def step_many_reference(filters, safe_set: SafeSet, t, clusters=None) -> list:
             omega = clip(f.command.value, cfg.omega_max)
             out.append(FilterOutput(omega, drives[i], PASS, why, **common))
     for f, o in zip(filters, out):
-        f.record_sent(o.omega, t, f.config.speed if f.config.fail_safe_command == 'stop_turn' else o.linear)
+        record_sent(f, o.omega, t, f.config.speed if f.config.fail_safe_command == 'stop_turn' else o.linear)
     return out
 
 

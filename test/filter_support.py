@@ -2,11 +2,14 @@
 
 ``robot`` builds a ``RobotFilter`` with a pose, detections and a planner command at time
 ``t``; ``at`` places a pose relative to ``OBSTACLE``, which is not at the origin, so the
-relative frame is exercised.
+relative frame is exercised. ``pair_values``: every pair's V, avoid turn and V next in one
+call (``filter.pairs``' two reads together), what the pair tests compare against.
 """
 import numpy as np
 
 from supersafe_ros.filter import FilterConfig, RobotFilter
+from supersafe_ros.filter.pairs import pair_reads, pair_turns
+from supersafe_ros.reach.value_function import ValueFunction
 
 OBSTACLE = (10.0, 5.0)   # obstacle centre in map (not at the origin: exercises the relative frame)
 
@@ -41,3 +44,32 @@ class Log:
 
     def said(self, level, part):
         return any(lv == level and part in text for lv, text in self.lines)
+
+
+def pair_values(vf: ValueFunction, rel, omega, horizon, speed, bang):
+    """V, the avoid turn and the lookahead value of every pair, for commands held over H.
+
+    First the law at the pair's relative state (``law.evaluate_pairs``): V (+inf off the
+    grid) and the unit turn sign(dV/dtheta) (ties left; 0 off the grid).
+
+    Per pair: the planner's (clipped) command ``omega``, the hold H (``horizon``, the
+    robot's lookahead, >= its control period), the robot's speed and turn bound
+    ``bang``. A command holds for H, so:
+
+    * the avoid turn is the bang (+-w_max) whose hold ends at the larger V (ties
+      left, within the law's tie tolerance); as H -> 0 this is sign(dV/dtheta), the
+      continuous law, which it keeps where both ends are off the grid;
+    * the planner's command is judged by what the filter can still do after it:
+      V where the command's hold ends, and after the better bang held for one more
+      period from there (the smaller of the two). A pass therefore never leaves the
+      robot below the level, nor where no held turn keeps V above it (the filter
+      acts one hold early rather than one hold late).
+
+    A silent planner counts as a zero command (what the filter would forward).
+    Translation invariance: the relative state moves like the robot itself.
+    ``pair_reads`` reads V and V next of every pair in one call, ``pair_turns`` the turns
+    (the fleet path reads turns only for the rows its robots name).
+    Returns (V, unit turn, V after the planner's hold and the best bang's).
+    """
+    value, value_next = pair_reads(vf, rel, omega, horizon, speed, bang)
+    return value, pair_turns(vf, rel, value, horizon, speed, bang), value_next

@@ -319,7 +319,8 @@ def test_a_cluster_too_large_to_solve_is_never_requested_and_judged_by_its_fallb
         out = f.step(standard, 0.01, store)
         assert not store.requested and not store.values and not store.errors
         assert out.action == 'override' and out.source == 'cluster-fallback', out
-        assert f'a cluster of {count if count <= NEAR_QUERY_MIN else len(f._near_pick[2])} obstacles' in out.reason
+        members = count if count <= NEAR_QUERY_MIN else len(f.derived['near_pick'][2])
+        assert f'a cluster of {members} obstacles' in out.reason
     # a robot that can stop: its speed passed, beyond [0, speed] clipped and said
     movers = [RobotFilter(FilterConfig()) for _ in range(4)]
     for r in movers:

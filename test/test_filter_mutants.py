@@ -1,7 +1,8 @@
 """Tests that kill the mutants of ``supersafe_ros.filter`` that survived the fast tests.
 
 The filter was one module then, filter/core.py, since split into the modules of filter/ that
-decide (law, decide, gather, pairs, cluster_rows, outputs, inputs, propagation).
+decide (inputs, gather, commands, propagation, constraints, pairs, cluster_rows, law, outputs, sent,
+decide).
 
 Each test names the mutation it guards against (mutation testing with mutmut,
 ``bash bench/mutation.sh filter``); the equivalent survivors are listed with a reason in
@@ -14,9 +15,11 @@ import pytest
 
 from supersafe_ros.filter import FAIL_SAFE, FilterConfig, OVERRIDE, PASS, RobotFilter, SafeSet, step_many
 
+from supersafe_ros.filter.gather import problem
 from supersafe_ros.filter.law import evaluate_pairs
 
 from supersafe_ros.filter.propagation import arc_flow
+from supersafe_ros.filter.sent import record_sent, segments_since
 from supersafe_ros.reach.dynamics import DubinsCar
 from supersafe_ros.reach.grid import Grid
 from supersafe_ros.reach.sets import Disc
@@ -86,7 +89,7 @@ def test_a_command_exactly_cmd_timeout_old_is_forwarded_and_judged(standard):
 def test_an_input_exactly_timeout_old_is_not_stale(standard):
     """step_many's rule is ``age > timeout``; problem() must say the same (kills ``>=``)."""
     f = robot(t=0.0, pose=at(-7.5, 6.0, 0.0), cmd=0.3, pose_timeout=0.5, detections_timeout=0.5)
-    assert f.problem(0.5) == ''
+    assert problem(f, 0.5)[0] == ''
     assert f.step(standard, 0.5).action == PASS
     # a stale detections input is reported as such, not as a stale pose
     g = robot(t=0.0, pose=at(-7.5, 6.0, 0.0), cmd=0.3, pose_timeout=0.5, detections_timeout=0.25)
@@ -100,12 +103,12 @@ def sent_filter(cmd=None, sent=(), **cfg):
     if cmd is not None:
         f.update_command(cmd, T - 1.0)
     for ts, w in sent:
-        f.record_sent(w, ts)
+        record_sent(f, w, ts)
     return f
 
 
 def segments(f, t0, t1):
-    return [(w, round(d, 12)) for w, d, _ in f.segments_since(t0, t1)]
+    return [(w, round(d, 12)) for w, d, _ in segments_since(f, t0, t1)]
 
 
 def test_segments_carry_the_speed_each_command_was_sent_with():
@@ -113,16 +116,16 @@ def test_segments_carry_the_speed_each_command_was_sent_with():
     (clipped to [0, speed], not given: the speed), else 0, or a constant-speed robot's speed
     (kills a speed taken from the wrong command, and the idle speed's two branches)."""
     f = sent_filter()
-    f.record_sent(0.4, T, 1.0)
-    f.record_sent(-0.6, T + 0.1, 2.5)
-    assert [v for _, _, v in f.segments_since(T + 0.05, T + 0.3)] == [1.0, 2.5]
-    assert [v for _, _, v in sent_filter().segments_since(T, T + 0.1)] == [0.0]
-    assert [v for _, _, v in sent_filter(fail_safe_command='stop_turn').segments_since(T, T + 0.1)] == [3.0]
-    assert [v for _, _, v in sent_filter(cmd=0.2).segments_since(T, T + 0.1)] == [3.0]
+    record_sent(f, 0.4, T, 1.0)
+    record_sent(f, -0.6, T + 0.1, 2.5)
+    assert [v for _, _, v in segments_since(f, T + 0.05, T + 0.3)] == [1.0, 2.5]
+    assert [v for _, _, v in segments_since(sent_filter(), T, T + 0.1)] == [0.0]
+    assert [v for _, _, v in segments_since(sent_filter(fail_safe_command='stop_turn'), T, T + 0.1)] == [3.0]
+    assert [v for _, _, v in segments_since(sent_filter(cmd=0.2), T, T + 0.1)] == [3.0]
     g = sent_filter()
     for linear, v in ((1.5, 1.5), (-2.0, 0.0), (9.0, 3.0)):
         g.update_command(0.2, T - 1.0, linear)
-        assert [s for _, _, s in g.segments_since(T, T + 0.1)] == [v]
+        assert [s for _, _, s in segments_since(g, T, T + 0.1)] == [v]
 
 
 def test_segments_before_any_command_sent():
@@ -184,7 +187,7 @@ def test_value_exactly_at_alpha_overrides(standard):
 
 def test_lookahead_value_exactly_at_alpha_overrides(standard):
     """V after the planner's hold == alpha also overrides (kills ``V_next < level``)."""
-    from supersafe_ros.filter.pairs import pair_values
+    from filter_support import pair_values
     rel = np.array([[RIGHT[0] - OBSTACLE[0], RIGHT[1] - OBSTACLE[1], RIGHT[2]]])
     one = np.ones(1)
     _, _, v_next = pair_values(standard.vf, rel, 0.9 * one, HOLD * one, 3.0 * one, one)
@@ -287,7 +290,7 @@ def test_lookahead_values_on_lopsided_grids_equal_their_definition(lo, hi):
     from the definition with DubinsCar's own flow, for robots all around a grid that is
     neither square nor centred: the shortcut that skips pairs too far to reach the grid must
     skip no pair that reaches it (kills bounds read from the wrong axis)."""
-    from supersafe_ros.filter.pairs import pair_values
+    from filter_support import pair_values
     vf = solve_avoid(Grid(lo, hi, (33, 33, 16)), DubinsCar(3.0, 1.0), Disc(0, 0, 1.8), horizon=2.0)
     rng = np.random.default_rng(11)
     n, hold = 3000, 2.0

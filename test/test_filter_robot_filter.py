@@ -354,7 +354,7 @@ def test_equal_detections_in_separate_arrays_share_their_cluster_frames(standard
     cluster_rows._FRAMES_BY_CONTENT.clear()
     fleet = [robot(pose=p, detections=d) for p, d in zip(poses, (pair, list(pair), moved))]
     outs = step_many(fleet, standard, 0.0, store)
-    a, b, c = (f._cluster_cache[1] for f in fleet)
+    a, b, c = (f.derived['clusters'][1] for f in fleet)
     assert fleet[0].detections.value is not fleet[1].detections.value
     assert a is b and a is not c and a.n == c.n == 1 and a.keys != c.keys
     with pytest.raises(ValueError):

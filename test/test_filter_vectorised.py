@@ -21,6 +21,7 @@ import pytest
 from filter_oracle import step_many_reference
 from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore, ClusterValue, solve_cluster
 from supersafe_ros.filter import FilterConfig, RobotFilter, SafeSet, step_many
+from supersafe_ros.filter.sent import record_sent
 from supersafe_ros.reach.dynamics import DubinsCar
 from supersafe_ros.reach.grid import Grid
 from supersafe_ros.reach.sets import Disc
@@ -112,7 +113,7 @@ def build_fleet(seed, n):
             for k in range(int(rng.integers(1, 5))):
                 tk = t - 0.02 * (4 - k)
                 f.update_pose(pose, tk, stamp=tk - rng.uniform(0.0, 0.01))
-                f.record_sent(float(rng.uniform(-1, 1)), tk, float(rng.choice([0.0, 1.5, 3.0])))
+                record_sent(f, float(rng.uniform(-1, 1)), tk, float(rng.choice([0.0, 1.5, 3.0])))
             age = {'fresh': 0.0, 'delayed': rng.uniform(0.01, 0.3), 'stale': rng.uniform(0.6, 0.95),
                    'lost': 1.5, 'rejected': 0.0}[pose_kind]
             f.update_pose(pose, t - age, stamp=t - age - rng.uniform(0.0, 0.12))
@@ -257,10 +258,10 @@ def test_batched_input_updates_equal_the_per_robot_ones(standard, solved_values)
         outs = [step_many(fs, standard, t + 0.005, st) for fs, st in zip(fleets, stores)]
         for a, b, fa, fb in zip(*outs, *fleets):
             assert record(a, fa) == record(b, fb)
-            assert (fa.pose.t, fa.pose.stamp, list(fa._pose_intervals)) == (fb.pose.t, fb.pose.stamp,
-                                                                            list(fb._pose_intervals))
-            assert (fa.command.value, fa.command.t, list(fa._command_intervals)) == (
-                fb.command.value, fb.command.t, list(fb._command_intervals))
+            assert (fa.pose.t, fa.pose.stamp, list(fa.pose_intervals)) == (fb.pose.t, fb.pose.stamp,
+                                                                           list(fb.pose_intervals))
+            assert (fa.command.value, fa.command.t, list(fa.command_intervals)) == (
+                fb.command.value, fb.command.t, list(fb.command_intervals))
     with pytest.raises(ValueError):
         update_poses(fleets[0], np.full((60, 3), np.nan), t)
     before = [f.command.value for f in fleets[0]]
@@ -399,20 +400,26 @@ def test_robots_just_inside_a_union_grids_corners_decide_as_the_reference(standa
     (16, 'solved', 0.5, 'learned'), (17, 'pending', -0.3, 'standard')])
 def test_each_robot_decided_alone_decides_as_in_the_fleet(standard, solved_values, seed, store_kind, alpha, source,
                                                           monkeypatch):
-    """A robot's own filter (step_many of one robot, the one-robot path ``decide.decide_one``,
+    """A robot's own filter (step_many of one robot, the one-robot path ``gather.gather_one_fast``,
     V read in Python floats when few obstacles are near) decides as the vectorised fleet path
     decides that robot: over six closed-loop ticks, the same command, reason, values and state
     for every robot, with clusters solved, pending and solved at the request."""
-    from supersafe_ros.filter import decide
+    from supersafe_ros.filter import constraints, decide
     alone_calls, python_reads = [], []
-    decide_one, robot_pair_values = decide.decide_one, decide.robot_pair_values
-    monkeypatch.setattr(decide, 'decide_one', lambda *a: alone_calls.append(1) or decide_one(*a))
+    gather_one_fast, pair_values_fast = decide.gather_one_fast, constraints.pair_values_fast
+
+    def gather_one_spy(*a):
+        got = gather_one_fast(*a)
+        if got is not None:         # the one-robot path taken
+            alone_calls.append(1)
+        return got
+    monkeypatch.setattr(decide, 'gather_one_fast', gather_one_spy)
 
     def pair_values_spy(*a):
-        got = robot_pair_values(*a)
+        got = pair_values_fast(*a)
         python_reads.append(got is not None)
         return got
-    monkeypatch.setattr(decide, 'robot_pair_values', pair_values_spy)
+    monkeypatch.setattr(constraints, 'pair_values_fast', pair_values_spy)
     safe = SafeSet(standard.vf, alpha, source)
     fleets = [build_fleet(seed, 320) for _ in range(2)]
     stores = [make_store(store_kind, solved_values) for _ in range(2)]
@@ -474,11 +481,11 @@ def test_a_robots_propagated_state_does_not_depend_on_the_other_robots_plans(sta
             arcs = i % 3
             if arcs == 2:       # a command sent after the pose's stamp
                 f.update_pose(pose, t - 0.03, stamp=t - 0.05)
-                f.record_sent(float(r.uniform(-1, 1)), t - 0.06)
-                f.record_sent(float(r.uniform(-1, 1)), t - 0.02)
+                record_sent(f, float(r.uniform(-1, 1)), t - 0.06)
+                record_sent(f, float(r.uniform(-1, 1)), t - 0.02)
             elif arcs == 1:
                 f.update_pose(pose, t - 0.01, stamp=t - 0.02)
-                f.record_sent(float(r.uniform(-1, 1)), t - 0.04)
+                record_sent(f, float(r.uniform(-1, 1)), t - 0.04)
             else:
                 f.update_pose(pose, t, stamp=t)
             f.update_detections(np.array([[0.5, 0.3]]), t)
@@ -495,12 +502,13 @@ def test_a_robots_propagated_state_does_not_depend_on_the_other_robots_plans(sta
 
 @pytest.mark.parametrize('kind', ['standard', 'lopsided, not symmetric'])
 def test_one_robots_pair_values_in_python_floats_equal_numpys(standard, kind):
-    """robot_pair_values (one robot, Python floats) equals pair_values (numpy) bit for bit:
+    """pair_values_fast (one robot, Python floats) equals pair_values (numpy) bit for bit:
     V, the turn (the law's and the held one) and V after the hold, for pairs on, near and off
     the grid, holds of 0 (the law's turn) to 1.5 s, on the standard set and on a set whose
     grid is not square and whose V is not rotationally symmetric; None exactly when more
     than ``few`` pairs are near the grid."""
-    from supersafe_ros.filter.pairs import pair_values, robot_pair_values
+    from supersafe_ros.filter.pairs import pair_values_fast
+    from filter_support import pair_values
     from supersafe_ros.reach.value_function import ValueFunction
     vf = standard.vf
     if kind != 'standard':
@@ -518,7 +526,7 @@ def test_one_robots_pair_values_in_python_floats_equal_numpys(standard, kind):
         horizon = float(rng.choice([0.0, 0.0, 0.05, 0.2, 1.5]))
         speed, bang = float(rng.choice([3.0, 1.0])), float(rng.choice([1.0, 0.5]))
         few = int(rng.integers(1, 4))
-        got = robot_pair_values(vf, x, y, th, centres, planned, horizon, speed, bang, few)
+        got = pair_values_fast(vf, x, y, th, centres, planned, horizon, speed, bang, few)
         rel = np.array([(x - cx, y - cy, th) for cx, cy in centres])
         full = lambda v: np.full(n, v)      # noqa: E731
         want = [a.tolist() for a in pair_values(vf, rel, full(planned), full(horizon), full(speed), full(bang))]

@@ -180,7 +180,7 @@ def test_filter_node_draws_the_set_in_force_at_the_robot_heading(ros_context, st
             assert near, f'no contour around ({cx}, {cy})'
             pts = np.concatenate(near) - (cx, cy)
             v = standard_vf.value(np.column_stack([pts, np.full(len(pts), state[2])]))
-            assert np.abs(v - node.safe_set.alpha).max() < 0.02
+            assert np.abs(v - node.wiring.safe_set.alpha).max() < 0.02
     finally:
         spin.shutdown()
         node.destroy_node()

@@ -161,7 +161,7 @@ def test_learned_set_replaces_the_standard_and_malformed_sets_are_ignored(setup)
     v_far = float(exchange(driver, spin, far, 0.3, want=passing(0.3))[1]['value'])
     # a "learned" set: the standard V with mu above V at this state -> override here (and
     # more conservative than the standard set everywhere: admissible)
-    learned = value_function_to_msg(node.standard.vf, source='learned', mu=v_far + 0.5, sigma=0.2,
+    learned = value_function_to_msg(node.wiring.standard.vf, source='learned', mu=v_far + 0.5, sigma=0.2,
                                     alpha=v_far + 0.5, estimator='paper', interventions=9)
     before = counts(driver, spin)
     driver.vf.publish(learned)
@@ -169,22 +169,22 @@ def test_learned_set_replaces_the_standard_and_malformed_sets_are_ignored(setup)
     out, st, msg = exchange(driver, spin, far, 0.3, want=lambda s: s['action'] == 'override')
     assert st['source'] == 'learned' and float(st['alpha']) == pytest.approx(v_far + 0.5)
     # malformed: NaN inside, wrong sizes -> rejected with the reason, the learned set stays
-    bad = value_function_to_msg(node.standard.vf, source='learned', mu=-5.0, sigma=0.0)
+    bad = value_function_to_msg(node.wiring.standard.vf, source='learned', mu=-5.0, sigma=0.0)
     bad.data[7] = float('nan')
     before = counts(driver, spin)
     driver.vf.publish(bad)
     st = wait_set_update(driver, spin, before, 'rejected')
     assert 'NaN' in st['set_update_reason'] and 'keeping the learned set' in st['set_update_reason']
-    short = value_function_to_msg(node.standard.vf, source='learned', mu=-5.0, sigma=0.0)
+    short = value_function_to_msg(node.wiring.standard.vf, source='learned', mu=-5.0, sigma=0.0)
     short.data = short.data[:100]
     before = counts(driver, spin)
     driver.vf.publish(short)
     st = wait_set_update(driver, spin, before, 'rejected')
     assert 'values for a grid' in st['set_update_reason']
-    assert node.safe_set.source == 'learned' and node.safe_set.alpha == pytest.approx(v_far + 0.5)
+    assert node.wiring.safe_set.source == 'learned' and node.wiring.safe_set.alpha == pytest.approx(v_far + 0.5)
     # the standard set back (as the learner publishes after a reset)
     before = counts(driver, spin)
-    driver.vf.publish(value_function_to_msg(node.standard.vf, source='standard', alpha=0.0))
+    driver.vf.publish(value_function_to_msg(node.wiring.standard.vf, source='standard', alpha=0.0))
     wait_set_update(driver, spin, before, 'accepted')
     out, st, msg = exchange(driver, spin, far, 0.3, want=passing(0.3))
     assert st['source'] == 'standard'
@@ -197,7 +197,7 @@ def shifted(vf, shift):
 @pytest.mark.parametrize('case', ['less_conservative', 'wrong_grid', 'mu_minus_100', 'more_conservative'])
 def test_a_learned_set_is_used_only_if_it_contains_the_standard_unsafe_set(setup, case):
     node, driver, spin = setup
-    std = node.standard.vf
+    std = node.wiring.standard.vf
     if case == 'less_conservative':        # V shifted up by 0.5: a smaller unsafe region
         msg = value_function_to_msg(shifted(std, 0.5), source='learned', mu=0.0, sigma=0.0)
     elif case == 'more_conservative':      # V shifted down: a larger unsafe region
@@ -212,7 +212,7 @@ def test_a_learned_set_is_used_only_if_it_contains_the_standard_unsafe_set(setup
     driver.vf.publish(msg)
     if case == 'more_conservative':
         st = wait_set_update(driver, spin, before, 'accepted')
-        assert 'admissible' in st['set_update_reason'] and node.safe_set.source == 'learned'
+        assert 'admissible' in st['set_update_reason'] and node.wiring.safe_set.source == 'learned'
         # the standard set back for the next tests
         before = counts(driver, spin)
         driver.vf.publish(value_function_to_msg(std, source='standard', alpha=0.0))
@@ -220,7 +220,7 @@ def test_a_learned_set_is_used_only_if_it_contains_the_standard_unsafe_set(setup
         return
     st = wait_set_update(driver, spin, before, 'rejected')
     assert 'less conservative than the standard set' in st['set_update_reason']
-    assert node.safe_set.source == 'standard'
+    assert node.wiring.safe_set.source == 'standard'
     # the standard set still governs: heading at the disc, 0.5 m left of its centre line, from
     # inside its unsafe set -> override, turning left. Not head-on: there the two turns tie,
     # and the filter, which moves the pose on by its age along the commands it sent, turns
@@ -240,11 +240,11 @@ def test_an_oversize_set_is_rejected_unread(setup):
     assert set_parameters(node, spin, max_value_function_bytes=4096).successful
     try:
         before = counts(driver, spin)
-        driver.vf.publish(value_function_to_msg(shifted(node.standard.vf, -0.5), source='learned', mu=0.0,
+        driver.vf.publish(value_function_to_msg(shifted(node.wiring.standard.vf, -0.5), source='learned', mu=0.0,
                                                 sigma=0.0))
         st = wait_set_update(driver, spin, before, 'rejected')
         assert 'exceeds max_value_function_bytes (4096)' in st['set_update_reason']
-        assert node.safe_set.source == 'standard'
+        assert node.wiring.safe_set.source == 'standard'
     finally:
         assert set_parameters(node, spin, max_value_function_bytes=64 * 1024 * 1024).successful
 
@@ -327,8 +327,9 @@ def test_use_learned_turned_off_while_a_set_is_checked_keeps_the_standard_set(se
         release.wait(20.0)
         return check(*args, **kwargs)
     monkeypatch.setattr(set_selector, 'check_learned_set', slow_check)
-    assert node.safe_set.source == 'standard'
-    more_conservative = value_function_to_msg(shifted(node.standard.vf, -0.3), source='learned', mu=0.0, sigma=0.0)
+    assert node.wiring.safe_set.source == 'standard'
+    more_conservative = value_function_to_msg(shifted(node.wiring.standard.vf, -0.3), source='learned', mu=0.0,
+                                              sigma=0.0)
     before = counts(driver, spin)
     driver.vf.publish(more_conservative)
     spin.until(entered.is_set, 20.0, 'the check to start')
@@ -337,16 +338,16 @@ def test_use_learned_turned_off_while_a_set_is_checked_keeps_the_standard_set(se
     finally:
         release.set()
     spin.until(node.wiring.selector.idle, 20.0, 'the worker to finish')
-    assert node.safe_set.source == 'standard'
+    assert node.wiring.safe_set.source == 'standard'
     # turned on again: checked anew and in force
     entered.clear()
     assert set_parameters(node, spin, use_learned=True).successful
     wait_set_update(driver, spin, before, 'accepted')
-    assert node.safe_set.source == 'learned'
+    assert node.wiring.safe_set.source == 'learned'
     before = counts(driver, spin)
-    driver.vf.publish(value_function_to_msg(node.standard.vf, source='standard', alpha=0.0))
+    driver.vf.publish(value_function_to_msg(node.wiring.standard.vf, source='standard', alpha=0.0))
     wait_set_update(driver, spin, before, 'accepted')
-    assert node.safe_set.source == 'standard'
+    assert node.wiring.safe_set.source == 'standard'
 
 
 def test_every_parameter_is_declared_from_its_table_live_or_read_only(setup):

@@ -1,23 +1,26 @@
 """The safety filter, ROS-free.
 
 Where the decision is made: ``RobotFilter.step`` (one robot) or ``step_many`` (a fleet), in
-``filter.decide``; the rule itself, written once, is ``filter.law``. The rooms:
+``filter.decide``; the rule itself, written once, is ``filter.law``. A decision goes one way
+(docs/filter_learner.md, "How a decision is made"):
 
-* ``types``: FilterConfig, SafeSet, FilterOutput, the actions;
-* ``inputs``: RobotFilter, one robot's inputs and what it sent; batched input updates;
-* ``discs``: obstacles of their own radius (the value shift, rings for discs larger than R);
-* ``propagation``: a pose propagated to now along the Dubins arcs of the commands sent, each
-  at the speed sent with it;
-* ``gather``: every robot's inputs read into columns once per decision;
-* ``pairs``: V at every (robot, obstacle) pair, now and after the lookahead's holds;
-* ``cluster_rows``: the union value (or loiter fallback) of close obstacles, per robot;
+* ``inputs``: RobotFilter, one robot's inputs (batched updates for a fleet's);
+* ``gather``: every robot's inputs read once into columns, with which are judged (``problem``)
+  and their states now (``propagation``: a pose propagated along the Dubins arcs of the
+  commands sent) and commands (``commands``: the planner's command within the robot's limits);
+* ``constraints``: each robot's rows of the constraint table: ``pairs`` (V at every robot and
+  obstacle pair, now and after the lookahead's holds), ``discs`` (obstacles of their own
+  radius), ``cluster_rows`` (the union value or loiter fallback of close obstacles),
+  ``nearby`` (a robot's many detections narrowed to those within its reach);
 * ``law``: the rule over the constraint table (enter, ahead, stay; the command);
-* ``outputs``: the commands, the filters' new state, and each robot's explanation;
+* ``outputs``: the commands and each robot's explanation;
+* ``sent``: what was sent, the one writer of a filter's ``sent`` and ``overriding``;
 * ``decide``: the steps above, in order;
-* beside them: ``cluster`` (union values solved in the background), ``admissibility``
-  (a learned set must contain the standard unsafe set), ``set_selector`` (which learned
-  set is in force, checked off the control path), ``lockstep`` (when a lockstepped filter
-  answers a pose), ``timebase`` (input ages), ``contours`` (RViz level sets), ``trials``
+* beside them: ``types`` (FilterConfig, SafeSet, FilterOutput, the actions), ``cluster``
+  (union values solved in the background), ``admissibility`` (a learned set must contain the
+  standard unsafe set), ``set_selector`` (which learned set is in force, checked off the
+  control path), ``lockstep`` (when a lockstepped filter answers a pose), ``timebase``
+  (input ages), ``contours`` (RViz level sets), ``sensing`` (scans as discs), ``trials``
   (closed-loop collision trials).
 """
 from .cluster_rows import default_cluster_store

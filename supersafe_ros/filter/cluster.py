@@ -270,6 +270,11 @@ class ClusterStore:
         self.ready = threading.Event()     # the solver (thread and worker process) is up
         self._saved = 0                    # values written to the disk cache
 
+    def errors_after(self, told: int) -> list:
+        """The (key, why) of the solves that failed, after the first ``told`` of them."""
+        with self._lock:
+            return list(self.errors.items())[told:]
+
     def fallback_twin(self) -> 'ClusterStore':
         """A store of the same settings that never solves (``fallback_only``; itself if it is
         one): the store of detections that change every message (``RobotFilter.update_detections``

@@ -218,7 +218,7 @@ def cluster_rows(filters, configs, states, planned, horizon, speed, bang, cluste
 def _entries(filters, configs, dets, store_arg, frames=None) -> list:
     """[(ClusterFrames, store, robot rows)] of the robots with clusters: robots with one
     detections array and configuration share an entry (a batched fleet: one); each robot
-    keeps its frames (``_cluster_cache``) while its detections array is the same."""
+    keeps its frames (``RobotFilter.derived['clusters']``) while its detections array is the same."""
     entries = {}      # (frames, store) -> rows of the robots that use them, in order
     shared = {}
     stores = {}       # id(config) -> its default store (robots of a fleet share one config)
@@ -247,12 +247,12 @@ def _entries(filters, configs, dets, store_arg, frames=None) -> list:
             store = store.fallback_twin()
         fr = frames[row] if frames is not None else None
         if fr is None:
-            cache = f.__dict__.get('_cluster_cache')
+            cache = f.derived.get('clusters')
             if cache is None or cache[0] is not det:
                 got = shared.get((id(det), id(store)))
                 if got is None:
                     got = shared[(id(det), id(store))] = cluster_frames(det, store)
-                cache = f._cluster_cache = (det, got)
+                cache = f.derived['clusters'] = (det, got)
             fr = cache[1]
         if fr.n:
             entry = entries.get((id(fr), id(store)))

@@ -1,13 +1,16 @@
-"""The fleet's inputs as columns: one read of every robot's state, once per decision.
+"""Step 1 of a decision: every robot's inputs read once, into columns (``RobotColumns``).
 
-``gather(filters, t)`` says which robots can be judged now (fresh, valid pose and
+``gather(filters, t)`` says which robots can be judged now (``problem``: fresh, valid pose and
 detections), which fail safe but still have a state young enough to avoid from
-(``hold_timeout``), and for those (the rows the law sees) the pose, the arcs held since
-its stamp (``filter.propagation``), the planner's command clipped to the robot's bound
-(0 if silent), the lookahead (at least the control period) and the configuration
-fields the law needs, as numpy columns. The same comparisons and arithmetic as the
-per-robot functions below (``judged``, ``command_fresh``, ``planned_turn``; Python's min
-and max as ``py_min`` / ``py_max``), so the same values bit for bit.
+(``hold_timeout``), and for those (the rows the law sees) their state now (the pose
+propagated along the arcs held since its stamp, ``filter.propagation``), the planner's command
+clipped to the robot's bound (0 if silent), the lookahead (at least the control period) and
+the configuration fields the law needs, as numpy columns. The same comparisons and
+arithmetic as the per-robot functions (``problem``, ``commands``, ``propagation.plan``;
+Python's min and max as ``py_min`` / ``py_max``), so the same values bit for bit.
+
+``gather_one_fast`` is ``gather`` for a lone robot with a state to judge, in Python floats
+(numpy's cost per call would be most of a robot's own filter's decision).
 """
 from __future__ import annotations
 
@@ -17,18 +20,21 @@ from operator import attrgetter, is_, is_not
 
 import numpy as np
 
-from .propagation import arc, plan, wrap
+from .commands import command_fresh, drive_speed, held_speed, planned_turn
+from .propagation import arc, follow, plan, wrap
+from .sent import segments_since
 
 
 class RobotColumns:
     """The inputs of a fleet's robots as columns (``gather``): for all N robots, their
     configurations, problems ('' if judged), turn bound and history kept; for the M robots
-    whose (last valid) state enters the law (``use``, their rows), everything the law needs."""
+    whose (last valid) state enters the law (``use``, their rows), everything the law needs:
+    ``states`` (M, 3) their states now; ``lone`` the one robot's (x, y, theta) in Python floats
+    when ``gather_one_fast`` read it (else None)."""
 
     __slots__ = ('filters', 'use', 'problems', 'all_configs', 'all_bang', 'all_keep', 'all_constant', 'configs',
-                 'failing', 'poses', 'omega_arcs', 'dt_arcs', 'speed_arcs', 'age', 'dets', 'horizon', 'planned',
-                 'speed', 'bang', 'overriding', 'margin', 'fresh', 'cluster_alpha', 'radii', 'drive', 'held',
-                 'constant')
+                 'failing', 'states', 'lone', 'age', 'dets', 'horizon', 'planned', 'speed', 'bang', 'overriding',
+                 'margin', 'fresh', 'cluster_alpha', 'radii', 'drive', 'held', 'constant')
 
 
 _NEVER = (math.inf, 0.0, 0.0)   # the (time, turn, speed) a robot with no such command sent shows: no arc starts then
@@ -36,15 +42,27 @@ _VALUE, _T, _STAMP, _REJECTED, _RADII, _LINEAR = (attrgetter(a) for a in (
     'value', 't', 'stamp', 'rejected', 'radii', 'linear'))
 
 
-def judged(f, t):
+def problem(f, t):
     """(why ``f`` cannot be judged now, '' if it can; whether its (last valid) state enters
-    the law: judged, or failing safe with a pose and detections younger than hold_timeout)."""
+    the law: judged, or failing safe with a pose and detections younger than hold_timeout).
+    The one answer to both questions (``gather`` asks it of the robots its columns find not
+    judged, for the words)."""
     cfg, pose, det = f.config, f.pose, f.detections
-    if (pose.rejected or det.rejected or pose.value is None or det.value is None
+    if not (pose.rejected or det.rejected or pose.value is None or det.value is None
             or t - pose.t > cfg.pose_timeout or t - det.t > cfg.detections_timeout):
-        return f.problem(t), (pose.value is not None and det.value is not None
-                              and t - pose.t <= cfg.hold_timeout and t - det.t <= cfg.hold_timeout)
-    return '', True
+        return '', True
+    why = ''
+    for label, inp, timeout in (('pose', pose, cfg.pose_timeout), ('detections', det, cfg.detections_timeout)):
+        if inp.rejected:
+            why = f'{label} rejected: {inp.rejected}'
+        elif inp.value is None:
+            why = f'no {label} received yet'
+        elif t - inp.t > timeout:     # since arrival: a pose that keeps coming is not lost
+            why = f'{label} stale ({t - inp.t:.3g} s old > {timeout:g} s)'
+        if why:
+            break
+    return why, (pose.value is not None and det.value is not None
+                 and t - pose.t <= cfg.hold_timeout and t - det.t <= cfg.hold_timeout)
 
 
 def _config_columns(configs, names):
@@ -61,11 +79,12 @@ def _config_columns(configs, names):
 
 
 def gather(filters, t) -> RobotColumns:
-    """The fleet's inputs as columns, with ``judged``, ``propagation.plan``, ``command_fresh``,
-    ``RobotFilter.lookahead`` and ``planned_turn`` evaluated over them: the same comparisons
-    and the same arithmetic (Python's min and max as ``py_min``/``py_max``), so the same
-    values bit for bit; a robot whose plan is neither of ``propagation.plan``'s two common cases gets
-    ``segments_since`` (a pose older than two commands sent)."""
+    """The fleet's inputs as columns, with ``problem``, ``propagation.plan`` and ``follow``,
+    ``commands.command_fresh``, ``planned_turn`` and ``drive_speed``, and
+    ``RobotFilter.lookahead`` evaluated over them: the same comparisons and the same
+    arithmetic (Python's min and max as ``py_min``/``py_max``), so the same values bit for
+    bit; a robot whose plan is neither of ``sent.segments_since``'s two common cases gets
+    ``segments_since`` itself (a pose older than two commands sent)."""
     rb = RobotColumns()
     n = len(filters)
     configs = [f.config for f in filters]
@@ -88,7 +107,7 @@ def gather(filters, t) -> RobotColumns:
     judged = has & clean & ~(t - pose_t > pose_timeout) & ~(t - det_t > det_timeout)
     rb.problems = [''] * n
     for i in np.flatnonzero(~judged).tolist():
-        rb.problems[i] = filters[i].problem(t)
+        rb.problems[i] = problem(filters[i], t)[0]
     use = np.flatnonzero(judged | (has & (t - pose_t <= hold) & (t - det_t <= hold)))
     rb.use, m = use, len(use)
     if m < n:
@@ -104,7 +123,7 @@ def gather(filters, t) -> RobotColumns:
     rb.speed, rb.bang, rb.margin, rb.cluster_alpha = speed, bang, margin, cluster_alpha
     rb.dets = det_values
     rb.radii = list(map(_RADII, dets)) if m == n else [d.radii for d in map(attrgetter('detections'), filters)]
-    rb.poses = np.array(pose_values, dtype=float).reshape(m, 3)
+    poses_now = np.array(pose_values, dtype=float).reshape(m, 3)
     rb.overriding = np.fromiter((f.overriding for f in filters), dtype=bool, count=m)
     compensate = compensate != 0.0
 
@@ -127,7 +146,7 @@ def gather(filters, t) -> RobotColumns:
         count=3 * len(others)).reshape(-1, 3)
     two = moving & ~one & (prev[:, 0] <= t0) & (t0 < last[:, 0]) & (last[:, 0] < t)   # one command since
     rest = np.flatnonzero(moving & ~one & ~two).tolist()
-    plans = [filters[i].segments_since(float(t0[i]), t) for i in rest]
+    plans = [segments_since(filters[i], float(t0[i]), t) for i in rest]
     depth = max([len(p) for p in plans] + [2 if two.any() else 1 if one.any() else 0])
     omegas, dts, speeds = np.zeros((depth, m)), np.zeros((depth, m)), np.zeros((depth, m))
     if depth:
@@ -138,7 +157,7 @@ def gather(filters, t) -> RobotColumns:
     for i, arcs in zip(rest, plans):
         for k, (w, d, v) in enumerate(arcs):
             omegas[k, i], dts[k, i], speeds[k, i] = w, d, v
-    rb.omega_arcs, rb.dt_arcs, rb.speed_arcs = omegas, dts, speeds
+    rb.states, rb.lone = follow(poses_now, omegas, dts, speeds), None
 
     # command_fresh, planned_turn (clipped as clip) and the lookahead
     commands = [f.command for f in filters]
@@ -160,66 +179,12 @@ def gather(filters, t) -> RobotColumns:
     rb.constant, rb.held = constant, np.where(constant, speed, last[:, 2])
     rb.drive = np.where(constant, speed, np.where(rb.failing, rb.held, np.where(fresh, planned_v, 0.0)))
     # measured period: the larger median of the pose and command intervals (each > 0; none: 0)
-    windows = ([f._pose_intervals for f in filters], [f._command_intervals for f in filters])
+    windows = ([f.pose_intervals for f in filters], [f.command_intervals for f in filters])
     measured = py_max(*(np.array([0.0 if w.middle is None else w.middle for w in ws], dtype=float)
                         for ws in windows))
     period = np.where(period > 0.0, period, measured)
     rb.horizon = np.where(compensate, py_max(look, period), look)
     return rb
-
-
-def command_fresh(f, t) -> bool:
-    """Whether the planner's command is recent enough to forward."""
-    return f.command.value is not None and t - f.command.t <= f.config.cmd_timeout
-
-
-def planned_turn(f, t, fresh=None) -> float:
-    """The command the filter would forward (a silent planner counts as 0), clipped;
-    ``fresh``: ``command_fresh(f, t)`` if the caller has it."""
-    if fresh is None:
-        fresh = command_fresh(f, t)
-    return clip(f.command.value, f.config.omega_max) if fresh else 0.0
-
-
-def planned_speed(linear, cfg) -> float:
-    """The speed the filter passes for a planner's ``linear``.x: clipped to [0, speed] (a reverse
-    command is sent as 0: the value functions model forward motion only); None (not given) or
-    a constant-speed robot (``FilterConfig.constant_speed``): the speed."""
-    speed = cfg.speed
-    if linear is None or cfg.constant_speed:
-        return speed
-    return max(0.0, min(speed, linear))
-
-
-def idle_speed(cfg) -> float:
-    """The speed of a robot never commanded: 0, or a constant-speed robot's speed."""
-    return cfg.speed if cfg.constant_speed else 0.0
-
-
-def held_speed(f) -> float:
-    """The speed the robot drives under the last command sent (``idle_speed`` if none; a
-    constant-speed robot's speed)."""
-    cfg = f.config
-    if cfg.constant_speed:
-        return cfg.speed
-    return f.sent[-1][2] if f.sent else 0.0
-
-
-def drive_speed(f, t, fresh, failing) -> float:
-    """The speed the robot drives at while the command judged holds: a constant-speed robot's
-    speed; failing safe, the speed last sent (``held_speed``); else the planner's (``planned_speed``),
-    0 if the planner is silent (a zero twist)."""
-    cfg = f.config
-    if cfg.constant_speed:
-        return cfg.speed
-    if failing:
-        return held_speed(f)
-    return planned_speed(f.command.linear, cfg) if fresh else 0.0
-
-
-def clip(value, bound) -> float:
-    """value clipped to +-bound (scalars; np.clip costs ~10 us a call)."""
-    return max(-bound, min(bound, float(value)))
 
 
 def py_max(a, b):
@@ -235,10 +200,13 @@ _ONE = np.zeros(1, np.intp)
 _ONE.flags.writeable = False
 
 
-def gather_one(f, problem, t):
-    """``gather`` for one robot with a state to judge, in Python floats (numpy's cost per call
-    would be most of a lone robot's decision): (its one-row columns, its state now (x, y,
-    theta) propagated as ``propagation.follow`` does, the same bits)."""
+def gather_one_fast(f, t):
+    """``gather`` of one robot, in Python floats (numpy's cost per call would be most of a lone
+    robot's decision), its state now propagated as ``propagation.follow`` does (the same
+    bits); None if its state does not enter the law (then ``gather`` gives its fail safe)."""
+    why, usable = problem(f, t)
+    if not usable:
+        return None
     cfg = f.config
     rb = RobotColumns()
     age, arcs = plan(f, t)
@@ -252,12 +220,14 @@ def gather_one(f, problem, t):
     (rb.bang, rb.all_keep, rb.speed, rb.margin, rb.cluster_alpha, rb.age, rb.horizon, rb.planned, rb.drive,
      rb.held) = np.array(
         [[cfg.omega_max], [cfg.sent_kept], [cfg.speed], [cfg.clear_margin], [cfg.cluster_alpha], [age],
-         [f.lookahead()], [planned_turn(f, t, fresh)], [drive_speed(f, t, fresh, bool(problem))], [held_speed(f)]],
+         [f.lookahead()], [planned_turn(f, t, fresh)], [drive_speed(f, fresh, bool(why))], [held_speed(f)]],
         dtype=float)
     rb.all_bang = rb.bang
     rb.failing, rb.overriding, rb.fresh, rb.constant = np.array(
-        [[bool(problem)], [f.overriding], [fresh], [cfg.constant_speed]])
+        [[bool(why)], [f.overriding], [fresh], [cfg.constant_speed]])
     rb.all_constant = rb.constant
-    rb.filters, rb.use, rb.problems, rb.configs, rb.all_configs = [f], _ONE, [problem], [cfg], [cfg]
-    rb.radii = [f.detections.radii]
-    return rb, (x, y, th)
+    rb.filters, rb.use, rb.problems, rb.configs, rb.all_configs = [f], _ONE, [why], [cfg], [cfg]
+    rb.radii, rb.dets = [f.detections.radii], [f.detections.value]
+    rb.lone = (x, y, th)
+    rb.states = np.array([rb.lone])
+    return rb

@@ -1,8 +1,9 @@
 """What a filter knows of its robot: the newest pose, detections (discs of the configured
 radius or their own, ``filter.discs``) and planner command (turn rate and linear.x; each
-with when it arrived and whether a newer one was rejected), whether it is overriding, and the
-commands it sent with the speed the robot drives under each (to propagate an old pose to
-now, ``filter.propagation``).
+with when it arrived and whether a newer one was rejected); beside them, written by the
+decision alone (``filter.sent.record``), whether it is overriding and the commands it sent
+with the speed the robot drives under each (to propagate an old pose to now,
+``filter.propagation``).
 
 ``RobotFilter`` is one robot's input state; ``update_poses``, ``update_commands`` and
 ``update_detections_all`` feed many robots at once (the fleet node's batched topics: one
@@ -25,7 +26,7 @@ import numpy as np
 
 from .decide import step_many
 from .discs import checked_discs
-from .gather import clip, idle_speed, planned_speed
+from .commands import SPEED_TOLERANCE, command_excess
 from .nearby import drop_note, message_reach, within_limit
 from .types import FilterConfig, FilterOutput, SafeSet
 
@@ -76,8 +77,12 @@ class RobotFilter:
         self.command = _Input()
         self.overriding = False
         self.sent = deque()    # (decision time, turn rate, speed driven) of the commands sent, oldest first
-        self._pose_intervals = _NO_INTERVALS      # windows of the last intervals (immutable: robots
-        self._command_intervals = _NO_INTERVALS   # fed by one message share them)
+        self.pose_intervals = _NO_INTERVALS      # windows of the last intervals (immutable: robots
+        self.command_intervals = _NO_INTERVALS   # fed by one message share them)
+        # what a decision derived from this robot's detections array and keeps for the next while
+        # that array is the same (never an input): 'clusters' (cluster_rows), 'near_index' and
+        # 'near_pick' (nearby)
+        self.derived = {}
 
     # -- inputs ------------------------------------------------------------------------
     def update_pose(self, state, t, stamp=None) -> None:
@@ -100,7 +105,7 @@ class RobotFilter:
         previous = self.pose.stamp if self.pose.value is not None else None
         self.pose.accept(s, t, stamp)
         if previous is not None and self.pose.stamp > previous:
-            self._pose_intervals = self._pose_intervals.then(self.pose.stamp - previous)
+            self.pose_intervals = self.pose_intervals.then(self.pose.stamp - previous)
 
     def reject_pose(self, reason, t) -> None:
         """Record a pose message the caller could not convert (wrong frame, bad quaternion)."""
@@ -134,8 +139,8 @@ class RobotFilter:
     def update_command(self, omega, t, linear=None) -> None:
         """The planner's turn rate and ``linear.x`` (None: not given, taken as ``speed``); a
         command not finite is rejected and the previous kept. ``command.note`` says what was
-        beyond the robot's limits (``command_excess``): the decision clips the turn rate to
-        +-omega_max and the speed to [0, speed] (``gather.planned_speed``)."""
+        beyond the robot's limits (``commands.command_excess``): the decision clips the turn rate to
+        +-omega_max and the speed to [0, speed] (``commands.planned_speed``)."""
         w = float(omega)
         v = None if linear is None else float(linear)
         if not math.isfinite(w) or (v is not None and not math.isfinite(v)):
@@ -150,7 +155,7 @@ class RobotFilter:
         if excess:
             self.command.note = excess
         if previous is not None and t > previous:
-            self._command_intervals = self._command_intervals.then(t - previous)
+            self.command_intervals = self.command_intervals.then(t - previous)
 
     def control_period(self) -> float:
         """The hold time of a command: configured, else measured (0 until measurable).
@@ -160,7 +165,7 @@ class RobotFilter:
         """
         if self.config.control_period > 0.0:
             return self.config.control_period
-        poses, commands = self._pose_intervals.middle, self._command_intervals.middle   # None: empty
+        poses, commands = self.pose_intervals.middle, self.command_intervals.middle   # None: empty
         if poses is None:
             return 0.0 if commands is None else commands
         return poses if commands is None else max(poses, commands)
@@ -170,62 +175,9 @@ class RobotFilter:
         return max(cfg.lookahead, self.control_period()) if cfg.compensate_delay else cfg.lookahead
 
     # -- decision ------------------------------------------------------------------------
-    def problem(self, t) -> str:
-        """Why the filter cannot judge the planner's command now ('' if it can)."""
-        cfg = self.config
-        for label, inp, timeout in (('pose', self.pose, cfg.pose_timeout),
-                                    ('detections', self.detections, cfg.detections_timeout)):
-            if inp.rejected:
-                return f'{label} rejected: {inp.rejected}'
-            if inp.value is None:
-                return f'no {label} received yet'
-            age = t - inp.t     # since arrival: a pose that keeps coming is not lost
-            if age > timeout:
-                return f'{label} stale ({age:.3g} s old > {timeout:g} s)'
-        return ''
-
     def step(self, safe_set: SafeSet, t, clusters=None) -> FilterOutput:
+        """``decide.step_many`` of this one robot: its decision at ``t``."""
         return step_many([self], safe_set, t, clusters)[0]
-
-    # -- what the robot did since its pose ---------------------------------------------
-    def record_sent(self, omega, t, speed=None) -> None:
-        """Remember a command sent at ``t`` and the speed the robot drives under it (None: the
-        configured speed; step_many does this for every decision)."""
-        self.sent.append((float(t), float(omega), float(self.config.speed if speed is None else speed)))
-        keep = self.config.sent_kept
-        while len(self.sent) > 1 and self.sent[1][0] <= t - keep:
-            self.sent.popleft()
-
-    def segments_since(self, t0, t1):
-        """[(turn rate, duration, speed)] the robot held from ``t0`` to ``t1``, by the commands
-        sent.
-
-        A command counts from the time it was sent until the next one. Before the first
-        command remembered: the planner's current command (clipped, ``gather.planned_speed``),
-        else a turn of 0 at the speed of a robot never commanded (``gather.idle_speed``).
-        """
-        if t1 <= t0:
-            return []
-        cfg = self.config
-        if self.command.value is not None:
-            before = (clip(self.command.value, cfg.omega_max), planned_speed(self.command.linear, cfg))
-        else:
-            before = (0.0, idle_speed(cfg))
-        inside = []      # commands sent in (t0, t1), newest first
-        current = before
-        for ts, omega, speed in reversed(self.sent):
-            if ts >= t1:
-                continue
-            if ts <= t0:
-                current = (omega, speed)
-                break
-            inside.append((ts, (omega, speed)))
-        segments, start = [], t0
-        for ts, command in reversed(inside):
-            segments.append((current[0], ts - start, current[1]))
-            start, current = ts, command
-        segments.append((current[0], t1 - start, current[1]))
-        return segments
 
 
 def update_poses(filters, states, t, stamp=None, skip=None) -> None:
@@ -263,40 +215,13 @@ def update_commands(filters, omegas, t, skip=None, linears=None) -> list:
     if lin is not None:
         speed = np.fromiter((f.config.speed for f in filters), dtype=float, count=n)
         constant = np.fromiter((f.config.constant_speed for f in filters), dtype=bool, count=n)
-        off |= np.where(constant, ~(np.abs(lin - speed) <= _SPEED_TOLERANCE * np.maximum(1.0, speed)),
+        off |= np.where(constant, ~(np.abs(lin - speed) <= SPEED_TOLERANCE * np.maximum(1.0, speed)),
                         (lin > speed) | (lin < 0.0))
     beyond = np.flatnonzero(off & take).tolist()
     for i in beyond:
         f = filters[i]
         f.command.note = command_excess(w[i], None if linears is None else float(linears[i]), f.config)
     return beyond
-
-
-_SPEED_TOLERANCE = 1e-9     # a linear.x this close (relatively) to the robot's speed is its speed
-
-
-def command_excess(omega, linear, cfg) -> str:
-    """What of a planner command (turn rate ``omega``, ``linear``.x or None) is beyond the
-    robot's limits ('' if nothing): a turn rate beyond +-omega_max (the decision clips it); a
-    linear.x beyond ``speed`` (clipped to it) or below 0 (a reverse command: sent as 0, the
-    value functions model forward motion only); for a constant-speed robot
-    (``constant_speed``, the study's Dubins robot) a linear.x that is not its speed (it
-    drives at its speed whatever the planner asks)."""
-    bound, speed = cfg.omega_max, cfg.speed
-    parts = []
-    if omega > bound or omega < -bound:
-        parts.append(f'angular.z={omega:.6g} beyond w_max={bound:g}: clipped to {clip(omega, bound):g}')
-    if linear is None:
-        pass
-    elif cfg.constant_speed:
-        if not abs(linear - speed) <= _SPEED_TOLERANCE * max(1.0, speed):
-            parts.append(f'linear.x={linear:.6g} is not the robot\'s speed {speed:g}: it drives at {speed:g}')
-    elif linear > speed:
-        parts.append(f'linear.x={linear:.6g} beyond speed={speed:g}: clipped to {speed:g}')
-    elif linear < 0.0:
-        parts.append(f'linear.x={linear:.6g} is reverse: sent as 0 (the value functions model forward motion '
-                     f'only; the robot stops, turning as asked)')
-    return '; '.join(parts)
 
 
 def _taken(filters, skip) -> np.ndarray:
@@ -309,7 +234,7 @@ def _accept_rows(filters, name, rows, take, t, stamp, linears=None) -> None:
     since the previous stamp feeds the measured control period (as ``update_pose`` /
     ``update_command`` do). Robots with the same window and the same previous stamp get the
     same next window, made once."""
-    windows = '_pose_intervals' if name == 'pose' else '_command_intervals'
+    windows = 'pose_intervals' if name == 'pose' else 'command_intervals'
     made = {}      # (window before, previous stamp) -> window after (kept alive here: ids stay unique)
     pose = name == 'pose'
     if not pose and (linears is not None or not all(map(is_, map(_LINEAR, map(_COMMAND, filters)), repeat(None)))):

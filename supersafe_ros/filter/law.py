@@ -14,7 +14,7 @@ aside, so the union's avoid turn is never traded for a single member's. The gove
 row (``govern``) is the first kind with a hit, in the order enter, ahead, stay, and within
 it the smallest score (V - alpha, or V_next - alpha), the first in the robot's list on
 ties. The command (``decide_rows``), s the planner's speed clipped to [0, speed]
-(``gather.drive_speed``; 0 for a silent planner):
+(``commands.drive_speed``; 0 for a silent planner):
 
     fail safe  inputs stale/invalid, from the last valid state (``FilterConfig.fail_safe_command``):
                'stop': the avoid turn of its governing row at the speed last sent, where
@@ -86,13 +86,8 @@ def tie_tolerance(vf: ValueFunction) -> float:
     TIE_RELATIVE x the largest |dV/dtheta| over the grid's nodes: far above float32
     round-off of the values (~1e-7 relative), far below any gradient that means
     a direction (a tie's turn is harmless either way, by definition of a tie).
-    Cached on the value function.
     """
-    tol = getattr(vf, '_tie_tolerance', None)
-    if tol is None:
-        tol = TIE_RELATIVE * float(np.max(np.abs(vf.theta_gradient())))
-        vf._tie_tolerance = tol
-    return tol
+    return TIE_RELATIVE * vf.theta_gradient_bound()
 
 
 def better_bang(left, right, tie) -> np.ndarray:
@@ -196,7 +191,7 @@ def decide_rows(tab, m, n_groups, overriding, margin, failing, fresh, planned, b
     ``overriding``, ``margin``, ``failing``, ``fresh``, ``planned``, ``bang``, ``drive``,
     ``held``, ``constant``: per robot row (``failing``: inputs stale or invalid, its last
     valid state judged instead; ``planned``: the planner's turn clipped, 0 if silent;
-    ``drive``: the speed of the command judged, ``gather.drive_speed``; ``held``: the speed
+    ``drive``: the speed of the command judged, ``commands.drive_speed``; ``held``: the speed
     last sent; ``constant``: a constant-speed robot, failing safe with the stop-turn). Avoid
     turns are read (``tab.turns_of``) only for the robots that avoid.
     """

@@ -161,12 +161,12 @@ def narrow(filters, configs, dets, states, horizon, speed, margin, safe_set, sto
         for (i, store, st, _), near in zip(robots, near_all):
             f, det = filters[i], dets[i]
             picked, groups, canon = index.pick(near, st.key_resolution)
-            memo = f.__dict__.get('_near_pick')      # the last decision's, kept while the same are picked
+            memo = f.derived.get('near_pick')      # the last decision's, kept while the same are picked
             if (memo is None or memo[0] is not det or memo[1] is not store or len(memo[2]) != len(picked)
                     or not np.array_equal(memo[2], picked)):
                 sub = det[picked]
-                memo = f._near_pick = (det, store, picked, sub,
-                                       ClusterFrames(sub, store, groups, canon) if store is not None else None)
+                frames = ClusterFrames(sub, store, groups, canon) if store is not None else None
+                memo = f.derived['near_pick'] = (det, store, picked, sub, frames)
             out.dets[i], out.frames[i] = memo[3], memo[4]
             position[i] = picked
             kept = f.detections.kept if f.detections.value is det else None
@@ -178,13 +178,13 @@ def narrow(filters, configs, dets, states, horizon, speed, margin, safe_set, sto
 def _index(f, det, link, shared) -> DetectionIndex:
     """Robot ``f``'s index of ``det``: kept while its detections are that array, shared by the
     robots given the same one (``shared``, for one decision)."""
-    cache = f.__dict__.get('_near_index')
+    cache = f.derived.get('near_index')
     if cache is not None and cache.det is det and cache.link == link:
         return cache
     got = shared.get((id(det), link))
     if got is None:
         got = shared[(id(det), link)] = DetectionIndex(det, link)
-    f._near_index = got
+    f.derived['near_index'] = got
     return got
 
 

@@ -1,17 +1,19 @@
-"""What a decision sends and says: the commands of every robot, the state they leave in
-their filters (overriding, the command remembered as sent), and each robot's
-``FilterOutput`` with the reason, built only when read (``Decisions``: formatting a
-thousand reasons costs more than deciding them, and most are never read).
+"""Step 4 of a decision: what it sends and says. The law's answer for the robot rows spread
+to every robot (``outputs``): the commands, whether each overrides and the speed it drives
+under its command (what ``sent.record`` remembers), and each robot's ``FilterOutput`` with
+the reason (``explain`` of its ``Reasons``), built only when read (``Decisions``: formatting
+a thousand reasons costs more than deciding them, and most are never read). Nothing here
+writes into a filter.
 """
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 import math
 
 import numpy as np
 
-from . import approach
-from .law import KINDS, decide_rows
+from .law import KINDS
 from .types import FAIL_SAFE, OVERRIDE, PASS, FilterOutput
 
 
@@ -22,15 +24,18 @@ class Decisions(Sequence):
     """What ``decide.step_many`` decided, one entry per robot filter, in order.
 
     ``omega``, ``linear`` and ``action`` are lists: the commands to send, all a batched caller
-    needs every tick. ``decisions[i]`` is robot i's ``FilterOutput`` with its reason, built on
+    needs every tick; ``overriding`` and ``driven`` (the speed each robot drives under its
+    command: the linear.x sent, a constant-speed robot's speed) are what ``sent.record``
+    remembers. ``decisions[i]`` is robot i's ``FilterOutput`` with its reason, built on
     first access from values fixed at the decision (formatting a thousand reasons costs more
     than deciding them, and most are never read).
     """
 
-    __slots__ = ('omega', 'linear', 'action', '_describe', '_built')
+    __slots__ = ('omega', 'linear', 'action', 'overriding', 'driven', '_describe', '_built')
 
-    def __init__(self, omega, linear, action, describe):
+    def __init__(self, omega, linear, action, overriding, driven, describe):
         self.omega, self.linear, self.action, self._describe = omega, linear, action, describe
+        self.overriding, self.driven = overriding, driven
         self._built = [None] * len(action)
 
     def __len__(self):
@@ -48,19 +53,16 @@ class Decisions(Sequence):
         return f'Decisions({list(self)!r})'
 
 
-def outputs(filters, rb, safe_set, t, tab, n_groups, solving, states=None, dets=None) -> Decisions:
-    """Every robot's command (as lists), its filter's state (overriding, the command
-    remembered as sent, with the speed the robot drives under it: the linear.x sent, a
-    constant-speed robot's speed), and a builder of its FilterOutput: the law
-    (``law.decide_rows``) over the table's rows, spread back to all robots (a robot with no
-    recent valid state stops: a zero twist, or a constant-speed robot's stop-turn)."""
+def outputs(filters, rb, safe_set, tab, decided, solving, limits=None) -> Decisions:
+    """Every robot's command (as lists), whether it overrides, the speed the robot drives under
+    it (the linear.x sent, a constant-speed robot's speed), and a builder of its FilterOutput:
+    the law's answer ``decided`` (``law.decide_rows`` over ``tab``) for the rows of ``rb``
+    spread back to all robots (a robot with no recent valid state stops: a zero twist, or a
+    constant-speed robot's stop-turn). ``limits``: ``approach.limit``'s speeds and turns, where
+    time_before_collision cut them (None: the law's stand)."""
     n, use = len(filters), rb.use
     m = len(use)
-    omega, linear, code, over, named, kind = decide_rows(
-        tab, m, n_groups, rb.overriding, rb.margin, rb.failing, rb.fresh, rb.planned, rb.bang, rb.drive, rb.held,
-        rb.constant)
-    # time_before_collision: the speed cut so that the command's path enters no disc (filter.approach)
-    limits = approach.limit(rb, states, dets, omega, linear, code) if states is not None else None
+    omega, linear, code, over, named, kind = decided
     if limits is not None:
         omega, linear = limits.omega, limits.linear
     moved = np.where(rb.constant, rb.speed, linear)
@@ -78,7 +80,6 @@ def outputs(filters, rb, safe_set, t, tab, n_groups, solving, states=None, dets=
         rows = range(n)
     omega, linear, over = omega.tolist(), linear.tolist(), over.tolist()
     action = _ACTIONS[code].tolist()
-    record_all(filters, omega, over, t, rb.all_keep, moved.tolist())
     problems, configs = rb.problems, rb.all_configs      # configs as at the decision (a parameter change
     common = set_fields(safe_set)                        # replaces a robot's)
     fresh, kind, named, ages, horizon = rb.fresh.tolist(), kind.tolist(), named.tolist(), rb.age, rb.horizon
@@ -86,11 +87,10 @@ def outputs(filters, rb, safe_set, t, tab, n_groups, solving, states=None, dets=
     def describe(i) -> FilterOutput:
         row = rows[i]
         if row < 0:
-            out = explain(problems[i], configs[i], omega[i], linear[i], action[i], common, None, -1, 0, False,
-                          0.0, 0.0, 0, True)
+            out = explain(Reasons(problems[i], configs[i], omega[i], linear[i], action[i], common, lost=True))
         else:
-            out = explain(problems[i], configs[i], omega[i], linear[i], action[i], common, tab, named[row],
-                          kind[row], fresh[row], float(horizon[row]), float(ages[row]), int(solving[row]), False)
+            out = explain(Reasons(problems[i], configs[i], omega[i], linear[i], action[i], common, tab, named[row],
+                                  kind[row], fresh[row], float(horizon[row]), float(ages[row]), int(solving[row])))
         # the inputs' notes as when read (the nodes read them before new inputs come)
         f = filters[i]
         out.detections_dropped, out.detections_note = f.detections.dropped, f.detections.note
@@ -100,20 +100,7 @@ def outputs(filters, rb, safe_set, t, tab, n_groups, solving, states=None, dets=
             out.reason += limits.note(row)
         return out
 
-    return Decisions(omega, linear, action, describe)
-
-
-def record_all(filters, omega, over, t, keep, moved) -> None:
-    """Each robot's ``overriding = over[i]`` and ``record_sent(omega[i], t, moved[i])``, in one
-    loop (a fleet's tick: the method's call and its configuration lookups cost more than its
-    work); ``keep``: each robot's ``config.sent_kept``."""
-    ts = float(t)
-    for f, w, o, cut, v in zip(filters, omega, over, (t - keep).tolist(), moved):
-        f.overriding = o  # failing safe clears it: re-enter by the law once inputs are back
-        sent = f.sent
-        sent.append((ts, w, v))
-        while len(sent) > 1 and sent[1][0] <= cut:
-            sent.popleft()
+    return Decisions(omega, linear, action, over, moved.tolist(), describe)
 
 
 def set_fields(safe_set) -> dict:
@@ -123,11 +110,34 @@ def set_fields(safe_set) -> dict:
                 omega_max_set=float(set_omega) if set_omega is not None else math.nan)
 
 
-def explain(problem, cfg, w, v, a, set_fields, tab, k, kind, fresh, horizon, age, solving, lost) -> FilterOutput:
-    """One robot's FilterOutput: its command (w, v, a) and why, from the table row ``k`` that it
-    names (-1: none) and how it acted on it (``kind``, see ``law.govern``); ``lost``: no recent
-    valid state (the fail-safe command)."""
-    common = dict(set_fields, pose_age=age, lookahead=horizon, clusters_solving=solving)
+@dataclass(slots=True)
+class Reasons:
+    """What one robot's FilterOutput says and why: its problem ('' if judged), configuration,
+    command (``omega``, ``linear``, ``action``), the safe set's fields (``set_fields``), the
+    table row it names (``row``, -1: none) and how it acted on it (``kind``, ``law.KINDS``),
+    whether the planner's command was fresh, the hold, the pose's age, the clusters near it
+    being solved; ``lost``: no recent valid state (the fail-safe command)."""
+
+    problem: str
+    cfg: object
+    omega: float
+    linear: float
+    action: str
+    set_fields: dict
+    tab: object = None
+    row: int = -1
+    kind: int = 0
+    fresh: bool = False
+    horizon: float = 0.0
+    age: float = 0.0
+    solving: int = 0
+    lost: bool = False
+
+
+def explain(r: Reasons) -> FilterOutput:
+    """One robot's FilterOutput: its command and why (``Reasons``)."""
+    problem, cfg, v, a, tab, k, kind, horizon = r.problem, r.cfg, r.linear, r.action, r.tab, r.row, r.kind, r.horizon
+    common = dict(r.set_fields, pose_age=r.age, lookahead=horizon, clusters_solving=r.solving)
     if k < 0:
         common.update(obstacle_index=-1, obstacle_xy=(math.nan, math.nan), value=math.inf)
         value = level = math.nan
@@ -148,7 +158,7 @@ def explain(problem, cfg, w, v, a, set_fields, tab, k, kind, fresh, horizon, age
         elif k >= 0:
             why = f'{problem}; clear of {label} at the last valid state (V={value:.3g} > alpha={level:.3g}): {stop}'
         else:
-            why = f'{problem}; {"no recent valid state" if lost else "no obstacle near the last valid state"}' \
+            why = f'{problem}; {"no recent valid state" if r.lost else "no obstacle near the last valid state"}' \
                   f': {stop}'
     elif a == OVERRIDE:
         how = KINDS[kind]
@@ -161,11 +171,11 @@ def explain(problem, cfg, w, v, a, set_fields, tab, k, kind, fresh, horizon, age
             why = f'V={value:.3g} <= alpha+margin={level + cfg.clear_margin:.3g}: not clear yet'
         if not cfg.constant_speed and tab.fallback[k]:
             why += '; turning in place (the loiter circle is drawn at full speed)'
-    elif not fresh:
+    elif not r.fresh:
         # Nav2 style: no input, zero twist (a constant-speed Dubins robot drives straight on; the
         # filter still guards it against every detected obstacle)
         why = 'clear; planner silent: zero command'
     else:
         # the robot's bound, whatever the planner asked (angular.z = 1e30 goes out as w_max)
         why = 'clear: no obstacle near' if k < 0 else f'clear: V={value:.3g} > alpha={level:.3g}'
-    return FilterOutput(w, v, a, why, **common)
+    return FilterOutput(r.omega, v, a, why, **common)

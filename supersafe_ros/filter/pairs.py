@@ -2,17 +2,22 @@
 
 A pair is a robot's state relative to one detected obstacle (the obstacle at the origin,
 axes as the map): translation invariance lets one value function, solved for a disc at the
-origin, serve every obstacle. Per pair (``pair_values``):
+origin, serve every obstacle (the relative state moves like the robot itself). Per pair, with
+the planner's (clipped) command, the hold H (the robot's lookahead, >= its control period),
+the robot's speed and turn bound w_max (a silent planner counts as a zero command):
 
 * V at the state now (+inf off the grid: far from the obstacle, never constraining);
 * the unit avoid turn: the law's sign(dV/dtheta), or with a hold H the better bang
   (``filter.law``);
 * V_next = min(V(end of the planner's command held for H), max over +-w_max of V(that end,
   then the bang held for H)): what the filter can still do after letting the command pass.
+  A pass therefore never leaves the robot below the level, nor where no held turn keeps V
+  above it (the filter acts one hold early rather than one hold late).
 
 ``pair_reads`` reads V and V_next of many pairs in one call (skipping the hold reads of
-pairs whose radial bound keeps V_next above the level), ``pair_turns`` the turns, and
-``robot_pair_values`` does one robot's few pairs in Python floats (the same bits).
+pairs whose radial bound keeps V_next above the level), ``pair_turns`` the turns (read only
+for the rows robots avoid by); ``pair_values_fast`` is the same for one robot's few pairs,
+in Python floats (the same bits).
 """
 from __future__ import annotations
 
@@ -25,37 +30,8 @@ from .law import avoid_turn, avoid_turn_at, better_bang, tie_tolerance
 from .propagation import arc, arc_flow, bang_ends
 
 
-def pair_values(vf: ValueFunction, rel, omega, horizon, speed, bang):
-    """V, the avoid turn and the lookahead value of every pair, for commands held over H.
-
-    First the law at the pair's relative state (``law.evaluate_pairs``): V (+inf off the
-    grid) and the unit turn sign(dV/dtheta) (ties left; 0 off the grid).
-
-    Per pair: the planner's (clipped) command ``omega``, the hold H (``horizon``, the
-    robot's lookahead, >= its control period), the robot's speed and turn bound
-    ``bang``. A command holds for H, so:
-
-    * the avoid turn is the bang (+-w_max) whose hold ends at the larger V (ties
-      left, within the law's tie tolerance); as H -> 0 this is sign(dV/dtheta), the
-      continuous law, which it keeps where both ends are off the grid;
-    * the planner's command is judged by what the filter can still do after it:
-      V where the command's hold ends, and after the better bang held for one more
-      period from there (the smaller of the two). A pass therefore never leaves the
-      robot below the level, nor where no held turn keeps V above it (the filter
-      acts one hold early rather than one hold late).
-
-    A silent planner counts as a zero command (what the filter would forward).
-    Translation invariance: the relative state moves like the robot itself.
-    ``pair_reads`` reads V and V next of every pair in one call, ``pair_turns`` the turns
-    (the fleet path reads turns only for the rows its robots name).
-    Returns (V, unit turn, V after the planner's hold and the best bang's).
-    """
-    value, value_next = pair_reads(vf, rel, omega, horizon, speed, bang)
-    return value, pair_turns(vf, rel, value, horizon, speed, bang), value_next
-
-
 def pair_reads(vf: ValueFunction, rel, omega, horizon, speed, bang, level=math.inf):
-    """(V, V next) of ``pair_values``: V at the pair's state and where the planner's hold and
+    """(V, V next) of the pairs (see the module): V at the pair's state and where the planner's hold and
     both bangs after it end, in one read; V next only where it can be at or below ``level``
     (the pairs' alpha, or per pair (N,): the level less the pair's ``discs.value_shift``;
     +inf: everywhere), else a lower bound above it (so the row never looks ahead: the same
@@ -106,7 +82,7 @@ def pair_reads(vf: ValueFunction, rel, omega, horizon, speed, bang, level=math.i
 
 
 def pair_turns(vf: ValueFunction, rel, value, horizon, speed, bang):
-    """The unit avoid turns of ``pair_values`` for pairs at ``rel`` with V ``value``: the
+    """The unit avoid turns of pairs at ``rel`` with V ``value``: the
     law's sign(dV/dtheta) where V is finite (on the grid), else 0; with a hold, the bang whose
     hold ends at the larger V (ties left) wherever either end is on the grid. (A pair
     ``pair_reads`` left out as beyond any hold's reach has both ends off the grid: 0.)"""
@@ -126,9 +102,10 @@ def pair_turns(vf: ValueFunction, rel, value, horizon, speed, bang):
 FEW_PAIRS = 3     # a robot decided alone reads V in Python floats up to this many pairs near the grid
 
 
-def robot_pair_values(vf: ValueFunction, x, y, th, centres, planned, horizon, speed, bang, few):
-    """``pair_values`` for one robot's pairs (its state x, y, th; ``centres`` a list of
-    (cx, cy); its command, hold, speed and bound), as lists; None if more than ``few``
+def pair_values_fast(vf: ValueFunction, x, y, th, centres, planned, horizon, speed, bang, few):
+    """(V, unit turn, V next) of ``pair_reads`` (every hold read: level +inf) and ``pair_turns``
+    for one robot's pairs (its state x, y, th; ``centres`` a list of (cx, cy); its command,
+    hold, speed and bound), as lists; None if more than ``few``
     pairs are near the grid (then numpy's evaluation is the cheaper).
 
     V is read state by state in Python floats (``ValueFunction.value_at``): a robot's own

@@ -3,7 +3,7 @@
 A pose describes the robot at its stamp, not at the decision: in a lockstep graph the
 filter may decide at step k on the pose of step k-1, and a real robot's pose is some
 milliseconds old. The filter knows what the robot did since: it sent the commands, each
-with the speed the robot drives under it (``RobotFilter.record_sent``: the linear.x sent,
+with the speed the robot drives under it (``sent.record``: the linear.x sent,
 or a constant-speed robot's speed). So it propagates the pose over its age (decision time -
 stamp, at most ``hold_timeout``) along exact Dubins arcs under the commands it sent, each at
 its own speed (``plan``, ``follow``), and judges the robot's state *now*. The same arcs give
@@ -25,6 +25,7 @@ import math
 import numpy as np
 
 from ..reach.grid import TWO_PI, wrap_angle
+from .sent import segments_since
 
 
 def arc_flow(states, speed, omega, dt) -> np.ndarray:
@@ -78,18 +79,9 @@ def wrap(theta):
 
 def plan(f, t):
     """(pose age, [(turn rate, duration, speed)] held from the pose's stamp to ``t``) of one
-    robot; (0, ()) without delay compensation."""
+    robot (``sent.segments_since``); (0, ()) without delay compensation."""
     if not f.config.compensate_delay:
         return 0.0, ()
     pose = f.pose
     age = max(0.0, min(t - min(pose.t, pose.stamp), f.config.hold_timeout))
-    t0 = t - age
-    sent = f.sent
-    # segments_since's answer in the two common cases: nothing sent since the pose (one arc),
-    # or one command sent since (a robot deciding on a pose older than its last decision)
-    if sent and sent[-1][0] <= t0 and t > t0:
-        return age, ((sent[-1][1], t - t0, sent[-1][2]),)
-    if len(sent) > 1 and sent[-2][0] <= t0 < sent[-1][0] < t:
-        ts = sent[-1][0]
-        return age, ((sent[-2][1], ts - t0, sent[-2][2]), (sent[-1][1], t - ts, sent[-1][2]))
-    return age, f.segments_since(t0, t)
+    return age, segments_since(f, t - age, t)

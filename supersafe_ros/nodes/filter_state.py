@@ -109,8 +109,7 @@ class StateReporter:
         store = self._store
         told, failed = self._errors_told.get(id(store), 0), len(store.errors)
         if failed > told:
-            with store._lock:
-                new = list(store.errors.items())[told:]
+            new = store.errors_after(told)
             for key, why in new:
                 self.log.error(f'cluster value {key} could not be solved ({why}): that '
                                'cluster stays on the fallback rule')

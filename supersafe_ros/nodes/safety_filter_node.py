@@ -233,25 +233,6 @@ class SafetyFilter:
                 return callback(*args)
         return locked
 
-    # compatibility: the set in force and the standard set (tests, tools); lockstep statistics
-    @property
-    def safe_set(self):
-        return self.wiring.safe_set
-
-    @property
-    def standard(self):
-        return self.wiring.standard
-
-    @property
-    def holds(self) -> int:
-        """Answers held for a cluster solve."""
-        return self.answers.holds
-
-    @property
-    def poses_skipped(self) -> int:
-        """Lockstep: poses the clock had passed (not answered)."""
-        return self.answers.poses_skipped
-
     def _set_rate(self, rate):
         self.period = 1.0 / rate
         if self.timer is not None:
@@ -311,7 +292,7 @@ class SafetyFilter:
         clock_ns = self.get_clock().now().nanoseconds if self.wiring.time.sim else None
         if not self.answers.clock_passed(stamp.sec * 1_000_000_000 + stamp.nanosec, clock_ns):
             return False
-        self.wiring.complain('lockstep', f'skipped a pose the clock has already passed ({self.poses_skipped} '
+        self.wiring.complain('lockstep', f'skipped a pose the clock has already passed ({self.answers.poses_skipped} '
                              'so far): its step went on without this answer; answering the current pose',
                              level='info')
         return True

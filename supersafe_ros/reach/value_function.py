@@ -49,6 +49,7 @@ class ValueFunction:
         self._flat = None
         self._flat_grad_theta = None
         self._radial = None
+        self._theta_bound = None
 
     # -- evaluation -------------------------------------------------------
     @property
@@ -187,6 +188,13 @@ class ValueFunction:
             self._grad_theta = (np.ascontiguousarray(self._grad[..., 2]) if self._grad is not None
                                 else theta_node_gradient(self.grid, self.values))
         return self._grad_theta
+
+    def theta_gradient_bound(self) -> float:
+        """The largest |dV/dtheta| over the nodes (the scale of a turn's preference; cached)."""
+        bound = getattr(self, '_theta_bound', None)      # (None too in a copy pickled before it was kept)
+        if bound is None:
+            bound = self._theta_bound = float(np.max(np.abs(self.theta_gradient())))
+        return bound
 
     def gradient(self, states) -> np.ndarray:
         """dV/d(x, y, theta) at states (..., 3): trilinear interpolation of the

@@ -1,0 +1,153 @@
+"""Step 2 of a decision: every robot's constraints, the rows of one ``law.ConstraintTable``.
+
+From the columns ``gather`` read (``RobotColumns``: each robot's state now, its detections,
+its command, hold, speed and turn bound), per robot:
+
+* the detections within its reach when it has many (``nearby.narrow``: the others cannot
+  constrain it);
+* one row per detected obstacle (``pairs``: V now and after the planner's hold; a disc of its
+  own radius shifted, ``discs.pair_shifts``);
+* one row per cluster of close obstacles (``cluster_rows``), its members' rows in its group.
+
+A lone robot's few pairs are read in Python floats (``pairs.pair_values_fast``, the same
+values bit for bit: numpy's cost per call would be most of its decision); its table is the
+fleet's with one robot's rows.
+"""
+from __future__ import annotations
+
+from itertools import repeat
+from operator import attrgetter, is_
+
+import numpy as np
+
+from .cluster_rows import cluster_rows
+from .discs import pair_shifts
+from .law import ConstraintTable
+from .nearby import NEAR_QUERY_MIN, narrow
+from .pairs import FEW_PAIRS, pair_reads, pair_turns, pair_values_fast
+
+_DETECTIONS, _KEPT = attrgetter('detections'), attrgetter('kept')
+_ONE_ROBOT = np.zeros(1, np.intp)
+_ONE_ROBOT.flags.writeable = False
+
+
+def constraint_rows(rb, safe_set, clusters):
+    """(the table of every robot's constraints, its number of groups, per robot row the
+    clusters near it whose union value is being solved) from ``gather``'s columns ``rb``;
+    ``clusters``: the ClusterStore (None: the process's shared one, ``filter.cluster``)."""
+    m = len(rb.use)
+    dets, states, lone = rb.dets, rb.states, rb.lone
+    if lone is not None:       # (a lone robot's count in Python: numpy's max costs more than it)
+        counts = None
+        many = len(dets[0]) > NEAR_QUERY_MIN
+    else:
+        counts = np.fromiter(map(len, dets), dtype=np.intp, count=m)
+        many = m and counts.max() > NEAR_QUERY_MIN
+    narrowed = None
+    if many:
+        narrowed = narrow(rb.filters, rb.configs, dets, states, rb.horizon, rb.speed, rb.margin, safe_set, clusters)
+        dets = narrowed.dets
+        counts = np.fromiter(map(len, dets), dtype=np.intp, count=m)
+    vf, alpha = safe_set.vf, float(safe_set.alpha)
+    horizon, planned, speed, bang = rb.horizon, rb.planned, rb.drive, rb.bang
+    fast = None
+    if lone is not None:       # a robot's own filter: its few pairs in Python floats
+        fast = pair_values_fast(vf, *lone, dets[0].tolist(), float(planned[0]), float(horizon[0]), float(speed[0]),
+                                float(bang[0]), FEW_PAIRS)
+    if counts is None:
+        counts = np.array([len(dets[0])])
+    if fast is not None:
+        n_pairs = int(counts[0])
+        start, pair_robot, centres = _ONE_ROBOT, np.zeros(n_pairs, np.intp), dets[0]
+        position = np.arange(n_pairs)
+        value, turn, value_next = (np.array(a, dtype=float) for a in fast)
+        shift = pair_shifts(rb.radii, rb.configs, [n_pairs], narrowed.position if narrowed is not None else None)
+        if shift is not None:        # discs of their own radius (filter.discs): V_r = V_R + (R - r)
+            value += shift
+            value_next += shift
+
+        def pair_turns_of(p) -> np.ndarray:
+            return turn[p]
+    else:
+        n_pairs = int(counts.sum())
+        start = np.concatenate(([0], np.cumsum(counts)[:-1])).astype(np.intp) if m else np.zeros(0, np.intp)
+        pair_robot = np.repeat(np.arange(m), counts)
+        position = np.arange(n_pairs) - start[pair_robot]
+        if n_pairs:
+            centres = np.concatenate([d for d in dets if len(d)])
+            rel = np.empty((n_pairs, 3))
+            rel[:, 0] = states[pair_robot, 0] - centres[:, 0]
+            rel[:, 1] = states[pair_robot, 1] - centres[:, 1]
+            rel[:, 2] = states[pair_robot, 2]
+        else:
+            centres, rel = np.zeros((0, 2)), np.zeros((0, 3))
+        shift = pair_shifts(rb.radii, rb.configs, counts, narrowed.position if narrowed is not None else None)
+        value, value_next = pair_reads(vf, rel, planned[pair_robot], horizon[pair_robot], speed[pair_robot],
+                                       bang[pair_robot], alpha if shift is None else alpha - shift)
+        if shift is not None:        # discs of their own radius (filter.discs): V_r = V_R + (R - r)
+            value += shift
+            value_next += shift
+
+        def pair_turns_of(p) -> np.ndarray:
+            r = pair_robot[p]
+            return pair_turns(vf, rel[p], value[p], horizon[r], speed[r], bang[r])
+
+    cl = cluster_rows(rb.filters, rb.configs, states, planned, horizon, speed, bang, rb.cluster_alpha, dets, start,
+                      clusters, narrowed.frames if narrowed is not None else None)
+    if narrowed is None:
+        tab, n_groups = constraint_table(pair_robot, position, counts, value, value_next, centres, alpha, cl,
+                                         pair_turns_of)
+        name_by_message(tab, rb.filters, rb.dets)
+    else:
+        tab, n_groups = constraint_table(pair_robot, narrowed.position, narrowed.counts, value, value_next, centres,
+                                         alpha, cl, pair_turns_of)
+        narrowed.rename(tab, start, cl)
+    return tab, n_groups, cl['solving']
+
+
+def constraint_table(pair_robot, position, counts, value, value_next, centres, alpha, cl, pair_turns_of):
+    """(the ``law.ConstraintTable`` of every robot's constraints, its number of groups): the
+    pair rows first (robot ``pair_robot``, ``position`` in the robot's detections), then the
+    cluster rows ``cl`` (``cluster_rows``); a cluster's members' pair rows join its group."""
+    n_pairs = len(pair_robot)
+    group = np.arange(n_pairs)          # each obstacle its own group until clustered
+    group[cl['member_pairs']] = n_pairs + cl['member_groups']
+    tab = ConstraintTable()
+    k = len(cl['robot'])
+    cat = (lambda a, b: np.concatenate([a, b])) if k else (lambda a, b: a)   # noqa: E731
+    tab.robot = cat(pair_robot, cl['robot'])
+    tab.position = cat(position, counts[cl['robot']] + cl['index'])
+    tab.value = cat(value, cl['value'])
+    tab.level = cat(np.full(n_pairs, alpha), cl['level'])
+    tab.value_next = cat(value_next, cl['value_next'])
+    tab.obstacle = cat(position, cl['obstacle'])
+    tab.xy = cat(centres, cl['xy'])
+    tab.sound = cat(np.zeros(n_pairs, bool), np.ones(k, bool))
+    tab.group = cat(group, n_pairs + cl['group'])
+    tab.members = cat(np.ones(n_pairs, np.intp), cl['members'])
+    tab.fallback = cat(np.zeros(n_pairs, bool), cl['fallback'])
+
+    def turns_of(rows) -> np.ndarray:
+        """The unit avoid turns of table ``rows`` (read only for the rows robots avoid by)."""
+        out = np.zeros(len(rows))
+        pair = rows < n_pairs
+        out[pair] = pair_turns_of(rows[pair])
+        out[~pair] = cl['turns_of'](rows[~pair] - n_pairs)
+        return out
+
+    tab.turns_of = turns_of
+    return tab, n_pairs + cl['n_groups']
+
+
+def name_by_message(tab, filters, dets) -> None:
+    """The table's obstacles named by their rows in the robots' detections messages, where a
+    robot's detections are not the message's rows one for one (``detections.kept``: discs split
+    into covering rings, ``filter.discs``); ``filter.nearby`` names those it narrows itself."""
+    inputs = list(map(_DETECTIONS, filters))
+    if all(map(is_, map(_KEPT, inputs), repeat(None))):      # (most decisions: checked in C)
+        return
+    for i, (inp, det) in enumerate(zip(inputs, dets)):
+        kept = inp.kept
+        if kept is not None and inp.value is det:
+            rows = np.flatnonzero(tab.robot == i)
+            tab.obstacle[rows] = kept[tab.obstacle[rows]]
