@@ -15,7 +15,8 @@ STEPS = 500       # 25 s of sim time: the trip takes about 15
     ('laser_scan', 'scan'), ('point_cloud2', 'cloud'), ('marker_array', 'markers')])
 def test_a_robot_crosses_a_field_of_three_sizes_without_a_collision(ros_context, detections_type, topic):
     # the returns stand for their beams 5.2 m behind them too: the largest obstacle's far side
-    g = SensorGraph(ros_context, detections_type, topic, robot_radius=0.3, obstacle_depth=5.2)
+    g = SensorGraph(ros_context, detections_type, topic, robot_radius=0.3, obstacle_depth=5.2,
+                    time_before_collision=0.5)   # as config/nav2_safety_filter.yaml
     try:
         g.start()
         reached = g.run(STEPS)
