@@ -54,16 +54,7 @@ def pair_values(vf: ValueFunction, rel, omega, horizon, speed, bang):
 
     Per pair: the planner's (clipped) command ``omega``, the hold H (``horizon``, the
     robot's lookahead, >= its control period), the robot's speed and turn bound
-    ``bang``. A command holds for H, so:
-
-    * the avoid turn is the bang (+-w_max) whose hold ends at the larger V (ties
-      left, within the law's tie tolerance); as H -> 0 this is sign(dV/dtheta), the
-      continuous law, which it keeps where both ends are off the grid;
-    * the planner's command is judged by what the filter can still do after it:
-      V where the command's hold ends, and after the better bang held for one more
-      period from there (the smaller of the two). A pass therefore never leaves the
-      robot below the level, nor where no held turn keeps V above it (the filter
-      acts one hold early rather than one hold late).
+    ``bang``; how a hold is judged: ``pairs.pair_reads``.
 
     A silent planner counts as a zero command (what the filter would forward).
     Translation invariance: the relative state moves like the robot itself.
