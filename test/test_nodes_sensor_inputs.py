@@ -276,3 +276,30 @@ def test_the_managed_fleet_filter_says_each_robot_on_diagnostics_only_once_confi
         f.close()
         f.destroy_node()
         watcher.destroy_node()
+
+
+def test_a_scan_filter_without_time_before_collision_warns(ros_context):
+    """A scan's discs change every message: without the speed cut nothing stops the robot before
+    what the scan saw, and the node says so at start-up (the Nav2 example config sets it)."""
+    from rcl_interfaces.msg import Log
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    watcher = Node('rosout_watcher', context=ros_context)
+    logs = []
+    latched = QoSProfile(depth=1000, durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                         reliability=ReliabilityPolicy.RELIABLE)      # /rosout keeps its history for late joiners
+    watcher.create_subscription(Log, '/rosout', logs.append, latched)
+    made = [filter_node(ros_context, '/no_cut_robot'), filter_node(ros_context, '/cut_robot', time_before_collision=0.5)]
+    spin = Spinner(ros_context, watcher, *made)
+    try:
+        def said(robot, words=''):       # logger names: <namespace>.<node>
+            return any(m.name.startswith(robot + '.') and words in m.msg for m in logs)
+        spin.until(lambda: said('no_cut_robot', 'time_before_collision is 0'), 15.0,
+                   'the WARN of the filter without the speed cut')
+        spin.until(lambda: said('cut_robot'), 15.0, 'a log line of the filter with the speed cut')
+        assert not said('cut_robot', 'time_before_collision is 0'), 'the filter with time_before_collision warned'
+    finally:
+        spin.shutdown()
+        for f in made:
+            f.close()
+            f.destroy_node()
+        watcher.destroy_node()

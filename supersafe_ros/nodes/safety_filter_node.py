@@ -135,6 +135,14 @@ class SafetyFilter:
         self.types = p
         self.poses = PoseHistory()
         self.sensor = SensorDiscs(p, self.poses) if p['detections_type'] in RANGE_SENSORS else None
+        c = w.params.config
+        if self.sensor is not None and c.time_before_collision <= 0.0 and not c.constant_speed:
+            # a scan's discs change every message: the value function alone does not keep the
+            # promise there (bench/results/sensors.md); the speed cut does, for a robot that can stop
+            self.get_logger().warning(
+                f"detections_type {p['detections_type']}: time_before_collision is 0, so nothing stops this "
+                'robot before an obstacle the scan saw when its discs change between messages; set it > 0 '
+                '(config/nav2_safety_filter.yaml: 0.5; docs/filter_node.md, "Stop before collision")')
         self._cmd_frame = ''              # the planner's TwistStamped frame, stamped on cmd_vel
         self.publish_on_pose = p['publish_on_pose']
         w.live.add('publish_on_pose', lambda v: setattr(self, 'publish_on_pose', bool(v)))
