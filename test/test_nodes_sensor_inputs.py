@@ -288,7 +288,8 @@ def test_a_scan_filter_without_time_before_collision_warns(ros_context):
     latched = QoSProfile(depth=1000, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                          reliability=ReliabilityPolicy.RELIABLE)      # /rosout keeps its history for late joiners
     watcher.create_subscription(Log, '/rosout', logs.append, latched)
-    made = [filter_node(ros_context, '/no_cut_robot'), filter_node(ros_context, '/cut_robot', time_before_collision=0.5)]
+    made = [filter_node(ros_context, '/no_cut_robot'),
+            filter_node(ros_context, '/cut_robot', time_before_collision=0.5)]
     spin = Spinner(ros_context, watcher, *made)
     try:
         def said(robot, words=''):       # logger names: <namespace>.<node>

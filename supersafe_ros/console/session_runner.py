@@ -283,6 +283,28 @@ def _interrupt(signum, frame):
     raise Interrupted(signum)
 
 
+def print_stacks_on_sigusr1() -> None:
+    """SIGUSR1 prints every thread's stack to stderr, the session going on.
+
+    Printed by a thread of its own that waits for the signal (``sigwait``), with the GIL held:
+    faulthandler's own C-level handler (``faulthandler.register``) reads the other threads'
+    frames while they run, and a session signalled so was seen to end in SIGSEGV. SIGUSR1 is
+    blocked in this thread and every thread it starts after (they inherit the mask); a thread
+    started before may still take it, so a Python-level handler prints the same."""
+    def dump(*_):
+        faulthandler.dump_traceback(file=sys.stderr, all_threads=True)
+
+    signal.signal(signal.SIGUSR1, dump)
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGUSR1})
+
+    def wait_and_dump():
+        while True:
+            signal.sigwait({signal.SIGUSR1})
+            dump()
+
+    threading.Thread(target=wait_and_dump, name='stacks on SIGUSR1', daemon=True).start()
+
+
 def run(args) -> int:
     if args.analyse:
         from .analysis import analyse
@@ -294,7 +316,7 @@ def run(args) -> int:
         print('session: --max-connections must be >= 1 and --rate-factor > 0', file=sys.stderr)
         return 2
     # evidence from a session that hangs: `kill -USR1 PID` prints where every thread is
-    faulthandler.register(signal.SIGUSR1, file=sys.stderr, all_threads=True)
+    print_stacks_on_sigusr1()
     for s in (signal.SIGINT, signal.SIGTERM):
         signal.signal(s, _interrupt)
     try:
