@@ -253,7 +253,10 @@ class SessionPhases:
             f = fits.get(name)
             self.say(f'fit {name.replace("_", "-")}: ' + (
                 f'w_max {float(f["omega_max"]):g}, mu {float(f["mu"]):.3f}, sigma {float(f["sigma"]):.3f}'
-                if f else 'none (no intervention): the Learned game uses the Standard set'))
+                + (f', {f["set_aside"]} encounter(s) set aside (no library entry explains them)'
+                   if f.get('set_aside') else '')
+                if f else 'none (no intervention the library can explain): the Learned game uses the '
+                'Standard set'))
         std, learned = researcher['turn_distance_standard'], researcher['turn_distance_learned']
         self.say(f'fit screen ({self.args.estimator}): head-on turn at '
                  f'{"-" if std is None else f"{std:.2f} m"} (standard) vs '

@@ -529,6 +529,17 @@ def conflicting_encounters(iv: EncounterIntervals, admissible=None) -> np.ndarra
     return empty[rows[int(np.argmin(counts))]].copy()
 
 
+def explainable_encounters(iv: EncounterIntervals, admissible=None) -> np.ndarray:
+    """bool[n_encounters]: the encounters a fit can use, all at once (an offline fit): those
+    ``unexplained_encounters`` set aside, then the fewest ``conflicting_encounters`` among the
+    rest (the online learner's rule, ``encounter_window``). All False if none is left."""
+    keep = ~unexplained_encounters(iv, admissible)
+    if keep.any():
+        rows = np.flatnonzero(keep)
+        keep[rows[conflicting_encounters(select_encounters(iv, keep), admissible)]] = False
+    return keep
+
+
 def select_encounters(iv: EncounterIntervals, keep) -> EncounterIntervals:
     """The encounters ``keep`` (bool or index array over encounters) of ``iv``."""
     keep = np.asarray(keep)

@@ -12,7 +12,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..learning.data import Encounter
-from ..learning.estimators import fit_first_passage
+from ..learning.estimators import (admissible_mask, encounter_intervals, explainable_encounters,
+                                   fit_first_passage_intervals, select_encounters)
 from ..reach.library import load_or_build_library
 from .protocol import FIT_KEYS, TRUE_OMEGA, Phase2Result
 
@@ -31,18 +32,32 @@ def phase2_encounters_from_scenes(scenes: list) -> list:
 
 
 def first_passage_offline(scenes: list):
-    """fit_first_passage over the library (conservative prior) -> (FitResult, fit dict);
-    no ROS message (the core engine's cross-check)."""
+    """fit_first_passage over the library (conservative prior) -> (FitResult, fit dict), or
+    (None, None) when no encounter is left to fit; no ROS message (the core engine's
+    cross-check). Encounters no admissible entry can explain (a click on an obstacle the
+    robot had already passed) are set aside as the learner node sets them aside
+    (``estimators.explainable_encounters``), and counted in the dict's ``set_aside``."""
     lib = load_or_build_library()
     true_vf = lib.entry(TRUE_OMEGA)
-    fit = fit_first_passage(lib.entries, phase2_encounters_from_scenes(scenes), true_vf=true_vf)
-    return fit, {k: v for k, v in fit.to_dict().items() if k not in ('candidates', 'notes')}
+    iv = encounter_intervals(lib.entries, phase2_encounters_from_scenes(scenes))
+    admissible = admissible_mask(lib.entries, true_vf)
+    keep = explainable_encounters(iv, admissible)
+    if not keep.any():
+        return None, None
+    fit = fit_first_passage_intervals(lib.entries, select_encounters(iv, keep), true_vf=true_vf,
+                                      admissible=admissible)
+    summary = {k: v for k, v in fit.to_dict().items() if k not in ('candidates', 'notes')}
+    summary['set_aside'] = int((~keep).sum())
+    return fit, summary
 
 
 def first_passage_fit(scenes: list):
-    """fit_first_passage over the library (conservative prior) -> (message, fit dict)."""
+    """fit_first_passage over the library (conservative prior) -> (message, fit dict), or
+    (None, None) when no encounter can be fitted (``first_passage_offline``)."""
     from ..ros_io.vfmsg import value_function_to_msg    # ROS message types: not in the core engine
     fit, summary = first_passage_offline(scenes)
+    if fit is None:
+        return None, None
     msg = value_function_to_msg(fit.value_function, **summary, source='learned')
     return msg, summary
 
@@ -70,7 +85,9 @@ def offline_cross_check(p2: Phase2Result) -> dict | None:
     if not len(p2.states):
         return None
     _, fit = first_passage_offline(p2.scenes)
-    return {k: fit.get(k) for k in FIT_KEYS + ('interventions', 'encounters')}
+    if fit is None:
+        return None
+    return {k: fit.get(k) for k in FIT_KEYS + ('interventions', 'encounters', 'set_aside')}
 
 
 def learned_value_functions(p2: Phase2Result, conditions) -> dict:
