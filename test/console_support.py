@@ -127,7 +127,7 @@ def wait_for_sim(predicate, clock, sim_seconds: float, what, stalled_after: floa
             raise AssertionError(
                 f'the simulated clock stood at {now} s for {stalled_after} s waiting for {described}{error}'
                 if stalled else
-                f'no {described} within {sim_seconds} simulated s (clock from {start} s to {now} s){error}')
+                f'{sim_seconds} simulated s passed waiting for {described} (clock from {start} s to {now} s){error}')
         time.sleep(period)
 
 
