@@ -92,6 +92,45 @@ def wait_until(predicate, timeout: float, what: str, period: float = 0.1):
                          + (f' (last error: {last_exc!r})' if last_exc else ''))
 
 
+def wait_for_sim(predicate, clock, sim_seconds: float, what, stalled_after: float = 120.0, period: float = 0.1):
+    """Poll ``predicate`` until it returns a truthy value (returned); fail once ``clock()``,
+    a simulated clock, has run ``sim_seconds`` since the call, or has not moved for
+    ``stalled_after`` wall seconds. A bound in the simulation's own time holds however
+    loaded the machine is; the wall-clock guard only catches a clock that stopped. A clock
+    that goes back (a new run's clock, from 0) counts on from there. ``what`` and errors
+    as in ``wait_until``."""
+    def read():
+        try:
+            return float(clock())
+        except Exception as exc:    # e.g. a page being reloaded
+            errors[:] = [exc]
+            return last
+    errors, last = [], None
+    start = last = read()
+    elapsed, moved_wall = 0.0, time.monotonic()
+    while True:
+        try:
+            value = predicate()
+            if value:
+                return value
+        except Exception as exc:
+            errors[:] = [exc]
+        now = read()
+        if now != last:
+            if last is not None:
+                elapsed += now - last if now > last else now
+            last, moved_wall = now, time.monotonic()
+        stalled = time.monotonic() - moved_wall > stalled_after
+        if stalled or elapsed > sim_seconds:
+            described = what() if callable(what) else what
+            error = f' (last error: {errors[-1]!r})' if errors else ''
+            raise AssertionError(
+                f'the simulated clock stood at {now} s for {stalled_after} s waiting for {described}{error}'
+                if stalled else
+                f'{sim_seconds} simulated s passed waiting for {described} (clock from {start} s to {now} s){error}')
+        time.sleep(period)
+
+
 def wait_for_server(url: str, timeout: float = 60.0):
     wait_until(lambda: http_status(url, timeout=2.0) == 200, timeout, f'{url} to answer 200')
 

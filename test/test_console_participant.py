@@ -27,10 +27,14 @@ import yaml
 from supersafe_ros.console import session as S
 from supersafe_ros.study.design import paper_plan
 from supersafe_ros.study.subjective import TEAM_ITEMS
-from console_support import DESKTOP, LAPTOP, Browser, dump_stacks, free_port, wait_for_server, wait_until
+from console_support import (DESKTOP, LAPTOP, Browser, dump_stacks, free_port, wait_for_server, wait_for_sim,
+                             wait_until)
 
 REPO = Path(__file__).resolve().parents[1]
 SCREENSHOT = REPO / 'docs' / 'img' / 'session_game.png'
+# a game's bound in the session's simulated time (the clock the page shows, which a loaded
+# machine slows): ten times the longest game here
+GAME_SIM_S = 60.0
 VIEWPORTS = {LAPTOP: (1280, 657), DESKTOP: (1920, 937)}
 
 PAGE = """
@@ -106,6 +110,10 @@ class Participant:
     def p(self):
         return page(self.d)
 
+    def sim_time(self) -> float:
+        """The running graph's simulated clock as the page has it (0 before a graph's first)."""
+        return self.d.execute_script('return (window.supersafeConsole || {}).simTime || 0')
+
     def check(self, what):
         p = self.p()
         assert_in_view(p, what)
@@ -119,9 +127,9 @@ class Participant:
         self.d.find_element('id', 'start').click()
         wait_until(lambda: self.p()['waiting'] != 'true' or self.p()['phase'] != phase, 30, f'{phase} to start')
 
-    def phase2(self, stops, timeout):
+    def phase2(self, stops, sim_seconds):
         """Space when the robot is 2.5-6 m before the obstacle, in the first ``stops`` scenes;
-        the rest pass. Returns the obstacles stopped."""
+        the rest pass; within ``sim_seconds`` of the scenes' clock. Returns the obstacles stopped."""
         from selenium.webdriver.common.keys import Keys
         handled = set()
 
@@ -137,7 +145,7 @@ class Participant:
                 handled.add(p['obstacle'])
                 self.check('phase2 running')
             return False
-        wait_until(step, timeout, 'Phase II to end', period=0.03)
+        wait_for_sim(step, self.sim_time, sim_seconds, 'Phase II to end', period=0.03)
         return handled
 
     def game(self, clicks, on_running=None):
@@ -156,7 +164,7 @@ class Participant:
                     self.d.find_element('css selector', '[data-obstacle-id]').click()
                     done[0] += 1
             return False
-        wait_until(step, 180, 'the game to end', period=0.3)
+        wait_for_sim(step, self.sim_time, GAME_SIM_S, 'the game to end', period=0.3)
 
     def likert(self, value):
         """Answer every statement ``value``; returns the page's text of the questionnaire."""
@@ -204,13 +212,14 @@ def test_scripted_participant_completes_the_whole_protocol_on_a_laptop_screen(tm
         person.press_start('phase1')
         wait_until(lambda: person.p()['running'] == 'true', 60, 'Phase I to run')
         ActionChains(d).key_down(Keys.ARROW_LEFT).perform()
-        wait_until(lambda: re.fullmatch(r'0:0[0-3] left', person.p()['clock']), 60, 'the Phase I countdown')
+        wait_for_sim(lambda: re.fullmatch(r'0:0[0-3] left', person.p()['clock']), person.sim_time, 60,
+                     'the Phase I countdown')
         person.check('phase1 running')
-        wait_until(lambda: person.p()['phase'] != 'phase1', 120, 'Phase I to end')
+        wait_for_sim(lambda: person.p()['phase'] != 'phase1', person.sim_time, 120, 'Phase I to end')
         ActionChains(d).key_up(Keys.ARROW_LEFT).perform()
 
         person.press_start('phase2')
-        handled = person.phase2(stops=n - 1, timeout=60 + 30 * n)
+        handled = person.phase2(stops=n - 1, sim_seconds=60 + 30 * n)
         wait_until(lambda: person.p()['phase'] == 'fit' and person.p()['waiting'] == 'true', 120, 'the fit')
         fit = person.check('fit')
         person.press_start('fit')
@@ -365,7 +374,7 @@ def test_sigint_in_phase_two_and_in_a_game_then_the_same_command_resumes_to_the_
                 d.find_element('tag name', 'body').send_keys(Keys.SPACE)
                 handled.add(p['obstacle'])
             return len(json.loads(session_json.read_text())['scenes']) == 1
-        wait_until(first_scene, 120, 'the first scene to be saved', period=0.03)
+        wait_for_sim(first_scene, person.sim_time, 120, 'the first scene to be saved', period=0.03)
         interrupt(proc, person, 'in Phase II')
         assert len(json.loads(session_json.read_text())['scenes']) == 1
 
@@ -375,7 +384,7 @@ def test_sigint_in_phase_two_and_in_a_game_then_the_same_command_resumes_to_the_
                    'the resumed Phase II')
         assert person.p()['clock'] == 'Scene 2 of 2' and not person.p()['banner']
         person.press_start('phase2')
-        person.phase2(stops=0, timeout=120)
+        person.phase2(stops=0, sim_seconds=120)
         person.press_start('fit')
         person.press_start('game')
         wait_until(lambda: person.p()['running'] == 'true', 120, 'game 1 to run')
