@@ -96,7 +96,8 @@ def bench_input(kind, args):
     msg_type, dtype, det = detections_message(kind, d.node.get_clock().now().to_msg())
     proc = start(node_cmd('safety_filter_node', ns, publish_on_pose=True, rate=1.0, detections_type=dtype,
                           cmd_timeout=30.0, pose_timeout=30.0, detections_timeout=30.0, hold_timeout=30.0,
-                          level_set_markers=False, obstacle_depth=args.obstacle_depth), f'sensors_{kind}')
+                          level_set_markers=False, obstacle_depth=args.obstacle_depth,
+                          time_before_collision=args.time_before_collision), f'sensors_{kind}')
     try:
         qos = qos_profile_sensor_data if dtype in ('laser_scan', 'point_cloud2') else rosmsg.QOS_STREAM
         det_pub = d.node.create_publisher(msg_type, f'{ns}/detections', qos)
@@ -129,7 +130,8 @@ def bench_input(kind, args):
                 made += 1
             d.spin_for(max(0.0, 1.0 / args.rate - (time.monotonic_ns() - t0) * 1e-9))
         cpu = (cpu_seconds(proc.pid) - cpu0) / max(1, made)
-        print(f'[{kind}, obstacle_depth {args.obstacle_depth:g}] detections -> cmd_vel: {ms(lat)}; filter CPU per '
+        print(f'[{kind}, obstacle_depth {args.obstacle_depth:g}, time_before_collision '
+              f'{args.time_before_collision:g}] detections -> cmd_vel: {ms(lat)}; filter CPU per '
               f'decision {cpu * 1e3:.2f} ms '
               f'(load {os.getloadavg()[0]:.1f})', flush=True)
         return lat, cpu
@@ -146,6 +148,9 @@ def main(argv=None):
     parser.add_argument('--rate', type=float, default=20.0, help='messages per second [Hz]')
     parser.add_argument('--obstacle-depth', type=float, default=0.0,
                         help='the filter\'s obstacle_depth: each return stands for its beam this far behind it [m]')
+    parser.add_argument('--time-before-collision', type=float, default=0.0,
+                        help='the filter\'s time_before_collision: > 0 cuts each command\'s speed so that its '
+                        'path enters no disc (filter/approach.py) [s]')
     args = parser.parse_args(argv)
     ensure_local_ros_env()
     os.environ.setdefault('ROS_DOMAIN_ID', str(150 + os.getpid() % 80))
