@@ -168,6 +168,10 @@ def batched_tick(d, spin, states, turns, want, what, frame='map'):
     spin.spin_for(0.05)    # commands in before the poses tick
     d.fleet_poses.publish(fleet_poses(states, frame))
     spin.until(lambda: d.fleet_out and want(d.fleet_newest()), 10.0, what)
+    # the reply read is one sent after that state: the state and the reply of one tick come on
+    # two topics, and a loaded reader may hold the state before that tick's reply (seen in CI)
+    seen = len(d.fleet_out)
+    spin.until(lambda: len(d.fleet_out) > seen, 10.0, f'{what}: a reply after the state')
     rows = np.asarray(d.fleet_out[-1].data).reshape(-1, 2)
     assert rows.shape == (3, 2)
     assert [x.label for x in d.fleet_out[-1].layout.dim] == ['robot', 'linear_x,angular_z']
