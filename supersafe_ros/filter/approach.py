@@ -187,9 +187,9 @@ def blocked_turns(filters, away) -> np.ndarray:
     return out
 
 
-def limit(rb, states, dets, omega, linear, action_code):
-    """The law's commands ``omega``, ``linear`` (per robot row of ``rb``, ``gather.RobotColumns``,
-    its state now ``states`` (M, 3) and its detections ``dets``, all of them, with ``rb.radii``)
+def limit(rb, omega, linear, action_code):
+    """The law's commands ``omega``, ``linear`` (per robot row of ``rb``, ``gather.RobotColumns``:
+    its state now ``rb.states`` and its detections ``rb.dets``, all of them, with ``rb.radii``)
     with each speed cut to what its path over tau allows (``allowed_speeds``), for the robots
     whose configuration has ``time_before_collision`` > 0 (robots that can stop); a robot cut to
     0 where the law passes or overrides (``action_code`` 0 or 1) turns in place
@@ -219,9 +219,9 @@ def limit(rb, states, dets, omega, linear, action_code):
     idx = np.flatnonzero(on)
     if len(idx) == 0:
         return lim
-    dets = [dets[i] for i in idx.tolist()]
+    dets = [rb.dets[i] for i in idx.tolist()]
     radii = [rb.configs[i].radius if rb.radii[i] is None else rb.radii[i] for i in idx.tolist()]
-    speed, blocker, away = allowed_speeds(states[idx], lim.linear[idx], lim.omega[idx], lim.tau[idx], dets, radii)
+    speed, blocker, away = allowed_speeds(rb.states[idx], lim.linear[idx], lim.omega[idx], lim.tau[idx], dets, radii)
     cut = speed < lim.linear[idx]
     lim.limited[idx] = cut
     lim.obstacle[idx] = blocker

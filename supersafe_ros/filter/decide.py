@@ -41,7 +41,7 @@ def step_many(filters, safe_set: SafeSet, t, clusters=None) -> Decisions:
     tab, n_groups, solving = constraint_rows(rb, safe_set, clusters)
     decided = decide_rows(tab, len(rb.use), n_groups, rb.overriding, rb.margin, rb.failing, rb.fresh, rb.planned,
                           rb.bang, rb.drive, rb.held, rb.constant)
-    limits = limit(rb, rb.states, rb.dets, *decided[:3])
+    limits = limit(rb, *decided[:3])
     decisions = outputs(filters, rb, safe_set, tab, decided, solving, limits)
     record(filters, decisions, t, rb.all_keep)
     return decisions
