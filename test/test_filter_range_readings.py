@@ -1,4 +1,4 @@
-"""filter.range_readings: a scan's beams as REP 117 readings, a cloud's strict layout, the pose at a stamp (ROS-free)."""
+"""filter.range_readings: a scan's beams as REP 117 readings, a cloud's strict layout, the pose at a stamp."""
 import array
 import math
 

@@ -87,8 +87,8 @@ class Rays:
 
     def counts(self) -> dict:
         """The counts by kind, for a view summary."""
-        return {k: getattr(self, k) for k in ('beams', 'returns', 'near_objects', 'no_return', 'erroneous',
-                                             'below_min', 'beyond_max')}
+        kinds = ('beams', 'returns', 'near_objects', 'no_return', 'erroneous', 'below_min', 'beyond_max')
+        return {k: getattr(self, k) for k in kinds}
 
     def problem(self) -> str:
         """A plain-words note when the scan looks wrong ('' when it is fine): more than a quarter of
