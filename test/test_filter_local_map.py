@@ -286,6 +286,22 @@ def test_marks_outside_the_window_are_ignored_and_seeing_free_cells_is_a_change(
     assert m.version == version + 1, 'seen free again: no change'
 
 
+@pytest.mark.parametrize('copies', [1, 30000])
+def test_the_slack_of_a_return_outside_the_window_marks_the_cells_inside_it_reaches(copies):
+    m = new_map()
+    hit = (5.01, 0.09)                              # the window ends at x = 5; off its cell's centre
+    m.integrate_points((4.0, hit[1], 0.0), np.repeat([[hit[0] - 4.0, 0.0]], copies, axis=0), slack=0.25)
+    got = {tuple(np.round(c / CELL - 0.5).astype(int)) for c in m.occupied_centres(*hit, 1.0)}
+    exact = {(i, j) for i in range(40, 50) for j in range(-5, 6)
+             if math.hypot((i + 0.5) * CELL - hit[0], (j + 0.5) * CELL - hit[1]) <= 0.25}
+    assert exact and exact <= got
+    if copies == 1:
+        assert got == exact
+    else:                                           # merged per cell: at most the cell's half diagonal more
+        assert all(math.hypot((i + 0.5) * CELL - hit[0], (j + 0.5) * CELL - hit[1]) <= 0.25 + 2 * m.cell_radius
+                   for i, j in got)
+
+
 # -- clouds -----------------------------------------------------------------------------------------
 def test_every_point_of_a_cloud_marks_its_cell_and_nan_points_say_nothing():
     m = new_map()
@@ -325,6 +341,13 @@ def test_a_sensor_outside_the_window_clears_from_the_window_edge_and_a_beam_away
     assert m.seen.sum() == 30
 
 
+def test_a_cloud_point_marks_its_ray_depth_behind_it():
+    m = new_map(depth=0.5)
+    m.integrate_points((0.05, 0.05, 0.0), [[2.0, 0.0], [0.0, -1.0]])
+    assert all(is_occupied(m, x, 0.05) for x in (2.05, 2.25, 2.45)) and not is_occupied(m, 2.65, 0.05)
+    assert all(is_occupied(m, 0.05, y) for y in (-0.95, -1.15, -1.35)) and not is_occupied(m, 0.05, -1.55)
+
+
 def test_a_cloud_in_the_sensor_frame_is_turned_by_the_sensor_yaw():
     m = new_map()
     m.integrate_points((1.0, 1.0, math.pi / 2), [[2.05, 0.0]])
@@ -343,7 +366,7 @@ def test_a_cloud_with_slack_marks_the_cells_within_it_merged_or_not():
     assert exact == brute | own
     # past the budget the points are merged per cell: a superset, at most half a cell's diagonal more
     many = new_map()
-    many.integrate_points((0.0, 0.0, 0.0), np.repeat(points, 200, axis=0), slack=0.17)
+    many.integrate_points((0.0, 0.0, 0.0), np.repeat(points, 400, axis=0), slack=0.17)
     merged = {tuple(np.round(c / CELL - 0.5).astype(int)) for c in many.occupied_centres(0.0, 0.0, 10.0)}
     wider = {(i, j) for i in range(-50, 50) for j in range(-50, 50)
              if np.hypot((i + 0.5) * CELL - points[:, 0], (j + 0.5) * CELL - points[:, 1]).min()

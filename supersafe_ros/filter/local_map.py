@@ -35,7 +35,8 @@ A cloud has no beams: each point marks its cell, and its rays from the sensor cl
 work (100,000 points), the points are binned by bearing, in bins of 2 pi / m with m > 2 pi R / c
 (R the distance from the sensor to the window's farthest corner: a bin is under a cell wide at the
 window's edge), and only the ray to each bin's nearest point clears (exact for that point; the
-bin's farther points clear nothing). Cells outside the window are ignored.
+bin's farther points clear nothing). ``depth`` and ``slack`` apply to a cloud's points as to a scan's
+returns (the beam of a point: the ray from the sensor to it). Cells outside the window are ignored.
 
 **Why clearing fewer is the safe side.** A cell wrongly left occupied is an obstacle that is not
 there: the filter may slow or turn the robot for nothing. A cell wrongly cleared is an obstacle
@@ -271,32 +272,37 @@ def _disc_cells(points, radius, shape) -> np.ndarray:
     units), point by point in blocks of BUDGET elements; past BUDGET in all, the points are merged per cell
     first (a superset): each cell with points holds the largest of their radii + sqrt(2) / 2 about its
     centre, and every offset of the disc stencil is one pass over the box."""
-    reach = math.ceil(float(radius.max())) + 1
-    out = np.zeros(shape, dtype=bool)
-    if len(points) * (2 * reach + 1) ** 2 <= BUDGET:
-        offsets = np.stack(np.meshgrid(np.arange(-reach, reach + 1), np.arange(-reach, reach + 1),
-                                       indexing='ij'), axis=-1).reshape(1, -1, 2)
-        step = max(1, BUDGET // offsets.shape[1])
-        for at in range(0, len(points), step):
-            p, r = points[at:at + step], radius[at:at + step]
-            cells = np.floor(p)[:, None, :] + offsets
-            d = cells + 0.5 - p[:, None, :]
-            ok = (d[..., 0] ** 2 + d[..., 1] ** 2 <= (r * r)[:, None]) & (cells[..., 0] >= 0) & \
-                (cells[..., 0] < shape[0]) & (cells[..., 1] >= 0) & (cells[..., 1] < shape[1])
-            out.reshape(-1)[(cells[ok][:, 0] * shape[1] + cells[ok][:, 1]).astype(np.intp)] = True
-        return out
-    ext = (shape[0] + 2 * reach, shape[1] + 2 * reach)     # the box and the cells whose discs may reach it
-    ij = np.floor(points).astype(np.int64) + reach
-    ok = (ij[:, 0] >= 0) & (ij[:, 0] < ext[0]) & (ij[:, 1] >= 0) & (ij[:, 1] < ext[1])
-    largest = np.full(ext[0] * ext[1], -1.0)
-    np.maximum.at(largest, ij[ok, 0] * ext[1] + ij[ok, 1], radius[ok] + math.sqrt(0.5))
-    largest = largest.reshape(ext)
-    for di in range(-reach, reach + 1):
-        for dj in range(-reach, reach + 1):
-            # box cell (a, b) is within reach of the cell (a - di, b - dj) when that one's disc holds |(di, dj)|
-            source = largest[reach - di:reach - di + shape[0], reach - dj:reach - dj + shape[1]]
-            out |= source >= math.hypot(di, dj)
-    return out
+    # a centre within r of a point of cell (a, b) is that of a cell (a + di, b + dj) with |(di, dj)| <= r + sqrt(1/2)
+    largest = float(radius.max()) + math.sqrt(0.5)
+    reach = math.ceil(largest)
+    di, dj = np.meshgrid(np.arange(-reach, reach + 1), np.arange(-reach, reach + 1), indexing='ij')
+    keep = np.hypot(di, dj) <= largest
+    di, dj = di[keep], dj[keep]
+    cell = np.floor(points)
+    near = (cell[:, 0] >= -reach) & (cell[:, 0] < shape[0] + reach) & (cell[:, 1] >= -reach) & \
+        (cell[:, 1] < shape[1] + reach)                         # the others reach no cell of the box
+    points, radius, cell = points[near], radius[near], cell[near]
+    border = 2 * reach
+    ext = (shape[0] + 2 * border, shape[1] + 2 * border)
+    out = np.zeros(ext, dtype=bool)
+    if len(points) * len(di) <= BUDGET:
+        offset = (di * ext[1] + dj)[None, :]
+        base = ((cell[:, 0] + border) * ext[1] + cell[:, 1] + border).astype(np.intp)[:, None]
+        dx = (cell[:, 0] + 0.5 - points[:, 0])[:, None] + di
+        dy = (cell[:, 1] + 0.5 - points[:, 1])[:, None] + dj
+        dx *= dx
+        dy *= dy
+        dx += dy
+        out.reshape(-1)[(base + offset)[dx <= (radius * radius)[:, None]]] = True
+    else:
+        holds = np.full(ext, -1.0)
+        np.maximum.at(holds.reshape(-1), ((cell[:, 0] + border) * ext[1] + cell[:, 1] + border).astype(np.intp),
+                      radius + math.sqrt(0.5))
+        for a, b in zip(di.tolist(), dj.tolist()):
+            # cell (i, j) is within the disc of the cell (i - a, j - b) when that one's holds |(a, b)|
+            out[border:border + shape[0], border:border + shape[1]] |= \
+                holds[border - a:border - a + shape[0], border - b:border - b + shape[1]] >= math.hypot(a, b)
+    return out[border:border + shape[0], border:border + shape[1]]
 
 
 class LocalMap:
