@@ -90,6 +90,16 @@ def test_plus_inf_clears_its_beam_to_range_max_only_when_the_driver_says_so():
     assert not is_occupied(m, 3.95, 0.0) and is_seen(m, 3.95, 0.0) and not is_seen(m, 4.15, 0.0)
 
 
+def test_beams_of_any_finite_length_clear_across_the_window():
+    m = new_map()
+    all_occupied(m)
+    with np.errstate(all='raise'):
+        m.integrate_rays((0.0, 0.05, 0.0), scan_rays([math.inf, 1e300], 0.0, math.pi, math.pi, 0.0, 1e300,
+                                                     inf_is_valid=True))
+    assert not m.occupied[:, 50].any(), 'both beams along y = 0.05 clear the whole row'
+    assert m.occupied.sum() == 100 * 99
+
+
 def test_a_return_beyond_a_marked_cell_clears_it_and_a_return_at_it_keeps_it():
     m = new_map()
     beam = dict(lo=-0.001, hi=0.001)
@@ -300,6 +310,25 @@ def test_the_slack_of_a_return_outside_the_window_marks_the_cells_inside_it_reac
     else:                                           # merged per cell: at most the cell's half diagonal more
         assert all(math.hypot((i + 0.5) * CELL - hit[0], (j + 0.5) * CELL - hit[1]) <= 0.25 + 2 * m.cell_radius
                    for i, j in got)
+
+
+def test_merged_slack_discs_are_the_discs_about_their_cells_centres():
+    rng = np.random.default_rng(5)
+    points = rng.uniform(-4.0, 4.0, (40, 2))
+    slack = rng.uniform(0.0, 0.6, 40)
+    m = new_map()
+    m.integrate_points((0.0, 0.0, 0.0), np.repeat(points, 2000, axis=0), slack=np.repeat(slack, 2000))
+    got = {tuple(np.round(c / CELL - 0.5).astype(int)) for c in m.occupied_centres(0.0, 0.0, 10.0)}
+    own = np.floor(points / CELL)                       # each point's cell holds its slack + half a diagonal
+    expected = {(i, j) for i in range(-50, 50) for j in range(-50, 50)
+                if (np.hypot(own[:, 0] - i, own[:, 1] - j) <= slack / CELL + math.sqrt(0.5)).any()}
+    assert got == expected
+
+
+def test_a_slack_over_the_window_side_is_refused():
+    m = new_map()
+    with pytest.raises(ValueError, match=r"slack 12 m is over the window's side \(10 m\)"):
+        m.integrate_points((0.0, 0.0, 0.0), [[1.0, 0.0]], slack=12.0)
 
 
 # -- clouds -----------------------------------------------------------------------------------------

@@ -60,13 +60,14 @@ grid takes the grid cell's value: >= occupied_threshold occupied, 0 .. threshold
 **Cost** (vectorised, no Python loop over beams or points; bench/bench_local_map.py prints it): a
 scan is O(beams x range / c) (two cells per column crossing, in (beams x columns) blocks of beams of
 similar length, so that short beams are not padded to the longest), plus a few byte-wide passes over
-the part of the window the message reaches; a mark with slack s is O((s / c)^2) cells (past 2^20
-marks x cells, as for a large cloud, the marks are merged per cell first and each cell's disc grown
-by its half diagonal, a superset, one pass over that part of the window per cell of the disc); depth
-adds O(returns x depth / c); a cloud is O(M) to bin its points and a scan of at most m rays; a grid
-O(the window's cells on its footprint). ``version`` grows by one whenever a cell changes (occupied,
-or seen for the first time) or the window moves, so a background solve can tell that the map it read
-is out of date (``snapshot``).
+the part of the window the message reaches; a mark with slack s is O((s / c)^2) cells; past 2^20
+marks x cells (a large cloud) the marks are merged per cell first, each cell's disc grown by its half
+diagonal (a superset), in 2 s / c + 3 passes over that part of the window. A slack over the window's
+side is refused (the pose is too far from the stamp to place anything). Depth adds O(returns x depth
+/ c); a cloud is O(M) to bin its points and a scan of at most m rays; a grid O(the window's cells on
+its footprint). ``version`` grows by one whenever a cell changes (occupied, or seen for the first
+time) or the window moves, so a background solve can tell that the map it read is out of date
+(``snapshot``).
 """
 from __future__ import annotations
 
@@ -271,7 +272,7 @@ def _disc_cells(points, radius, shape) -> np.ndarray:
     """(shape) bool: the cells whose centres lie within ``radius`` (per point) of the ``points`` (box cell
     units), point by point in blocks of BUDGET elements; past BUDGET in all, the points are merged per cell
     first (a superset): each cell with points holds the largest of their radii + sqrt(2) / 2 about its
-    centre, and every offset of the disc stencil is one pass over the box."""
+    centre, found row offset by row offset (2 r + 1 passes over the box's rows, each of its sources)."""
     # a centre within r of a point of cell (a, b) is that of a cell (a + di, b + dj) with |(di, dj)| <= r + sqrt(1/2)
     largest = float(radius.max()) + math.sqrt(0.5)
     reach = math.ceil(largest)
@@ -295,13 +296,21 @@ def _disc_cells(points, radius, shape) -> np.ndarray:
         dx += dy
         out.reshape(-1)[(base + offset)[dx <= (radius * radius)[:, None]]] = True
     else:
+        # merged per cell; row offset a: a source cell (i - a, s) of radius r covers (i, x) for |x - s| <=
+        # w = floor(sqrt(r^2 - a^2)): some source left of x reaches it (running max of s + w) or right of it
         holds = np.full(ext, -1.0)
         np.maximum.at(holds.reshape(-1), ((cell[:, 0] + border) * ext[1] + cell[:, 1] + border).astype(np.intp),
                       radius + math.sqrt(0.5))
-        for a, b in zip(di.tolist(), dj.tolist()):
-            # cell (i, j) is within the disc of the cell (i - a, j - b) when that one's holds |(a, b)|
-            out[border:border + shape[0], border:border + shape[1]] |= \
-                holds[border - a:border - a + shape[0], border - b:border - b + shape[1]] >= math.hypot(a, b)
+        squared = np.where(holds >= 0.0, holds * holds, -1.0)
+        column = np.arange(ext[1], dtype=np.float64)
+        rows = slice(border, border + shape[0])
+        for a in range(-reach, reach + 1):
+            source = squared[border - a:border - a + shape[0]]       # the sources of the box's rows
+            width = np.floor(np.sqrt(np.maximum(source - a * a, 0.0)))
+            valid = source >= a * a
+            right = np.maximum.accumulate(np.where(valid, column + width, -np.inf), axis=1)
+            left = np.minimum.accumulate(np.where(valid, column - width, np.inf)[:, ::-1], axis=1)[:, ::-1]
+            out[rows] |= (right >= column) | (left <= column)
     return out[border:border + shape[0], border:border + shape[1]]
 
 
@@ -375,7 +384,7 @@ class LocalMap:
         (m, a number or one per beam) marks every cell whose centre is within it of a return (see the
         module: clear, then mark, then depth)."""
         sx, sy, yaw = _finite_pose(sensor_pose, 'sensor_pose')
-        slack = _per_item(slack, rays.beams, 'slack')
+        slack = self._slack(slack, rays.beams)
         direction = np.column_stack([np.cos(rays.angles + yaw), np.sin(rays.angles + yaw)])
         clearing = rays.clear > 0.0
         marks = np.asarray(rays.mark, dtype=bool)
@@ -389,7 +398,7 @@ class LocalMap:
         the nearest point of each bearing bin clears (see the module). Points not finite say nothing."""
         sx, sy, yaw = _finite_pose(sensor_pose, 'sensor_pose')
         p = np.asarray(points_xy, dtype=np.float64).reshape(-1, 2)
-        slack = _per_item(slack, len(p), 'slack')
+        slack = self._slack(slack, len(p))
         total = len(p)
         if not np.isfinite(p).all():
             finite = np.isfinite(p[:, 0]) & np.isfinite(p[:, 1])
@@ -419,6 +428,14 @@ class LocalMap:
         return self._integrate('cloud', (sx, sy), offset[nearest] / dist[nearest, None], dist[nearest], hits,
                                slack, hit_dir, counts, problem)
 
+    def _slack(self, slack, count: int) -> np.ndarray:
+        """The slack per return, checked: finite, >= 0 and at most the window's side (a return placed that
+        loosely is not placed: the caller's pose is too far from the stamp)."""
+        slack = _per_item(slack, count, 'slack')
+        if count and slack.max() > self.settings.size:
+            raise ValueError(f'slack {slack.max():g} m is over the window\'s side ({self.settings.size:g} m)')
+        return slack
+
     def _integrate(self, kind, sensor, clear_dir, clear_len, hits, slack, hit_dir, counts, problem) -> ViewSummary:
         """Clear, mark, depth (the module's steps) for one message, within the box of the window it reaches."""
         if not self.placed:
@@ -430,9 +447,10 @@ class LocalMap:
             grow = float(slack.max()) + depth                       # marks reach this far from their returns
             lo = np.minimum(lo, [hits[:, 0].min() - grow, hits[:, 1].min() - grow])
             hi = np.maximum(hi, [hits[:, 0].max() + grow, hits[:, 1].max() + grow])
-        lo = np.floor(np.asarray(lo) / c).astype(np.int64) - self._corner - 1
-        hi = np.floor(np.asarray(hi) / c).astype(np.int64) - self._corner + 2
-        (bi0, bj0), (bi1, bj1) = np.maximum(lo, 0), np.minimum(hi, n)
+        # in floats, clipped to the window before the cast (a beam may be 1e30 m long)
+        lo = np.clip(np.floor(np.asarray(lo) / c) - self._corner - 1, 0, n).astype(np.int64)
+        hi = np.clip(np.floor(np.asarray(hi) / c) - self._corner + 2, 0, n).astype(np.int64)
+        (bi0, bj0), (bi1, bj1) = lo, hi
         if bi0 >= bi1 or bj0 >= bj1:                              # the message reaches no cell of the window
             self.last_view = ViewSummary(kind, 0, 0, counts, problem)
             return self.last_view
@@ -498,10 +516,10 @@ class LocalMap:
             return self.last_view
         foot = np.array([[0, 0], [width, 0], [0, height], [width, height]], dtype=np.float64) * resolution
         foot = foot @ np.array([[cy, sn], [-sn, cy]]) + (ox, oy)
-        lo = np.floor(foot.min(axis=0) / self.cell).astype(np.int64) - self._corner - 1
-        hi = np.floor(foot.max(axis=0) / self.cell).astype(np.int64) - self._corner + 2
         n = self.shape[0]
-        (bi0, bj0), (bi1, bj1) = np.maximum(lo, 0), np.minimum(hi, n)
+        lo = np.clip(np.floor(foot.min(axis=0) / self.cell) - self._corner - 1, 0, n).astype(np.int64)
+        hi = np.clip(np.floor(foot.max(axis=0) / self.cell) - self._corner + 2, 0, n).astype(np.int64)
+        (bi0, bj0), (bi1, bj1) = lo, hi
         if bi0 >= bi1 or bj0 >= bj1:
             self.last_view = ViewSummary('grid', 0, 0, {'cells': width * height}, '')
             return self.last_view
