@@ -312,10 +312,11 @@ def test_the_slack_of_a_return_outside_the_window_marks_the_cells_inside_it_reac
                    for i, j in got)
 
 
-def test_merged_slack_discs_are_the_discs_about_their_cells_centres():
+@pytest.mark.parametrize('widest', [0.2, 0.6, 1.5])
+def test_merged_slack_discs_are_the_discs_about_their_cells_centres(widest):
     rng = np.random.default_rng(5)
     points = rng.uniform(-4.0, 4.0, (40, 2))
-    slack = rng.uniform(0.0, 0.6, 40)
+    slack = rng.uniform(0.0, widest, 40)
     m = new_map()
     m.integrate_points((0.0, 0.0, 0.0), np.repeat(points, 2000, axis=0), slack=np.repeat(slack, 2000))
     got = {tuple(np.round(c / CELL - 0.5).astype(int)) for c in m.occupied_centres(0.0, 0.0, 10.0)}

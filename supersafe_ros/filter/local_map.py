@@ -272,7 +272,7 @@ def _disc_cells(points, radius, shape) -> np.ndarray:
     """(shape) bool: the cells whose centres lie within ``radius`` (per point) of the ``points`` (box cell
     units), point by point in blocks of BUDGET elements; past BUDGET in all, the points are merged per cell
     first (a superset): each cell with points holds the largest of their radii + sqrt(2) / 2 about its
-    centre, found row offset by row offset (2 r + 1 passes over the box's rows, each of its sources)."""
+    centre: one pass over the box per offset of the disc, or for a wide disc per row offset (2 r + 1)."""
     # a centre within r of a point of cell (a, b) is that of a cell (a + di, b + dj) with |(di, dj)| <= r + sqrt(1/2)
     largest = float(radius.max()) + math.sqrt(0.5)
     reach = math.ceil(largest)
@@ -296,21 +296,29 @@ def _disc_cells(points, radius, shape) -> np.ndarray:
         dx += dy
         out.reshape(-1)[(base + offset)[dx <= (radius * radius)[:, None]]] = True
     else:
-        # merged per cell; row offset a: a source cell (i - a, s) of radius r covers (i, x) for |x - s| <=
-        # w = floor(sqrt(r^2 - a^2)): some source left of x reaches it (running max of s + w) or right of it
-        holds = np.full(ext, -1.0)
+        holds = np.full(ext, -1.0, dtype=np.float32)
         np.maximum.at(holds.reshape(-1), ((cell[:, 0] + border) * ext[1] + cell[:, 1] + border).astype(np.intp),
-                      radius + math.sqrt(0.5))
-        squared = np.where(holds >= 0.0, holds * holds, -1.0)
-        column = np.arange(ext[1], dtype=np.float64)
-        rows = slice(border, border + shape[0])
-        for a in range(-reach, reach + 1):
-            source = squared[border - a:border - a + shape[0]]       # the sources of the box's rows
-            width = np.floor(np.sqrt(np.maximum(source - a * a, 0.0)))
-            valid = source >= a * a
-            right = np.maximum.accumulate(np.where(valid, column + width, -np.inf), axis=1)
-            left = np.minimum.accumulate(np.where(valid, column - width, np.inf)[:, ::-1], axis=1)[:, ::-1]
-            out[rows] |= (right >= column) | (left <= column)
+                      ((radius + math.sqrt(0.5)) * (1.0 + 1e-6)).astype(np.float32))   # rounded up: a superset
+        box = (slice(border, border + shape[0]), slice(border, border + shape[1]))
+        if len(di) <= 9 * (2 * reach + 1):
+            for a, b in zip(di.tolist(), dj.tolist()):
+                # cell (i, j) is within the disc of the cell (i - a, j - b) when that one's holds |(a, b)|
+                out[box] |= holds[border - a:border - a + shape[0], border - b:border - b + shape[1]] >= \
+                    np.float32(math.hypot(a, b))
+        else:
+            # a wide disc, row offset by row offset a: a source (i - a, s) of radius r covers (i, x) when
+            # |x - s| <= w = floor(sqrt(r^2 - a^2)) (w = -1: none): some source left of x reaches it (a
+            # running max of s + w) or one right of it (a running min of s - w)
+            squared = holds * holds
+            squared[holds < 0.0] = -1.0
+            column = np.arange(ext[1], dtype=np.float32)
+            for a in range(-reach, reach + 1):
+                left = squared[border - a:border - a + shape[0]] - np.float32(a * a)
+                width = np.floor(np.sqrt(np.maximum(left, 0.0)))
+                width -= left < 0.0
+                right = np.maximum.accumulate(column + width, axis=1)
+                left = np.minimum.accumulate((column - width)[:, ::-1], axis=1)[:, ::-1]
+                out[box[0]] |= (right >= column) | (left <= column)
     return out[border:border + shape[0], border:border + shape[1]]
 
 
