@@ -84,7 +84,7 @@ from ..ros_io import cdr, rosmsg, sensors
 from ..ros_io.direct_take import DirectTake
 from .common import ParameterSpec, declare_all, run_node
 from .filter_diagnostics import FilterDiagnostics, StatusCopies
-from .filter_inputs import (INPUT_PARAMETERS, RANGE_SENSORS, PoseHistory, SensorDiscs, check_types,
+from .filter_inputs import (INPUT_PARAMETERS, MAP_SENSORS, RANGE_SENSORS, PoseHistory, SensorMap, check_types,
                             command_message_type, message_type, pose_of)
 from .filter_state import HoldSummary, StateThrottle
 from .managed import node_classes
@@ -134,15 +134,24 @@ class SafetyFilter:
         check_types(p)
         self.types = p
         self.poses = PoseHistory()
-        self.sensor = SensorDiscs(p, self.poses) if p['detections_type'] in RANGE_SENSORS else None
         c = w.params.config
+        self.sensor = None
+        if p['detections_type'] in MAP_SENSORS:
+            self.sensor = SensorMap(p, self.poses, c, w.params.standard_horizon, w.frame)
+            s = self.sensor.value_settings
+            self.get_logger().info(
+                f"{self.sensor.view.sensor}: a local map of {p['map_size']:g} m at {p['map_cell']:g} m cells, judged by "
+                f'its avoid value (speed {c.speed:g}, w_max {c.omega_max:g}, clearance {p["robot_radius"]:g} m, '
+                f'horizon {s.horizon:g} s, {s.cell:g} m x {s.headings} headings), solved again in the background at '
+                f'most every {p["value_period"]:g} s while the map changes')
         if self.sensor is not None and c.time_before_collision <= 0.0 and not c.constant_speed:
-            # a scan's discs change every message: the value function alone does not keep the
-            # promise there (bench/results/sensors.md); the speed cut does, for a robot that can stop
+            # the map's value is that of the map at its solve time; what the map learns between
+            # solves is judged only by the speed cut, for a robot that can stop
             self.get_logger().warning(
                 f"detections_type {p['detections_type']}: time_before_collision is 0, so nothing stops this "
-                'robot before an obstacle the scan saw when its discs change between messages; set it > 0 '
+                'robot before an obstacle the map learned since its value was last solved; set it > 0 '
                 '(config/nav2_safety_filter.yaml: 0.5; docs/filter_node.md, "Stop before collision")')
+        self._first_value = None        # the map's first value, told once
         self._cmd_frame = ''              # the planner's TwistStamped frame, stamped on cmd_vel
         self.publish_on_pose = p['publish_on_pose']
         w.live.add('publish_on_pose', lambda v: setattr(self, 'publish_on_pose', bool(v)))
@@ -209,7 +218,8 @@ class SafetyFilter:
             kind = p['detections_type']
             callback = {'pose_array': self.on_detections, 'marker_array': self.on_markers}.get(
                 kind, self.on_range_sensor)
-            qos = qos_profile_sensor_data if kind in RANGE_SENSORS else rosmsg.QOS_STREAM
+            qos = (qos_profile_sensor_data if kind in RANGE_SENSORS else
+                   rosmsg.QOS_LATCHED if kind == 'occupancy_grid' else rosmsg.QOS_STREAM)
             inputs.append((message_type(kind), 'detections', callback, kind == 'pose_array', qos))
         stamped = p['cmd_vel_stamped']
         inputs.append((command_message_type(stamped), 'cmd_vel_nav',
@@ -224,10 +234,25 @@ class SafetyFilter:
             out = self._last_out
             if out is not None:
                 state = self.wiring.state_message(self.name, out)
-                return [self._copies.of(0, state, name, ns, None if self.active else
-                                        f'inactive (lifecycle): no cmd_vel; last: {state.message}')]
+                status = self._copies.of(0, state, name, ns, None if self.active else
+                                         f'inactive (lifecycle): no cmd_vel; last: {state.message}')
+                note = self._sensor_note()
+                if note:        # what the sensor's last message says of itself (every beam NaN, ...)
+                    status.level = bytes([max(status.level[0], DiagnosticStatus.WARN[0])])
+                    status.message = f'{status.message}; {note}'
+                return [status]
         return [DiagnosticStatus(level=DiagnosticStatus.ERROR, name=name, hardware_id=ns,
                                  message='no decision yet' if self.active else 'inactive: no cmd_vel')]
+
+    def _sensor_note(self) -> str:
+        """The range sensor's or costmap's last problem, in words ('' if none): its last message's (every
+        beam NaN, ...) or the refusal of the newest ones."""
+        if self.sensor is None:
+            return ''
+        det = self.filter.detections
+        if det.refused:
+            return f'{det.refusals} {self.sensor.view.sensor} message(s) refused since the last valid one: {det.refused}'
+        return f'{self.sensor.view.sensor}: {self.sensor.note}' if self.sensor.note else ''
 
     def _say_ready(self):
         """Make the latched safety_filter/ready publisher (once; on the executor's thread)."""
@@ -330,23 +355,50 @@ class SafetyFilter:
         self._take_detections(discs, t)
 
     def on_range_sensor(self, msg):
-        """A LaserScan or PointCloud2 (detections_type): its returns as covering discs in map,
-        placed with the pose nearest its stamp (filter_inputs.SensorDiscs); a message with no
-        return in range is "looked, nothing seen"."""
+        """A LaserScan, PointCloud2 or OccupancyGrid (detections_type): checked, placed with the robot's pose
+        at its stamp and put into the local map (filter_inputs.SensorMap); the map's value asked for again;
+        then a decision (every sensor message triggers one, but in lockstep). A message refused leaves the
+        map as it was: the filter fails safe once its last valid view is ``detections_timeout`` old."""
         w = self.wiring
         t = w.now()
-        if not self.poses.stamps:       # starting: the scan came before the first pose (said once, not an error)
-            self.filter.reject_detections('no pose received yet to place the returns with', t)
-            w.complain('detections before pose', 'a scan before the first pose: waiting for a pose to place its '
+        sensor = self.sensor.view.sensor
+        if not self.poses.stamps and self.sensor.kind != 'occupancy_grid':
+            # starting: the scan came before the first pose (said once, not an error)
+            w.complain('detections before pose', f'a {sensor} before the first pose: waiting for a pose to place its '
                        'returns with (failing safe until then)', level='info')
             return
         try:
             stamp = w.stamp(msg.header.stamp, t)
-            discs = self.sensor.discs(msg, t if stamp is None else stamp, w.config, w.config.pose_timeout)
-        except ValueError as exc:
-            self._refuse_detections(exc, t)
+            summary = self.sensor.take(msg, t if stamp is None else stamp, w.config, w.config.pose_timeout)
+        except ValueError as exc:     # MessageError: the fault named; the view stays as it was
+            self.filter.refuse_view(f'{sensor} refused: {exc}', t)
+            w.complain(f'{sensor} refused', f'{sensor} refused: {exc}; the map stays as it was (failing safe once '
+                       f'its last valid view is detections_timeout {w.config.detections_timeout:g} s old)',
+                       level='error')
+        else:
+            self.filter.update_view(self.sensor.view, t)
+            self._inputs_ready = True      # the watchdog (executor thread) says so
+            if summary.problem:
+                w.complain(f'{sensor} note', f'{sensor}: {summary.problem}', level='warn')
+            self._ask_value()
+        if not self.lockstep:
+            self.decide(t)
+
+    def _ask_value(self):
+        """The map's value solved again around the robot (at most every value_period), for the set in force:
+        the learned w_max where a learned set is, the robot's own otherwise."""
+        newest = self.poses.newest
+        if newest is None:
             return
-        self._take_detections(discs, t, solve_clusters=False)     # new geometry every message: no union solve
+        safe = self.wiring.safe_set
+        omega = safe.omega_max if safe.source == 'learned' and safe.omega_max is not None else self.wiring.config.omega_max
+        self.sensor.solve(float(omega), time.monotonic(), float(newest[0]), float(newest[1]))
+        value = self.sensor.worker.latest()
+        if value is not None and self._first_value is None:
+            self._first_value = value
+            g = value.vf.grid
+            self.get_logger().info(f'{self.sensor.view.sensor} map: its first value solved in {value.solve_s:.3g} s '
+                                   f'(a window of {g.hi[0] - g.lo[0]:.3g} m, grid {g.shape})')
 
     def _refuse_detections(self, exc, t):
         self.filter.reject_detections(str(exc), t)
@@ -429,8 +481,23 @@ class SafetyFilter:
         self._last_out = out
         self._tell_story(out)
         if self._throttle.due(now, out.action, w.set_update, w.state_period):
-            self.state_pub.publish(w.state_message(self.name, out))
+            self.state_pub.publish(w.state_message(self.name, out, self._map_values()))
         return out
+
+    def _map_values(self):
+        """A robot judged by its local map: the map's and its value's state values (None otherwise)."""
+        if self.sensor is None:
+            return None
+        value = self.sensor.worker.latest()
+        last = self.sensor.last
+        return {
+            'map_version': str(self.sensor.map.version),
+            'map_value_version': '' if value is None else str(value.version),
+            'map_value_solve_s': '' if value is None else f'{value.solve_s:.3g}',
+            'map_value_errors': str(len(self.sensor.worker.errors)),
+            'view': '' if last is None else f'{last.kind}: {last.marked} cells marked, {last.cleared} cleared',
+            'view_problem': self._sensor_note(),
+        }
 
     def _publish_command(self, out):
         if self.types['cmd_vel_stamped']:
@@ -464,6 +531,8 @@ class SafetyFilter:
     def close(self):
         if self.direct is not None:
             self.direct.close()
+        if self.sensor is not None:
+            self.sensor.close()
         self._holds.flush()
         self.wiring.close()
         self.wiring.live.close()
