@@ -52,7 +52,8 @@ def sound_nodes(mv):
 def test_one_occupied_cell_is_the_disc_that_holds_it():
     snap = with_cells(empty_map(), (0.0, 0.05, 0.0, 0.05))
     mv = solve(snap, (0.4, -0.3))
-    disc = solve_avoid(mv.vf.grid, DubinsCar(SPEED, OMEGA), Disc(0.025, 0.025, CELL * math.sqrt(2) / 2 + CLEARANCE), 3.0)
+    holder = Disc(0.025, 0.025, CELL * math.sqrt(2) / 2 + CLEARANCE)
+    disc = solve_avoid(mv.vf.grid, DubinsCar(SPEED, OMEGA), holder, 3.0)
     inner = sound_nodes(mv)
     err = np.abs(mv.vf.values - disc.values)[inner]
     assert err.max() < 0.01
@@ -68,7 +69,8 @@ def test_a_disc_of_cells_is_the_disc_that_holds_them_within_a_cell():
     occupied = np.hypot(centres_x[:, None] - centre[0], centres_x[None, :] - centre[1]) <= 0.5
     snap = MapArrays(snap.origin, CELL, occupied, 2)
     mv = solve(snap, (0.3, 0.0))
-    disc = solve_avoid(mv.vf.grid, DubinsCar(SPEED, OMEGA), Disc(*centre, 0.5 + CELL * math.sqrt(2) / 2 + CLEARANCE), 3.0)
+    holder = Disc(*centre, 0.5 + CELL * math.sqrt(2) / 2 + CLEARANCE)
+    disc = solve_avoid(mv.vf.grid, DubinsCar(SPEED, OMEGA), holder, 3.0)
     g = mv.vf.grid
     X, Y = np.meshgrid(g.x, g.y, indexing='ij')
     outside = sound_nodes(mv) & (np.hypot(X - centre[0], Y - centre[1]) > 0.5 + CELL)    # not in the cells
