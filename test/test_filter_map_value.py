@@ -271,3 +271,23 @@ def test_nothing_changed_nothing_solved_and_the_window_stays_while_the_robot_is_
     assert worker.solved == 3
     worker.submit(snapshots()[1], (0.7, 0.0), omega_max=0.5, stamp=5)       # another turn bound
     assert worker.solved == 4 and worker.latest().omega_max == 0.5 and worker.latest().vf.omega_max == 0.5
+
+
+def test_a_change_beyond_the_windows_reach_solves_nothing():
+    """The window's field is all a solve reads: a cell changed where no node of it is nearer to that cell
+    than to the walls about the window keeps the value; one inside it does not."""
+    boxed = with_cells(empty_map(), (-4.0, 4.0, -4.0, -3.7), (-4.0, 4.0, 3.7, 4.0), (-4.0, -3.7, -4.0, 4.0),
+                       (3.7, 4.0, -4.0, 4.0), version=1)
+    first = solve(boxed, (0.0, 0.0))
+    beyond = with_cells(boxed, (4.5, 4.55, 4.5, 4.55), version=2)
+    kept = solve_map_value(beyond, (0.0, 0.0), SPEED, OMEGA, CLEARANCE, MapValueSettings(), stamp='b', previous=first)
+    assert kept.vf is first.vf and kept.stamp == 'b' and kept.version == 2
+    inside = with_cells(boxed, (1.0, 1.05, 0.0, 0.05), version=3)
+    fresh = solve_map_value(inside, (0.0, 0.0), SPEED, OMEGA, CLEARANCE, MapValueSettings(), previous=first)
+    assert fresh.vf is not first.vf and fresh.version == 3
+    other = solve_map_value(beyond, (0.0, 0.0), SPEED, OMEGA, 0.2, MapValueSettings(), previous=first)
+    assert other.vf is not first.vf                 # another clearance: another problem
+    worker = MapValueWorker(SPEED, OMEGA, CLEARANCE, inline=True)
+    for snap in (boxed, beyond, inside):
+        worker.submit(snap, (0.0, 0.0))
+    assert (worker.solved, worker.skipped) == (2, 1)
