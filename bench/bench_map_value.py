@@ -23,7 +23,9 @@ Sections:
   steps' work an exact incremental re-solve would have to redo (that region summed over the
   steps), and the share of nodes whose value did change.
 * ``gil``: a main-thread loop of small decisions (value_at reads, ~1 ms of pure Python each)
-  timed alone and while a worker solves robot (1)'s window continuously: p50, p99, max.
+  timed alone and while a worker solves robot (1)'s window continuously (a new map every
+  iteration, latest wins), in alternated blocks: p50, p90, p99, max, the share over twice the
+  lone p50; and the solve's own time beside the loop (the GIL is shared both ways).
 
 Each section prints /proc/loadavg before and after.
 """
@@ -349,28 +351,49 @@ def section_gil(iterations: int):
         start = (k * 37) % (len(states) - reads)
         return sum(vf.value_at(x, y, t) for x, y, t in states[start:start + reads])
 
-    def loop(worker=None):
+    solves = {}
+
+    def loop(count, worker=None):
         times = []
-        for k in range(iterations):
+        for k in range(count):
             if worker is not None:
                 worker.submit(other if k % 2 else snap, (0.3, 0.1), stamp=k)     # always something to solve
+                value = worker.latest()
+                if value is not None:
+                    solves[id(value.vf)] = value.solve_s
             t0 = time.perf_counter()
             decision(k)
             times.append(time.perf_counter() - t0)
         return times
 
-    loop()
-    alone = loop()
+    def idle(worker):
+        """Until the worker has nothing left to solve (bounded)."""
+        for _ in range(3000):
+            if worker._pending is None and worker.latest() is not None and worker.latest().stamp == last[0]:
+                return
+            time.sleep(0.001)
+
+    loop(200)
+    alone, busy, block, last = [], [], max(1, iterations // 4), [None]
     worker = MapValueWorker(robot.speed, robot.omega, robot.clearance, robot.settings)
     try:
-        busy = loop(worker)
+        for _ in range(4):              # alternated blocks: the machine's other load falls on both alike
+            alone += loop(block)
+            busy += loop(block, worker)
+            last[0] = block - 1
+            idle(worker)
     finally:
         worker.close(30.0)
     for name, times in (('alone', alone), ('beside a worker solving', busy)):
-        q = np.percentile(times, [50, 99])
-        print(f'  {name:24s} p50 {ms(q[0])}  p99 {ms(q[1])}  max {ms(max(times))}  ({iterations} iterations)')
+        q = np.percentile(times, [50, 90, 99])
+        over = np.mean(np.asarray(times) > 2 * q[0] if name == 'alone' else np.asarray(times) > 2 * np.median(alone))
+        print(f'  {name:24s} p50 {ms(q[0])}  p90 {ms(q[1])}  p99 {ms(q[2])}  max {ms(max(times))}  '
+              f'over twice the lone p50: {100 * over:4.1f} %  ({len(times)} iterations)')
     print(f'  (a decision: {reads} value_at reads; the worker solved {worker.solved} times meanwhile, '
-          f'{worker.replaced} requests replaced)')
+          f'{worker.replaced} requests replaced; blocks of {block} alternated)')
+    lone = [timed_solve(robot, other if k % 2 else snap, (0.3, 0.1), mvmod._Windows())[0] for k in range(5)]
+    print(f'  the solve itself beside the loop: median {ms(statistics.median(solves.values()))} '
+          f'({len(solves)} seen), alone {ms(statistics.median(lone))}')
     print(f'   load after: {load()}\n', flush=True)
 
 
@@ -379,7 +402,7 @@ def main(argv=None):
     parser.add_argument('--only', choices=('solves', 'incremental', 'gil'), action='append')
     parser.add_argument('--repeat', type=int, default=9)
     parser.add_argument('--scans', type=int, default=120)
-    parser.add_argument('--iterations', type=int, default=2000)
+    parser.add_argument('--iterations', type=int, default=2000, help='decisions timed alone, and as many beside')
     parser.add_argument('--noise', type=float, action='append', help='scan range noise (m); default 0 and 0.01')
     args = parser.parse_args(argv)
     only = args.only or ('solves', 'incremental', 'gil')

@@ -12,7 +12,7 @@ from supersafe_ros.filter.map_value import (MapArrays, MapValueSettings, MapValu
 from supersafe_ros.reach.dynamics import DubinsCar
 from supersafe_ros.reach.field import FREE
 from supersafe_ros.reach.sets import Disc
-from supersafe_ros.reach.solver import solve_avoid
+from supersafe_ros.reach.solver import AvoidSolver, solve_avoid
 
 CELL = 0.05                     # the map's cell (a Nav2 robot's costmap)
 SPEED, OMEGA, CLEARANCE = 0.5, 1.0, 0.25
@@ -136,6 +136,9 @@ def test_the_window_is_centred_on_the_value_lattice_and_sound_where_it_says():
     assert mv.centre == pytest.approx((0.325, -0.275)) and mv.vf.meta['window']['half_width'] == pytest.approx(half)
     assert mv.sound_half_width == pytest.approx(sound) and sound >= MapValueSettings().reach - 1e-9
     assert mv.version == 5 and mv.vf.meta['map']['version'] == 5
+    (x0, y0), (x1, y1) = AvoidSolver(mv.vf.grid, DubinsCar(SPEED, OMEGA)).read_bounds()
+    (f0, g0), (f1, g1) = mv.keepout.lo, mv.keepout.hi
+    assert f0 < x0 and g0 < y0 and f1 > x1 and g1 > y1          # the solver never reads the field's outside
     big = solve(snap, (0.31, -0.27), reach=3.0)
     g = mv.vf.grid
     here = big.vf.value(np.stack(np.meshgrid(g.x, g.y, g.theta, indexing='ij'), axis=-1))

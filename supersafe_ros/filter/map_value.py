@@ -1,63 +1,79 @@
 """One avoid value for everything the local map holds: solved over a window, in the background.
 
-The problem. A Dubins car (speed v, turn bound w) and the keep-out set of the map's occupied
-cells grown by the robot's radius ``clearance``: l = ``reach.field.occupancy_field`` (the
-distance to the nearest occupied cell's centre, less the cell's half diagonal and the
-clearance; a lower bound of the true clearance at the field's nodes), and
+The problem. A Dubins car (speed v, turn bound w) and the map's occupied cells grown by the
+robot's radius ``clearance``: l = ``reach.field.occupancy_field`` (the distance to the nearest
+occupied cell's centre less the cell's half diagonal and the clearance, a lower bound of the
+true clearance at the field's nodes, bilinear between them), and
 
     V(x) = max over u(.) of min over t in [0, T] of l(x(t)),   T = ``horizon``,
 
-by ``reach.solver.AvoidSolver`` on a window of the plane around the robot, in map coordinates:
+by ``reach.solver.AvoidSolver`` over a window of the plane about the robot, in map coordinates:
 the "obstacle" is at the origin, so a filter reads V and dV/dtheta at the robot's own state.
+One value for the union of everything seen: a door is as wide as it is, not a heap of discs.
 
-The window. Value nodes lie on a world-fixed lattice: a (x, y) = map_cell/2 + cell (i, j), so
-that with ``cell`` a multiple of the map's cell they are cell centres, where l is the field's
-own node value (no interpolation term). The window is centred on the node nearest the centre
-asked for, half-width h = n cell. The solver pads the grid and holds l, not V_n, on the rim:
-a node within the rim distance r_dep of the edge (``AvoidSolver.rim_distance``: the sum of
-every step's farthest read but the first's, ~ v T plus one cell per step) may read that rim;
-a node farther in has the value of an unbounded grid. So n is the least with
-h >= ``reach`` + r_dep, capped at ``max_half_width``, and V is sound within
-``MapValue.sound_half_width`` = h - r_dep of the window's centre (``MapValue.covers``): that
-is where the robot may be, when the value is read, for V to be the value over the whole map.
-The field is built over everything the solver reads (the padded plane) from the map padded
-with free cells, with the distance transform over the whole map, so no occupied cell outside
-the window is missed and ``outside`` is never read.
+The window. Value nodes lie on the world-fixed lattice map_cell/2 + cell (i, j): with ``cell`` a
+multiple of the map's cell they are cell centres, where l is the field's own node value (no
+interpolation term). The window is centred on the node nearest the centre asked for and has
+half-width h = n cell. The solver pads its grid and holds l there, not V_n: a node within the
+rim distance r_dep of the edge (``AvoidSolver.rim_distance``: the sum over the steps but the
+first of each step's farthest read, about v T plus up to a cell a step) may read that rim; a
+node farther in has the value of an unbounded grid. So n is the least with h >= ``reach`` +
+r_dep (capped by ``max_half_width``; a cap that leaves nothing sound is refused), and V is the
+value over the whole map within ``MapValue.sound_half_width`` = h - r_dep >= ``reach`` of the
+centre (``MapValue.covers``). ``reach`` is the robot's room: where it may be when the value is
+read. The worker keeps a window while the robot is within ``recentre`` of its centre, so
+reach - recentre is the travel between a submit and the read (robot (1) below: 1 m, 2 s).
+A step that reads just under a whole number of cells spreads least: at v 3, w 1, cell 0.25,
+32 headings need the solver's 2x heading refinement (steps of 0.098 s, 1.18 cells: r_dep 15 m
+for v T = 9 m), 38 do not (0.165 s, 1.98 cells: r_dep 9 m); 6x less work for the same reach.
+The field covers everything the solver reads (``AvoidSolver.read_bounds``), from the map padded
+with free cells, the distance transform over the whole map: no occupied cell outside the
+window is missed, and the field's ``outside`` is never read.
 
-Re-solving: what the value can reuse (the issue asked for a re-solve "warm-started from the
-last one"):
+Re-solving. The issue asked for a re-solve "warm-started from the last one":
 
-* A warm start from the last V is not sound as a value of horizon T. The step operator G_l
-  (V_n+1 = G_l V_n) is monotone, V_0 = l, and V_T = G_l^N(l). Iterating from the previous
-  value W = V_T(old map) gives G_l^m(W): with an unchanged map that is V_(T + m dt), the
-  value of a longer horizon (lower: the level set grows with every re-solve); and where the
-  map cleared a cell, W <= l_old < l_new there, and G_l^m(W) <= G_l^m(l_new) keeps the old
-  obstacle's low values wherever a trajectory ends near it: the iteration from below never
-  recovers. N steps from W give a value between V_(T + N dt) and V_T, not V_T.
-* (a) An exact incremental re-solve: V_n at a node depends only on l within its numerical
-  domain of dependence (about ceil(v dt / cell) cells a step), so one could keep each step's
-  layer and recompute only what a change can reach. ``bench/bench_map_value.py`` measures
-  that region over a robot driving through rooms, scanning: a re-solve would still recompute
-  most of the window (the figures are in the bench's output and quoted below), because the
-  region of a changed cell is a disc of radius ~ v T in a window of half-width v T + reach,
-  and a scan changes cells along its whole field of view. It does not pay: not built.
-* (b) Reuse of everything that does not depend on the map: one ``AvoidSolver`` per (speed,
-  w, window shape), its step plans, gather indices, weights and padded buffer kept across
-  solves and window moves; each solve computes the field, l, the path minima and the steps.
-* (c) No solve when nothing changed: the same occupancy (contents, origin, cell), window,
-  w, speed and clearance as the last solve: the last value is kept (its ``stamp`` and version
-  updated). And none when the map changed beyond the window's reach: the solve reads l only
-  through the window's field, so the same field (on the same lattice) and problem give the same
-  value (``solve_map_value(..., previous=...)``; the field costs a few ms, the solve tens).
-  ``MapValueWorker`` keeps the window's centre while the robot stays within ``recentre`` of it,
-  so a robot parked in an unchanging map solves nothing.
+* A warm start from the last V is not a value of horizon T. The step operator G_l (V_n+1 =
+  G_l V_n, V_0 = l, V_T = G_l^N(l)) is monotone, and G_l V <= l. From the previous value W, m
+  steps with the map unchanged give G_l^m(V_T) = V_(T + m dt): a longer horizon, lower, and lower
+  again at every re-solve; where the map cleared a cell, W <= l_old < l_new there, and
+  G_l^m(W) <= G_l^m(l_new) stays below the cleared map's value wherever a trajectory ends near
+  the old obstacle: an iteration from below never recovers. And G_l^N(W) <= G_l^N(l) = V_T for
+  any W <= l: N steps from W are conservative, stale, and cost what N steps from l cost. Not done.
+* (a) An exact incremental re-solve: V_n at a node depends on l only within its numerical
+  domain of dependence, so one could keep each step's layer and recompute only what a change
+  can reach. ``bench/bench_map_value.py`` propagates that region exactly (through the solver's
+  own gathers and path minima) for robot (1) driving 6 m through two rooms, a 360-beam scan
+  every 0.1 s: with 1 cm range noise (surfaces flicker by a cell, as a Nav2 obstacle layer's
+  do) every scan changed the window's field, and an incremental re-solve would redo a median
+  84 % of the steps' work (p10 70 %); 53 % of the nodes did change. Noise-free, a median 3
+  cells change per scan; 39 of 90 such scans left the field in the window as it was (no solve,
+  below), and the rest would redo a median 4 % (p90 32 %). The realistic case does not pay,
+  and the other is already cheap (tens of ms, below): not built.
+* (b) Reuse of what does not depend on the map: one ``AvoidSolver`` per (speed, w, window
+  shape), its step plans, gather indices, weights and padded buffer kept across solves and
+  window moves; each solve computes the field, l, the path minima and the steps from l.
+* (c) No solve when nothing changed: the same occupancy (contents, origin, cell), window, w,
+  speed and clearance as the last solve keep the last value (its ``stamp`` and version
+  updated). Nor when the map changed beyond the window's reach: a solve reads l only through
+  the window's field, so the same field on the same lattice and the same problem give the
+  same value (``solve_map_value(..., previous=...)``: the field costs ~2 ms, a solve ~35).
 
-Figures (``bench/bench_map_value.py``; see its output for the machine's load): FIGURES.
+Figures (``bench/bench_map_value.py`` on this 2-core machine beside other work, load ~2):
+robot (1) (v 0.5, w 1, clearance 0.25, map cell 0.05, value cell 0.1, 32 headings, T 3 s,
+reach 1.5 m): window half-width 2.9 m (59 x 59 x 32 nodes, 8 steps); first solve 40 ms,
+re-solve after five cells changed 36 ms, after the window moved 0.5 m 39 ms, nothing changed
+0.05 ms, a change beyond the window's reach 2 ms. Robot (2) (v 3, w 1, clearance 0.1, map cell
+0.2, value cell 0.25, 38 headings, reach 3 m): half-width 12 m (97 x 97 x 38, 19 steps); 174,
+159, 156 ms, 0.05 ms and 0.7 ms (at 32 headings: half-width 18 m, 0.8 to 1.2 s). Reuse (b)
+saves 1 to 6 ms of robot (1)'s solve and 11 ms of robot (2)'s; the field's separable bilinear
+path (``reach.field``) saves 62 ms of robot (1)'s (98 ms through the general path).
 
-``MapValueWorker`` solves in a daemon thread, latest wins: a submit while a solve runs
-replaces the pending request (one slot, never a queue); ``latest()`` is a reference read.
-numpy releases the GIL only inside large array operations, so a solve delays pure-Python
-work in other threads (figures above). ``inline=True`` solves in the caller's thread instead.
+``MapValueWorker`` solves in a daemon thread, latest wins: a submit while a solve runs replaces
+the pending request (one slot, never a queue); ``latest()`` is a reference read. numpy releases
+the GIL only inside large array operations, so the threads share it: a 1 ms pure-Python loop
+beside a worker solving robot (1)'s window continuously kept its p50 (1.0 ms) and p90, its p99
+went from 1.1 to 2.0 ms (max 13 ms, 1.2 % of iterations over 2 ms), and the solve took 74 ms
+instead of ~50. ``inline=True`` solves in the caller's thread instead (deterministic trials).
 """
 from __future__ import annotations
 

@@ -36,9 +36,9 @@ At the nodes this is a lower bound of the clearance to everything in an occupied
 cell lies in the disc of radius c sqrt(2)/2 (its half diagonal) about its centre, so for any
 point q of cell (k, m), |p - q| >= |p - c_km| - c sqrt(2)/2 >= D(p) - c sqrt(2)/2: the robot
 (a disc of radius ``clearance`` about p) touches no occupied cell while l(p) > 0. The bound
-is loose by at most c (sqrt(2) - 1)/2 for a node facing a wall of cells side on
-(0.0104 m at c = 0.05), by c sqrt(2)/2 next to a lone cell's corner... no: facing a corner
-it is exact (the corner is on the disc).
+is loose by at most c sqrt(2)/2 (the distance to a cell is at most that to its centre; the
+worst case is a node inside an occupied cell); a node squarely facing a wall of cells is
+c (sqrt(2) - 1)/2 low (0.0104 m at c = 0.05), one facing a lone cell's corner diagonally is exact.
 
 Between nodes the bilinear interpolant is a convex combination of the four node values, so
 it lies between their minimum and maximum, but it is not a lower bound of the true
@@ -49,8 +49,8 @@ f(p) + |p - p_n| at each node and
 
 (the weighted distance to the corners is largest, c sqrt(2)/2, at the cell's centre). The
 node bound's own slack covers part of it; a caller that needs l <= f everywhere adds
-c sqrt(2)/2 to the clearance. Near a convex obstacle (the distance to one point is convex)
-interpolation overestimates, never underestimates, the node field.
+c sqrt(2)/2 to the clearance. Where D is the distance to one centre (a convex function),
+bilinear interpolation overestimates it, never underestimates it.
 
 No occupied cell: l = ``FREE`` on every node.
 """
