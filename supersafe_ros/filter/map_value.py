@@ -58,22 +58,25 @@ Re-solving. The issue asked for a re-solve "warm-started from the last one":
   the window's field, so the same field on the same lattice and the same problem give the
   same value (``solve_map_value(..., previous=...)``: the field costs ~2 ms, a solve ~35).
 
-Figures (``bench/bench_map_value.py`` on this 2-core machine beside other work, load ~2):
-robot (1) (v 0.5, w 1, clearance 0.25, map cell 0.05, value cell 0.1, 32 headings, T 3 s,
-reach 1.5 m): window half-width 2.9 m (59 x 59 x 32 nodes, 8 steps); first solve 40 ms,
-re-solve after five cells changed 36 ms, after the window moved 0.5 m 39 ms, nothing changed
-0.05 ms, a change beyond the window's reach 2 ms. Robot (2) (v 3, w 1, clearance 0.1, map cell
-0.2, value cell 0.25, 38 headings, reach 3 m): half-width 12 m (97 x 97 x 38, 19 steps); 174,
-159, 156 ms, 0.05 ms and 0.7 ms (at 32 headings: half-width 18 m, 0.8 to 1.2 s). Reuse (b)
-saves 1 to 6 ms of robot (1)'s solve and 11 ms of robot (2)'s; the field's separable bilinear
-path (``reach.field``) saves 62 ms of robot (1)'s (98 ms through the general path).
+Figures (``bench/bench_map_value.py``, two runs in bench/results/map_value.md; this 2-core
+machine beside other work, load 1.5-2.2): robot (1) (v 0.5, w 1, clearance 0.25, map cell
+0.05, value cell 0.1, 32 headings, T 3 s, reach 1.5 m): window half-width 2.9 m (59 x 59 x 32
+nodes, 8 steps); first solve 37-40 ms, re-solve after five cells changed 31-36 ms, after the
+window moved 0.5 m 32-39 ms, nothing changed 0.05 ms, a change beyond the window's reach 2 ms.
+Robot (2) (v 3, w 1, clearance 0.1, map cell 0.2, value cell 0.25, 38 headings, reach 3 m):
+half-width 12 m (97 x 97 x 38, 19 steps): 166-174, 149-159, 146-156 ms, 0.05 ms, 0.7 ms (at 32
+headings: half-width 18 m, 0.8-1.2 s). Reuse (b) saves 1-5 ms of robot (1)'s solve and 7-11 ms
+of robot (2)'s; the field's separable path (``reach.field``) ~60 ms of robot (1)'s (91-98 ms
+through the general bilinear path).
 
 ``MapValueWorker`` solves in a daemon thread, latest wins: a submit while a solve runs replaces
 the pending request (one slot, never a queue); ``latest()`` is a reference read. numpy releases
-the GIL only inside large array operations, so the threads share it: a 1 ms pure-Python loop
-beside a worker solving robot (1)'s window continuously kept its p50 (1.0 ms) and p90, its p99
-went from 1.1 to 2.0 ms (max 13 ms, 1.2 % of iterations over 2 ms), and the solve took 74 ms
-instead of ~50. ``inline=True`` solves in the caller's thread instead (deterministic trials).
+the GIL only inside large array operations, so the threads share it: a ~1 ms pure-Python loop
+of value reads beside a worker solving robot (1)'s window continuously kept its p50 and p90
+(0.7-1.0 ms); its p99 went from 2.2 to 2.3 ms and its max from 8.2 to 5.0 ms in alternated
+blocks (a sequential run: p99 4.9 -> 5.1 ms, max 8.9 -> 97 ms; the machine's other load moves
+these more than the solve does), and the solve took 72 ms beside the loop against 27 alone.
+``inline=True`` solves in the caller's thread instead (deterministic trials and tests).
 """
 from __future__ import annotations
 
