@@ -20,6 +20,13 @@ heading, so it can land between heading nodes without error.
 
 States whose step leaves the grid read V = l there: exact for states moving
 away from the keep-out set (the common case at the rim), an upper bound otherwise.
+A step reads at most a few cells from each node, so only nodes within the sum of
+those reads (``AvoidSolver.rim_distance``, about v T plus up to a cell a step) of
+the edge can see that rim; the nodes farther in have an unbounded grid's values.
+
+``AvoidSolver`` keeps what does not depend on the keep-out set (step plans, gather
+indices and weights, the padded buffer) across solves of one grid shape, which may
+move; ``solve_avoid`` is one solve of a new one.
 
 Without a horizon the iteration runs until the largest change of a step falls
 below ``tol`` (V_n decreases monotonically in n).
@@ -99,7 +106,7 @@ class _SlabStepper:
         self.keepout = None
 
     def bind(self, lo, keepout) -> None:
-        """Solve for ``keepout`` on the grid translated to lower corner ``lo`` (same shape and spacing)."""
+        """Set up a solve for ``keepout`` on the grid translated to lower corner ``lo`` (same shape, spacing)."""
         nx, ny, nth = self.grid.shape
         dx, dy, _ = self.grid.spacing
         p = self.pad
@@ -203,9 +210,9 @@ class AvoidSolver:
     step kind's gather indices and weights, the padded buffer) is built once, at construction
     and at the first solve of a horizon; ``solve`` computes l, the path minima and the steps.
     ``solve(keepout, horizon)`` equals ``solve_avoid(grid, dynamics, keepout, horizon, settings)``
-    bit for bit (solve_avoid is that call on a new solver; test_reach_solver checks it after
-    other solves). ``solve(..., lo=...)`` solves on the grid translated to lower corner ``lo``.
-    One solve at a time (the buffers are shared).
+    bit for bit (solve_avoid is that call on a new solver; test_reach_field checks it after
+    other solves, and against the solver as it was, test/solver_oracle.py). ``solve(..., lo=...)``
+    solves on the grid translated to lower corner ``lo``. One solve at a time (shared buffers).
     """
 
     def __init__(self, grid: Grid, dynamics: DubinsCar, settings: SolverSettings | None = None):
