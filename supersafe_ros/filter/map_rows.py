@@ -24,7 +24,9 @@ Between solves the value is that of the map at its solve time (``MapValue.versio
 map learned since is judged by the speed cut (``filter.approach``) on the live map's occupied
 cells, each the disc of its cell grown by the robot's clearance (``cut_discs``): the guarantee
 between solves, for a robot that can stop. Off the solved window V reads +inf (the row does not
-constrain; the cut still does).
+constrain; the cut still does): V is the map's only within ``MapValue.covers`` (near the
+window's rim the solver reads l beyond it), so a robot outside that part reads +inf there too,
+until the worker's next solve (around the robot: ``MapValueWorker`` recentres the window).
 """
 from __future__ import annotations
 
@@ -90,11 +92,14 @@ def map_rows(views, values, rows, states, planned, horizon, speed, bang, safe_se
         vf = mv.vf
         vfs.append(vf)
         rel = states[i:i + 1]
-        value, value_next = pair_reads(vf, rel, planned[i:i + 1], horizon[i:i + 1], speed[i:i + 1], bang[i:i + 1])
-        out['value'][j], out['value_next'][j] = value[0], value_next[0]
+        x, y = float(states[i, 0]), float(states[i, 1])
+        if mv.covers(x, y):      # (near the window's rim V reads l beyond it: not the map's value)
+            value, value_next = pair_reads(vf, rel, planned[i:i + 1], horizon[i:i + 1], speed[i:i + 1],
+                                           bang[i:i + 1])
+            out['value'][j], out['value_next'][j] = value[0], value_next[0]
         out['level'][j] = map_value_level(mv, safe_set, configs[i])
         reach = 2.0 * float(speed[i]) * float(horizon[i]) + 2.0 + view.clearance
-        out['xy'][j], out['gap'][j] = nearest_cell(view, float(states[i, 0]), float(states[i, 1]), reach)
+        out['xy'][j], out['gap'][j] = nearest_cell(view, x, y, reach)
 
     def turns_of(picked) -> np.ndarray:
         turn = np.zeros(len(picked))

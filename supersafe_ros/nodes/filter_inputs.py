@@ -195,6 +195,7 @@ class SensorMap:
         if self.kind == 'occupancy_grid':
             summary = self._take_grid(msg)
         else:
+            readings = self._scan(msg) if self.kind == 'laser_scan' else self._cloud(msg)   # checked first
             pose, gap = self.history.at(stamp, pose_timeout)
             if pose is None:
                 raise MessageError('no pose received yet to place the returns with')
@@ -206,14 +207,13 @@ class SensorMap:
             # from where it is put (the robot moved at most that since); 0 when interpolated
             reach = math.hypot(self.mount[0], self.mount[1])
             if self.kind == 'laser_scan':
-                rays = self._scan(msg)
-                slack = 0.0 if gap == 0.0 else config.speed * gap + (rays.mark_range + reach) * config.omega_max * gap
-                summary = self.map.integrate_rays(sensor, rays, slack)
-            else:
-                xy = self._cloud(msg)
                 slack = 0.0 if gap == 0.0 else (config.speed * gap
-                                                + (np.hypot(xy[:, 0], xy[:, 1]) + reach) * config.omega_max * gap)
-                summary = self.map.integrate_points(sensor, xy, slack)
+                                                + (readings.mark_range + reach) * config.omega_max * gap)
+                summary = self.map.integrate_rays(sensor, readings, slack)
+            else:
+                slack = 0.0 if gap == 0.0 else (config.speed * gap + (np.hypot(readings[:, 0], readings[:, 1])
+                                                                      + reach) * config.omega_max * gap)
+                summary = self.map.integrate_points(sensor, readings, slack)
         self.last = summary
         self.note = summary.problem
         return summary
