@@ -404,3 +404,23 @@ def test_the_managed_fleet_filter_refuses_invalid_transitions_and_stops_every_ro
         code = stopped(proc)
     assert code == 0, lc.why()
     assert 'Traceback' not in lc.log_path.read_text(), lc.why()
+
+
+@pytest.mark.ros
+def test_a_failed_configure_leaves_the_node_unconfigured_and_says_why(ros_node, tmp_path):
+    node, spin = ros_node
+    ns = '/lc_bad_config'
+    proc = start_script(tmp_path, 'managed_safety_filter', ns, 'pose_type:=nope')
+    lc = Managed(node, spin, proc, f'{ns}/safety_filter', tmp_path / 'managed_safety_filter.log')
+    try:
+        for _ in range(2):          # and again: the same refusal of the parameter, the process alive
+            assert not lc.request(transition_id=1, timeout=180.0), 'configure with pose_type nope succeeded'
+            lc.alive()
+            assert lc.state() == 'unconfigured'
+            said = lc.says_inactive('unconfigured')
+            assert "configure failed: ValueError: pose_type 'nope'" in said[0].message
+        lc.refused(label='activate')
+        lc.go('finalized', label='shutdown')
+    finally:
+        code = stopped(proc)
+    assert code == 0, lc.why()
