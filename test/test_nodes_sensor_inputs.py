@@ -240,7 +240,7 @@ def test_the_managed_filter_publishes_only_while_active(ros_context):
         s.node.destroy_node()
 
 
-def test_the_managed_fleet_filter_says_each_robot_on_diagnostics_only_once_configured(ros_context):
+def test_the_managed_fleet_filter_says_each_robot_on_diagnostics_once_configured(ros_context):
     from supersafe_ros.nodes.fleet_safety_filter_node import ManagedFleetSafetyFilterNode
     f = ManagedFleetSafetyFilterNode(context=ros_context, namespace='/fleet_m', parameter_overrides=params(
         robots=['fm_0', 'fm_1'], batched_topics=False, rate=20.0))
@@ -257,14 +257,22 @@ def test_the_managed_fleet_filter_says_each_robot_on_diagnostics_only_once_confi
         spin.until(future.done, 60.0, 'the transition')
         assert future.result().success
 
-    def ours():
-        return [st for a in arrays for st in a.status if st.name.startswith('/fleet_m/fleet_safety_filter')]
+    def ours(since=0):
+        return [st for a in arrays[since:] for st in a.status if st.name.startswith('/fleet_m/fleet_safety_filter')]
     try:
+        # unconfigured: the node's own WARN (robots are known once configured)
+        spin.until(lambda: any(st.message.startswith('inactive (lifecycle state unconfigured)') for st in ours()),
+                   15.0, 'the unconfigured node\'s WARN')
+        assert {(st.level, st.hardware_id) for st in ours()} == {(DiagnosticStatus.WARN, '/fleet_m')}
         transition(Transition.TRANSITION_CONFIGURE)
+        configured = len(arrays)
         spin.until(lambda: cmd.get_publisher_count() > 0, 15.0, 'the configured fleet to make its topics')
-        spin.until(lambda: len(ours()) >= 2, 15.0, 'a status per robot')
+
+        def inactive():        # (an array sent before the configure may still come after it)
+            return [st for st in ours(configured) if st.message.startswith('inactive (lifecycle state inactive)')]
+        spin.until(lambda: {st.hardware_id for st in inactive()} == {'/fm_0', '/fm_1'}, 15.0, 'a status per robot')
         assert not out, 'inactive: no cmd_vel'
-        assert {st.hardware_id for st in ours()} == {'/fm_0', '/fm_1'}
+        assert all(st.level == DiagnosticStatus.WARN for st in inactive())
         transition(Transition.TRANSITION_ACTIVATE)
         spin.until(lambda: len(out) >= 3, 15.0, 'cmd_vel once active')
         assert out[-1].linear.x == 0.0 or out[-1].angular.z != 0.0, 'failing safe: no input yet'

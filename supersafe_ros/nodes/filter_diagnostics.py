@@ -9,6 +9,10 @@ input topic whose type is not the one the filter reads (a TwistStamped planner o
 ``cmd_vel_nav`` while Twist is expected), or more than one publisher of it (a second driver
 beside the real one, a replay, a spoof), is logged as a WARN naming the types or the nodes,
 and every status of the node says so (at least WARN) while it stays.
+
+A node that publishes /diagnostics itself (``publishes_diagnostics`` true: a managed filter,
+nodes/managed.py, whose publisher and timer are there in every lifecycle state) gets neither
+from here: it publishes ``array()`` while active.
 """
 from __future__ import annotations
 
@@ -79,8 +83,10 @@ class FilterDiagnostics:
         self._found = {}           # topic -> its note, while a foreign publisher stays
         self.notes = []            # the input topics' foreign publishers, said in every status
         self.published = 0
-        self.pub = node.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, rosmsg.QOS_STREAM)
-        self.timer = node.create_timer(period, self.publish, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self.pub = self.timer = None
+        if not getattr(node, 'publishes_diagnostics', False):
+            self.pub = node.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, rosmsg.QOS_STREAM)
+            self.timer = node.create_timer(period, self.publish, clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def check_graph(self) -> list:
         n = len(self.inputs)
@@ -105,7 +111,8 @@ class FilterDiagnostics:
             self.complain(f'type {note}', note, level='warn')
         return self.notes
 
-    def publish(self):
+    def array(self) -> DiagnosticArray:
+        """The node's statuses now, each raised to WARN and noted while a foreign publisher stays."""
         notes = self.check_graph()
         out = DiagnosticArray()
         out.header.stamp = self.node.get_clock().now().to_msg()
@@ -114,5 +121,8 @@ class FilterDiagnostics:
                 status.level = bytes([max(status.level[0], WARN)])
                 status.message = '; '.join([status.message, *notes]) if status.message else '; '.join(notes)
             out.status.append(status)
-        self.pub.publish(out)
+        return out
+
+    def publish(self):
+        self.pub.publish(self.array())
         self.published += 1

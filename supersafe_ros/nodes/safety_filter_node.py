@@ -528,6 +528,20 @@ class SafetyFilter:
             self._failing = False
             self.get_logger().info(f'inputs valid again: filtering ({out.action}: {out.reason})')
 
+    def send_zero_twist(self) -> list:
+        """One zero twist on cmd_vel (a managed node going quiet, managed.py: the base must not
+        keep the last command), stamped as the decisions are; the publisher it went out on. Under
+        the lock: after a decision under way on the inputs' thread, never before it."""
+        with self.lock:
+            if self.types['cmd_vel_stamped']:
+                msg = TwistStamped()
+                msg.header.stamp = self.get_clock().now().to_msg()
+                msg.header.frame_id = self._cmd_frame          # the planner's last frame
+            else:
+                msg = Twist()
+            self.cmd_pub.publish(msg)
+        return [self.cmd_pub]
+
     def close(self):
         if self.direct is not None:
             self.direct.close()
