@@ -543,13 +543,18 @@ class SafetyFilter:
         return [self.cmd_pub]
 
     def close(self):
-        if self.direct is not None:
-            self.direct.close()
-        if self.sensor is not None:
-            self.sensor.close()
-        self._holds.flush()
-        self.wiring.close()
-        self.wiring.live.close()
+        """Close what build() made, also when it failed half way (a managed node's failed configure)."""
+        for part in ('direct', 'sensor'):
+            made = getattr(self, part, None)
+            if made is not None:
+                made.close()
+        holds = getattr(self, '_holds', None)
+        if holds is not None:
+            holds.flush()
+        wiring = getattr(self, 'wiring', None)
+        if wiring is not None:
+            wiring.close()
+            wiring.live.close()
 
     def destroy_node(self):
         if getattr(self, 'direct', None) is not None:
