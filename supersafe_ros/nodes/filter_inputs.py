@@ -78,6 +78,8 @@ INPUT_PARAMETERS = (
     ParameterSpec('value_cell', 0.1, 'the local map\'s value: its grid\'s spacing (a multiple of map_cell is '
                   'best) [m]', 0.01, 10.0),
     ParameterSpec('value_headings', 32, 'the local map\'s value: headings of its grid', 8, 256),
+    ParameterSpec('value_horizon', 0.0, 'the local map\'s value: its horizon [s] (0 = standard_horizon; a fast '
+                  'robot\'s window grows with speed x horizon)', 0.0, 60.0),
     ParameterSpec('value_reach', 1.5, 'the local map\'s value: how far the robot may go from the solved window\'s '
                   'centre before it is solved again, around it [m]', 0.1, 100.0),
     ParameterSpec('value_period', 0.2, 'the local map\'s value is solved again (in the background) at most this '
@@ -171,7 +173,7 @@ class SensorMap:
     every ``value_period``, latest wins); ``view`` is what the filter judges by. ``note`` is the last
     message's problem in plain words ('' if none: e.g. every beam NaN), for /diagnostics."""
 
-    def __init__(self, p: dict, history: PoseHistory, config, horizon: float, frame: str):
+    def __init__(self, p: dict, history: PoseHistory, config, horizon: float, frame: str, inline: bool = False):
         self.kind = p['detections_type']
         self.history = history
         self.frame = frame
@@ -182,9 +184,12 @@ class SensorMap:
         self.period = p['value_period']
         self.map = LocalMap(MapSettings(cell=p['map_cell'], size=p['map_size'], depth=p['obstacle_depth']))
         self.value_settings = MapValueSettings(cell=p['value_cell'], headings=p['value_headings'],
-                                               horizon=horizon if horizon > 0 else 3.0, reach=p['value_reach'],
+                                               horizon=p['value_horizon'] or horizon or 3.0, reach=p['value_reach'],
                                                recentre=min(0.5, p['value_reach']))
-        self.worker = MapValueWorker(config.speed, config.omega_max, p['robot_radius'], self.value_settings)
+        # inline (a lockstepped simulation): solved in the caller's thread, so that the value's latency is none
+        # in sim time (the clock waits for the answer), as a background solve's is next to value_period on a robot
+        self.worker = MapValueWorker(config.speed, config.omega_max, p['robot_radius'], self.value_settings,
+                                     inline=inline)
         self.view = MapView(self.map, p['robot_radius'], self.worker, SENSOR_WORDS[self.kind])
         self.note = ''
         self.last = None            # the last message's ViewSummary
@@ -254,9 +259,9 @@ class SensorMap:
 
     def solve(self, omega_max: float, now: float, x: float, y: float) -> bool:
         """Ask for the map's value around (x, y) with turn bound ``omega_max`` (the set in force's), at most
-        every ``value_period`` steady seconds (True if asked). The worker solves in the background, the
-        newest request replacing one not yet started, and solves nothing when neither the map nor the
-        window changed (``filter.map_value``)."""
+        every ``value_period`` seconds of ``now`` (the filter's time; True if asked). The worker solves in
+        the background (inline: at once), the newest request replacing one not yet started, and solves
+        nothing when neither the map nor the window changed (``filter.map_value``)."""
         if now - self._asked < self.period:
             return False
         self._asked = now

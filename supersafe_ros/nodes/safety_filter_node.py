@@ -137,7 +137,7 @@ class SafetyFilter:
         c = w.params.config
         self.sensor = None
         if p['detections_type'] in MAP_SENSORS:
-            self.sensor = SensorMap(p, self.poses, c, w.params.standard_horizon, w.frame)
+            self.sensor = SensorMap(p, self.poses, c, w.params.standard_horizon, w.frame, inline=p['lockstep'])
             s = self.sensor.value_settings
             self.get_logger().info(
                 f"{self.sensor.view.sensor}: a local map of {p['map_size']:g} m at {p['map_cell']:g} m cells, judged by "
@@ -392,7 +392,7 @@ class SafetyFilter:
             return
         safe = self.wiring.safe_set
         omega = safe.omega_max if safe.source == 'learned' and safe.omega_max is not None else self.wiring.config.omega_max
-        self.sensor.solve(float(omega), time.monotonic(), float(newest[0]), float(newest[1]))
+        self.sensor.solve(float(omega), self.wiring.now(), float(newest[0]), float(newest[1]))
         value = self.sensor.worker.latest()
         if value is not None and self._first_value is None:
             self._first_value = value
