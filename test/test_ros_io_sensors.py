@@ -80,7 +80,7 @@ def test_a_scan_is_placed_with_the_pose_at_its_stamp_and_its_mount():
     s.history.add(10.2, (1.02, 0.6, math.pi / 2))
     ranges = np.full(8, np.inf)
     ranges[4] = 2.0                          # straight ahead of the sensor
-    summary = s.take(scan(ranges), 10.1, FilterConfig(), 0.5)
+    summary, _ = s.take(scan(ranges), 10.1, FilterConfig(), 0.5)
     # at 10.1 the robot is at (1.02, 0.3) facing +y, the sensor 1.01 m ahead of it: the return at (1.02, 3.31)
     assert summary.marked == 1 and cell_of(s.map, 1.02, 3.31)
     assert not cell_of(s.map, 1.02, 3.0), 'the beam before its return is seen free'

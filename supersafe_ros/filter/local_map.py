@@ -543,6 +543,28 @@ class LocalMap:
         return self._apply('grid', (slice(bi0, bi1), slice(bj0, bj1)), cleared, marked,
                            {'cells': width * height}, '')
 
+    def clear_footprint(self, x: float, y: float, radius: float) -> int:
+        """Clear the cells that lie wholly within ``radius`` of (x, y) (the robot's own disc: nothing else
+        can be there, so a return there is the robot itself or an artefact, as Nav2's footprint clearing);
+        how many were occupied."""
+        r = radius - self.cell_radius          # a cell whose centre is this close lies wholly inside
+        if not (r > 0 and math.isfinite(x) and math.isfinite(y)):
+            return 0
+        n, c = self.shape[0], self.cell
+        i0, i1 = max(0, math.floor((x - r) / c) - self._corner[0]), min(n, math.floor((x + r) / c) - self._corner[0] + 1)
+        j0, j1 = max(0, math.floor((y - r) / c) - self._corner[1]), min(n, math.floor((y + r) / c) - self._corner[1] + 1)
+        if i0 >= i1 or j0 >= j1:
+            return 0
+        cx = (self._corner[0] + np.arange(i0, i1) + 0.5) * c - x
+        cy = (self._corner[1] + np.arange(j0, j1) + 0.5) * c - y
+        inside = np.hypot(cx[:, None], cy[None, :]) <= r
+        box = self._occupied[i0:i1, j0:j1]
+        freed = int(np.count_nonzero(box & inside))
+        if freed:
+            box[inside] = False
+            self.version += 1
+        return freed
+
     # -- reading it --------------------------------------------------------------------------------
     def occupied_centres(self, x: float, y: float, radius: float) -> np.ndarray:
         """(K, 2) centres of the occupied cells whose centres are within ``radius`` of (x, y) (read from the

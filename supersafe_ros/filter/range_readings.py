@@ -90,6 +90,12 @@ class Rays:
         kinds = ('beams', 'returns', 'near_objects', 'no_return', 'erroneous', 'below_min', 'beyond_max')
         return {k: getattr(self, k) for k in kinds}
 
+    @property
+    def usable(self) -> int:
+        """Beams that say something of the world: returns, objects closer than range_min, and with
+        ``inf_is_valid`` the beams that saw nothing within range_max (a scan with none learned nothing)."""
+        return self.returns + self.near_objects + (self.no_return if self.inf_is_valid else 0)
+
     def problem(self) -> str:
         """A plain-words note when the scan looks wrong ('' when it is fine): more than a quarter of
         its beams NaN or below range_min, or beams but not one usable reading, or no beams at all."""
@@ -103,7 +109,10 @@ class Rays:
             bad.append(f'{self.below_min} of {n} beams below range_min {self.range_min:g}')
         if 4 * (self.erroneous + self.below_min) > n:
             return ' and '.join(bad) + ': they clear nothing'
-        if self.returns + self.near_objects + (self.no_return if self.inf_is_valid else 0) > 0:
+        if 4 * self.near_objects > n:
+            return (f'{self.near_objects} of {n} beams -inf (objects closer than range_min {self.range_min:g}, '
+                    'REP 117): marked there')
+        if self.usable > 0:
             return ''
         kinds = []
         if self.no_return:

@@ -196,9 +196,13 @@ class SensorMap:
         self._asked = -math.inf     # steady time of the last solve asked for
 
     def take(self, msg, stamp: float, config, pose_timeout: float):
-        """Put one message into the map (see the class); the view's summary."""
+        """Put one message into the map (see the class); (the view's summary, whether the message said
+        anything of the world: a scan with a usable reading, a cloud with a finite point, a costmap with a
+        known cell; one that said nothing leaves the view to go stale, as blind)."""
         if self.kind == 'occupancy_grid':
             summary = self._take_grid(msg)
+            learned = bool(np.any(np.frombuffer(memoryview(msg.data).cast('B'), dtype=np.int8) != -1)) \
+                if len(msg.data) else False
         else:
             readings = self._scan(msg) if self.kind == 'laser_scan' else self._cloud(msg)   # checked first
             pose, gap = self.history.at(stamp, pose_timeout)
@@ -215,13 +219,19 @@ class SensorMap:
                 slack = 0.0 if gap == 0.0 else (config.speed * gap
                                                 + (readings.mark_range + reach) * config.omega_max * gap)
                 summary = self.map.integrate_rays(sensor, readings, slack)
+                learned = readings.usable > 0
             else:
                 slack = 0.0 if gap == 0.0 else (config.speed * gap + (np.hypot(readings[:, 0], readings[:, 1])
                                                                       + reach) * config.omega_max * gap)
                 summary = self.map.integrate_points(sensor, readings, slack)
+                learned = len(readings) > 0
+            # the robot's own disc holds nothing but the robot (its own parts seen, a return closer than
+            # range_min marked inside it): cleared, as Nav2's footprint clearing
+            self.map.clear_footprint(float(pose[0]), float(pose[1]), self.view.clearance)
         self.last = summary
-        self.note = summary.problem
-        return summary
+        self.note = summary.problem if summary.problem or learned else (
+            f'the {SENSOR_WORDS[self.kind]} said nothing of the world (no finite point, no known cell)')
+        return summary, learned
 
     def _scan(self, msg):
         try:

@@ -369,17 +369,23 @@ class SafetyFilter:
             return
         try:
             stamp = w.stamp(msg.header.stamp, t)
-            summary = self.sensor.take(msg, t if stamp is None else stamp, w.config, w.config.pose_timeout)
+            summary, learned = self.sensor.take(msg, t if stamp is None else stamp, w.config, w.config.pose_timeout)
         except ValueError as exc:     # MessageError: the fault named; the view stays as it was
             self.filter.refuse_view(f'{sensor} refused: {exc}', t)
             w.complain(f'{sensor} refused', f'{sensor} refused: {exc}; the map stays as it was (failing safe once '
                        f'its last valid view is detections_timeout {w.config.detections_timeout:g} s old)',
                        level='error')
         else:
-            self.filter.update_view(self.sensor.view, t)
-            self._inputs_ready = True      # the watchdog (executor thread) says so
-            if summary.problem:
-                w.complain(f'{sensor} note', f'{sensor}: {summary.problem}', level='warn')
+            if learned:
+                self.filter.update_view(self.sensor.view, t)
+                self._inputs_ready = True      # the watchdog (executor thread) says so
+                if summary.problem:
+                    w.complain(f'{sensor} note', f'{sensor}: {summary.problem}', level='warn')
+            else:           # it said nothing: blind, not "looked, nothing seen" (the map keeps what was seen)
+                self.filter.refuse_view(f'{sensor} said nothing: {self.sensor.note}', t)
+                w.complain(f'{sensor} note', f'{sensor}: {self.sensor.note}; the map keeps what was seen (failing '
+                           f'safe once its last usable view is detections_timeout {w.config.detections_timeout:g} s '
+                           'old)', level='warn')
             self._ask_value()
         if not self.lockstep:
             self.decide(t)
