@@ -513,3 +513,21 @@ def test_a_pose_not_finite_is_refused():
         m.integrate_rays((math.nan, 0.0, 0.0), fan([1.0] * 3))
     with pytest.raises(ValueError, match='follow: position must be finite'):
         m.follow(math.inf, 0.0)
+
+
+def test_the_robots_own_disc_is_cleared_and_nothing_beyond_it():
+    """clear_footprint: the cells wholly within the robot's radius are cleared (a return there is the robot
+    itself: a part of it seen, or a -inf reading marked at range_min), the cells its rim only crosses and
+    those beyond stay; the version moves only when a cell changed."""
+    m = new_map()
+    m.integrate_rays((0.05, 0.05, 0.0), fan(wall_ranges(x=0.6)))       # a wall at x = 0.6
+    ranges = np.full(36, -np.inf)             # every beam: an object closer than range_min (0.1)
+    m.integrate_rays((0.05, 0.05, 0.0), scan_rays(ranges, -math.pi, math.pi - math.pi / 18, math.pi / 18, 0.1, 8.0))
+    assert is_occupied(m, 0.14, 0.05) and is_occupied(m, 0.65, 0.05)
+    before = m.version
+    freed = m.clear_footprint(0.05, 0.05, 0.35)
+    assert freed > 0 and m.version == before + 1
+    assert not is_occupied(m, 0.14, 0.05) and not is_occupied(m, -0.05, 0.05), 'the ring inside the robot'
+    assert is_occupied(m, 0.65, 0.05), 'the wall beyond the robot stays'
+    assert m.clear_footprint(0.05, 0.05, 0.35) == 0 and m.version == before + 1
+    assert m.clear_footprint(0.05, 0.05, 0.05) == 0, 'a radius under a cell\'s half diagonal holds no whole cell'
