@@ -20,6 +20,7 @@ The graph, in the caller's rclpy Context (conftest's ``ros_context``), every nod
 * ``trip_monitor``: /clock, and records of ``<ns>/safety_filter/state``, /diagnostics and the
   filter's /rosout lines.
 
+Before step 0, a warm-up step (``TripGraph.start``: the robot stands, the answer is not applied).
 A step (k, sim time t0 + k dt): /clock; wait until the filter's clock reads it; odometry, the
 scan on its steps, the planner's command; then wait until the filter has answered: a cmd_vel
 received after that command was published, and as many since the first step as commands
@@ -45,6 +46,7 @@ are the QoS profiles, so another checkout cannot change the world, the robot or 
 from __future__ import annotations
 
 from collections import Counter
+import dataclasses
 from dataclasses import dataclass, field
 import importlib.util
 import math
@@ -131,6 +133,7 @@ class TripResult:
     """A trip's records (per step: arrays over steps) and its figures (see ``figures``)."""
 
     scenario: str
+    start: tuple
     checkout: str
     fault: str | None
     planner_time: float
@@ -167,7 +170,8 @@ class TripResult:
         finite = np.isfinite(asked_recent)
         excess = float(np.max(v[finite] - asked_recent[finite])) if finite.any() else math.nan
         return dict(
-            scenario=self.scenario, checkout=self.checkout, fault=self.fault, reached=bool(self.reached),
+            scenario=self.scenario, start=list(self.start), checkout=self.checkout, fault=self.fault,
+            reached=bool(self.reached),
             time=float(self.time), planner_time=float(self.planner_time),
             ratio=float(self.time / self.planner_time) if self.reached else math.inf,
             sim_time=self.steps * DT, steps=self.steps,
@@ -187,7 +191,7 @@ class TripGraph:
     """The graph of the module for one trip of ``scenario`` (a name or an own_simulator().Scenario)."""
 
     def __init__(self, ctx, scenario, *, fault=None, fault_step=0, detections='scan', ns='',
-                 filter_overrides=None, params_file=None, deadline=20.0, planner_config=None):
+                 filter_overrides=None, params_file=None, deadline=20.0, planner_config=None, start=None):
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.node import Node
         from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
@@ -200,6 +204,8 @@ class TripGraph:
         own = own_simulator()
         self.sim = own
         self.scenario = own.scenario(scenario) if isinstance(scenario, str) else scenario
+        if start is not None:       # the same trip from another start (its path and figures stay the scenario's)
+            self.scenario = dataclasses.replace(self.scenario, start=tuple(float(v) for v in start))
         self.planner = own.PathFollower(self.scenario.waypoints, planner_config or own.PlannerConfig())
         self.fault, self.fault_step, self.detections, self.deadline = fault, int(fault_step), detections, deadline
         self.ns = ns.rstrip('/')
@@ -316,12 +322,25 @@ class TripGraph:
             self.executor.spin_once(timeout_sec=0.0)
 
     def start(self):
-        """Match every endpoint, then put the filter's clock at the start."""
+        """Match every endpoint, then the warm-up: one step before step 0 (at t0 - dt) in which the
+        robot stands at its start while the filter takes its first odometry, scan and command, and
+        its answer is not applied. Without it the watchdog's start-up fail safe (no command yet) could
+        go out after step 0's command was published and before it was taken, and the robot would
+        start a step late (seen: 1 trip in 3; the trips' outcomes then differ)."""
         pubs = [self.odom_pub, self.sensor_pub, self.cmd_pub, self.clock_pub] + (
             [self.spoof_pub] if self.spoof is not None else [])
         self.until(lambda: all(p.get_subscription_count() > 0 for p in pubs)
                    and all(s.get_publisher_count() > 0 for s in self.subs), 'the graph to match')
-        self._clock(self.t0_ns)
+        t_ns = self.t0_ns - int(round(DT * 1e9))
+        self._clock(t_ns)
+        start = self.state_xy
+        self.odom_pub.publish(odometry(start, (0.0, 0.0), t_ns))
+        ranges = laser_ranges(self.scenario.world, start)
+        self.sensor_pub.publish(point_cloud(t_ns, ranges) if self.detections == 'cloud' else laser_scan(t_ns, ranges))
+        before = len(self.received)
+        self.cmd_pub.publish(twist_stamped(self.planner.command(start), t_ns))
+        self.until(lambda: len(self.received) > before, 'the answer to the warm-up')
+        self._drain()
 
     def _clock(self, t_ns):
         from rosgraph_msgs.msg import Clock
@@ -401,7 +420,7 @@ class TripGraph:
         r = self.records
         poses = np.asarray(r['poses'], dtype=float).reshape(-1, 3)
         return TripResult(
-            scenario=self.scenario.name, checkout=str(checkout_root()), fault=self.fault,
+            scenario=self.scenario.name, start=self.scenario.start, checkout=str(checkout_root()), fault=self.fault,
             planner_time=self.sim.planner_time(self.scenario, DT, self.planner.config),
             robot_radius=self.scenario.robot_radius, goal_tolerance=self.planner.config.goal_tolerance,
             poses=poses, asked=np.asarray(r['asked'], dtype=float).reshape(-1, 2),
