@@ -258,9 +258,10 @@ class TripGraph:
         from supersafe_ros.nodes.safety_filter_node import ManagedSafetyFilterNode
         path = Path(params_file) if params_file else checkout_root() / 'config' / 'nav2_safety_filter.yaml'
         document = yaml.safe_load(path.read_text())
-        if len(document) != 1:
-            raise ValueError(f'{path}: expected the parameters of one node, found {list(document)}')
-        (key, body), = document.items()
+        bodies = [body for key, body in document.items() if key.rstrip('/').split('/')[-1] == 'safety_filter']
+        if len(bodies) != 1:
+            raise ValueError(f'{path}: expected the parameters of one safety_filter node, found {list(document)}')
+        body = bodies[0]
         self.file_parameters = dict(body['ros__parameters'])
         self.params_file = path
         if self.ns:        # the file names a node of the root namespace: the same parameters for ours
