@@ -39,6 +39,20 @@ return), odometry with NaN position (``odom_nan``; the planner still drives on t
 planner sending NaN (``planner_nan``) or falling silent (``planner_silent``). A cmd_vel that is not
 finite is counted and not applied (the robot stands).
 
+Records (``TripResult``): per step the true pose, the planner's (v, w), the (v, w) applied and the
+newest safety_filter/state (action, reason) received by then (the filter sends it at most
+state_rate times a second while the action holds, so it can be a step or more old); every state,
+/diagnostics status and /rosout line of the filter with the step it came in. ``figures()``: reached,
+the time to the goal, the planner's own time, path length, least clearance, collisions, turning
+in place, the largest excess of the speed sent over the planner's (this step's and the one before).
+
+Reproducible: a trip's figures came out the same run after run at load 1-2 and beside two CPU
+burners. What can still differ is a watchdog output sent between a command's publication and its
+take: the robot then applies, for one step, a decision on the previous command. On a loaded
+machine the watchdog speaks more often (steps slower than half its period): beside three burners
+(load 10) one lane trip of three had 34 watchdog outputs and a path 1 cm shorter; at load 9.5 one
+of three drove 28.1 m instead of 23.6 m (the trips of today's filter hang on small differences).
+
 The harness needs of the package under test only its filter node class and its config file:
 the simulator is this tree's (loaded by its path when another checkout is imported), and so
 are the QoS profiles, so another checkout cannot change the world, the robot or the planner.
