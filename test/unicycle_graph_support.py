@@ -22,10 +22,11 @@ The graph, in the caller's rclpy Context (conftest's ``ros_context``), every nod
 
 Before step 0, a warm-up step (``TripGraph.start``: the robot stands, the answer is not applied).
 A step (k, sim time t0 + k dt): /clock; wait until the filter's clock reads it; odometry, the
-scan on its steps, the planner's command; then wait until the filter has answered: a cmd_vel
-received after that command was published, and as many since the first step as commands
-published (each command triggers one decision; extra watchdog outputs may come, and the newest
-is applied). Every wait is on events, with a deadline (``deadline``, 20 s) that only catches a
+scan on its steps, the planner's command; then wait until the filter has answered that command: a
+cmd_vel stamped with its stamp (the filter keeps the planner's header on what it judged from a
+command, as Nav2's collision_monitor does, and a filter that stamps its decision time stamps it
+so too, the clock being there), and the newest of the newest stamp is applied (a decision on a
+scan taken before the command, or the watchdog's, carries an older stamp). Every wait is on events, with a deadline (``deadline``, 20 s) that only catches a
 dead graph (``DeadGraph``, the trip so far attached). A step with no command (the planner
 silent) waits for any new cmd_vel (the filter's watchdog).
 
@@ -126,7 +127,12 @@ def _qos():
     def reliable(depth):
         return QoSProfile(depth=depth, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE,
                           durability=DurabilityPolicy.VOLATILE)
-    return dict(stream=reliable(5), every=reliable(1000), clock=reliable(10), sensor=qos_profile_sensor_data)
+    # /rosout as its publishers keep it (reliable, transient local, 1000): a line logged before the monitor's
+    # subscription is matched (discovery takes up to 3 s; a fault can come sooner) still arrives
+    rosout = QoSProfile(depth=1000, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    return dict(stream=reliable(5), every=reliable(1000), clock=reliable(10), sensor=qos_profile_sensor_data,
+                rosout=rosout)
 
 
 def _params(**values):
@@ -237,6 +243,7 @@ class TripGraph:
         else:
             self.sensor_pub = self.robot.create_publisher(PointCloud2, topic + 'cloud', qos['sensor'])
         self.received = []                     # (v, w) of every cmd_vel
+        self.received_stamps = []              # and its header stamp (ns)
         self.cmd_sub = self.robot.create_subscription(TwistStamped, topic + 'cmd_vel', self._on_cmd, qos['every'])
         self.cmd_pub = self.planner_node.create_publisher(TwistStamped, topic + 'cmd_vel_nav', qos['stream'])
         self.clock_pub = self.monitor.create_publisher(Clock, '/clock', qos['clock'])
@@ -248,7 +255,7 @@ class TripGraph:
                      m.create_subscription(DiagnosticStatus, topic + 'safety_filter/state', self._on_state,
                                            qos['every']),
                      m.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, qos['every']),
-                     m.create_subscription(Log, '/rosout', self._on_rosout, 1000)]
+                     m.create_subscription(Log, '/rosout', self._on_rosout, qos['rosout'])]
         self.spoof = None
         if fault in SPOOF_FAULTS:
             self.spoof = Node('spoof_driver', namespace=self.ns or '/', context=ctx, parameter_overrides=sim)
@@ -306,6 +313,7 @@ class TripGraph:
     # -- callbacks -------------------------------------------------------------------------------
     def _on_cmd(self, msg):
         self.received.append((msg.twist.linear.x, msg.twist.angular.z))
+        self.received_stamps.append(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
 
     def _on_state(self, msg):
         values = _state_values(msg)
@@ -393,10 +401,16 @@ class TripGraph:
             self.commands += 1
             if not math.isfinite(asked[0]):
                 asked = (math.nan, math.nan)
-        self.until(lambda: len(self.received) > before
-                   and len(self.received) - self.outputs_before >= self.commands, f'cmd_vel at step {k}')
+        if self.commands and not (faulty and self.fault == 'planner_silent'):
+            # the answer to this step's command: stamped with it (the planner's header kept, as Nav2's
+            # collision_monitor does; a filter stamping its decision time stamps it so too: the clock is at
+            # t_ns); a decision on a scan taken before the command carries the previous command's stamp
+            self.until(lambda: any(s >= t_ns for s in self.received_stamps[before:]), f'cmd_vel at step {k}')
+        else:
+            self.until(lambda: len(self.received) > before, f'cmd_vel at step {k}')
         self._drain()
-        v, w = self.received[-1]
+        latest = max(range(before, len(self.received)), key=lambda i: (self.received_stamps[i], i))
+        v, w = self.received[latest]
         if not (math.isfinite(v) and math.isfinite(w)):
             self.nonfinite += 1
             v = w = 0.0

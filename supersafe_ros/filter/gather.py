@@ -49,7 +49,7 @@ def problem(f, t):
     judged, for the words)."""
     cfg, pose, det, view = f.config, f.pose, f.detections, f.view
     refused = f.command.rejected and not cfg.constant_speed     # a robot that can stop stops on it
-    unsolved = view is not None and view.value() is None
+    unsolved = view is not None and view.value() is None and view.local_map.holds_any()
     if not (pose.rejected or det.rejected or pose.value is None or det.value is None
             or t - pose.t > cfg.pose_timeout or t - det.t > cfg.detections_timeout or refused or unsolved):
         return '', True
@@ -61,7 +61,7 @@ def problem(f, t):
         elif inp.value is None:
             why = f'no {label} received yet'
         elif t - inp.t > timeout:     # since arrival: a pose that keeps coming is not lost
-            since = (f'{inp.refusals} refused since, the latest: {inp.refused}' if inp.refusals else 'none newer')
+            since = (f'{inp.refusals} unusable since, the latest: {inp.refused}' if inp.refusals else 'none newer')
             why = f'blind for {t - inp.t:.2g} s ({label} stale: {since}; timeout {timeout:g} s)'
         if why:
             break
@@ -118,7 +118,8 @@ def gather(filters, t) -> RobotColumns:
     values = None
     if any(map(is_not, views, itertools.repeat(None))):     # robots judged by their maps' values
         values = [None if v is None else v.value() for v in views]
-        clean &= ~np.fromiter((v is not None and mv is None for v, mv in zip(views, values)), dtype=bool, count=n)
+        clean &= ~np.fromiter((v is not None and mv is None and v.local_map.holds_any() for v, mv in zip(views, values)),
+                              dtype=bool, count=n)
     judged = has & clean & ~(t - pose_t > pose_timeout) & ~(t - det_t > det_timeout)
     rb.problems = [''] * n
     for i in np.flatnonzero(~judged).tolist():

@@ -169,11 +169,7 @@ class RobotFilter:
         v = None if linear is None else float(linear)
         if not math.isfinite(w) or (v is not None and not math.isfinite(v)):
             reason = f'not finite (angular.z={w:g}, linear.x={"not given" if v is None else format(v, "g")})'
-            self.command.reject(reason, t)
-            # a robot that can stop stops on it (gather.problem); a constant-speed robot keeps the
-            # previous command until it is cmd_timeout old
-            self.command.note = (f'{reason}: rejected, the previous command kept' if self.config.constant_speed
-                                 else f'{reason}: rejected, the robot stops until a valid command comes')
+            self.refuse_command(reason, t)
             raise ValueError(f'planner command {reason}')
         previous = self.command.t if self.command.value is not None else None
         self.command.accept(w, t)
@@ -183,6 +179,15 @@ class RobotFilter:
             self.command.note = excess
         if previous is not None and t > previous:
             self.command_intervals = self.command_intervals.then(t - previous)
+
+    def refuse_command(self, reason, t) -> None:
+        """A planner command refused (``reason``): a robot that can stop stops on it until a valid
+        command comes (``gather.problem``); a constant-speed robot keeps the previous command until it
+        is cmd_timeout old. ``command.note`` says which."""
+        self.command.reject(reason, t)
+        self.command.note = (f'{reason}: rejected, the previous command kept until it is cmd_timeout '
+                             f'({self.config.cmd_timeout:g} s) old' if self.config.constant_speed
+                             else f'{reason}: rejected, the robot stops until a valid command comes')
 
     def control_period(self) -> float:
         """The hold time of a command: configured, else measured (0 until measurable).

@@ -335,6 +335,7 @@ class LocalMap:
         self._corner = (-(n // 2), -(n // 2))     # global index of cell (0, 0)
         self.placed = False
         self.version = 0
+        self._any, self._any_version = False, 0      # holds_any, as of a version
         self.last_view: ViewSummary | None = None
 
     # -- the window ----------------------------------------------------------------------------
@@ -542,6 +543,12 @@ class LocalMap:
         cleared = (value >= 0) & ~marked
         return self._apply('grid', (slice(bi0, bi1), slice(bj0, bj1)), cleared, marked,
                            {'cells': width * height}, '')
+
+    def holds_any(self) -> bool:
+        """Whether any cell is occupied (a map of free and unknown cells needs no value to be judged)."""
+        if self._any_version != self.version:
+            self._any, self._any_version = bool(self._occupied.any()), self.version
+        return self._any
 
     def clear_footprint(self, x: float, y: float, radius: float) -> int:
         """Clear the cells that lie wholly within ``radius`` of (x, y) (the robot's own disc: nothing else

@@ -92,9 +92,17 @@ class Rays:
 
     @property
     def usable(self) -> int:
-        """Beams that say something of the world: returns, objects closer than range_min, and with
-        ``inf_is_valid`` the beams that saw nothing within range_max (a scan with none learned nothing)."""
+        """Beams that put something into the map: returns, objects closer than range_min, and with
+        ``inf_is_valid`` the beams that saw nothing within range_max."""
         return self.returns + self.near_objects + (self.no_return if self.inf_is_valid else 0)
+
+    @property
+    def faulty(self) -> bool:
+        """No beam, or every beam an erroneous measurement (NaN) or below range_min (negative ones too):
+        the sensor did not look. (A scan of beams that did not come back, +inf or beyond range_max,
+        looked and saw nothing within its range: it is not faulty, though it clears nothing unless the
+        driver says +inf is valid.)"""
+        return self.beams == 0 or self.erroneous + self.below_min == self.beams
 
     def problem(self) -> str:
         """A plain-words note when the scan looks wrong ('' when it is fine): more than a quarter of

@@ -193,12 +193,14 @@ class SensorMap:
         self.view = MapView(self.map, p['robot_radius'], self.worker, SENSOR_WORDS[self.kind])
         self.note = ''
         self.last = None            # the last message's ViewSummary
+        self._dropped = 0           # a cloud's points not finite
         self._asked = -math.inf     # steady time of the last solve asked for
 
     def take(self, msg, stamp: float, config, pose_timeout: float):
-        """Put one message into the map (see the class); (the view's summary, whether the message said
-        anything of the world: a scan with a usable reading, a cloud with a finite point, a costmap with a
-        known cell; one that said nothing leaves the view to go stale, as blind)."""
+        """Put one message into the map (see the class); (the view's summary, whether the sensor looked:
+        not a scan of no beam or of only erroneous ones (NaN, below range_min), not a cloud of points none
+        of them finite, not a costmap of unknown cells only; one that did not look leaves the view to go
+        stale: blind)."""
         if self.kind == 'occupancy_grid':
             summary = self._take_grid(msg)
             learned = bool(np.any(np.frombuffer(memoryview(msg.data).cast('B'), dtype=np.int8) != -1)) \
@@ -219,18 +221,22 @@ class SensorMap:
                 slack = 0.0 if gap == 0.0 else (config.speed * gap
                                                 + (readings.mark_range + reach) * config.omega_max * gap)
                 summary = self.map.integrate_rays(sensor, readings, slack)
-                learned = readings.usable > 0
+                learned = not readings.faulty
             else:
                 slack = 0.0 if gap == 0.0 else (config.speed * gap + (np.hypot(readings[:, 0], readings[:, 1])
                                                                       + reach) * config.omega_max * gap)
                 summary = self.map.integrate_points(sensor, readings, slack)
-                learned = len(readings) > 0
+                learned = len(readings) > 0 or int(msg.width) * int(msg.height) == 0
             # the robot's own disc holds nothing but the robot (its own parts seen, a return closer than
             # range_min marked inside it): cleared, as Nav2's footprint clearing
             self.map.clear_footprint(float(pose[0]), float(pose[1]), self.view.clearance)
         self.last = summary
-        self.note = summary.problem if summary.problem or learned else (
-            f'the {SENSOR_WORDS[self.kind]} said nothing of the world (no finite point, no known cell)')
+        if summary.problem or learned:
+            self.note = summary.problem
+        elif self.kind == 'point_cloud2':
+            self.note = f'{self._dropped} of {self._dropped} points not finite: the cloud says nothing'
+        else:
+            self.note = 'every cell unknown (-1): the costmap says nothing'
         return summary, learned
 
     def _scan(self, msg):
@@ -243,10 +249,11 @@ class SensorMap:
     def _cloud(self, msg):
         fields = {f.name: (int(f.offset), int(f.datatype), int(f.count)) for f in msg.fields}
         try:
-            return cloud_xy(msg.data, fields, msg.point_step, msg.row_step, msg.width, msg.height,
-                            msg.is_bigendian, self.max_points).xy
+            xy, self._dropped = cloud_xy(msg.data, fields, msg.point_step, msg.row_step, msg.width, msg.height,
+                                         msg.is_bigendian, self.max_points)
         except (ValueError, TypeError) as exc:
             raise MessageError(str(exc)) from None
+        return xy
 
     def _take_grid(self, msg):
         from ..ros_io.rosmsg import quaternion_to_yaw

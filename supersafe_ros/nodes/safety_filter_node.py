@@ -79,6 +79,7 @@ from std_msgs.msg import Empty
 import numpy as np
 
 from ..filter import FAIL_SAFE
+from ..filter.commands import command_fresh
 from ..filter.lockstep import GIVE_UP, LockstepAnswers
 from ..ros_io import cdr, rosmsg, sensors
 from ..ros_io.direct_take import DirectTake
@@ -152,7 +153,8 @@ class SafetyFilter:
                 'robot before an obstacle the map learned since its value was last solved; set it > 0 '
                 '(config/nav2_safety_filter.yaml: 0.5; docs/filter_node.md, "Stop before collision")')
         self._first_value = None        # the map's first value, told once
-        self._cmd_frame = ''              # the planner's TwistStamped frame, stamped on cmd_vel
+        self._cmd_frame = ''              # the planner's TwistStamped frame and stamp, on the cmd_vel judged from it
+        self._cmd_stamp = None
         self.publish_on_pose = p['publish_on_pose']
         w.live.add('publish_on_pose', lambda v: setattr(self, 'publish_on_pose', bool(v)))
         self.lockstep = p['lockstep']
@@ -163,6 +165,8 @@ class SafetyFilter:
         self._throttle = StateThrottle()
         self._holds = HoldSummary(self.get_logger())
         self._failing = None           # the fail-safe story: None (start), True, False
+        self._silence_told = False     # the planner's silence said (once per silence)
+        self._decided_at = 0.0
         self._waiting_told = False     # said once why it fails safe while starting
         self.decisions = 0
         self.require_detections = p['require_detections']
@@ -251,7 +255,7 @@ class SafetyFilter:
             return ''
         det = self.filter.detections
         if det.refused:
-            return f'{det.refusals} {self.sensor.view.sensor} message(s) refused since the last valid one: {det.refused}'
+            return f'{det.refusals} {self.sensor.view.sensor} message(s) unusable since the last valid one: {det.refused}'
         return f'{self.sensor.view.sensor}: {self.sensor.note}' if self.sensor.note else ''
 
     def _say_ready(self):
@@ -371,21 +375,21 @@ class SafetyFilter:
             stamp = w.stamp(msg.header.stamp, t)
             summary, learned = self.sensor.take(msg, t if stamp is None else stamp, w.config, w.config.pose_timeout)
         except ValueError as exc:     # MessageError: the fault named; the view stays as it was
-            self.filter.refuse_view(f'{sensor} refused: {exc}', t)
-            w.complain(f'{sensor} refused', f'{sensor} refused: {exc}; the map stays as it was (failing safe once '
-                       f'its last valid view is detections_timeout {w.config.detections_timeout:g} s old)',
-                       level='error')
+            why = str(exc) if str(exc).startswith(f'{sensor} refused') else f'{sensor} refused: {exc}'
+            self.filter.refuse_view(why, t)
+            w.complain(f'{sensor} refused', f'{why}; the map stays as it was (failing safe once its last valid view '
+                       f'is detections_timeout {w.config.detections_timeout:g} s old)', level='error')
         else:
             if learned:
                 self.filter.update_view(self.sensor.view, t)
                 self._inputs_ready = True      # the watchdog (executor thread) says so
                 if summary.problem:
                     w.complain(f'{sensor} note', f'{sensor}: {summary.problem}', level='warn')
-            else:           # it said nothing: blind, not "looked, nothing seen" (the map keeps what was seen)
-                self.filter.refuse_view(f'{sensor} said nothing: {self.sensor.note}', t)
+            else:           # it did not look: blind, not "looked, nothing seen" (the map keeps what was seen)
+                self.filter.refuse_view(f'{sensor} did not look: {self.sensor.note}', t)    # (blind)
                 w.complain(f'{sensor} note', f'{sensor}: {self.sensor.note}; the map keeps what was seen (failing '
-                           f'safe once its last usable view is detections_timeout {w.config.detections_timeout:g} s '
-                           'old)', level='warn')
+                           f'safe once its last view is detections_timeout {w.config.detections_timeout:g} s old)',
+                           level='warn')
             self._ask_value()
         if not self.lockstep:
             self.decide(t)
@@ -425,7 +429,7 @@ class SafetyFilter:
     def on_stamped_command(self, msg):
         """A TwistStamped (cmd_vel_stamped): its twist judged as on_command's; its frame is the
         frame of the cmd_vel sent."""
-        self._cmd_frame = msg.header.frame_id
+        self._cmd_frame, self._cmd_stamp = msg.header.frame_id, msg.header.stamp
         self.on_command(msg.twist)
 
     def on_command(self, data):
@@ -434,10 +438,11 @@ class SafetyFilter:
         t = w.now()
         try:
             msg = data if isinstance(data, Twist) else cdr.twist(data)
-            self.filter.update_command(rosmsg.twist_turn_rate(msg), t, msg.linear.x)
-        except ValueError as exc:
-            w.complain('cmd', f'cmd_vel_nav rejected: {exc}; the previous command stays in force until it is '
-                       f'cmd_timeout ({self.filter.config.cmd_timeout:g} s) old, then a zero twist goes out')
+            self.filter.update_command(msg.angular.z, t, msg.linear.x)
+        except ValueError as exc:   # not finite (update_command), or unreadable
+            if not self.filter.command.rejected:
+                self.filter.refuse_command(f'unreadable ({exc})', t)
+            w.complain('cmd', f'cmd_vel_nav rejected: {self.filter.command.note}')
         else:
             if self.filter.command.note:
                 w.complain('cmd clipped', f'cmd_vel_nav beyond the robot\'s limits: {self.filter.command.note}')
@@ -473,6 +478,7 @@ class SafetyFilter:
         w = self.wiring
         t = w.now() if t is None else t
         out = self.filter.step(w.safe_set, t)
+        self._decided_at = t
         verdict = self.answers.judge(t, time.monotonic(), out.clusters_solving, answers_pose)
         if not verdict.publish:
             return None
@@ -480,7 +486,7 @@ class SafetyFilter:
             w.complain('cluster_hold', f'{verdict.why}: answering with the fallback until it lands', level='warn')
         elif verdict.held_for is not None:
             self._holds.held(verdict.held_for)
-        self._publish_command(out)
+        self._publish_command(out, t)
         now = time.monotonic()
         self._last_publish = now
         self.decisions += 1
@@ -505,10 +511,13 @@ class SafetyFilter:
             'view_problem': self._sensor_note(),
         }
 
-    def _publish_command(self, out):
+    def _publish_command(self, out, t):
         if self.types['cmd_vel_stamped']:
             msg = TwistStamped()
-            msg.header.stamp = self.get_clock().now().to_msg()      # the decision's time
+            # the planner's header on what was judged from its command (as Nav2's collision_monitor keeps it);
+            # the decision's time on what was not (a fail safe, a silent planner's zero twist)
+            judged = out.action != FAIL_SAFE and self._cmd_stamp is not None and command_fresh(self.filter, t)
+            msg.header.stamp = self._cmd_stamp if judged else self.get_clock().now().to_msg()
             msg.header.frame_id = self._cmd_frame
             msg.twist.linear.x, msg.twist.angular.z = float(out.linear), float(out.omega)
             self.cmd_pub.publish(msg)
@@ -533,6 +542,17 @@ class SafetyFilter:
         elif not failing and self._failing:
             self._failing = False
             self.get_logger().info(f'inputs valid again: filtering ({out.action}: {out.reason})')
+        # a planner gone silent (a robot that can stop is sent zero twists), once per silence
+        command = self.filter.command
+        silent = (command.value is not None and not command.rejected and not self.filter.config.constant_speed
+                  and not command_fresh(self.filter, self._decided_at))
+        if silent and not self._silence_told:
+            self._silence_told = True
+            self.get_logger().info(f'planner silent for more than cmd_timeout '
+                                   f'({self.filter.config.cmd_timeout:g} s): sending zero twists until it speaks')
+        elif not silent and self._silence_told and command_fresh(self.filter, self._decided_at):
+            self._silence_told = False
+            self.get_logger().info('planner speaking again')
 
     def send_zero_twist(self) -> list:
         """One zero twist on cmd_vel (a managed node going quiet, managed.py: the base must not
