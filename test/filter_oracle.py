@@ -40,7 +40,7 @@ def _problem(f, t) -> str:
             return f'no {label} received yet'
         age = t - inp.t     # since arrival: a pose that keeps coming is not lost
         if age > timeout:
-            return f'blind for {age:.2g} s ({label} stale: none newer; timeout {timeout:g} s)'
+            return f'blind for {age:.3g} s ({label} stale: none newer; timeout {timeout:g} s)'
     if f.command.rejected and cfg.fail_safe_command != 'stop_turn':
         return f'planner command rejected: {f.command.rejected}'
     return ''

@@ -97,36 +97,55 @@ def rig(ros_context, request):
         s.node.destroy_node()
 
 
-def test_a_scan_becomes_discs_and_bad_scans_fail_safe(rig):
-    f, s, spin = rig('/scan_robot')
+def occupied_at(f, x, y) -> bool:
+    """Whether the filter's local map holds (x, y) occupied (the cell or a neighbour: returns land on edges)."""
+    return len(f.sensor.map.occupied_centres(x, y, 0.1)) > 0
+
+
+def test_a_scan_goes_into_the_map_and_bad_scans_are_refused_until_blind(rig):
+    """A scan's returns mark the local map, its NaN and beyond-range beams clear nothing; a scan with no
+    return in range looked and saw nothing (fresh, the map kept); one whose geometry is not finite is
+    refused with its fault named, and the filter fails safe once its last valid view is
+    detections_timeout old, the cause in its reason."""
+    f, s, spin = rig('/scan_robot', detections_timeout=0.3)
     spin.until(lambda: matched(s.odom, s.det, s.cmd, *s.subs), 15.0, 'the filter to match')
     assert f.direct is not None, 'the default path: inputs taken by a thread of their own'
     ranges = np.full(360, np.inf)
-    ranges[170:190] = 4.0                      # a wall 4 m behind, NaN and beyond-range beams elsewhere
+    ranges[170:190] = 4.0                      # a wall 4 m ahead, NaN and beyond-range beams elsewhere
     ranges[10], ranges[20] = np.nan, 50.0
     for _ in range(3):
         s.send_pose()
         s.send_scan(ranges)
         s.send_cmd(1.0)
-        spin.until(lambda: f.filter.detections.value is not None, 5.0, 'detections')
-    d = f.filter.detections
-    assert d.value is not None and 1 <= len(d.value) <= 20
-    assert np.all(np.hypot(*d.value.T) > 3.0), 'the returns 4 m behind, not at the NaN or 50 m beams'
+        spin.until(lambda: f.filter.view is not None, 5.0, 'the view')
+    m = f.sensor.map
+    assert occupied_at(f, 4.0, 0.0) and not occupied_at(f, 2.0, 0.0), 'the wall ahead, seen through before it'
+    assert 20 <= len(m.occupied_centres(0.0, 0.0, 10.0)) == int(np.count_nonzero(m.occupied)) <= 60   # (slack: stamps)
     spin.until(lambda: s.out and s.out[-1].twist.linear.x == 1.0, 10.0, 'the planner\'s speed passed')
     assert s.out[-1].header.frame_id == 'base_link'
-    # looked, nothing seen: fresh, zero obstacles
+    # looked, nothing seen (no return in range): fresh; +inf clears nothing (inf_is_valid false): the wall stays
+    t = f.filter.detections.t
     s.send_scan(np.full(360, np.inf))
-    spin.until(lambda: f.filter.detections.value is not None and len(f.filter.detections.value) == 0, 5.0,
-               'an empty scan')
-    # a scan whose geometry is not finite: refused, logged, failing safe
+    spin.until(lambda: f.filter.detections.t > t, 5.0, 'an empty scan taken')
+    assert occupied_at(f, 4.0, 0.0)
+    # a scan whose geometry is not finite: refused, logged; blind at detections_timeout, failing safe, said
     n = len(s.states)
-    m = LaserScan()
-    m.header.frame_id, m.header.stamp, m.angle_min, m.angle_increment = 'laser', s.stamp(), math.nan, 0.1
-    m.range_max, m.ranges = 10.0, [1.0] * 10
-    s.det.publish(m)
-    s.send_cmd(1.0)
-    new_state(spin, s, n, 'fail safe on a bad scan', action='fail_safe')
-    spin.until(lambda: s.rosout.has('safety_filter', 'detections rejected', 'not finite'), 10.0, 'the log line')
+    bad = LaserScan()
+    bad.header.frame_id, bad.header.stamp, bad.angle_min, bad.angle_increment = 'laser', s.stamp(), math.nan, 0.1
+    bad.range_max, bad.ranges = 10.0, [1.0] * 10
+    for _ in range(40):
+        if any(st.get('action') == 'fail_safe' for st in s.states[n:]):
+            break
+        s.det.publish(bad)
+        s.send_pose()
+        s.send_cmd(1.0)
+        spin.until(lambda: len(s.states) > n or s.out, 2.0, 'a decision')
+        spin.spin_for(0.02)        # (the refusals come on; the filter goes blind at 0.3 s)
+    new_state(spin, s, n, 'fail safe on bad scans', action='fail_safe')
+    st = next(st for st in s.states[n:] if st.get('action') == 'fail_safe')
+    assert st['reason'].startswith('stopped: blind for') and 'angle_min' in st['reason'], st['reason']
+    spin.until(lambda: s.rosout.has('safety_filter', 'scan refused', 'angle_min'), 10.0, 'the log line')
+    assert occupied_at(f, 4.0, 0.0), 'what was seen stays'
 
 
 def test_a_pose_of_another_clock_fails_safe_with_an_error(rig):
@@ -148,23 +167,25 @@ def test_clouds_malformed_or_huge_are_refused_with_bounded_work(rig):
     f, s, spin = rig('/cloud_robot', PointCloud2, detections_type='point_cloud2', max_sensor_points=200_000)
     spin.until(lambda: matched(s.odom, s.det, s.cmd, *s.subs), 15.0, 'the filter to match')
     rng = np.random.default_rng(0)
-    xy = rng.uniform(-10, 10, (100_000, 2))
+    xy = rng.uniform(-4, 4, (100_000, 2))
     for dtype in ('<f4', '>f8'):               # float32 little-endian, float64 big-endian
         before = f.filter.detections.t
         s.send_pose()
         s.det.publish(xy_cloud(_header(s), xy, dtype))
-        spin.until(lambda: f.filter.detections.t > before and not f.filter.detections.rejected, 15.0,
+        spin.until(lambda: f.filter.detections.t > before and not f.filter.detections.refused, 15.0,
                    f'a {dtype} cloud of 100k points')
-        assert len(f.filter.detections.value) > 100
+        assert int(np.count_nonzero(f.sensor.map.occupied)) > 100
     bad = xy_cloud(_header(s), xy[:10])
     bad.data = bytes(bad.data)[:50]            # shorter than its points
     s.det.publish(bad)
-    spin.until(lambda: 'shorter than' in f.filter.detections.rejected, 10.0, 'a malformed cloud refused')
-    spin.until(lambda: s.rosout.has('safety_filter', 'detections rejected', 'shorter than'), 10.0, 'and logged')
+    spin.until(lambda: 'data' in f.filter.detections.refused, 10.0, 'a malformed cloud refused')
+    spin.until(lambda: s.rosout.has('safety_filter', 'cloud refused', 'data'), 10.0, 'and logged')
     huge = xy_cloud(_header(s), np.zeros((1, 2)))
     huge.width = 10_000_000                    # claims more points than max_sensor_points: refused unread
     s.det.publish(huge)
-    spin.until(lambda: 'exceeds max_sensor_points' in f.filter.detections.rejected, 10.0, 'a huge cloud refused')
+    spin.until(lambda: 'max_points' in f.filter.detections.refused or 'max_sensor_points' in f.filter.detections.refused,
+               10.0, 'a huge cloud refused')
+    spin.until(lambda: s.rosout.has('safety_filter', 'cloud refused', '10000000'), 10.0, 'said with its size')
 
 
 def _header(s):

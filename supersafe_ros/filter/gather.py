@@ -62,7 +62,7 @@ def problem(f, t):
             why = f'no {label} received yet'
         elif t - inp.t > timeout:     # since arrival: a pose that keeps coming is not lost
             since = (f'{inp.refusals} unusable since, the latest: {inp.refused}' if inp.refusals else 'none newer')
-            why = f'blind for {t - inp.t:.2g} s ({label} stale: {since}; timeout {timeout:g} s)'
+            why = f'blind for {t - inp.t:.3g} s ({label} stale: {since}; timeout {timeout:g} s)'
         if why:
             break
     if not why:

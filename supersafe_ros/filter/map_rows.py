@@ -35,7 +35,10 @@ import math
 
 import numpy as np
 
+from ..reach.field import FREE
 from .pairs import pair_reads, pair_turns
+
+NOTHING_NEAR = FREE / 2.0        # a map's value this high reads no occupied cell (reach.field.FREE)
 
 
 @dataclass(frozen=True)
@@ -96,7 +99,9 @@ def map_rows(views, values, rows, states, planned, horizon, speed, bang, safe_se
         if mv.covers(x, y):      # (near the window's rim V reads l beyond it: not the map's value)
             value, value_next = pair_reads(vf, rel, planned[i:i + 1], horizon[i:i + 1], speed[i:i + 1],
                                            bang[i:i + 1])
-            out['value'][j], out['value_next'][j] = value[0], value_next[0]
+            # no occupied cell the value can see: the field's FREE, nothing near (as a pair off its grid)
+            out['value'][j] = value[0] if value[0] < NOTHING_NEAR else np.inf
+            out['value_next'][j] = value_next[0] if value_next[0] < NOTHING_NEAR else np.inf
         out['level'][j] = map_value_level(mv, safe_set, configs[i])
         reach = 2.0 * float(speed[i]) * float(horizon[i]) + 2.0 + view.clearance
         out['xy'][j], out['gap'][j] = nearest_cell(view, x, y, reach)

@@ -67,6 +67,7 @@ check of learned sets (on a worker thread, off the control path): ``filter_wirin
 """
 from __future__ import annotations
 
+import re
 import threading
 import time
 
@@ -377,8 +378,9 @@ class SafetyFilter:
         except ValueError as exc:     # MessageError: the fault named; the view stays as it was
             why = str(exc) if str(exc).startswith(f'{sensor} refused') else f'{sensor} refused: {exc}'
             self.filter.refuse_view(why, t)
-            w.complain(f'{sensor} refused', f'{why}; the map stays as it was (failing safe once its last valid view '
-                       f'is detections_timeout {w.config.detections_timeout:g} s old)', level='error')
+            # each kind of fault logged (throttled per kind: its words with the numbers masked)
+            w.complain(re.sub(r'[-+0-9.eE]+', '#', why), f'{why}; the map stays as it was (failing safe once its last '
+                       f'valid view is detections_timeout {w.config.detections_timeout:g} s old)', level='error')
         else:
             if learned:
                 self.filter.update_view(self.sensor.view, t)
