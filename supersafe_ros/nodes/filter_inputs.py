@@ -75,8 +75,9 @@ INPUT_PARAMETERS = (
                   0.005, 10.0),
     ParameterSpec('map_size', 10.0, 'the local map\'s window side, centred on the robot and moved with it '
                   '(what leaves it is forgotten) [m]', 0.5, 1000.0),
-    ParameterSpec('value_cell', 0.1, 'the local map\'s value: its grid\'s spacing (a multiple of map_cell is '
-                  'best) [m]', 0.01, 10.0),
+    ParameterSpec('value_cell', 0.0, 'the local map\'s value: its grid\'s spacing [m]; 0 = (value_reach + speed '
+                  'x horizon) / 28 in whole map cells, about 60 x 60 nodes a heading (0.1 m for 0.5 m/s over 3 s)',
+                  0.0, 10.0),
     ParameterSpec('value_headings', 32, 'the local map\'s value: headings of its grid', 8, 256),
     ParameterSpec('value_horizon', 0.0, 'the local map\'s value: its horizon [s] (0 = standard_horizon; a fast '
                   'robot\'s window grows with speed x horizon)', 0.0, 60.0),
@@ -155,6 +156,19 @@ class PoseHistory:
         return self.states[-1] if self.states else None
 
 
+VALUE_NODES_HALF = 28       # value_cell 0: about this many nodes from the window's centre to its edge
+
+
+def value_cell(p: dict, speed: float, horizon: float) -> float:
+    """The map value's grid spacing: ``value_cell``, or with 0 (value_reach + speed horizon) / VALUE_NODES_HALF
+    rounded to whole map cells (at least one): the window's half-width is about value_reach + speed horizon,
+    so its grid has about 2 x 28 + 1 nodes a side whatever the robot's speed (a 40 ms solve here)."""
+    if p['value_cell'] > 0.0:
+        return float(p['value_cell'])
+    cell = p['map_cell']
+    return cell * max(1, round((p['value_reach'] + speed * horizon) / VALUE_NODES_HALF / cell))
+
+
 def mounted(pose, mount) -> tuple:
     """The sensor's pose in the map: the robot at ``pose`` (x, y, theta) carrying it at ``mount``
     (x_m, y_m, yaw_m) in its own frame."""
@@ -183,9 +197,10 @@ class SensorMap:
         self.threshold = p['occupied_threshold']
         self.period = p['value_period']
         self.map = LocalMap(MapSettings(cell=p['map_cell'], size=p['map_size'], depth=p['obstacle_depth']))
-        self.value_settings = MapValueSettings(cell=p['value_cell'], headings=p['value_headings'],
-                                               horizon=p['value_horizon'] or horizon or 3.0, reach=p['value_reach'],
-                                               recentre=min(0.5, p['value_reach']))
+        value_horizon = p['value_horizon'] or horizon or 3.0
+        self.value_settings = MapValueSettings(cell=value_cell(p, config.speed, value_horizon),
+                                               headings=p['value_headings'], horizon=value_horizon,
+                                               reach=p['value_reach'], recentre=min(0.5, p['value_reach']))
         # inline (a lockstepped simulation): solved in the caller's thread, so that the value's latency is none
         # in sim time (the clock waits for the answer), as a background solve's is next to value_period on a robot
         self.worker = MapValueWorker(config.speed, config.omega_max, p['robot_radius'], self.value_settings,
