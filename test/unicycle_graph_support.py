@@ -63,6 +63,7 @@ from __future__ import annotations
 from collections import Counter
 import dataclasses
 from dataclasses import dataclass, field
+import gc
 import importlib.util
 import math
 from pathlib import Path
@@ -469,6 +470,12 @@ class TripGraph:
                 n.destroy_node()
         if getattr(self, '_tmp', None) is not None:
             self._tmp.close()
+        # the nodes' handles sit in reference cycles (callbacks bound to this graph, the filter's
+        # wiring): collected now, in this process, not in a child that forks later (flake8's
+        # workers in the same pytest run died in the garbage collector: SIGSEGV)
+        self.filter = self.robot = self.planner_node = self.monitor = self.spoof = self.executor = None
+        self.subs = []
+        gc.collect()
 
 
 # -- the messages (pure: a test can look at a fault without nodes) --------------------------------
