@@ -26,7 +26,12 @@ scan on its steps, the planner's command; then wait until the filter has answere
 cmd_vel stamped with its stamp (the filter keeps the planner's header on what it judged from a
 command, as Nav2's collision_monitor does, and a filter that stamps its decision time stamps it
 so too, the clock being there), and the newest of the newest stamp is applied (a decision on a
-scan taken before the command, or the watchdog's, carries an older stamp). Every wait is on events, with a deadline (``deadline``, 20 s) that only catches a
+scan taken before the command carries an older stamp). The filter node (its /clock, watchdog,
+diagnostics) has an executor of its own, spun with the harness's except while an answer is
+awaited: a watchdog due then would run before the command was taken and, in a filter that stamps
+its decision time, answer it with a decision on the previous one (its inputs are taken by a thread
+of their own, ``direct_take``; a filter node that takes cmd_vel_nav itself is spun throughout).
+Every wait is on events, with a deadline (``deadline``, 20 s) that only catches a
 dead graph (``DeadGraph``, the trip so far attached). A step with no command (the planner
 silent) waits for any new cmd_vel (the filter's watchdog).
 
@@ -47,12 +52,9 @@ state_rate times a second while the action holds, so it can be a step or more ol
 the time to the goal, the planner's own time, path length, least clearance, collisions, turning
 in place, the largest excess of the speed sent over the planner's (this step's and the one before).
 
-Reproducible: a trip's figures came out the same run after run at load 1-2 and beside two CPU
-burners. What can still differ is a watchdog output sent between a command's publication and its
-take: the robot then applies, for one step, a decision on the previous command. On a loaded
-machine the watchdog speaks more often (steps slower than half its period): beside three burners
-(load 10) one lane trip of three had 34 watchdog outputs and a path 1 cm shorter; at load 9.5 one
-of three drove 28.1 m instead of 23.6 m (the trips of today's filter hang on small differences).
+Reproducible: a trip's figures came out the same run after run, at load 1-2 and beside burners
+(the trips of today's filter hang on small differences: a start 1 cm to the side can double the
+open field's time, bench/bench_trips.py --start-shift).
 
 The harness needs of the package under test only its filter node class and its config file:
 the simulator is this tree's (loaded by its path when another checkout is imported), and so
@@ -262,10 +264,17 @@ class TripGraph:
             self.spoof = Node('spoof_driver', namespace=self.ns or '/', context=ctx, parameter_overrides=sim)
             self.spoof_pub = self.spoof.create_publisher(LaserScan, topic + 'scan', qos['sensor'])
             self._spoof_ticks = None
-        self.executor = SingleThreadedExecutor(context=ctx)
-        for n in (self.filter, self.robot, self.planner_node, self.monitor, self.spoof):
+        self.executor = SingleThreadedExecutor(context=ctx)            # the harness's nodes
+        for n in (self.robot, self.planner_node, self.monitor, self.spoof):
             if n is not None:
                 self.executor.add_node(n)
+        # the filter node's own: its /clock, watchdog, diagnostics, parameters. While a command's
+        # answer is awaited it is not spun (unless the node takes cmd_vel_nav itself, direct_take
+        # false): its watchdog, due after a slow step, ran there before the command was taken and
+        # answered it with a decision on the previous command (seen after a garbage collection)
+        self.filter_executor = SingleThreadedExecutor(context=ctx)
+        self.filter_executor.add_node(self.filter)
+        self.answers_on_executor = any(sub.topic_name.endswith('/cmd_vel_nav') for sub in self.filter.subscriptions)
         self.state_xy = np.asarray(self.scenario.start, dtype=float)
         self.t0_ns = int(round(START_TIME * 1e9))
         self.records = dict(poses=[], asked=[], sent=[], actions=[], reasons=[])
@@ -331,14 +340,27 @@ class TripGraph:
             self.rosout.append((self.step_index, int(msg.level), msg.name, msg.msg))
 
     # -- waiting ---------------------------------------------------------------------------------
-    def until(self, condition, what, timeout=None):
-        """Spin until ``condition()``; DeadGraph past the deadline."""
+    def until(self, condition, what, timeout=None, filter_too=True):
+        """Spin until ``condition()`` (the filter node too unless ``filter_too`` is false); DeadGraph
+        past the deadline."""
         end = time.monotonic() + (self.deadline if timeout is None else timeout)
         while not condition():
             if time.monotonic() > end:
                 raise DeadGraph(f'timed out after {self.deadline} s waiting for {what} (step {self.step_index})',
                                 self.result())
-            self.executor.spin_once(timeout_sec=0.01)
+            if filter_too:
+                self.filter_executor.spin_once(timeout_sec=0.005)
+                self.executor.spin_once(timeout_sec=0.0)
+            else:
+                self.executor.spin_once(timeout_sec=0.01)
+
+    def _answer(self, before, what, t_ns, command=True):
+        """Wait for a cmd_vel after the ``before``-th and, with a command out, one stamped with it (at ``t_ns``)."""
+        if command:
+            self.until(lambda: any(s >= t_ns for s in self.received_stamps[before:]), what,
+                       filter_too=self.answers_on_executor)
+        else:
+            self.until(lambda: len(self.received) > before, what)
 
     def _drain(self):
         """Take what has already arrived (the state that went out with the answer), without waiting."""
@@ -363,7 +385,7 @@ class TripGraph:
         self.sensor_pub.publish(point_cloud(t_ns, ranges) if self.detections == 'cloud' else laser_scan(t_ns, ranges))
         before = len(self.received)
         self.cmd_pub.publish(twist_stamped(self.planner.command(start), t_ns))
-        self.until(lambda: len(self.received) > before, 'the answer to the warm-up')
+        self._answer(before, 'the answer to the warm-up', t_ns)
         self._drain()
 
     def _clock(self, t_ns):
@@ -402,13 +424,7 @@ class TripGraph:
             self.commands += 1
             if not math.isfinite(asked[0]):
                 asked = (math.nan, math.nan)
-        if self.commands and not (faulty and self.fault == 'planner_silent'):
-            # the answer to this step's command: stamped with it (the planner's header kept, as Nav2's
-            # collision_monitor does; a filter stamping its decision time stamps it so too: the clock is at
-            # t_ns); a decision on a scan taken before the command carries the previous command's stamp
-            self.until(lambda: any(s >= t_ns for s in self.received_stamps[before:]), f'cmd_vel at step {k}')
-        else:
-            self.until(lambda: len(self.received) > before, f'cmd_vel at step {k}')
+        self._answer(before, f'cmd_vel at step {k}', t_ns, command=not (faulty and self.fault == 'planner_silent'))
         self._drain()
         latest = max(range(before, len(self.received)), key=lambda i: (self.received_stamps[i], i))
         v, w = self.received[latest]
@@ -464,6 +480,7 @@ class TripGraph:
 
     def close(self):
         self.executor.shutdown()
+        self.filter_executor.shutdown()
         self.filter.close()
         for n in (self.filter, self.robot, self.planner_node, self.monitor, self.spoof):
             if n is not None:
@@ -473,7 +490,8 @@ class TripGraph:
         # the nodes' handles sit in reference cycles (callbacks bound to this graph, the filter's
         # wiring): collected now, in this process, not in a child that forks later (flake8's
         # workers in the same pytest run died in the garbage collector: SIGSEGV)
-        self.filter = self.robot = self.planner_node = self.monitor = self.spoof = self.executor = None
+        self.filter = self.robot = self.planner_node = self.monitor = self.spoof = None
+        self.executor = self.filter_executor = None
         self.subs = []
         gc.collect()
 
