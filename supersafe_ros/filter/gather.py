@@ -118,8 +118,8 @@ def gather(filters, t) -> RobotColumns:
     values = None
     if any(map(is_not, views, itertools.repeat(None))):     # robots judged by their maps' values
         values = [None if v is None else v.value() for v in views]
-        clean &= ~np.fromiter((v is not None and mv is None and v.local_map.holds_any() for v, mv in zip(views, values)),
-                              dtype=bool, count=n)
+        pending = (v is not None and mv is None and v.local_map.holds_any() for v, mv in zip(views, values))
+        clean &= ~np.fromiter(pending, dtype=bool, count=n)
     judged = has & clean & ~(t - pose_t > pose_timeout) & ~(t - det_t > det_timeout)
     rb.problems = [''] * n
     for i in np.flatnonzero(~judged).tolist():

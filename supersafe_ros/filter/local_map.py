@@ -558,8 +558,9 @@ class LocalMap:
         if not (r > 0 and math.isfinite(x) and math.isfinite(y)):
             return 0
         n, c = self.shape[0], self.cell
-        i0, i1 = max(0, math.floor((x - r) / c) - self._corner[0]), min(n, math.floor((x + r) / c) - self._corner[0] + 1)
-        j0, j1 = max(0, math.floor((y - r) / c) - self._corner[1]), min(n, math.floor((y + r) / c) - self._corner[1] + 1)
+        ci, cj = self._corner
+        i0, i1 = max(0, math.floor((x - r) / c) - ci), min(n, math.floor((x + r) / c) - ci + 1)
+        j0, j1 = max(0, math.floor((y - r) / c) - cj), min(n, math.floor((y + r) / c) - cj + 1)
         if i0 >= i1 or j0 >= j1:
             return 0
         cx = (self._corner[0] + np.arange(i0, i1) + 0.5) * c - x

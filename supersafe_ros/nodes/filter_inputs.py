@@ -38,7 +38,6 @@ from ..filter.local_map import LocalMap, MapSettings
 from ..filter.map_rows import MapView
 from ..filter.map_value import MapValueSettings, MapValueWorker
 from ..filter.range_readings import cloud_xy, interpolated_pose, scan_rays
-from ..ros_io import sensors
 from ..ros_io.rosmsg import MessageError
 from .common import ParameterSpec
 
@@ -81,10 +80,10 @@ INPUT_PARAMETERS = (
     ParameterSpec('value_headings', 32, 'the local map\'s value: headings of its grid', 8, 256),
     ParameterSpec('value_horizon', 0.0, 'the local map\'s value: its horizon [s] (0 = standard_horizon; a fast '
                   'robot\'s window grows with speed x horizon)', 0.0, 60.0),
-    ParameterSpec('value_reach', 1.5, 'the local map\'s value: how far the robot may go from the solved window\'s '
-                  'centre before it is solved again, around it [m]', 0.1, 100.0),
-    ParameterSpec('value_period', 0.2, 'the local map\'s value is solved again (in the background) at most this '
-                  'often while the map changes [steady s]', 0.0, 60.0),
+    ParameterSpec('value_reach', 1.0, 'the local map\'s value: how far the robot may go from the solved window\'s '
+                  'centre with its value sound (it is solved around the robot again once 0.5 m away) [m]', 0.1, 100.0),
+    ParameterSpec('value_period', 0.5, 'the local map\'s value is solved again (in the background) at most every '
+                  'this many seconds of the filter\'s time while the map changes, and not while inactive', 0.0, 60.0),
     ParameterSpec('occupied_threshold', 100, 'occupancy_grid: a cell of at least this value is occupied, 0 .. '
                   'this - 1 free, -1 unknown (leaves what the map held; Nav2\'s costmap: 100 lethal, 99 '
                   'inscribed)', 1, 100),
@@ -120,11 +119,6 @@ def check_types(p: dict) -> None:
         raise ValueError(f"pose_type {p['pose_type']!r} is not one of {POSE_TYPES}")
     if p['detections_type'] not in DETECTIONS_TYPES:
         raise ValueError(f"detections_type {p['detections_type']!r} is not one of {DETECTIONS_TYPES}")
-
-
-def pose_of(msg, frame: str) -> tuple:
-    """(x, y, theta) of an Odometry or PoseWithCovarianceStamped (both: header, pose.pose)."""
-    return sensors.header_pose_to_state(msg.header, msg.pose.pose, frame)
 
 
 class PoseHistory:
@@ -299,6 +293,26 @@ class SensorMap:
         self._asked = now
         self.worker.submit(self.map.snapshot(), (x, y), omega_max=omega_max, stamp=now)
         return True
+
+    def problem(self, detections) -> str:
+        """The sensor's problem in words ('' if none): the newest messages' refusal (``detections``: the filter's
+        input, which counts them) or the last message's own (every beam NaN, ...)."""
+        if detections.refused:
+            return f'{detections.refusals} {self.view.sensor} message(s) unusable since the last valid one: ' \
+                   f'{detections.refused}'
+        return f'{self.view.sensor}: {self.note}' if self.note else ''
+
+    def state_values(self, detections) -> dict:
+        """The map's and its value's values for the state topic."""
+        value, last = self.worker.latest(), self.last
+        return {
+            'map_version': str(self.map.version),
+            'map_value_version': '' if value is None else str(value.version),
+            'map_value_solve_s': '' if value is None else f'{value.solve_s:.3g}',
+            'map_value_errors': str(len(self.worker.errors)),
+            'view': '' if last is None else f'{last.kind}: {last.marked} cells marked, {last.cleared} cleared',
+            'view_problem': self.problem(detections),
+        }
 
     def close(self):
         self.worker.close()

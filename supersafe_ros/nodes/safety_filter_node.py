@@ -87,7 +87,7 @@ from ..ros_io.direct_take import DirectTake
 from .common import ParameterSpec, declare_all, run_node
 from .filter_diagnostics import FilterDiagnostics, StatusCopies
 from .filter_inputs import (INPUT_PARAMETERS, MAP_SENSORS, RANGE_SENSORS, PoseHistory, SensorMap, check_types,
-                            command_message_type, message_type, pose_of)
+                            command_message_type, message_type)
 from .filter_state import HoldSummary, StateThrottle
 from .managed import node_classes
 from .filter_wiring import VALUE_FUNCTION_TOPIC, FilterWiring  # noqa: F401  (the topic, re-exported for tests)
@@ -117,6 +117,9 @@ PARAMETERS = (
     *INPUT_PARAMETERS,
 )
 NO_DETECTIONS = np.zeros((0, 2))
+# each pose_type's raw reader: a PoseStamped view of the bytes (ros_io.cdr)
+POSE_READERS = {'pose_stamped': cdr.pose_stamped, 'odometry': cdr.odometry,
+                'pose_with_covariance': cdr.pose_with_covariance}
 
 
 class SafetyFilter:
@@ -142,7 +145,8 @@ class SafetyFilter:
             self.sensor = SensorMap(p, self.poses, c, w.params.standard_horizon, w.frame, inline=p['lockstep'])
             s = self.sensor.value_settings
             self.get_logger().info(
-                f"{self.sensor.view.sensor}: a local map of {p['map_size']:g} m at {p['map_cell']:g} m cells, judged by "
+                f"{self.sensor.view.sensor}: a local map of {p['map_size']:g} m at {p['map_cell']:g} m cells, judged "
+                f"by "
                 f'its avoid value (speed {c.speed:g}, w_max {c.omega_max:g}, clearance {p["robot_radius"]:g} m, '
                 f'horizon {s.horizon:g} s, {s.cell:g} m x {s.headings} headings), solved again in the background at '
                 f'most every {p["value_period"]:g} s while the map changes')
@@ -216,9 +220,8 @@ class SafetyFilter:
         objects built (on the path from pose to cmd_vel; for detections of any size); the others
         are decoded by rclpy. Ready together, they are taken in this order (the executor's: the
         order made), so a command is judged on the detections that came with it."""
-        pose_raw = p['pose_type'] == 'pose_stamped'
-        inputs = [(message_type(p['pose_type']), 'pose', self.on_pose if pose_raw else self.on_pose_message,
-                   pose_raw, rosmsg.QOS_STREAM)]
+        self._read_pose = POSE_READERS[p['pose_type']]
+        inputs = [(message_type(p['pose_type']), 'pose', self.on_pose, True, rosmsg.QOS_STREAM)]
         if self.require_detections:
             kind = p['detections_type']
             callback = {'pose_array': self.on_detections, 'marker_array': self.on_markers}.get(
@@ -228,7 +231,7 @@ class SafetyFilter:
             inputs.append((message_type(kind), 'detections', callback, kind == 'pose_array', qos))
         stamped = p['cmd_vel_stamped']
         inputs.append((command_message_type(stamped), 'cmd_vel_nav',
-                       self.on_stamped_command if stamped else self.on_command, not stamped, rosmsg.QOS_STREAM))
+                       self.on_stamped_command if stamped else self.on_command, True, rosmsg.QOS_STREAM))
         return tuple(inputs)
 
     def _statuses(self) -> list:
@@ -241,23 +244,13 @@ class SafetyFilter:
                 state = self.wiring.state_message(self.name, out)
                 status = self._copies.of(0, state, name, ns, None if self.active else
                                          f'inactive (lifecycle): no cmd_vel; last: {state.message}')
-                note = self._sensor_note()
+                note = self.sensor.problem(self.filter.detections) if self.sensor is not None else ''
                 if note:        # what the sensor's last message says of itself (every beam NaN, ...)
                     status.level = bytes([max(status.level[0], DiagnosticStatus.WARN[0])])
                     status.message = f'{status.message}; {note}'
                 return [status]
         return [DiagnosticStatus(level=DiagnosticStatus.ERROR, name=name, hardware_id=ns,
                                  message='no decision yet' if self.active else 'inactive: no cmd_vel')]
-
-    def _sensor_note(self) -> str:
-        """The range sensor's or costmap's last problem, in words ('' if none): its last message's (every
-        beam NaN, ...) or the refusal of the newest ones."""
-        if self.sensor is None:
-            return ''
-        det = self.filter.detections
-        if det.refused:
-            return f'{det.refusals} {self.sensor.view.sensor} message(s) unusable since the last valid one: {det.refused}'
-        return f'{self.sensor.view.sensor}: {self.sensor.note}' if self.sensor.note else ''
 
     def _say_ready(self):
         """Make the latched safety_filter/ready publisher (once; on the executor's thread)."""
@@ -279,12 +272,13 @@ class SafetyFilter:
 
     # -- inputs -----------------------------------------------------------------------------
     def on_pose(self, data):
-        """A serialized PoseStamped (raw subscription)."""
+        """A serialized PoseStamped, Odometry or PoseWithCovarianceStamped (``pose_type``; raw: its pose
+        read from the CDR bytes, ``ros_io.cdr``, with the frame and checks of a message's)."""
         w = self.wiring
         t = w.now()
         msg = None
         try:
-            msg = cdr.pose_stamped(data)
+            msg = self._read_pose(data)
             self._take_pose(rosmsg.pose_to_state(msg, w.frame), t, w.stamp(msg.header.stamp, t))
             if not self.require_detections:
                 self.filter.update_detections(NO_DETECTIONS, t)
@@ -303,19 +297,6 @@ class SafetyFilter:
             self.decide(t, answers_pose=True)
         elif self.publish_on_pose:
             self.decide(t)
-
-    def on_pose_message(self, msg):
-        """An Odometry or PoseWithCovarianceStamped (pose_type): its pose.pose in its header's frame."""
-        w = self.wiring
-        t = w.now()
-        try:
-            self._take_pose(pose_of(msg, w.frame), t, w.stamp(msg.header.stamp, t))
-            if not self.require_detections:
-                self.filter.update_detections(NO_DETECTIONS, t)
-        except ValueError as exc:
-            self.filter.reject_pose(str(exc), t)
-            w.complain('pose', f'pose rejected: {exc}; failing safe', level='error')
-        self._answer_pose(t, msg.header.stamp)
 
     def _take_pose(self, state, t, stamp):
         self.filter.update_pose(state, t, stamp=stamp)
@@ -400,10 +381,11 @@ class SafetyFilter:
         """The map's value solved again around the robot (at most every value_period), for the set in force:
         the learned w_max where a learned set is, the robot's own otherwise."""
         newest = self.poses.newest
-        if newest is None:
+        if newest is None or not self.active:     # (inactive: no decision reads it; solved again once active)
             return
         safe = self.wiring.safe_set
-        omega = safe.omega_max if safe.source == 'learned' and safe.omega_max is not None else self.wiring.config.omega_max
+        learned = safe.source == 'learned' and safe.omega_max is not None
+        omega = safe.omega_max if learned else self.wiring.config.omega_max
         self.sensor.solve(float(omega), self.wiring.now(), float(newest[0]), float(newest[1]))
         value = self.sensor.worker.latest()
         if value is not None and self._first_value is None:
@@ -428,18 +410,23 @@ class SafetyFilter:
         if d.dropped:
             w.complain('detections dropped', d.note, level='warn' if d.dropped_safely else 'error')
 
-    def on_stamped_command(self, msg):
-        """A TwistStamped (cmd_vel_stamped): its twist judged as on_command's; its frame is the
-        frame of the cmd_vel sent."""
-        self._cmd_frame, self._cmd_stamp = msg.header.frame_id, msg.header.stamp
-        self.on_command(msg.twist)
+    def on_stamped_command(self, data):
+        """A serialized TwistStamped (cmd_vel_stamped): its twist judged as on_command's; its header is that
+        of the cmd_vel judged from it."""
+        try:
+            header, twist = cdr.twist_stamped(data)
+        except ValueError:
+            self.on_command(data)       # (unreadable: refused there, said)
+            return
+        self._cmd_frame, self._cmd_stamp = header.frame_id, header.stamp
+        self.on_command(twist)
 
     def on_command(self, data):
         """A serialized Twist (raw subscription), or a Twist."""
         w = self.wiring
         t = w.now()
         try:
-            msg = data if isinstance(data, Twist) else cdr.twist(data)
+            msg = cdr.twist(data) if isinstance(data, (bytes, bytearray, memoryview)) else data
             self.filter.update_command(msg.angular.z, t, msg.linear.x)
         except ValueError as exc:   # not finite (update_command), or unreadable
             if not self.filter.command.rejected:
@@ -495,34 +482,21 @@ class SafetyFilter:
         self._last_out = out
         self._tell_story(out)
         if self._throttle.due(now, out.action, w.set_update, w.state_period):
-            self.state_pub.publish(w.state_message(self.name, out, self._map_values()))
+            extra = None if self.sensor is None else self.sensor.state_values(self.filter.detections)
+            self.state_pub.publish(w.state_message(self.name, out, extra))
         return out
-
-    def _map_values(self):
-        """A robot judged by its local map: the map's and its value's state values (None otherwise)."""
-        if self.sensor is None:
-            return None
-        value = self.sensor.worker.latest()
-        last = self.sensor.last
-        return {
-            'map_version': str(self.sensor.map.version),
-            'map_value_version': '' if value is None else str(value.version),
-            'map_value_solve_s': '' if value is None else f'{value.solve_s:.3g}',
-            'map_value_errors': str(len(self.sensor.worker.errors)),
-            'view': '' if last is None else f'{last.kind}: {last.marked} cells marked, {last.cleared} cleared',
-            'view_problem': self._sensor_note(),
-        }
 
     def _publish_command(self, out, t):
         if self.types['cmd_vel_stamped']:
-            msg = TwistStamped()
             # the planner's header on what was judged from its command (as Nav2's collision_monitor keeps it);
             # the decision's time on what was not (a fail safe, a silent planner's zero twist)
             judged = out.action != FAIL_SAFE and self._cmd_stamp is not None and command_fresh(self.filter, t)
-            msg.header.stamp = self._cmd_stamp if judged else self.get_clock().now().to_msg()
-            msg.header.frame_id = self._cmd_frame
-            msg.twist.linear.x, msg.twist.angular.z = float(out.linear), float(out.omega)
-            self.cmd_pub.publish(msg)
+            if judged:
+                sec, nanosec = self._cmd_stamp.sec, self._cmd_stamp.nanosec
+            else:
+                sec, nanosec = divmod(self.get_clock().now().nanoseconds, 1_000_000_000)
+            self.cmd_pub.publish(cdr.twist_stamped_bytes(sec, nanosec, self._cmd_frame, float(out.linear),
+                                                         float(out.omega)))      # serialized: no message built
         else:
             self.cmd_pub.publish(cdr.twist_bytes(float(out.linear), float(out.omega)))   # serialized: no Twist built
 
