@@ -22,7 +22,8 @@ supersafe_ros; the checkouts alternate input by input so that the machine's load
   activated through its lifecycle services), a robot driving at 0.5 m/s through the discs: odometry
   at 50 Hz, a 360-beam scan at 10 Hz, TwistStamped at 20 Hz, for ``--drive-seconds``; then
   deactivated, the same feed. Printed: the filter's CPU share of a core while active (its map value's
-  solves said apart) and while inactive, and its cmd_vel per second.
+  solves said apart: its thread, or its worker process, a child counted in) and while inactive, and
+  its cmd_vel per second.
 * **value**: the local map's value of the nav2 robot (speed 0.5, w_max 1, clearance 0.25, 10 m map at
   5 cm, value grid 0.1 m x 32 headings, horizon 3 s) solved in this process: a first solve and a
   re-solve after a scan moved the robot 0.1 m (``filter.map_value.solve_map_value``), with the
@@ -80,6 +81,23 @@ def thread_cpu_seconds(pid: int, name: str) -> float:
             total += (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
         except OSError:        # (a thread that ended)
             continue
+    return total
+
+
+def children_cpu_seconds(pid: int) -> float:
+    """CPU seconds of the process's children (the map value's solver process, the cluster solver's)."""
+    total = 0.0
+    for task in os.listdir(f'/proc/{pid}/task'):
+        try:
+            with open(f'/proc/{pid}/task/{task}/children') as f:
+                kids = [int(k) for k in f.read().split()]
+        except OSError:
+            continue
+        for kid in kids:
+            try:
+                total += cpu_seconds(kid)
+            except OSError:
+                continue
     return total
 
 
@@ -298,16 +316,20 @@ def bench_drive(kind, checkout, label, args):
                         pending = None
         feed(3.0, False)                   # warm-up: the first value solved
         got.clear()
-        c0, s0, t0 = cpu_seconds(proc.pid), thread_cpu_seconds(proc.pid, 'map_value'), time.monotonic()
+        c0, s0, k0, t0 = (cpu_seconds(proc.pid), thread_cpu_seconds(proc.pid, 'map_value'),
+                          children_cpu_seconds(proc.pid), time.monotonic())
         feed(args.drive_seconds, True)
         active_t, decisions = time.monotonic() - t0, len(got)
-        solver = thread_cpu_seconds(proc.pid, 'map_value') - s0
-        active_cpu = cpu_seconds(proc.pid) - c0
+        # the value's solves: its thread in the filter's process, or its worker process (a child)
+        kids = children_cpu_seconds(proc.pid) - k0
+        solver = thread_cpu_seconds(proc.pid, 'map_value') - s0 + kids
+        active_cpu = cpu_seconds(proc.pid) - c0 + kids
         transition(Transition.TRANSITION_DEACTIVATE)
         got.clear()
-        c0, t0 = cpu_seconds(proc.pid), time.monotonic()
+        c0, k0, t0 = cpu_seconds(proc.pid), children_cpu_seconds(proc.pid), time.monotonic()
         feed(args.drive_seconds, False)
-        idle_cpu, idle_t = cpu_seconds(proc.pid) - c0, time.monotonic() - t0
+        idle_cpu = cpu_seconds(proc.pid) - c0 + children_cpu_seconds(proc.pid) - k0
+        idle_t = time.monotonic() - t0
         print(f'{kind:10s} {label:12s} sensor message -> cmd_vel {ms(latencies)}; CPU per decision '
               f'{(active_cpu - solver) / max(1, decisions) * 1e3:.2f} ms ({decisions / active_t:.0f} a second); '
               f'active {100 * active_cpu / active_t:.1f} % of a core (the map value\'s solves '

@@ -294,20 +294,27 @@ class _Request:
 
 class MapValueWorker:
     """Solves the window's value as the map changes: in a daemon thread (latest wins), or with
-    ``inline=True`` at once in the caller's thread. ``latest()`` the newest MapValue or None;
+    ``inline=True`` at once in the caller's thread; with ``process=True`` the thread hands each solve
+    to a spawned worker process (its solver kept there across solves) and waits for it without the
+    GIL: the solve's Python steps then never hold the caller's process against its control path (a
+    35 ms solve in a thread of the filter's process raised the sensor -> cmd_vel p99 from 3 to 6 ms;
+    bench/results/sensors.md), and the value comes back pickled (0.5 MB). A worker that cannot be
+    started or breaks: the solves run in the thread, as without it. ``latest()`` the newest MapValue or None;
     ``errors`` the texts of failed solves (the last MAX_ERRORS), ``error`` the newest; counts
     ``submitted``, ``solved``, ``skipped`` (nothing changed within the window's reach: the last value
     kept, restamped), ``replaced`` (a pending request
     overtaken by a newer one)."""
 
     def __init__(self, speed: float, omega_max: float, clearance: float,
-                 settings: MapValueSettings | None = None, inline: bool = False):
+                 settings: MapValueSettings | None = None, inline: bool = False, process: bool = False):
         DubinsCar(speed, omega_max)                     # the same checks as the solve's, here
         if not (math.isfinite(clearance) and clearance >= 0):
             raise ValueError(f'clearance must be a non-negative finite number of metres, got {clearance!r}')
         self.speed, self.omega_max, self.clearance = float(speed), float(omega_max), float(clearance)
         self.settings = settings or MapValueSettings()
         self.inline = inline
+        self.process = bool(process) and not inline     # the solves in a worker process (see the class)
+        self._pool = None
         self.errors: list[str] = []
         self.error = ''
         self.submitted = self.solved = self.skipped = self.replaced = self.error_count = 0
@@ -359,10 +366,15 @@ class MapValueWorker:
         if self._thread is None:
             return True
         self._thread.join(timeout)
+        pool, self._pool = self._pool, None
+        if pool is not None:
+            pool.shutdown(wait=False, cancel_futures=True)
         return not self._thread.is_alive()
 
     def _run(self):
         _name_os_thread(THREAD_NAME)
+        if self.process:
+            self._pool = _start_pool()
         while True:
             with self._wake:
                 while self._pending is None and not self._closed:
@@ -382,8 +394,18 @@ class MapValueWorker:
                 self._latest = replace(last, stamp=request.stamp, version=snap.version)
                 self.skipped += 1
                 return
-            value = solve_map_value(snap, request.centre, self.speed, request.omega_max, self.clearance,
-                                    self.settings, stamp=request.stamp, previous=last, _windows=self._windows)
+            value = None
+            if self._pool is not None:
+                try:
+                    value = self._pool.submit(_solve_remote, snap, request.centre, self.speed, request.omega_max,
+                                              self.clearance, self.settings, request.stamp).result()
+                    value = replace(last, stamp=request.stamp, version=snap.version) if value is None else value
+                except Exception:           # noqa: BLE001  a broken worker: solved here from now on
+                    self._pool = None
+                    value = None
+            if value is None:
+                value = solve_map_value(snap, request.centre, self.speed, request.omega_max, self.clearance,
+                                        self.settings, stamp=request.stamp, previous=last, _windows=self._windows)
             self._last_key = (key, snap.occupied)
             self._latest = value
             if last is not None and value.vf is last.vf:
@@ -395,3 +417,34 @@ class MapValueWorker:
             self.errors.append(self.error)
             del self.errors[:-MAX_ERRORS]
             self.error_count += 1
+
+
+_REMOTE = {}      # in a worker process: its solver windows and its last value (``_solve_remote``)
+
+
+def _solve_remote(snapshot, centre, speed, omega_max, clearance, settings, stamp):
+    """``solve_map_value`` in a worker process, its solver and its last value kept there: the new value,
+    or None when the window's field is the last one's (the caller keeps its own, restamped)."""
+    windows = _REMOTE.setdefault('windows', _Windows())
+    last = _REMOTE.get('last')
+    value = solve_map_value(snapshot, centre, speed, omega_max, clearance, settings, stamp=stamp, previous=last,
+                            _windows=windows)
+    _REMOTE['last'] = value
+    return None if last is not None and value.vf is last.vf else value
+
+
+def _start_pool():
+    """A spawned worker process for the solves (None if none can be started), as the cluster store's:
+    stop signals blocked in the spawning thread, the worker gone with its parent."""
+    from .cluster import _block_stop_signals, _exit_with_parent
+    try:
+        import concurrent.futures
+        import multiprocessing
+        import os
+        _block_stop_signals()
+        pool = concurrent.futures.ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context('spawn'),
+                                                      initializer=_exit_with_parent, initargs=(os.getpid(),))
+        pool.submit(math.sqrt, 1.0).result()      # spawned now, not at the first solve
+        return pool
+    except (OSError, ValueError, ImportError, RuntimeError):
+        return None

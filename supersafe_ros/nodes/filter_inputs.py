@@ -197,8 +197,9 @@ class SensorMap:
                                                reach=p['value_reach'], recentre=min(0.5, p['value_reach']))
         # inline (a lockstepped simulation): solved in the caller's thread, so that the value's latency is none
         # in sim time (the clock waits for the answer), as a background solve's is next to value_period on a robot
+        # in the background: a worker process of its own (its solves hold nothing of the control path here)
         self.worker = MapValueWorker(config.speed, config.omega_max, p['robot_radius'], self.value_settings,
-                                     inline=inline)
+                                     inline=inline, process=not inline)
         self.view = MapView(self.map, p['robot_radius'], self.worker, SENSOR_WORDS[self.kind])
         self.note = ''
         self.last = None            # the last message's ViewSummary

@@ -58,7 +58,7 @@ from ..ros_io import rosmsg
 from .filter_diagnostics import DIAGNOSTICS_TOPIC
 
 _ENTITIES = (('publishers', 'destroy_publisher'), ('subscriptions', 'destroy_subscription'),
-             ('timers', 'destroy_timer'))
+             ('timers', 'destroy_timer'), ('guards', 'destroy_guard_condition'))
 DIAGNOSTICS_PERIOD = 1.0        # steady s
 ZERO_TWIST_ACK_TIMEOUT = 2.0    # steady s, all publishers together
 

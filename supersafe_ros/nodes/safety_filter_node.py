@@ -176,30 +176,36 @@ class SafetyFilter:
         self.decisions = 0
         self.require_detections = p['require_detections']
         self.ready_pub = None          # safety_filter/ready: made once the filter can judge
+        self._ready_asked = False
         self._inputs_ready = not self.require_detections
 
         self.cmd_pub = self.create_publisher(command_message_type(p['cmd_vel_stamped']), 'cmd_vel',
                                              rosmsg.QOS_STREAM)
         self.state_pub = self.create_publisher(DiagnosticStatus, 'safety_filter/state', rosmsg.QOS_STREAM)
         self.timer = None
-        self._set_rate(w.rate)
+        self.direct = None
+        self._ready_guard = None
         # RViz: the level set in force around each detected obstacle (computed only while watched)
         if p['level_set_markers']:
             self.level_set = LevelSetMarkerPublisher(
                 self, lambda: (w.safe_set, self.filter.pose.value, self.filter.detections.value),
                 p['level_set_rate'])
-        self.direct = None
         inputs = self._inputs(p)
         if p['direct_take'] and not self.lockstep:
+            # the inputs and the watchdog on a thread of their own (the executor keeps parameters, lifecycle,
+            # /diagnostics and the ready publisher, made there when the thread says so)
+            self._ready_guard = self.create_guard_condition(self._say_ready)
             self.direct = DirectTake(self, self.lock, path=w.params.take_path)
             try:
                 for msg_type, topic, callback, raw, qos in inputs:
                     self.direct.add(msg_type, topic, callback, qos, raw=raw)
+                self._set_rate(w.rate)
             except BaseException:
                 self.direct.close()
                 raise
             self.direct.start()
         else:
+            self._set_rate(w.rate)
             # lockstep: the executor reads /clock before a pose that waits with it, so a pose the
             # clock has passed is known as such (_clock_passed); a thread of its own would not be
             for msg_type, topic, callback, raw, qos in inputs:
@@ -266,6 +272,9 @@ class SafetyFilter:
 
     def _set_rate(self, rate):
         self.period = 1.0 / rate
+        if self.direct is not None:          # the inputs' thread serves the watchdog (under the lock)
+            self.direct.tick(self.period, self.on_watchdog)
+            return
         if self.timer is not None:
             self.destroy_timer(self.timer)
         self.timer = self.create_timer(self.period, self._locked(self.on_watchdog), clock=self.wiring.steady)
@@ -440,7 +449,11 @@ class SafetyFilter:
 
     def on_watchdog(self):
         if self._inputs_ready and self.ready_pub is None:
-            self._say_ready()
+            if self._ready_guard is None:
+                self._say_ready()
+            elif not self._ready_asked:       # made by the executor (the guard's callback)
+                self._ready_asked = True
+                self._ready_guard.trigger()
         now = time.monotonic()
         held = self.answers.held_pose_time
         if held is not None:
