@@ -373,8 +373,8 @@ class MapValueWorker:
 
     def _run(self):
         _name_os_thread(THREAD_NAME)
-        if self.process:
-            self._pool = _start_pool()
+        if self.process:      # spawned beside: until it is up (a second or so) the solves run here
+            threading.Thread(target=self._spawn, name='map_value_spawn', daemon=True).start()
         while True:
             with self._wake:
                 while self._pending is None and not self._closed:
@@ -383,6 +383,15 @@ class MapValueWorker:
                     return
                 request, self._pending = self._pending, None
             self._handle(request)
+
+    def _spawn(self):
+        pool = _start_pool()
+        with self._wake:
+            if self._closed:
+                if pool is not None:
+                    pool.shutdown(wait=False, cancel_futures=True)
+                return
+            self._pool = pool
 
     def _handle(self, request: _Request):
         try:
@@ -394,12 +403,13 @@ class MapValueWorker:
                 self._latest = replace(last, stamp=request.stamp, version=snap.version)
                 self.skipped += 1
                 return
-            value = None
-            if self._pool is not None:
+            value, pool = None, self._pool
+            if pool is not None:
                 try:
-                    value = self._pool.submit(_solve_remote, snap, request.centre, self.speed, request.omega_max,
-                                              self.clearance, self.settings, request.stamp).result()
-                    value = replace(last, stamp=request.stamp, version=snap.version) if value is None else value
+                    value = pool.submit(_solve_remote, snap, request.centre, self.speed, request.omega_max,
+                                        self.clearance, self.settings, request.stamp).result()
+                    if value is None:       # the worker's field is its last one's
+                        value = None if last is None else replace(last, stamp=request.stamp, version=snap.version)
                 except Exception:           # noqa: BLE001  a broken worker: solved here from now on
                     self._pool = None
                     value = None

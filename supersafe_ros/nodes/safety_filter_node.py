@@ -176,7 +176,6 @@ class SafetyFilter:
         self.decisions = 0
         self.require_detections = p['require_detections']
         self.ready_pub = None          # safety_filter/ready: made once the filter can judge
-        self._ready_asked = False
         self._inputs_ready = not self.require_detections
 
         self.cmd_pub = self.create_publisher(command_message_type(p['cmd_vel_stamped']), 'cmd_vel',
@@ -184,7 +183,6 @@ class SafetyFilter:
         self.state_pub = self.create_publisher(DiagnosticStatus, 'safety_filter/state', rosmsg.QOS_STREAM)
         self.timer = None
         self.direct = None
-        self._ready_guard = None
         # RViz: the level set in force around each detected obstacle (computed only while watched)
         if p['level_set_markers']:
             self.level_set = LevelSetMarkerPublisher(
@@ -192,9 +190,8 @@ class SafetyFilter:
                 p['level_set_rate'])
         inputs = self._inputs(p)
         if p['direct_take'] and not self.lockstep:
-            # the inputs and the watchdog on a thread of their own (the executor keeps parameters, lifecycle,
-            # /diagnostics and the ready publisher, made there when the thread says so)
-            self._ready_guard = self.create_guard_condition(self._say_ready)
+            # the inputs and the watchdog on a thread of their own (the executor keeps parameters, lifecycle
+            # and /diagnostics)
             self.direct = DirectTake(self, self.lock, path=w.params.take_path)
             try:
                 for msg_type, topic, callback, raw, qos in inputs:
@@ -259,7 +256,7 @@ class SafetyFilter:
                                  message='no decision yet' if self.active else 'inactive: no cmd_vel')]
 
     def _say_ready(self):
-        """Make the latched safety_filter/ready publisher (once; on the executor's thread)."""
+        """Make the latched safety_filter/ready publisher (once; from the watchdog's thread)."""
         if self.ready_pub is None:
             self.ready_pub = self.create_publisher(Empty, 'safety_filter/ready', rosmsg.QOS_LATCHED)
             self.ready_pub.publish(Empty())
@@ -449,11 +446,7 @@ class SafetyFilter:
 
     def on_watchdog(self):
         if self._inputs_ready and self.ready_pub is None:
-            if self._ready_guard is None:
-                self._say_ready()
-            elif not self._ready_asked:       # made by the executor (the guard's callback)
-                self._ready_asked = True
-                self._ready_guard.trigger()
+            self._say_ready()
         now = time.monotonic()
         held = self.answers.held_pose_time
         if held is not None:
