@@ -156,6 +156,45 @@ def test_a_scan_goes_into_the_map_and_bad_scans_are_refused_until_blind(rig):
     assert occupied_at(f, 4.0, 0.0), 'what was seen stays'
 
 
+def test_a_costmap_is_one_more_detections_type(rig):
+    """nav_msgs/OccupancyGrid (Nav2's local costmap) on detections: its lethal cells go into the local
+    map, its inscribed (99) and free ones do not, its unknown (-1) leave the map as it was; a robot 0.5 m
+    before a lethal row, its planner driving at it, is turned away by the map's value, the reason naming it."""
+    from nav_msgs.msg import OccupancyGrid
+    f, s, spin = rig('/costmap_robot', OccupancyGrid, detections_type='occupancy_grid', speed=0.5, robot_radius=0.2,
+                     time_before_collision=0.5, frame_id='map')
+    spin.until(lambda: matched(s.odom, s.det, s.cmd, *s.subs), 15.0, 'the filter to match')
+    g = OccupancyGrid()
+    g.header.frame_id = 'map'
+    g.info.resolution, g.info.width, g.info.height = 0.1, 40, 40
+    g.info.origin.position.x, g.info.origin.position.y, g.info.origin.orientation.w = -2.0, -2.0, 1.0
+    data = np.zeros((40, 40), dtype=np.int8)          # rows are y, columns x
+    data[:, 27] = 100                                  # a lethal row at x = 0.7 .. 0.8
+    data[:, 26] = 99                                   # inscribed: not an obstacle here
+    data[:5, :5] = -1
+    g.data = data.reshape(-1).tolist()
+    deadline = time.monotonic() + 30.0
+    out = None
+    while time.monotonic() < deadline:
+        n = len(s.out)
+        g.header.stamp = s.stamp()
+        s.send_pose()
+        s.det.publish(g)
+        s.send_cmd(0.5)
+        spin.until(lambda: len(s.out) > n, 5.0, 'an answer')
+        out = s.out[-1]
+        if f.sensor.worker.latest() is not None and s.states and s.states[-1]['action'] != 'fail_safe':
+            break
+    cells = f.sensor.map.occupied_centres
+    assert len(cells(0.725, 0.025, 0.03)) and not len(cells(0.625, 0.025, 0.03)), 'lethal cells only'
+    st = s.states[-1]
+    # the robot's rim 0.5 m from the lethal cells, its planner driving straight at them: the map's value turns it
+    # away (or the cut slows it), naming the obstacle
+    assert st['action'] == 'override' or st['reason'].startswith(('slowing to', 'stopped, turning')), st['reason']
+    assert out.twist.angular.z != 0.0 or out.twist.linear.x < 0.5
+    assert 'an obstacle 0.4' in st['reason'] and st.get('view', '').startswith('grid') and st['source'] == 'map'
+
+
 def test_a_pose_of_another_clock_fails_safe_with_an_error(rig):
     f, s, spin = rig('/clock_robot')
     spin.until(lambda: matched(s.odom, s.det, s.cmd, *s.subs), 15.0, 'the filter to match')

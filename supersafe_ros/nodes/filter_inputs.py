@@ -14,8 +14,8 @@ value.
   ``laser_scan``, ``point_cloud2`` (returns in the sensor's frame) or ``occupancy_grid``
   (nav_msgs/OccupancyGrid in ``frame_id``, e.g. Nav2's local costmap): these three keep a local
   map of what was seen (``SensorMap``). Scans and clouds are subscribed with the sensor-data
-  QoS (best effort), which matches best-effort and reliable drivers alike; grids reliable,
-  transient local (as a costmap publishes).
+  QoS (best effort), which matches best-effort and reliable drivers alike; grids reliable and
+  volatile, which matches a costmap's transient-local publisher.
 * commands (topics ``cmd_vel_nav`` in, ``cmd_vel`` out): geometry_msgs/Twist, or with
   ``cmd_vel_stamped`` geometry_msgs/TwistStamped both ways.
 

@@ -229,8 +229,8 @@ class SafetyFilter:
             kind = p['detections_type']
             callback = {'pose_array': self.on_detections, 'marker_array': self.on_markers}.get(
                 kind, self.on_range_sensor)
-            qos = (qos_profile_sensor_data if kind in RANGE_SENSORS else
-                   rosmsg.QOS_LATCHED if kind == 'occupancy_grid' else rosmsg.QOS_STREAM)
+            # (a costmap's transient-local publisher matches this reliable, volatile stream)
+            qos = qos_profile_sensor_data if kind in RANGE_SENSORS else rosmsg.QOS_STREAM
             inputs.append((message_type(kind), 'detections', callback, kind == 'pose_array', qos))
         stamped = p['cmd_vel_stamped']
         inputs.append((command_message_type(stamped), 'cmd_vel_nav',
