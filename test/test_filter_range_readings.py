@@ -127,6 +127,7 @@ def test_the_arrays_are_read_only():
     ([math.inf] * 350 + [math.nan] * 10,
      'not one usable reading in 360 beams: 350 +inf (no return within range_max; inf_is_valid is false), 10 of 360 '
      'beams NaN (erroneous measurements, REP 117); they clear nothing'),
+    ([-math.inf] * 360, '360 of 360 beams -inf (objects closer than range_min 0.1, REP 117): marked there'),
 ])
 def test_a_suspicious_scan_is_described_in_plain_words(ranges, words):
     assert scan(ranges).problem() == words
@@ -136,7 +137,7 @@ def test_a_suspicious_scan_is_described_in_plain_words(ranges, words):
     ([1.0] * 360, False),
     ([math.nan] * 90 + [1.0] * 270, False),          # a quarter exactly: not more than a quarter
     ([math.inf] * 360, True),
-    ([-math.inf] * 360, False),
+    ([-math.inf] * 90 + [1.0] * 270, False),       # a quarter of the beams on something too close
     ([math.inf] * 359 + [3.0], False),
 ])
 def test_a_plausible_scan_has_no_problem(ranges, inf_is_valid):

@@ -133,17 +133,20 @@ def add_map_rows(tab, n_groups, mp) -> int:
     tab.fallback = cat([tab.fallback, np.zeros(k, bool)])
     tab.mapped = cat([tab.mapped, np.ones(k, bool)])
     tab.gap = cat([tab.gap, mp['gap']])
-    before = tab.turns_of
+    tab.turns_of = joined_turns(tab.turns_of, n, mp['turns_of'])
+    return n_groups + k
 
+
+def joined_turns(first, n_first: int, rest):
+    """``turns_of`` of a table whose first ``n_first`` rows are read by ``first`` and the others
+    by ``rest`` (indexed from 0): the unit avoid turns of any rows of it."""
     def turns_of(rows) -> np.ndarray:
         out = np.zeros(len(rows))
-        old = rows < n
-        out[old] = before(rows[old])
-        out[~old] = mp['turns_of'](rows[~old] - n)
+        head = rows < n_first
+        out[head] = first(rows[head])
+        out[~head] = rest(rows[~head] - n_first)
         return out
-
-    tab.turns_of = turns_of
-    return n_groups + k
+    return turns_of
 
 
 def constraint_table(pair_robot, position, counts, value, value_next, centres, alpha, cl, pair_turns_of):
@@ -169,16 +172,7 @@ def constraint_table(pair_robot, position, counts, value, value_next, centres, a
     tab.fallback = cat(np.zeros(n_pairs, bool), cl['fallback'])
     tab.mapped = np.zeros(n_pairs + k, bool)          # map rows (add_map_rows)
     tab.gap = np.full(n_pairs + k, np.inf)
-
-    def turns_of(rows) -> np.ndarray:
-        """The unit avoid turns of table ``rows`` (read only for the rows robots avoid by)."""
-        out = np.zeros(len(rows))
-        pair = rows < n_pairs
-        out[pair] = pair_turns_of(rows[pair])
-        out[~pair] = cl['turns_of'](rows[~pair] - n_pairs)
-        return out
-
-    tab.turns_of = turns_of
+    tab.turns_of = joined_turns(pair_turns_of, n_pairs, cl['turns_of'])   # read only for the rows avoided by
     return tab, n_pairs + cl['n_groups']
 
 

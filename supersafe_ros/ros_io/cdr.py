@@ -125,51 +125,49 @@ def _align(offset, size):
     return (offset + size - 1) & ~(size - 1)
 
 
-def pose_stamped(data):
-    """A PoseStamped view of serialized bytes (MessageError if they are not one)."""
+def _header_pose(data, type_name: str, skip_strings: int, fallback):
+    """A PoseStamped view of serialized bytes whose Header is followed by ``skip_strings`` strings
+    and then a Pose (7 float64); ``fallback(bytes)`` reads another encoding; MessageError naming
+    ``type_name`` if the bytes are not one."""
     b = body(data)
     if b is None:
-        from geometry_msgs.msg import PoseStamped as Msg
-        return deserialize_message(bytes(data), Msg)
+        return fallback(bytes(data))
     try:
         header, off = _header(b)
+        for _ in range(skip_strings):
+            _, off = _string(b, off)
         values = _POSE.unpack_from(b, _align(off, 8))
     except (struct.error, ValueError) as exc:
-        raise MessageError(f'pose is not a serialized PoseStamped ({exc})') from None
+        raise MessageError(f'pose is not a serialized {type_name} ({exc})') from None
     return PoseStamped(header, Pose(values))
+
+
+def pose_stamped(data):
+    """A PoseStamped view of serialized bytes (MessageError if they are not one)."""
+    def fallback(raw):
+        from geometry_msgs.msg import PoseStamped as Msg
+        return deserialize_message(raw, Msg)
+    return _header_pose(data, 'PoseStamped', 0, fallback)
 
 
 def odometry(data):
     """A PoseStamped view (its header, ``pose`` the odometry's ``pose.pose``) of a serialized
     nav_msgs/Odometry (MessageError if the bytes are not one): Header, string child_frame_id,
     PoseWithCovariance (Pose, 36 float64), TwistWithCovariance; the covariances are not read."""
-    b = body(data)
-    if b is None:
+    def fallback(raw):
         from nav_msgs.msg import Odometry as Msg
-        msg = deserialize_message(bytes(data), Msg)
+        msg = deserialize_message(raw, Msg)
         return PoseStamped(msg.header, msg.pose.pose)
-    try:
-        header, off = _header(b)
-        _, off = _string(b, off)
-        values = _POSE.unpack_from(b, _align(off, 8))
-    except (struct.error, ValueError) as exc:
-        raise MessageError(f'pose is not a serialized Odometry ({exc})') from None
-    return PoseStamped(header, Pose(values))
+    return _header_pose(data, 'Odometry', 1, fallback)
 
 
 def pose_with_covariance(data):
     """A PoseStamped view (``pose`` its ``pose.pose``) of a serialized PoseWithCovarianceStamped (AMCL's)."""
-    b = body(data)
-    if b is None:
+    def fallback(raw):
         from geometry_msgs.msg import PoseWithCovarianceStamped as Msg
-        msg = deserialize_message(bytes(data), Msg)
+        msg = deserialize_message(raw, Msg)
         return PoseStamped(msg.header, msg.pose.pose)
-    try:
-        header, off = _header(b)
-        values = _POSE.unpack_from(b, _align(off, 8))
-    except (struct.error, ValueError) as exc:
-        raise MessageError(f'pose is not a serialized PoseWithCovarianceStamped ({exc})') from None
-    return PoseStamped(header, Pose(values))
+    return _header_pose(data, 'PoseWithCovarianceStamped', 0, fallback)
 
 
 def pose_array_layout(b, what: str):
