@@ -125,12 +125,15 @@ SENSOR_MODE = {
                 'goal_wait': 1.0},
     'safety_filter': {'pose_type': 'odometry', 'detections_type': 'laser_scan', 'cmd_vel_stamped': True,
                       'robot_radius': 0.1, 'fail_safe_command': 'stop',
+                      # the scans kept in a local map as wide as the sensor's reach and the value's window
+                      # (3 m/s robots: a 1.5 s horizon is 4.5 m), judged by its one avoid value
+                      # (bench_collisions.py scan: trials.ScanSensor's settings)
                       'obstacle_depth': 5.2,          # the largest obstacle's diameter: its far side
-                      'sensor_max_disc_radius': 1.6,  # wide groups in pieces about the library's radius
-                      # scan discs move between messages and an object's pieces are judged without a
-                      # union value: the speed is cut so that each command's path enters no disc
-                      # within 0.5 s (filter.approach), and the lookahead a margin
-                      # for the law's turns (fewer robots stopped before an obstacle: bench_collisions.py scan)
+                      'inf_is_valid': True,           # the simulated laser's +inf: nothing within range
+                      'map_cell': 0.2, 'map_size': 30.0, 'value_cell': 0.25, 'value_headings': 38,
+                      'value_horizon': 1.5, 'value_reach': 3.0, 'value_period': 0.4,
+                      # between solves the speed is cut so that each command's path meets no cell
+                      # within 0.5 s (filter.approach)
                       'time_before_collision': 0.5, 'lookahead': 0.5},
 }
 

@@ -29,7 +29,8 @@ from supersafe_ros.reach.value_function import ValueFunction
 
 def _problem(f, t) -> str:
     """Why the filter cannot judge the planner's command now ('' if it can): ``RobotFilter.problem``
-    as it was (the one answer is ``gather.problem`` since)."""
+    as it was (the one answer is ``gather.problem`` since), in the words of issue 36, and a
+    refused planner command of a robot that can stop (issue 36: it stops at once)."""
     cfg = f.config
     for label, inp, timeout in (('pose', f.pose, cfg.pose_timeout),
                                 ('detections', f.detections, cfg.detections_timeout)):
@@ -39,8 +40,14 @@ def _problem(f, t) -> str:
             return f'no {label} received yet'
         age = t - inp.t     # since arrival: a pose that keeps coming is not lost
         if age > timeout:
-            return f'{label} stale ({age:.3g} s old > {timeout:g} s)'
+            return f'blind for {age:.3g} s ({label} stale: none newer; timeout {timeout:g} s)'
+    if f.command.rejected and cfg.fail_safe_command != 'stop_turn':
+        return f'planner command rejected: {f.command.rejected}'
     return ''
+
+
+def _turning(omega) -> str:
+    return 'turning left' if omega > 0.0 else 'turning right' if omega < 0.0 else 'steering straight'
 
 
 def _control_period(f) -> float:
@@ -169,56 +176,60 @@ def step_many_reference(filters, safe_set: SafeSet, t, clusters=None) -> list:
                       pose_age=float(age_of.get(i, 0.0)), lookahead=float(horizons.get(i, 0.0)),
                       clusters_solving=c.solving)
         constant = cfg.fail_safe_command == 'stop_turn'
+        silent = f.command.value is None or t - f.command.t > cfg.cmd_timeout
         if problems[i]:
             k = c.smallest()
-            avoid = k >= 0
-            if not constant:       # a robot that can stop avoids only where the law would act
-                k_gov, kind_gov = c.governing(f.overriding, cfg.clear_margin) if i in usable else (-1, '')
-                avoid = bool(kind_gov)
-                k = k_gov if avoid else k
             f.overriding = False   # re-enter by the law once inputs are back
             common.update(c.describe(k, f))
-            stop = 'stop-turn' if constant else 'stop (zero twist)'
-            if avoid:
-                speed = cfg.speed if constant else _held(f)
-                out.append(FilterOutput(cfg.omega_max * c.turn[k], speed, FAIL_SAFE,
-                                        f'{problems[i]}; avoiding {c.label(k)} from the last '
-                                        f'valid state (V={c.value[k]:.3g}) at {speed:g} m/s', **common))
+            if not constant:       # issue 36: a robot that can stop stops
+                out.append(FilterOutput(0.0, 0.0, FAIL_SAFE, f'stopped: {problems[i]}', **common))
             elif k >= 0:
-                out.append(FilterOutput(0.0, 0.0, FAIL_SAFE,
-                                        f'{problems[i]}; clear of {c.label(k)} at the last valid state '
-                                        f'(V={c.value[k]:.3g} > alpha={c.level[k]:.3g}): {stop}', **common))
+                omega = cfg.omega_max * c.turn[k]
+                out.append(FilterOutput(omega, cfg.speed, FAIL_SAFE,
+                                        f'{_turning(omega)} away from {c.label(k)} at speed: {problems[i]}; '
+                                        f'from the last valid state (V={c.value[k]:.3g})', **common))
             else:
                 why = 'no recent valid state' if i not in usable else 'no obstacle near the last valid state'
-                out.append(FilterOutput(cfg.omega_max if constant else 0.0, 0.0, FAIL_SAFE,
-                                        f'{problems[i]}; {why}: {stop}', **common))
+                out.append(FilterOutput(cfg.omega_max, 0.0, FAIL_SAFE, f'circling (stop-turn): {problems[i]}; {why}',
+                                        **common))
             continue
         k, kind = c.governing(f.overriding, cfg.clear_margin)
-        common.update(c.describe(k, f))
-        if kind:
+        if kind and not (silent and not constant):
+            common.update(c.describe(k, f))
             f.overriding = True
             lv = c.level[k]
+            omega = cfg.omega_max * c.turn[k]
+            in_place = not constant and c.source[k] == 'cluster-fallback'
+            doing = f'{_turning(omega)} in place' if in_place else _turning(omega)
             if kind == 'enter':
-                why = f'V={c.value[k]:.3g} <= alpha={lv:.3g} at {c.label(k)}'
+                why = f'{doing}: {c.label(k)} is too close (V={c.value[k]:.3g} <= alpha={lv:.3g})'
             elif kind == 'ahead':
-                why = (f'the planner\'s command would reach V={c.value_next[k]:.3g} <= alpha={lv:.3g} '
-                       f'within {horizons[i]:.3g} s ({c.label(k)})')
+                why = (f'{doing}: the planner\'s command would bring {c.label(k)} too close within '
+                       f'{horizons[i]:.3g} s (V={c.value_next[k]:.3g} <= alpha={lv:.3g})')
             else:
-                why = f'V={c.value[k]:.3g} <= alpha+margin={lv + cfg.clear_margin:.3g}: not clear yet'
+                why = (f'{doing}: not yet clear of {c.label(k)} (V={c.value[k]:.3g} <= '
+                       f'alpha+margin={lv + cfg.clear_margin:.3g})')
             speed = drives[i]
-            if not constant and c.source[k] == 'cluster-fallback':
-                why += '; turning in place (the loiter circle is drawn at full speed)'
+            if in_place:
+                why += '; its union value is being solved and its loiter circle is drawn at full speed'
                 speed = 0.0
-            out.append(FilterOutput(cfg.omega_max * c.turn[k], speed, OVERRIDE, why, **common))
+            out.append(FilterOutput(omega, speed, OVERRIDE, why, **common))
             continue
         f.overriding = False
-        if f.command.value is None or t - f.command.t > cfg.cmd_timeout:
+        if kind:      # a silent planner: the constraint the law would have acted on is not named
+            k = c.smallest()
+        common.update(c.describe(k, f))
+        if silent:
             # Nav2 style: no input, zero twist (a Dubins robot drives straight on;
             # the filter still guards it against every detected obstacle)
-            out.append(FilterOutput(0.0, 0.0, PASS, 'clear; planner silent: zero command', **common))
+            quiet = ('planner silent' if f.command.value is None else
+                     f'planner silent for {t - f.command.t:.2g} s (cmd_timeout {cfg.cmd_timeout:g} s)')
+            out.append(FilterOutput(0.0, 0.0, PASS,
+                                    f'driving straight on: {quiet}' if constant else f'stopped: {quiet}', **common))
         else:
-            why = ('clear: no obstacle near' if k < 0 else
-                   f'clear: V={c.value[k]:.3g} > alpha={c.level[k]:.3g}')
+            why = ('passing the planner\'s command: nothing near' if k < 0 else
+                   f'passing the planner\'s command: clear of {c.label(k)} (V={c.value[k]:.3g} > '
+                   f'alpha={c.level[k]:.3g})')
             # the robot's bound, whatever the planner asked (angular.z = 1e30 goes out as w_max)
             omega = clip(f.command.value, cfg.omega_max)
             out.append(FilterOutput(omega, drives[i], PASS, why, **common))
@@ -303,7 +314,7 @@ class _Constraints:
 
     def label(self, k) -> str:
         if self.members[k] > 1:
-            return f'a cluster of {self.members[k]} obstacles ({self.source[k]}, nearest {self.obstacle[k]})'
+            return f'a cluster of {self.members[k]} obstacles (nearest {self.obstacle[k]})'
         return f'obstacle {self.obstacle[k]}'
 
     def describe(self, k, f) -> dict:

@@ -284,12 +284,15 @@ def test_commands_beyond_the_robots_limits_are_clipped_and_said(standard):
     assert f.step(standard, 0.01).cmd_clipped == ''
     with pytest.raises(ValueError):
         f.update_command(math.inf, 0.02, 3.0)
-    out = f.step(standard, 0.03)
-    assert out.omega == 0.5 and 'angular.z=inf' in out.cmd_clipped and 'rejected' in out.cmd_clipped
-    with pytest.raises(ValueError):
-        f.update_command(0.1, 0.02, math.nan)   # a speed not finite: rejected, the previous kept
-    out = f.step(standard, 0.03)
-    assert out.omega == 0.5 and out.linear == 3.0 and 'linear.x=nan' in out.cmd_clipped
+    out = f.step(standard, 0.03)      # a robot that can stop: stopped until a valid command comes
+    assert (out.omega, out.linear) == (0.0, 0.0) and 'angular.z=inf' in out.reason
+    assert 'robot stops' in f.command.note
+    for bad in ((math.inf, 3.0), (0.1, math.nan)):     # a constant-speed robot keeps the previous command
+        dubins.update_command(0.5, 0.0, 3.0)
+        with pytest.raises(ValueError):
+            dubins.update_command(*bad[:1], 0.02, bad[1])
+        out = dubins.step(standard, 0.03)
+        assert out.omega == 0.5 and out.linear == 3.0 and 'rejected, the previous command kept' in dubins.command.note
     # batched: only the rows beyond their robot's limits are said, the next command clears them
     fleet = [RobotFilter(FilterConfig(omega_max=w, fail_safe_command='stop_turn')) for w in (1.0, 0.5, 1.0, 1.0)]
     for r in fleet:

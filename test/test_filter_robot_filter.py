@@ -66,7 +66,7 @@ def test_hysteresis_keeps_overriding_until_clear(standard):
     assert band.size and clear.size
     f.update_pose(at(band[0], 0.6, 0.0), 0.1)
     out = f.step(standard, 0.1)
-    assert out.action == OVERRIDE and 'not clear' in out.reason and out.omega == pytest.approx(1.0)
+    assert out.action == OVERRIDE and 'not yet clear' in out.reason and out.omega == pytest.approx(1.0)
     f.update_pose(at(clear[0], 0.6, 0.0), 0.2)
     assert f.step(standard, 0.2).action == PASS
     # without a preceding override the same band state passes
@@ -92,39 +92,37 @@ def test_stale_pose_fails_safe_with_avoid_control_then_stop_turn(standard):
     assert 'stop-turn' in out.reason
 
 
-def test_a_robot_that_can_stop_fails_safe_with_the_avoid_turn_at_its_speed_then_stops(standard):
-    """fail_safe_command 'stop': from a last valid state the law acts on, the avoid turn at the
-    speed last sent (the planner's 1.2 m/s, not the largest 3); past hold_timeout a zero twist."""
+def test_a_robot_that_can_stop_fails_safe_with_a_zero_twist_at_once(standard):
+    """fail_safe_command 'stop' (issue 36): blind, a robot that can stop stops: a zero twist from
+    the first decision without valid input, also where the law acts on its last valid state (the
+    avoid turn it had before spun a robot in place at speed 0 for as long as it was blind), and
+    past hold_timeout; the reason says so and why."""
     f = robot(pose=at(-2.6, -0.3, 0.0), cmd=None, pose_timeout=0.5, hold_timeout=1.0, detections_timeout=5.0)
     f.update_command(0.9, 0.0, 1.2)
     first = f.step(standard, 0.0)
     assert first.action == OVERRIDE and first.omega == -1.0 and first.linear == 1.2
     f.update_detections(np.array([OBSTACLE]), 0.9)
-    out = f.step(standard, 0.7)        # pose 0.7 s old: stale, but within the hold window
-    assert out.action == FAIL_SAFE and 'pose stale' in out.reason and 'avoiding obstacle 0' in out.reason
-    # the last valid state moved on by the 0.7 s of right turn sent since, at the speed sent
-    moved = DubinsCar(1.2, 1.0).flow(np.array([-2.6, -0.3, 0.0]), -1.0, 0.7)
-    value, _ = evaluate_pairs(standard.vf, moved[None])
-    assert out.value == pytest.approx(value[0]) and abs(out.omega) == 1.0 and out.linear == 1.2
-    out = f.step(standard, 1.5)        # beyond the hold window: stop
-    assert (out.action, out.linear, out.omega) == (FAIL_SAFE, 0.0, 0.0) and 'stop (zero twist)' in out.reason
+    for t in (0.7, 1.5):        # pose stale, within the hold window and beyond it
+        out = f.step(standard, t)
+        assert (out.action, out.linear, out.omega) == (FAIL_SAFE, 0.0, 0.0), out.reason
+        assert out.reason.startswith(f'stopped: blind for {t:.2g} s') and 'pose stale' in out.reason, out.reason
 
 
 def test_stale_pose_does_not_forward_the_planner(standard):
     # near enough to be on the obstacle's grid: the avoid control of the last state
     f = robot(pose=at(-7.5, 6.0, 0.0), cmd=0.3, pose_timeout=0.1, fail_safe_command='stop_turn')
     out = f.step(standard, 0.2)
-    assert out.action == FAIL_SAFE and abs(out.omega) == 1.0 and 'avoiding obstacle 0' in out.reason
+    assert out.action == FAIL_SAFE and abs(out.omega) == 1.0 and 'away from obstacle 0' in out.reason
     # off every obstacle's grid: nothing to avoid, stop-turn
     g = robot(pose=at(-9.0, 6.0, 0.0), cmd=0.3, pose_timeout=0.1, fail_safe_command='stop_turn')
     out = g.step(standard, 0.2)
     assert out.action == FAIL_SAFE and out.linear == 0.0 and out.omega == 1.0 and 'stop-turn' in out.reason
-    # a robot that can stop: clear of the obstacle there (the law would not act), and off the grid: a zero twist
-    for pose, said in (((-7.5, 6.0, 0.0), 'clear of obstacle 0'), ((-9.0, 6.0, 0.0), 'no obstacle near')):
+    # a robot that can stop: a zero twist, near the obstacle and off the grid
+    for pose in ((-7.5, 6.0, 0.0), (-9.0, 6.0, 0.0)):
         h = robot(pose=at(*pose), cmd=0.3, pose_timeout=0.1)
         out = h.step(standard, 0.2)
         assert (out.action, out.linear, out.omega) == (FAIL_SAFE, 0.0, 0.0), out.reason
-        assert said in out.reason and 'stop (zero twist)' in out.reason
+        assert out.reason.startswith('stopped: blind for') and 'pose stale' in out.reason
 
 
 def test_values_and_turns_agree_with_an_independent_computation(standard):
@@ -206,7 +204,7 @@ def test_lookahead_judges_the_planners_own_command(standard):
     assert toward < min(v_now, away) - 0.1
     level = SafeSet(standard.vf, (toward + min(v_now, away)) / 2)
     out = robot(pose=pose, cmd=-0.9, lookahead=h).step(level, 0.0)
-    assert out.action == OVERRIDE and 'would reach' in out.reason and out.omega == 1.0
+    assert out.action == OVERRIDE and 'would bring' in out.reason and out.omega == 1.0
     out = robot(pose=pose, cmd=0.9, lookahead=h).step(level, 0.0)
     assert out.action == PASS and out.omega == 0.9
 
@@ -229,8 +227,16 @@ def test_invalid_detections_and_commands(standard):
     f.update_detections(np.array([OBSTACLE]), 0.02)
     with pytest.raises(ValueError):
         f.update_command(math.nan, 0.02)
-    out = f.step(standard, 0.02)
-    assert out.action == PASS and out.omega == 0.3    # the previous valid command is kept
+    out = f.step(standard, 0.02)      # a robot that can stop stops on a refused command (issue 36)
+    assert (out.action, out.linear, out.omega) == (FAIL_SAFE, 0.0, 0.0)
+    assert out.reason.startswith('stopped: planner command rejected: not finite (angular.z=nan'), out.reason
+    f.update_command(0.3, 0.03)
+    assert f.step(standard, 0.03).action == PASS      # a valid command: filtering again
+    g = robot(pose=at(-7.5, 6.0, 0.0), cmd=0.3, fail_safe_command='stop_turn')
+    with pytest.raises(ValueError):
+        g.update_command(math.nan, 0.02)
+    out = g.step(standard, 0.02)
+    assert out.action == PASS and out.omega == 0.3    # a constant-speed robot keeps the previous valid command
 
 
 def test_nothing_received_fails_safe(standard):
@@ -264,7 +270,7 @@ def test_lookahead_overrides_before_the_planner_crosses_alpha(standard):
     late = robot(pose=at(-6.0, 0.0, 0.0), cmd=0.0, lookahead=0.0).step(level, 0.0)
     assert late.action == PASS
     early = robot(pose=at(-6.0, 0.0, 0.0), cmd=0.0, lookahead=0.1).step(level, 0.0)
-    assert early.action == OVERRIDE and 'would reach' in early.reason
+    assert early.action == OVERRIDE and 'would bring' in early.reason
     # alpha further below than one period can lose: nothing to prevent, the command passes
     away = robot(pose=at(-6.0, 0.0, 0.0), cmd=0.0, lookahead=0.1).step(SafeSet(standard.vf, v - 0.6), 0.0)
     assert away.action == PASS

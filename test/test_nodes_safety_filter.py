@@ -101,8 +101,8 @@ def test_stale_pose_fails_safe_on_the_watchdog(setup):
     driver.out.clear()
     driver.states.clear()
     # no more poses or planner commands: the watchdog keeps publishing, a zero twist (the
-    # default fail_safe_command, stop: the last state was clear)
-    spin.until(lambda: driver.states and 'stop (zero twist)' in driver.last_state()['reason'], 3.0, 'stop')
+    # default fail_safe_command, stop)
+    spin.until(lambda: driver.states and driver.last_state()['reason'].startswith('stopped: blind for'), 3.0, 'stop')
     assert driver.states[-1].level == bytes([2])
     assert driver.out[-1].linear.x == 0.0 and driver.out[-1].angular.z == 0.0
     actions = {rosmsg.diagnostic_values(s)['action'] for s in driver.states}
@@ -443,7 +443,7 @@ def test_a_lone_filter_with_no_input_sends_its_fail_safe_command(ros_context, mo
         assert all((o.linear.x, o.angular.z) == (0.0, turn) for o in driver.out), driver.out
         st = driver.last_state()
         assert st['action'] == 'fail_safe' and 'no pose received yet' in st['reason']
-        assert ('stop-turn' if mode == 'stop_turn' else 'stop (zero twist)') in st['reason']
+        assert st['reason'].startswith('circling (stop-turn)' if mode == 'stop_turn' else 'stopped: ')
     finally:
         spin.shutdown()
         node.destroy_node()

@@ -1,6 +1,7 @@
-"""safety_filter_node on a planner that sends NaN turn rates (issue 29): what the WARN says
-is what the filter sends. The previous command stays in force until it is cmd_timeout
-old; after that the filter sends a zero twist (planner silent), and the WARN says so."""
+"""safety_filter_node on a planner that sends NaN turn rates (issues 29 and 36): what the WARN says
+is what the filter sends. A robot that can stop stops at once (a zero twist) until a valid command
+comes; the study's constant-speed robot keeps the previous command until it is cmd_timeout old, then
+drives straight on (planner silent)."""
 import math
 
 import pytest
@@ -17,11 +18,18 @@ pytestmark = pytest.mark.ros   # rclpy nodes in this process
 CMD_TIMEOUT = 0.3
 
 
-def test_a_nan_turn_rate_keeps_the_previous_command_until_cmd_timeout_then_a_zero_twist(ros_context):
+def nan_command(driver):
+    bad = rosmsg.turn_rate_to_twist(0.0, 3.0)
+    bad.angular.z = math.nan
+    driver.cmd.publish(bad)
+
+
+@pytest.mark.parametrize('mode', ['stop', 'stop_turn'])
+def test_a_nan_turn_rate_stops_a_robot_that_can_stop_and_is_said(ros_context, mode):
     params = [Parameter('standard_shape', value=SHAPE), Parameter('cmd_timeout', value=CMD_TIMEOUT),
-              Parameter('state_rate', value=100.0)]
-    node = SafetyFilterNode(namespace=NS, context=ros_context, parameter_overrides=params)
-    driver = Driver(ros_context)
+              Parameter('state_rate', value=100.0), Parameter('fail_safe_command', value=mode)]
+    node = SafetyFilterNode(namespace=f'{NS}_{mode}', context=ros_context, parameter_overrides=params)
+    driver = Driver(ros_context, ns=f'{NS}_{mode}')
     rosout = Rosout(driver.node)
     spin = Spinner(ros_context, node, driver.node)
     try:
@@ -29,33 +37,36 @@ def test_a_nan_turn_rate_keeps_the_previous_command_until_cmd_timeout_then_a_zer
         far = state(-7.5, 7.0, 0.0)
         driver.send(pose=far)
         spin.until(lambda: driver.states, 10.0, 'the first decision')
-        driver.send(pose=far, detections=None, cmd=0.3)
+        driver.send(pose=far, cmd=0.3)
         spin.until(lambda: driver.states and driver.last_state().get('cmd_angular_z') == '0.3', 10.0,
                    'the planner\'s 0.3 passed')
-        # from now on the planner sends only NaN; poses keep coming
+        # from now on the planner sends only NaN; poses and detections keep coming
         outputs = []
         for k in range(400):
             n = len(driver.states)
-            driver.send(pose=far, detections=None)
-            bad = rosmsg.turn_rate_to_twist(0.0, 3.0)
-            bad.angular.z = math.nan
-            driver.cmd.publish(bad)
+            driver.send(pose=far)
+            nan_command(driver)
             spin.until(lambda: len(driver.states) > n, 10.0, 'a decision')
             st = driver.last_state()
             outputs.append((float(st['cmd_angular_z']), st['reason']))
-            if 'planner silent' in st['reason']:
+            if mode == 'stop' or 'planner silent' in st['reason']:
                 break
         else:
-            raise AssertionError(f'no zero twist after {len(outputs)} NaN commands: {outputs[-3:]}')
-        # the WARN says what happens: the previous command, then a zero twist after cmd_timeout
+            raise AssertionError(f'no planner silent after {len(outputs)} NaN commands: {outputs[-3:]}')
         spin.until(lambda: rosout.has('safety_filter', 'cmd_vel_nav rejected', 'not finite'), 10.0, 'the WARN')
         warn = next(m for m in rosout.logs if 'cmd_vel_nav rejected' in m.msg)
-        assert warn.level == 30 and 'keeping the previous command' not in warn.msg
-        assert f'cmd_timeout ({CMD_TIMEOUT:g} s) old, then a zero twist goes out' in warn.msg, warn.msg
-        assert outputs[-1][0] == 0.0 and 'zero command' in outputs[-1][1]
-        spin.until(lambda: driver.out and driver.out[-1].angular.z == 0.0, 10.0, 'the zero twist')
-        assert driver.out[-1].linear.x == 0.0                      # a zero twist, linear.x too
-        assert outputs[0][0] == 0.3                               # until then, the previous command
+        assert warn.level == 30
+        if mode == 'stop':      # at once: a zero twist, and the WARN and the state say so
+            assert 'the robot stops until a valid command comes' in warn.msg, warn.msg
+            assert outputs[0][0] == 0.0 and outputs[0][1].startswith('stopped: planner command rejected: not finite')
+            assert driver.last_state()['action'] == 'fail_safe'
+            spin.until(lambda: driver.out and driver.out[-1].angular.z == 0.0, 10.0, 'the zero twist')
+            assert driver.out[-1].linear.x == 0.0
+            driver.send(pose=far, cmd=0.2)      # a valid command again: filtering again
+            spin.until(lambda: driver.last_state().get('cmd_angular_z') == '0.2', 10.0, 'the planner\'s 0.2 passed')
+        else:                   # the previous command until cmd_timeout, then straight on (it cannot stop)
+            assert f'the previous command kept until it is cmd_timeout ({CMD_TIMEOUT:g} s) old' in warn.msg, warn.msg
+            assert outputs[0][0] == 0.3 and outputs[-1][0] == 0.0 and outputs[-1][1].startswith('driving straight on')
     finally:
         spin.shutdown()
         node.destroy_node()

@@ -4,6 +4,8 @@ there, through a field of obstacles of three sizes (sensor_graph_support). Locks
 test-driven /clock: bounded by steps, not wall time."""
 import pytest
 
+from supersafe_ros.team import SENSOR_MODE
+
 from sensor_graph_support import OBSTACLES, SensorGraph
 
 pytestmark = pytest.mark.ros   # rclpy nodes in this process
@@ -14,9 +16,12 @@ STEPS = 500       # 25 s of sim time: the trip takes about 15
 @pytest.mark.parametrize('detections_type, topic', [
     ('laser_scan', 'scan'), ('point_cloud2', 'cloud'), ('marker_array', 'markers')])
 def test_a_robot_crosses_a_field_of_three_sizes_without_a_collision(ros_context, detections_type, topic):
-    # the returns stand for their beams 5.2 m behind them too: the largest obstacle's far side
+    # the returns stand for their beams 5.2 m behind them too: the largest obstacle's far side; the
+    # local map and its value as the scan team sets them for its 3 m/s robots (supersafe_ros.team)
+    mapped = {k: SENSOR_MODE['safety_filter'][k] for k in (
+        'inf_is_valid', 'map_cell', 'map_size', 'value_cell', 'value_headings', 'value_horizon', 'value_reach')}
     g = SensorGraph(ros_context, detections_type, topic, robot_radius=0.3, obstacle_depth=5.2,
-                    time_before_collision=0.5)   # as config/nav2_safety_filter.yaml
+                    time_before_collision=0.5, **(mapped if detections_type != 'marker_array' else {}))
     try:
         g.start()
         reached = g.run(STEPS)

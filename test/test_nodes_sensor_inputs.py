@@ -3,6 +3,7 @@ direct_take path: Odometry + LaserScan / PointCloud2 + TwistStamped, bad input (
 malformed or huge cloud, a wrong frame, a pose of another clock), /diagnostics, a foreign
 publisher type, and the managed node's lifecycle through the lifecycle_msgs services."""
 import math
+import time
 
 import numpy as np
 import pytest
@@ -97,36 +98,101 @@ def rig(ros_context, request):
         s.node.destroy_node()
 
 
-def test_a_scan_becomes_discs_and_bad_scans_fail_safe(rig):
-    f, s, spin = rig('/scan_robot')
+def occupied_at(f, x, y) -> bool:
+    """Whether the filter's local map holds (x, y) occupied (the cell or a neighbour: returns land on edges)."""
+    return len(f.sensor.map.occupied_centres(x, y, 0.1)) > 0
+
+
+def test_a_scan_goes_into_the_map_and_bad_scans_are_refused_until_blind(rig):
+    """A scan's returns mark the local map, its NaN and beyond-range beams clear nothing; a scan with no
+    return in range looked and saw nothing (fresh, the map kept); one whose geometry is not finite is
+    refused with its fault named, and the filter fails safe once its last valid view is
+    detections_timeout old, the cause in its reason."""
+    f, s, spin = rig('/scan_robot', detections_timeout=0.3)
     spin.until(lambda: matched(s.odom, s.det, s.cmd, *s.subs), 15.0, 'the filter to match')
     assert f.direct is not None, 'the default path: inputs taken by a thread of their own'
     ranges = np.full(360, np.inf)
-    ranges[170:190] = 4.0                      # a wall 4 m behind, NaN and beyond-range beams elsewhere
+    ranges[170:190] = 4.0                      # a wall 4 m ahead, NaN and beyond-range beams elsewhere
     ranges[10], ranges[20] = np.nan, 50.0
-    for _ in range(3):
+    deadline = time.monotonic() + 30.0      # (a dead graph; each round is paced by the filter's answer)
+    while time.monotonic() < deadline:      # until the map's first value is in force: the command then passes
+        n = len(s.out)
         s.send_pose()
         s.send_scan(ranges)
         s.send_cmd(1.0)
-        spin.until(lambda: f.filter.detections.value is not None, 5.0, 'detections')
-    d = f.filter.detections
-    assert d.value is not None and 1 <= len(d.value) <= 20
-    assert np.all(np.hypot(*d.value.T) > 3.0), 'the returns 4 m behind, not at the NaN or 50 m beams'
-    spin.until(lambda: s.out and s.out[-1].twist.linear.x == 1.0, 10.0, 'the planner\'s speed passed')
+        spin.until(lambda: len(s.out) > n, 5.0, 'an answer')
+        if f.sensor.worker.latest() is not None and s.out[-1].twist.linear.x == 1.0:
+            break
+    m = f.sensor.map
+    assert occupied_at(f, 4.0, 0.0) and not occupied_at(f, 2.0, 0.0), 'the wall ahead, seen through before it'
+    cells = m.occupied_centres(0.0, 0.0, 10.0)
+    assert len(cells) == int(np.count_nonzero(m.occupied)) >= 20
+    # only the wall's returns marked (each with the slack of its pose's gap to the scan's stamp): cells near the arc
+    assert np.all(np.abs(np.hypot(*cells.T) - 4.0) < 0.5) and np.all(np.abs(np.arctan2(cells[:, 1], cells[:, 0])) < 0.4)
+    assert s.out[-1].twist.linear.x == 1.0, 'the planner\'s speed passed'
     assert s.out[-1].header.frame_id == 'base_link'
-    # looked, nothing seen: fresh, zero obstacles
+    # looked, nothing seen (no return in range): fresh; +inf clears nothing (inf_is_valid false): the wall stays
+    t = f.filter.detections.t
     s.send_scan(np.full(360, np.inf))
-    spin.until(lambda: f.filter.detections.value is not None and len(f.filter.detections.value) == 0, 5.0,
-               'an empty scan')
-    # a scan whose geometry is not finite: refused, logged, failing safe
+    spin.until(lambda: f.filter.detections.t > t, 5.0, 'an empty scan taken')
+    assert occupied_at(f, 4.0, 0.0)
+    # a scan whose geometry is not finite: refused, logged; blind at detections_timeout, failing safe, said
     n = len(s.states)
-    m = LaserScan()
-    m.header.frame_id, m.header.stamp, m.angle_min, m.angle_increment = 'laser', s.stamp(), math.nan, 0.1
-    m.range_max, m.ranges = 10.0, [1.0] * 10
-    s.det.publish(m)
-    s.send_cmd(1.0)
-    new_state(spin, s, n, 'fail safe on a bad scan', action='fail_safe')
-    spin.until(lambda: s.rosout.has('safety_filter', 'detections rejected', 'not finite'), 10.0, 'the log line')
+    bad = LaserScan()
+    bad.header.frame_id, bad.header.stamp, bad.angle_min, bad.angle_increment = 'laser', s.stamp(), math.nan, 0.1
+    bad.range_max, bad.ranges = 10.0, [1.0] * 10
+    for _ in range(40):
+        if any(st.get('action') == 'fail_safe' for st in s.states[n:]):
+            break
+        s.det.publish(bad)
+        s.send_pose()
+        s.send_cmd(1.0)
+        spin.until(lambda: len(s.states) > n or s.out, 2.0, 'a decision')
+        spin.spin_for(0.02)        # (the refusals come on; the filter goes blind at 0.3 s)
+    new_state(spin, s, n, 'fail safe on bad scans', action='fail_safe')
+    st = next(st for st in s.states[n:] if st.get('action') == 'fail_safe')
+    assert st['reason'].startswith('stopped: blind for') and 'angle_min' in st['reason'], st['reason']
+    spin.until(lambda: s.rosout.has('safety_filter', 'scan refused', 'angle_min'), 10.0, 'the log line')
+    assert occupied_at(f, 4.0, 0.0), 'what was seen stays'
+
+
+def test_a_costmap_is_one_more_detections_type(rig):
+    """nav_msgs/OccupancyGrid (Nav2's local costmap) on detections: its lethal cells go into the local
+    map, its inscribed (99) and free ones do not, its unknown (-1) leave the map as it was; a robot 0.5 m
+    before a lethal row, its planner driving at it, is turned away by the map's value, the reason naming it."""
+    from nav_msgs.msg import OccupancyGrid
+    f, s, spin = rig('/costmap_robot', OccupancyGrid, detections_type='occupancy_grid', speed=0.5, robot_radius=0.2,
+                     time_before_collision=0.5, frame_id='map')
+    spin.until(lambda: matched(s.odom, s.det, s.cmd, *s.subs), 15.0, 'the filter to match')
+    g = OccupancyGrid()
+    g.header.frame_id = 'map'
+    g.info.resolution, g.info.width, g.info.height = 0.1, 40, 40
+    g.info.origin.position.x, g.info.origin.position.y, g.info.origin.orientation.w = -2.0, -2.0, 1.0
+    data = np.zeros((40, 40), dtype=np.int8)          # rows are y, columns x
+    data[:, 27] = 100                                  # a lethal row at x = 0.7 .. 0.8
+    data[:, 26] = 99                                   # inscribed: not an obstacle here
+    data[:5, :5] = -1
+    g.data = data.reshape(-1).tolist()
+    deadline = time.monotonic() + 30.0
+    out = None
+    while time.monotonic() < deadline:
+        n = len(s.out)
+        g.header.stamp = s.stamp()
+        s.send_pose()
+        s.det.publish(g)
+        s.send_cmd(0.5)
+        spin.until(lambda: len(s.out) > n, 5.0, 'an answer')
+        out = s.out[-1]
+        if f.sensor.worker.latest() is not None and s.states and s.states[-1]['action'] != 'fail_safe':
+            break
+    cells = f.sensor.map.occupied_centres
+    assert len(cells(0.725, 0.025, 0.03)) and not len(cells(0.625, 0.025, 0.03)), 'lethal cells only'
+    st = s.states[-1]
+    # the robot's rim 0.5 m from the lethal cells, its planner driving straight at them: the map's value turns it
+    # away (or the cut slows it), naming the obstacle
+    assert st['action'] == 'override' or st['reason'].startswith(('slowing to', 'stopped, turning')), st['reason']
+    assert out.twist.angular.z != 0.0 or out.twist.linear.x < 0.5
+    assert 'an obstacle 0.4' in st['reason'] and st.get('view', '').startswith('grid') and st['source'] == 'map'
 
 
 def test_a_pose_of_another_clock_fails_safe_with_an_error(rig):
@@ -148,23 +214,24 @@ def test_clouds_malformed_or_huge_are_refused_with_bounded_work(rig):
     f, s, spin = rig('/cloud_robot', PointCloud2, detections_type='point_cloud2', max_sensor_points=200_000)
     spin.until(lambda: matched(s.odom, s.det, s.cmd, *s.subs), 15.0, 'the filter to match')
     rng = np.random.default_rng(0)
-    xy = rng.uniform(-10, 10, (100_000, 2))
+    xy = rng.uniform(-4, 4, (100_000, 2))
     for dtype in ('<f4', '>f8'):               # float32 little-endian, float64 big-endian
         before = f.filter.detections.t
         s.send_pose()
         s.det.publish(xy_cloud(_header(s), xy, dtype))
-        spin.until(lambda: f.filter.detections.t > before and not f.filter.detections.rejected, 15.0,
+        spin.until(lambda: f.filter.detections.t > before and not f.filter.detections.refused, 15.0,
                    f'a {dtype} cloud of 100k points')
-        assert len(f.filter.detections.value) > 100
+        assert int(np.count_nonzero(f.sensor.map.occupied)) > 100
     bad = xy_cloud(_header(s), xy[:10])
     bad.data = bytes(bad.data)[:50]            # shorter than its points
     s.det.publish(bad)
-    spin.until(lambda: 'shorter than' in f.filter.detections.rejected, 10.0, 'a malformed cloud refused')
-    spin.until(lambda: s.rosout.has('safety_filter', 'detections rejected', 'shorter than'), 10.0, 'and logged')
+    spin.until(lambda: 'data' in f.filter.detections.refused, 10.0, 'a malformed cloud refused')
+    spin.until(lambda: s.rosout.has('safety_filter', 'cloud refused', 'data'), 10.0, 'and logged')
     huge = xy_cloud(_header(s), np.zeros((1, 2)))
     huge.width = 10_000_000                    # claims more points than max_sensor_points: refused unread
     s.det.publish(huge)
-    spin.until(lambda: 'exceeds max_sensor_points' in f.filter.detections.rejected, 10.0, 'a huge cloud refused')
+    spin.until(lambda: 'max_points' in f.filter.detections.refused, 10.0, 'a huge cloud refused')
+    spin.until(lambda: s.rosout.has('safety_filter', 'cloud refused', '10000000'), 10.0, 'said with its size')
 
 
 def _header(s):
@@ -240,7 +307,7 @@ def test_the_managed_filter_publishes_only_while_active(ros_context):
         s.node.destroy_node()
 
 
-def test_the_managed_fleet_filter_says_each_robot_on_diagnostics_only_once_configured(ros_context):
+def test_the_managed_fleet_filter_says_each_robot_on_diagnostics_once_configured(ros_context):
     from supersafe_ros.nodes.fleet_safety_filter_node import ManagedFleetSafetyFilterNode
     f = ManagedFleetSafetyFilterNode(context=ros_context, namespace='/fleet_m', parameter_overrides=params(
         robots=['fm_0', 'fm_1'], batched_topics=False, rate=20.0))
@@ -257,14 +324,22 @@ def test_the_managed_fleet_filter_says_each_robot_on_diagnostics_only_once_confi
         spin.until(future.done, 60.0, 'the transition')
         assert future.result().success
 
-    def ours():
-        return [st for a in arrays for st in a.status if st.name.startswith('/fleet_m/fleet_safety_filter')]
+    def ours(since=0):
+        return [st for a in arrays[since:] for st in a.status if st.name.startswith('/fleet_m/fleet_safety_filter')]
     try:
+        # unconfigured: the node's own WARN (robots are known once configured)
+        spin.until(lambda: any(st.message.startswith('inactive (lifecycle state unconfigured)') for st in ours()),
+                   15.0, 'the unconfigured node\'s WARN')
+        assert {(st.level, st.hardware_id) for st in ours()} == {(DiagnosticStatus.WARN, '/fleet_m')}
         transition(Transition.TRANSITION_CONFIGURE)
+        configured = len(arrays)
         spin.until(lambda: cmd.get_publisher_count() > 0, 15.0, 'the configured fleet to make its topics')
-        spin.until(lambda: len(ours()) >= 2, 15.0, 'a status per robot')
+
+        def inactive():        # (an array sent before the configure may still come after it)
+            return [st for st in ours(configured) if st.message.startswith('inactive (lifecycle state inactive)')]
+        spin.until(lambda: {st.hardware_id for st in inactive()} == {'/fm_0', '/fm_1'}, 15.0, 'a status per robot')
         assert not out, 'inactive: no cmd_vel'
-        assert {st.hardware_id for st in ours()} == {'/fm_0', '/fm_1'}
+        assert all(st.level == DiagnosticStatus.WARN for st in inactive())
         transition(Transition.TRANSITION_ACTIVATE)
         spin.until(lambda: len(out) >= 3, 15.0, 'cmd_vel once active')
         assert out[-1].linear.x == 0.0 or out[-1].angular.z != 0.0, 'failing safe: no input yet'

@@ -1,16 +1,17 @@
-"""ros_io.sensors and filter_inputs.SensorDiscs: robot-stack messages as the filter's arrays
-(message objects only, no node)."""
+"""ros_io.sensors and filter_inputs.SensorMap: robot-stack messages as the filter's arrays and its
+local map (message objects only, no node)."""
 import math
 
 import numpy as np
 import pytest
 
 from geometry_msgs.msg import PoseWithCovarianceStamped
+from nav_msgs.msg import OccupancyGrid
 from sensor_msgs.msg import LaserScan
 from visualization_msgs.msg import Marker, MarkerArray
 
 from supersafe_ros.filter import FilterConfig
-from supersafe_ros.nodes.filter_inputs import INPUT_PARAMETERS, PoseHistory, SensorDiscs, message_type
+from supersafe_ros.nodes.filter_inputs import INPUT_PARAMETERS, PoseHistory, SensorMap, message_type
 from supersafe_ros.ros_io import rosmsg, sensors
 
 
@@ -53,46 +54,104 @@ def test_amcl_pose_is_read_in_its_frame():
 
 def scan(ranges):
     m = LaserScan(angle_min=-math.pi, angle_increment=2 * math.pi / len(ranges), range_min=0.05, range_max=10.0)
+    m.angle_max = m.angle_min + m.angle_increment * (len(ranges) - 1)
     m.ranges = [float(r) for r in ranges]
     return m
 
 
 def sensor(**over):
     p = {s.name: s.default for s in INPUT_PARAMETERS}
-    p.update(detections_type='laser_scan', **over)
-    return SensorDiscs(p, PoseHistory())
+    p.update({'detections_type': 'laser_scan', **over})
+    return SensorMap(p, PoseHistory(), FilterConfig(), 3.0, 'map')
 
 
-def test_a_scan_is_placed_with_the_nearest_pose_and_its_mount():
-    s = sensor(sensor_x=1.0, robot_radius=0.2, obstacle_depth=0.0)
-    s.history.add(10.0, (5.0, 0.0, math.pi / 2))
-    s.history.add(10.1, (5.0, 0.3, math.pi / 2))
+def cell_of(m, x, y):
+    """Whether the map's cell holding (x, y) is occupied (False off the window)."""
+    i, j = int(math.floor((x - m.origin[0]) / m.cell)), int(math.floor((y - m.origin[1]) / m.cell))
+    n = m.occupied.shape
+    return 0 <= i < n[0] and 0 <= j < n[1] and bool(m.occupied[i, j])
+
+
+def test_a_scan_is_placed_with_the_pose_at_its_stamp_and_its_mount():
+    """The pose at the scan's stamp, interpolated between the poses that bracket it, carries the sensor
+    at its mount: the return lands in the map where it was seen."""
+    s = sensor(sensor_x=1.01, robot_radius=0.2)
+    s.history.add(10.0, (1.02, 0.0, math.pi / 2))
+    s.history.add(10.2, (1.02, 0.6, math.pi / 2))
     ranges = np.full(8, np.inf)
     ranges[4] = 2.0                          # straight ahead of the sensor
-    discs = s.discs(scan(ranges), 10.1, FilterConfig(), 0.5)
-    # the robot at (5, 0.3) facing +y, the sensor 1 m ahead of it: the return at (5, 3.3)
-    assert discs.shape == (1, 3) and np.allclose(discs[0, :2], (5.0, 3.3)) and discs[0, 2] == pytest.approx(0.2)
-    slack = s.discs(scan(ranges), 10.15, FilterConfig(speed=3.0, omega_max=1.0), 0.5)
-    assert slack[0, 2] == pytest.approx(0.2 + 0.05 * 3.0 + 3.0 * 0.05, rel=1e-6), 'v dt + rho w dt'
+    summary, _ = s.take(scan(ranges), 10.1, FilterConfig(), 0.5)
+    # at 10.1 the robot is at (1.02, 0.3) facing +y, the sensor 1.01 m ahead of it: the return at (1.02, 3.31)
+    assert summary.marked == 1 and cell_of(s.map, 1.02, 3.31)
+    assert not cell_of(s.map, 1.02, 3.0), 'the beam before its return is seen free'
+    assert s.view.sensor == 'scan' and s.view.clearance == 0.2
 
 
-def test_a_scan_without_a_pose_near_its_stamp_or_too_long_is_refused():
+def test_a_scan_beyond_the_poses_is_placed_with_a_slack():
+    """A stamp no pose brackets (later than the newest): the newest pose, each return's cell grown by
+    v dt + rho w dt (the robot moved at most that since)."""
+    s = sensor()
+    s.history.add(0.0, (0.0, 0.0, 0.0))
+    ranges = np.full(8, np.inf)
+    ranges[4] = 3.0                          # straight ahead: (3, 0)
+    s.take(scan(ranges), 0.2, FilterConfig(speed=3.0, omega_max=1.0), 0.5)
+    slack = 0.2 * 3.0 + 3.0 * 1.0 * 0.2      # 1.2 m
+    assert cell_of(s.map, 3.02, 1.1) and cell_of(s.map, 3.02, -1.1) and not cell_of(s.map, 3.02, 1.4), slack
+
+
+def test_a_scan_without_a_pose_near_its_stamp_too_long_or_of_bad_geometry_is_refused():
     s = sensor(max_sensor_points=100)
     with pytest.raises(rosmsg.MessageError, match='no pose'):
-        s.discs(scan([1.0] * 10), 0.0, FilterConfig(), 0.5)
+        s.take(scan([1.0] * 10), 0.0, FilterConfig(), 0.5)
     s.history.add(0.0, (0.0, 0.0, 0.0))
     with pytest.raises(rosmsg.MessageError, match='no pose within'):
-        s.discs(scan([1.0] * 10), 2.0, FilterConfig(), 0.5)
-    with pytest.raises(rosmsg.MessageError, match='exceeds max_sensor_points'):
-        s.discs(scan([1.0] * 101), 0.0, FilterConfig(), 0.5)
+        s.take(scan([1.0] * 10), 2.0, FilterConfig(), 0.5)
+    with pytest.raises(rosmsg.MessageError, match='100'):
+        s.take(scan([1.0] * 101), 0.0, FilterConfig(), 0.5)
+    bad = scan([1.0] * 10)
+    bad.angle_increment = 0.0
+    with pytest.raises(rosmsg.MessageError, match='angle_increment'):
+        s.take(bad, 0.0, FilterConfig(), 0.5)
+    assert s.map.version == 0, 'nothing refused went into the map'
 
 
-def test_each_return_also_covers_what_lies_behind_it_on_its_beam():
+def test_each_return_also_marks_what_lies_behind_it_on_its_beam():
     s = sensor(obstacle_depth=2.0, robot_radius=0.1)
     s.history.add(0.0, (0.0, 0.0, 0.0))
     ranges = np.full(8, np.inf)
     ranges[4] = 3.0                          # straight ahead: the return at (3, 0)
-    (disc,) = s.discs(scan(ranges), 0.0, FilterConfig(), 0.5)
-    for x in (3.0, 4.0, 5.0):               # the segment to 2 m behind it
-        assert math.hypot(disc[0] - x, disc[1]) + 0.1 <= disc[2] + 1e-9
-    assert math.hypot(disc[0], disc[1]) > disc[2], 'the robot is not inside'
+    s.take(scan(ranges), 0.0, FilterConfig(), 0.5)
+    for x in (3.02, 4.02, 4.9):             # its beam to 2 m behind it (within the map's 5 m)
+        assert cell_of(s.map, x, 0.02)
+    assert not cell_of(s.map, 2.9, 0.02) and not cell_of(s.map, 1.0, 0.02)
+
+
+def test_a_costmap_is_read_in_its_frame_with_its_threshold():
+    s = sensor(detections_type='occupancy_grid', occupied_threshold=100)
+    s.history.add(0.0, (0.0, 0.0, 0.0))
+    g = OccupancyGrid()
+    g.header.frame_id = 'map'
+    g.info.resolution, g.info.width, g.info.height = 0.5, 4, 4
+    g.info.origin.position.x, g.info.origin.position.y, g.info.origin.orientation.w = 1.0, -1.0, 1.0
+    data = np.zeros((4, 4), dtype=np.int8)
+    data[1, 2] = 100        # row y = -0.5..0, column x = 2..2.5: lethal
+    data[2, 2] = 99         # inscribed: below the threshold
+    data[3, 3] = -1
+    g.data = data.reshape(-1).tolist()
+    s.take(g, 0.0, FilterConfig(), 0.5)
+    assert cell_of(s.map, 2.25, -0.25) and not cell_of(s.map, 2.25, 0.25)
+    g.header.frame_id = 'odom'
+    with pytest.raises(rosmsg.MessageError, match="frame is 'odom'"):
+        s.take(g, 0.0, FilterConfig(), 0.5)
+
+
+def test_the_maps_value_is_asked_for_at_most_every_value_period():
+    s = sensor(value_period=0.2)
+    s.history.add(0.0, (0.0, 0.0, 0.0))
+    s.take(scan([3.0] * 36), 0.0, FilterConfig(), 0.5)
+    try:
+        assert s.solve(1.0, 10.0, 0.0, 0.0)
+        assert not s.solve(1.0, 10.1, 0.0, 0.0) and s.solve(1.0, 10.25, 0.0, 0.0)
+        assert s.worker.submitted == 2
+    finally:
+        s.close()

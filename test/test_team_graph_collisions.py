@@ -40,3 +40,22 @@ def test_team_at_a_coarse_step_never_enters_a_detected_obstacle(tmp_path):
     # values (kept on disk), so the team test's steps are rarely held for a solve
     assert int(stats['trips']) >= 4, stats
     assert int(stats['crashes']) == 0, [e for e in result['events'] if e.get('event') == 'crash']
+
+
+@pytest.mark.slow
+def test_the_scan_team_never_enters_an_obstacle_its_lasers_saw(tmp_path):
+    """``supersafe team --sensors scan`` (issue 36): robots that publish odometry and a 360-beam scan, each
+    filter keeping the scans in a local map judged by its one avoid value (solved inline: the lockstep
+    clock waits for it) and cutting its speed between solves; obstacles of radii 0.8, 1.8 and 2.6 m,
+    every one seen, 60 sim s at the 0.2 s step: no crash deeper than 1 cm, and the robots get across."""
+    duration = 60.0
+    argvs = team_processes(n_robots=2, rate_factor=0.0, seed=4, duration=duration, step=0.2,
+                           with_supervisor=False, with_learner=False, sensors='scan',
+                           overrides={'dubins_robot': {'miss_probability': 0.0},
+                                      'world': {'crash_tolerance': 0.01}})
+    result = run_team(argvs, duration=duration, timeout=420.0, log_dir=tmp_path / 'logs',
+                      print_period=1e9, out=open(os.devnull, 'w'))
+    stats = result['stats']
+    assert result['reason'] == 'duration reached', result['reason']
+    assert int(stats['crashes']) == 0, [e for e in result['events'] if e.get('event') == 'crash']
+    assert int(stats['trips']) >= 3, stats

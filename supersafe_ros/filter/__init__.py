@@ -11,8 +11,10 @@ Where the decision is made: ``RobotFilter.step`` (one robot) or ``step_many`` (a
 * ``constraints``: each robot's rows of the constraint table: ``pairs`` (V at every robot and
   obstacle pair, now and after the lookahead's holds), ``discs`` (obstacles of their own
   radius), ``cluster_rows`` (the union value or loiter fallback of close obstacles),
-  ``nearby`` (a robot's many detections narrowed to those within its reach);
-* ``law``: the rule over the constraint table (enter, ahead, stay; the command);
+  ``nearby`` (a robot's many detections narrowed to those within its reach), ``map_rows``
+  (a robot judged by its local map: one row for all the map holds);
+* ``law``: the rule over the constraint table (enter, ahead, stay; the command); ``approach``:
+  the speed cut of a robot that can stop, so that each command's path enters nothing detected;
 * ``outputs``: the commands and each robot's explanation;
 * ``sent``: what was sent, the one writer of a filter's ``sent`` and ``overriding``;
 * ``decide``: the steps above, in order;
@@ -20,7 +22,9 @@ Where the decision is made: ``RobotFilter.step`` (one robot) or ``step_many`` (a
   (union values solved in the background), ``admissibility`` (a learned set must contain the
   standard unsafe set), ``set_selector`` (which learned set is in force, checked off the
   control path), ``lockstep`` (when a lockstepped filter answers a pose), ``timebase``
-  (input ages), ``contours`` (RViz level sets), ``sensing`` (scans as discs), ``trials``
+  (input ages), ``contours`` (RViz level sets), ``range_readings`` (a scan's or a cloud's
+  readings, checked), ``local_map`` (what the sensors saw, a rolling window of cells),
+  ``map_value`` (the map's one avoid value, solved in the background), ``trials``
   (closed-loop collision trials).
 """
 from .cluster_rows import default_cluster_store

@@ -68,6 +68,8 @@ import math
 
 import numpy as np
 
+from .map_rows import cut_discs
+
 CANDIDATES = 16          # the speeds checked: s (J, J - 1, ..., 0) / J
 STRAIGHT_TURN = 1e-4     # |u| tau below this [rad]: the path is taken as a segment (see the module)
 _DEEPER = 1e-9           # inside a disc: the distance to its centre may not fall by more than this [m]
@@ -109,23 +111,27 @@ class Limits:
     ``tau`` and ``obstacle`` (the row in the robot's detections of the nearest disc that cut
     it, -1 if none)."""
 
-    __slots__ = ('linear', 'omega', 'limited', 'blocked', 'tau', 'obstacle', 'asked')
+    __slots__ = ('linear', 'omega', 'limited', 'blocked', 'tau', 'obstacle', 'asked', 'gap', 'mapped')
 
-    def note(self, row) -> str:
-        """The reason's suffix for robot row ``row`` ('' if its speed was not cut)."""
+    def headline(self, row) -> str:
+        """What the cut did to robot row ``row``, in words ('' if its speed was not cut)."""
         if not self.limited[row]:
             return ''
-        what = f'obstacle {int(self.obstacle[row])}'
+        # a map's cell has no name; a detection its row in the message
+        name = 'an obstacle' if self.mapped[row] else f'obstacle {int(self.obstacle[row])}'
+        what = f'{name} {max(0.0, float(self.gap[row])):.2g} m ahead'
         if self.blocked[row]:
-            return (f'; stopped before collision (any speed > 0 would enter {what} within '
-                    f'{self.tau[row]:.3g} s): turning in place')
-        return (f'; speed limited to {self.linear[row]:.3g} of {self.asked[row]:.3g} m/s (faster would enter '
-                f'{what} within {self.tau[row]:.3g} s)')
+            side = 'left' if self.omega[row] > 0.0 else 'right'
+            return (f'stopped, turning {side} in place: {what} leaves no speed above 0 clear for '
+                    f'{self.tau[row]:.2g} s')
+        return (f'slowing to {self.linear[row]:.2g} m/s (planner {self.asked[row]:.2g}): {what} would be '
+                f'reached within {self.tau[row]:.2g} s')
 
 
 def allowed_speeds(states, speeds, turns, tau, dets, radii):
     """Per robot: (the largest clear candidate speed <= ``speeds``, the row in its discs of the
-    nearest that blocks its path at ``speeds`` (-1: none), the unit turn away from it (0: none)).
+    nearest that blocks its path at ``speeds`` (-1: none), the unit turn away from it (0: none),
+    that disc's clearance |p - c| - r (inf: none)).
 
     ``states`` (M, 3), ``speeds``, ``turns``, ``tau`` (M,); ``dets``: per robot its (K_i, 2)
     disc centres; ``radii``: per robot its (K_i,) radii.
@@ -134,9 +140,10 @@ def allowed_speeds(states, speeds, turns, tau, dets, radii):
     out = np.asarray(speeds, dtype=float).copy()
     blocker = np.full(m, -1, dtype=np.intp)
     away = np.zeros(m)
+    gap_of = np.full(m, np.inf)
     counts = np.fromiter(map(len, dets), dtype=np.intp, count=m)
     if m == 0 or counts.sum() == 0:
-        return out, blocker, away
+        return out, blocker, away, gap_of
     centres = np.concatenate([np.asarray(d, dtype=float).reshape(-1, 2) for d in dets])
     r = np.concatenate([np.broadcast_to(np.asarray(rr, dtype=float), (k,)) for rr, k in zip(radii, counts)])
     robot = np.repeat(np.arange(m), counts)
@@ -146,7 +153,7 @@ def allowed_speeds(states, speeds, turns, tau, dets, radii):
     reach = out[robot] * tau[robot]
     near = start - r <= reach                      # a disc the path at s can reach (or the robot is inside)
     if not near.any():
-        return out, blocker, away
+        return out, blocker, away, gap_of
     p = np.flatnonzero(near)
     robot, index, start, r = robot[p], index[p], start[p], r[p]
     cx, cy = centres[p, 0], centres[p, 1]
@@ -171,9 +178,10 @@ def allowed_speeds(states, speeds, turns, tau, dets, radii):
             k = lo + int(np.argmin(gap[lo:hi]))
             i = rows[j]
             blocker[i] = index[k]
+            gap_of[i] = gap[k]
             side = math.cos(states[i, 2]) * (cy[k] - states[i, 1]) - math.sin(states[i, 2]) * (cx[k] - states[i, 0])
             away[i] = -1.0 if side > 0.0 else 1.0
-    return out, blocker, away
+    return out, blocker, away, gap_of
 
 
 def blocked_turns(filters, away) -> np.ndarray:
@@ -189,7 +197,8 @@ def blocked_turns(filters, away) -> np.ndarray:
 
 def limit(rb, omega, linear, action_code):
     """The law's commands ``omega``, ``linear`` (per robot row of ``rb``, ``gather.RobotColumns``:
-    its state now ``rb.states`` and its detections ``rb.dets``, all of them, with ``rb.radii``)
+    its state now ``rb.states`` and its detections ``rb.dets``, all of them, with ``rb.radii``; a
+    robot judged by its local map: the map's occupied cells, ``map_rows.cut_discs``)
     with each speed cut to what its path over tau allows (``allowed_speeds``), for the robots
     whose configuration has ``time_before_collision`` > 0 (robots that can stop); a robot cut to
     0 where the law passes or overrides (``action_code`` 0 or 1) turns in place
@@ -216,15 +225,30 @@ def limit(rb, omega, linear, action_code):
     m = len(configs)
     lim.limited, lim.blocked = np.zeros(m, bool), np.zeros(m, bool)
     lim.obstacle = np.full(m, -1, dtype=np.intp)
+    lim.gap = np.full(m, np.inf)
+    lim.mapped = np.zeros(m, bool)
     idx = np.flatnonzero(on)
     if len(idx) == 0:
         return lim
-    dets = [rb.dets[i] for i in idx.tolist()]
-    radii = [rb.configs[i].radius if rb.radii[i] is None else rb.radii[i] for i in idx.tolist()]
-    speed, blocker, away = allowed_speeds(rb.states[idx], lim.linear[idx], lim.omega[idx], lim.tau[idx], dets, radii)
+    dets, radii = [], []
+    views = rb.views
+    for i in idx.tolist():
+        view = None if views is None else views[i]
+        if view is None:
+            dets.append(rb.dets[i])
+            radii.append(rb.configs[i].radius if rb.radii[i] is None else rb.radii[i])
+        else:            # the live map's occupied cells, each cell's disc grown by the clearance
+            reach = float(lim.linear[i]) * float(lim.tau[i])
+            centres, radius = cut_discs(view, float(rb.states[i, 0]), float(rb.states[i, 1]), reach)
+            dets.append(centres)
+            radii.append(radius)
+            lim.mapped[i] = True
+    speed, blocker, away, gap = allowed_speeds(rb.states[idx], lim.linear[idx], lim.omega[idx], lim.tau[idx], dets,
+                                               radii)
     cut = speed < lim.linear[idx]
     lim.limited[idx] = cut
     lim.obstacle[idx] = blocker
+    lim.gap[idx] = gap
     lim.linear[idx] = speed
     blocked = cut & (speed == 0.0) & (np.asarray(action_code)[idx] < 2)
     lim.blocked[idx] = blocked

@@ -7,7 +7,8 @@ its command, hold, speed and turn bound), per robot:
   constrain it);
 * one row per detected obstacle (``pairs``: V now and after the planner's hold; a disc of its
   own radius shifted, ``discs.pair_shifts``);
-* one row per cluster of close obstacles (``cluster_rows``), its members' rows in its group.
+* one row per cluster of close obstacles (``cluster_rows``), its members' rows in its group;
+* for a robot judged by its local map, one row for everything the map holds (``map_rows``).
 
 A lone robot's few pairs are read in Python floats (``pairs.pair_values_fast``, the same
 values bit for bit: numpy's cost per call would be most of its decision); its table is the
@@ -23,6 +24,7 @@ import numpy as np
 from .cluster_rows import cluster_rows
 from .discs import pair_shifts
 from .law import ConstraintTable
+from .map_rows import map_rows
 from .nearby import NEAR_QUERY_MIN, narrow
 from .pairs import FEW_PAIRS, pair_reads, pair_turns, pair_values_fast
 
@@ -102,7 +104,49 @@ def constraint_rows(rb, safe_set, clusters):
         tab, n_groups = constraint_table(pair_robot, narrowed.position, narrowed.counts, value, value_next, centres,
                                          alpha, cl, pair_turns_of)
         narrowed.rename(tab, start, cl)
+    if rb.views is not None:     # robots judged by their local maps' values: one row each
+        mapped = [i for i, (v, mv) in enumerate(zip(rb.views, rb.map_values)) if v is not None and mv is not None]
+        if mapped:
+            n_groups = add_map_rows(tab, n_groups, map_rows(rb.views, rb.map_values, mapped, states, planned, horizon,
+                                                            speed, bang, safe_set, rb.configs))
     return tab, n_groups, cl['solving']
+
+
+MAP_POSITION = 2 ** 30      # a map row's place in its robot's list: after its pairs and clusters (ties)
+
+
+def add_map_rows(tab, n_groups, mp) -> int:
+    """``mp`` (``map_rows.map_rows``) appended to ``tab``: each map row sound, a group of its own,
+    naming no detection (obstacle -1) but the nearest occupied cell (``xy``, ``gap``); the
+    table's number of groups after them."""
+    k, n = len(mp['robot']), len(tab.robot)
+    cat = np.concatenate
+    tab.robot = cat([tab.robot, mp['robot']])
+    tab.position = cat([tab.position, np.full(k, MAP_POSITION, dtype=np.intp)])
+    tab.value, tab.level, tab.value_next = (cat([getattr(tab, a), mp[b]]) for a, b in (
+        ('value', 'value'), ('level', 'level'), ('value_next', 'value_next')))
+    tab.obstacle = cat([tab.obstacle, np.full(k, -1, dtype=tab.obstacle.dtype)])
+    tab.xy = cat([np.asarray(tab.xy, dtype=float).reshape(-1, 2), mp['xy']])
+    tab.sound = cat([tab.sound, np.ones(k, bool)])
+    tab.group = cat([tab.group, n_groups + np.arange(k)])
+    tab.members = cat([tab.members, np.ones(k, np.intp)])
+    tab.fallback = cat([tab.fallback, np.zeros(k, bool)])
+    tab.mapped = cat([tab.mapped, np.ones(k, bool)])
+    tab.gap = cat([tab.gap, mp['gap']])
+    tab.turns_of = joined_turns(tab.turns_of, n, mp['turns_of'])
+    return n_groups + k
+
+
+def joined_turns(first, n_first: int, rest):
+    """``turns_of`` of a table whose first ``n_first`` rows are read by ``first`` and the others
+    by ``rest`` (indexed from 0): the unit avoid turns of any rows of it."""
+    def turns_of(rows) -> np.ndarray:
+        out = np.zeros(len(rows))
+        head = rows < n_first
+        out[head] = first(rows[head])
+        out[~head] = rest(rows[~head] - n_first)
+        return out
+    return turns_of
 
 
 def constraint_table(pair_robot, position, counts, value, value_next, centres, alpha, cl, pair_turns_of):
@@ -126,16 +170,9 @@ def constraint_table(pair_robot, position, counts, value, value_next, centres, a
     tab.group = cat(group, n_pairs + cl['group'])
     tab.members = cat(np.ones(n_pairs, np.intp), cl['members'])
     tab.fallback = cat(np.zeros(n_pairs, bool), cl['fallback'])
-
-    def turns_of(rows) -> np.ndarray:
-        """The unit avoid turns of table ``rows`` (read only for the rows robots avoid by)."""
-        out = np.zeros(len(rows))
-        pair = rows < n_pairs
-        out[pair] = pair_turns_of(rows[pair])
-        out[~pair] = cl['turns_of'](rows[~pair] - n_pairs)
-        return out
-
-    tab.turns_of = turns_of
+    tab.mapped = np.zeros(n_pairs + k, bool)          # map rows (add_map_rows)
+    tab.gap = np.full(n_pairs + k, np.inf)
+    tab.turns_of = joined_turns(pair_turns_of, n_pairs, cl['turns_of'])   # read only for the rows avoided by
     return tab, n_pairs + cl['n_groups']
 
 

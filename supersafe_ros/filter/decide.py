@@ -42,6 +42,6 @@ def step_many(filters, safe_set: SafeSet, t, clusters=None) -> Decisions:
     decided = decide_rows(tab, len(rb.use), n_groups, rb.overriding, rb.margin, rb.failing, rb.fresh, rb.planned,
                           rb.bang, rb.drive, rb.held, rb.constant)
     limits = limit(rb, *decided[:3])
-    decisions = outputs(filters, rb, safe_set, tab, decided, solving, limits)
+    decisions = outputs(filters, rb, safe_set, tab, decided, solving, limits, t)
     record(filters, decisions, t, rb.all_keep)
     return decisions

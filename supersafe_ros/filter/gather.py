@@ -34,12 +34,12 @@ class RobotColumns:
 
     __slots__ = ('filters', 'use', 'problems', 'all_configs', 'all_bang', 'all_keep', 'all_constant', 'configs',
                  'failing', 'states', 'lone', 'age', 'dets', 'horizon', 'planned', 'speed', 'bang', 'overriding',
-                 'margin', 'fresh', 'cluster_alpha', 'radii', 'drive', 'held', 'constant')
+                 'margin', 'fresh', 'cluster_alpha', 'radii', 'drive', 'held', 'constant', 'views', 'map_values')
 
 
 _NEVER = (math.inf, 0.0, 0.0)   # the (time, turn, speed) a robot with no such command sent shows: no arc starts then
-_VALUE, _T, _STAMP, _REJECTED, _RADII, _LINEAR = (attrgetter(a) for a in (
-    'value', 't', 'stamp', 'rejected', 'radii', 'linear'))
+_VALUE, _T, _STAMP, _REJECTED, _RADII, _LINEAR, _VIEW = (attrgetter(a) for a in (
+    'value', 't', 'stamp', 'rejected', 'radii', 'linear', 'view'))
 
 
 def problem(f, t):
@@ -47,20 +47,27 @@ def problem(f, t):
     the law: judged, or failing safe with a pose and detections younger than hold_timeout).
     The one answer to both questions (``gather`` asks it of the robots its columns find not
     judged, for the words)."""
-    cfg, pose, det = f.config, f.pose, f.detections
+    cfg, pose, det, view = f.config, f.pose, f.detections, f.view
+    refused = f.command.rejected and not cfg.constant_speed     # a robot that can stop stops on it
+    unsolved = view is not None and view.value() is None and view.local_map.holds_any()
     if not (pose.rejected or det.rejected or pose.value is None or det.value is None
-            or t - pose.t > cfg.pose_timeout or t - det.t > cfg.detections_timeout):
+            or t - pose.t > cfg.pose_timeout or t - det.t > cfg.detections_timeout or refused or unsolved):
         return '', True
     why = ''
-    for label, inp, timeout in (('pose', pose, cfg.pose_timeout), ('detections', det, cfg.detections_timeout)):
+    sensor = 'detections' if view is None else view.sensor
+    for label, inp, timeout in (('pose', pose, cfg.pose_timeout), (sensor, det, cfg.detections_timeout)):
         if inp.rejected:
             why = f'{label} rejected: {inp.rejected}'
         elif inp.value is None:
             why = f'no {label} received yet'
         elif t - inp.t > timeout:     # since arrival: a pose that keeps coming is not lost
-            why = f'{label} stale ({t - inp.t:.3g} s old > {timeout:g} s)'
+            since = (f'{inp.refusals} unusable since, the latest: {inp.refused}' if inp.refusals else 'none newer')
+            why = f'blind for {t - inp.t:.3g} s ({label} stale: {since}; timeout {timeout:g} s)'
         if why:
             break
+    if not why:
+        why = (f'planner command rejected: {f.command.rejected}' if refused else
+               f'waiting for the first value of the {sensor} map (being solved)')
     return why, (pose.value is not None and det.value is not None
                  and t - pose.t <= cfg.hold_timeout and t - det.t <= cfg.hold_timeout)
 
@@ -104,6 +111,15 @@ def gather(filters, t) -> RobotColumns:
     for inputs in (poses, dets):
         if any(map(_REJECTED, inputs)):
             clean &= ~np.fromiter(map(bool, map(_REJECTED, inputs)), dtype=bool, count=n)
+    commands = [f.command for f in filters]
+    if any(map(_REJECTED, commands)):       # a robot that can stop stops on a refused command
+        clean &= ~(np.fromiter(map(bool, map(_REJECTED, commands)), dtype=bool, count=n) & ~rb.all_constant)
+    views = list(map(_VIEW, filters))
+    values = None
+    if any(map(is_not, views, itertools.repeat(None))):     # robots judged by their maps' values
+        values = [None if v is None else v.value() for v in views]
+        pending = (v is not None and mv is None and v.local_map.holds_any() for v, mv in zip(views, values))
+        clean &= ~np.fromiter(pending, dtype=bool, count=n)
     judged = has & clean & ~(t - pose_t > pose_timeout) & ~(t - det_t > det_timeout)
     rb.problems = [''] * n
     for i in np.flatnonzero(~judged).tolist():
@@ -120,6 +136,8 @@ def gather(filters, t) -> RobotColumns:
     else:
         bang, constant = bang_all, rb.all_constant
     rb.filters, rb.configs, rb.failing = filters, configs, ~judged[use]
+    rb.views = None if values is None else [views[i] for i in use.tolist()]
+    rb.map_values = None if values is None else [values[i] for i in use.tolist()]
     rb.speed, rb.bang, rb.margin, rb.cluster_alpha = speed, bang, margin, cluster_alpha
     rb.dets = det_values
     rb.radii = list(map(_RADII, dets)) if m == n else [d.radii for d in map(attrgetter('detections'), filters)]
@@ -228,6 +246,8 @@ def gather_one_fast(f, t):
     rb.all_constant = rb.constant
     rb.filters, rb.use, rb.problems, rb.configs, rb.all_configs = [f], _ONE, [why], [cfg], [cfg]
     rb.radii, rb.dets = [f.detections.radii], [f.detections.value]
+    view = f.view
+    rb.views, rb.map_values = (None, None) if view is None else ([view], [view.value()])
     rb.lone = (x, y, th)
     rb.states = np.array([rb.lone])
     return rb

@@ -31,6 +31,8 @@ from .nearby import drop_note, message_reach, within_limit
 from .types import FilterConfig, FilterOutput, SafeSet
 
 PERIOD_SAMPLES = 16    # intervals in the median that measures the control period
+NO_DISCS = np.zeros((0, 2))
+NO_DISCS.flags.writeable = False
 _COMMAND, _LINEAR = attrgetter('command'), attrgetter('linear')
 
 
@@ -50,9 +52,12 @@ class _Input:
     radii: object = None          # detections: each one's radius (M,), None: all the configured radius
     linear: object = None         # command: the planner's linear.x (None: not given, taken as the speed)
     solve_clusters: bool = True   # detections: their clusters' union values may be solved (filter.cluster_rows)
+    refused: str = ''             # a map view: why the newest messages were refused (they leave the view
+    refusals: int = 0             # as it was, to go stale) and how many since the last valid one
 
     def accept(self, value, t, stamp=None):
         self.value, self.t, self.rejected, self.note = value, float(t), '', ''
+        self.refused, self.refusals = '', 0
         self.stamp = float(t) if stamp is None else float(stamp)
 
     def age(self, t) -> float:
@@ -83,6 +88,7 @@ class RobotFilter:
         # that array is the same (never an input): 'clusters' (cluster_rows), 'near_index' and
         # 'near_pick' (nearby)
         self.derived = {}
+        self.view = None       # a robot judged by its local map: its MapView (filter.map_rows), else None
 
     # -- inputs ------------------------------------------------------------------------
     def update_pose(self, state, t, stamp=None) -> None:
@@ -136,18 +142,35 @@ class RobotFilter:
     def reject_detections(self, reason, t) -> None:
         self.detections.reject(reason, t)
 
+    def update_view(self, view, t) -> None:
+        """A valid view of the robot's local map at ``t`` (``filter.map_rows.MapView``: the map a
+        sensor message has just updated, the robot's clearance and the map's values): the robot
+        is judged by the map's value (one row for all it holds) and its speed cut on the map's
+        occupied cells, not by detected discs; the view is fresh until ``detections_timeout``."""
+        self.view = view
+        inp = self.detections
+        inp.accept(NO_DISCS, t)
+        inp.kept, inp.dropped, inp.dropped_safely, inp.radii, inp.solve_clusters = None, 0, True, None, False
+
+    def refuse_view(self, reason, t) -> None:
+        """A sensor message refused (its geometry invalid, ...): the view stays as it was and goes
+        stale at ``detections_timeout`` (the reason then names this cause)."""
+        inp = self.detections
+        inp.refused, inp.refusals, inp.rejected_t = str(reason), inp.refusals + 1, float(t)
+
     def update_command(self, omega, t, linear=None) -> None:
         """The planner's turn rate and ``linear.x`` (None: not given, taken as ``speed``); a
-        command not finite is rejected and the previous kept. ``command.note`` says what was
+        command not finite is rejected (ValueError): a robot that can stop then fails safe (a zero
+        twist) until a valid command comes, a constant-speed robot keeps the previous one (its
+        ``cmd_timeout`` still applies). ``command.note`` says what was
         beyond the robot's limits (``commands.command_excess``): the decision clips the turn rate to
         +-omega_max and the speed to [0, speed] (``commands.planned_speed``)."""
         w = float(omega)
         v = None if linear is None else float(linear)
         if not math.isfinite(w) or (v is not None and not math.isfinite(v)):
-            reason = f'planner command is not finite (angular.z={w}, linear.x={v})'
-            self.command.reject(reason, t)
-            self.command.note = f'{reason}: rejected, the previous command kept'
-            raise ValueError(reason)
+            reason = f'not finite (angular.z={w:g}, linear.x={"not given" if v is None else format(v, "g")})'
+            self.refuse_command(reason, t)
+            raise ValueError(f'planner command {reason}')
         previous = self.command.t if self.command.value is not None else None
         self.command.accept(w, t)
         self.command.linear = v
@@ -156,6 +179,15 @@ class RobotFilter:
             self.command.note = excess
         if previous is not None and t > previous:
             self.command_intervals = self.command_intervals.then(t - previous)
+
+    def refuse_command(self, reason, t) -> None:
+        """A planner command refused (``reason``): a robot that can stop stops on it until a valid
+        command comes (``gather.problem``); a constant-speed robot keeps the previous command until it
+        is cmd_timeout old. ``command.note`` says which."""
+        self.command.reject(reason, t)
+        self.command.note = (f'{reason}: rejected, the previous command kept until it is cmd_timeout '
+                             f'({self.config.cmd_timeout:g} s) old' if self.config.constant_speed
+                             else f'{reason}: rejected, the robot stops until a valid command comes')
 
     def control_period(self) -> float:
         """The hold time of a command: configured, else measured (0 until measurable).

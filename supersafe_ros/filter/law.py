@@ -16,14 +16,15 @@ it the smallest score (V - alpha, or V_next - alpha), the first in the robot's l
 ties. The command (``decide_rows``), s the planner's speed clipped to [0, speed]
 (``commands.drive_speed``; 0 for a silent planner):
 
-    fail safe  inputs stale/invalid, from the last valid state (``FilterConfig.fail_safe_command``):
-               'stop': the avoid turn of its governing row at the speed last sent, where
-               the law would act on it, else a zero twist (v = 0, u = 0);
-               'stop_turn' (a constant-speed Dubins robot): the avoid turn of the row with
-               the smallest V - alpha at speed, else the stop-turn (v = 0, u = +w_max)
+    fail safe  inputs stale/invalid (``FilterConfig.fail_safe_command``): 'stop': a zero twist
+               (v = 0, u = 0); 'stop_turn' (a constant-speed Dubins robot): from the last
+               valid state the avoid turn of the row with the smallest V - alpha at speed,
+               else the stop-turn (v = 0, u = +w_max)
     override   a governing row: u* = w_max x turn of that row, v = s (a robot that can stop
                turns in place on a cluster's loiter fallback: its circle is drawn at speed)
-    pass       the planner's command clipped to +-w_max, v = s (silent planner: zero twist)
+    pass       the planner's command clipped to +-w_max, v = s; a silent planner: a zero
+               twist for a robot that can stop (whatever the rows say), the turn 0 at speed
+               for a constant-speed robot, still overridden by the rows
 
 A constant-speed robot's s is its speed (whatever the planner asks).
 
@@ -104,12 +105,14 @@ class ConstraintTable:
     robots avoid by), V after the planner's hold, the obstacle
     it names (index in the robot's detections) and its centre, whether it is sound for
     its layout (a cluster's union value or the loiter fallback), its group (a lone
-    obstacle, or the cluster its members belong to), members, and for a cluster row whether it
-    is the loiter fallback (its source 'cluster-fallback', else 'cluster').
+    obstacle, or the cluster its members belong to), members, for a cluster row whether it
+    is the loiter fallback (its source 'cluster-fallback', else 'cluster'), and whether the row is
+    a robot's local map's (``mapped``: ``filter.map_rows``; ``gap`` the distance to the nearest
+    occupied cell, inf for the other rows).
     """
 
     __slots__ = ('robot', 'position', 'value', 'level', 'turns_of', 'value_next', 'obstacle', 'xy',
-                 'sound', 'group', 'members', 'fallback')
+                 'sound', 'group', 'members', 'fallback', 'mapped', 'gap')
 
 
 def first_min(segment, position, score, mask, n, rank=None) -> np.ndarray:
@@ -198,12 +201,14 @@ def decide_rows(tab, m, n_groups, overriding, margin, failing, fresh, planned, b
     k_gov, kind = govern(tab, overriding, margin, n_groups, m)
     k_small = smallest(tab, m)
     acts = kind > 0
-    overrides = ~failing & acts
-    # failing safe: a constant-speed robot avoids the nearest constraint (the smallest V - alpha)
-    # of its last valid state; a robot that can stop avoids the one the law would act on, else stops
-    by_law = overrides | (failing & ~constant & acts)
-    named = np.where(by_law, k_gov, k_small)      # the constraint each robot's output names
-    avoiding = by_law | (failing & constant & (k_small >= 0))
+    # a robot that can stop stops (a zero twist) whenever it fails safe or its planner is silent:
+    # nothing to judge, and standing still is safe; a constant-speed robot cannot stop
+    silent = ~failing & ~fresh & ~constant
+    overrides = ~failing & ~silent & acts
+    # failing safe, a constant-speed robot avoids the nearest constraint (the smallest V - alpha)
+    # of its last valid state
+    named = np.where(overrides, k_gov, k_small)   # the constraint each robot's output names
+    avoiding = overrides | (failing & constant & (k_small >= 0))
     turn = np.zeros(m)
     turn[avoiding] = tab.turns_of(named[avoiding])
     omega = np.where(avoiding, bang * turn, np.where(failing & constant, bang, np.where(failing, 0.0, planned)))

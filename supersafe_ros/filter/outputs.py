@@ -53,13 +53,14 @@ class Decisions(Sequence):
         return f'Decisions({list(self)!r})'
 
 
-def outputs(filters, rb, safe_set, tab, decided, solving, limits=None) -> Decisions:
+def outputs(filters, rb, safe_set, tab, decided, solving, limits=None, t=math.nan) -> Decisions:
     """Every robot's command (as lists), whether it overrides, the speed the robot drives under
     it (the linear.x sent, a constant-speed robot's speed), and a builder of its FilterOutput:
     the law's answer ``decided`` (``law.decide_rows`` over ``tab``) for the rows of ``rb``
     spread back to all robots (a robot with no recent valid state stops: a zero twist, or a
     constant-speed robot's stop-turn). ``limits``: ``approach.limit``'s speeds and turns, where
-    time_before_collision cut them (None: the law's stand)."""
+    time_before_collision cut them (None: the law's stand); ``t``: the decision's time (how long the
+    planner has been silent)."""
     n, use = len(filters), rb.use
     m = len(use)
     omega, linear, code, over, named, kind = decided
@@ -89,15 +90,16 @@ def outputs(filters, rb, safe_set, tab, decided, solving, limits=None) -> Decisi
         if row < 0:
             out = explain(Reasons(problems[i], configs[i], omega[i], linear[i], action[i], common, lost=True))
         else:
+            command_t = filters[i].command.t
             out = explain(Reasons(problems[i], configs[i], omega[i], linear[i], action[i], common, tab, named[row],
-                                  kind[row], fresh[row], float(horizon[row]), float(ages[row]), int(solving[row])))
+                                  kind[row], fresh[row], float(horizon[row]), float(ages[row]), int(solving[row]),
+                                  silence=t - command_t if command_t > -math.inf else math.inf,
+                                  limit='' if limits is None else limits.headline(row)))
         # the inputs' notes as when read (the nodes read them before new inputs come)
         f = filters[i]
         out.detections_dropped, out.detections_note = f.detections.dropped, f.detections.note
         if row >= 0 and fresh[row]:      # what of the planner's command was beyond the robot's limits
             out.cmd_clipped = f.command.note
-        if limits is not None and row >= 0:
-            out.reason += limits.note(row)
         return out
 
     return Decisions(omega, linear, action, over, moved.tolist(), describe)
@@ -132,10 +134,13 @@ class Reasons:
     age: float = 0.0
     solving: int = 0
     lost: bool = False
+    silence: float = math.inf    # seconds since the planner's last command (inf: none yet)
+    limit: str = ''              # what the speed cut did (``approach.Limits.headline``; '' if nothing)
 
 
 def explain(r: Reasons) -> FilterOutput:
-    """One robot's FilterOutput: its command and why (``Reasons``)."""
+    """One robot's FilterOutput: its command and why (``Reasons``), in words an operator reads
+    (what the robot does, then why; the numbers behind it are the output's own fields)."""
     problem, cfg, v, a, tab, k, kind, horizon = r.problem, r.cfg, r.linear, r.action, r.tab, r.row, r.kind, r.horizon
     common = dict(r.set_fields, pose_age=r.age, lookahead=horizon, clusters_solving=r.solving)
     if k < 0:
@@ -146,36 +151,49 @@ def explain(r: Reasons) -> FilterOutput:
         members, obstacle = int(tab.members[k]), int(tab.obstacle[k])
         common.update(obstacle_index=obstacle, obstacle_xy=tuple(float(c) for c in tab.xy[k]), value=value,
                       alpha=level)
-        source = 'cluster-fallback' if tab.fallback[k] else 'cluster'     # a cluster row's
+        source = 'map' if tab.mapped[k] else 'cluster-fallback' if tab.fallback[k] else 'cluster'   # a sound row's
         if tab.sound[k]:
             common['source'] = source
-        label = (f'a cluster of {members} obstacles ({source}, nearest {obstacle})' if members > 1
-                 else f'obstacle {obstacle}')
-    if problem:
-        stop = 'stop-turn' if cfg.constant_speed else 'stop (zero twist)'
-        if k >= 0 and (cfg.constant_speed or kind > 0):     # (law.decide_rows: which fail safe avoids)
-            why = f'{problem}; avoiding {label} from the last valid state (V={value:.3g}) at {v:g} m/s'
-        elif k >= 0:
-            why = f'{problem}; clear of {label} at the last valid state (V={value:.3g} > alpha={level:.3g}): {stop}'
+        if tab.mapped[k]:        # a local map's value: it names the nearest occupied cell (filter.map_rows)
+            gap = float(tab.gap[k])
+            label = (f'an obstacle {max(gap, 0.0):.2g} m away' if math.isfinite(gap) else
+                     'the mapped obstacles')
+        elif members > 1:
+            label = f'a cluster of {members} obstacles (nearest {obstacle})'
         else:
-            why = f'{problem}; {"no recent valid state" if r.lost else "no obstacle near the last valid state"}' \
-                  f': {stop}'
+            label = f'obstacle {obstacle}'
+    turning = 'turning left' if r.omega > 0.0 else 'turning right' if r.omega < 0.0 else 'steering straight'
+    if problem:
+        if not cfg.constant_speed:
+            why = f'stopped: {problem}'
+        elif k >= 0:
+            why = f'{turning} away from {label} at speed: {problem}; from the last valid state (V={value:.3g})'
+        else:
+            why = (f'circling (stop-turn): {problem}; '
+                   f'{"no recent valid state" if r.lost else "no obstacle near the last valid state"}')
     elif a == OVERRIDE:
         how = KINDS[kind]
+        in_place = not cfg.constant_speed and tab.fallback[k]
+        doing = f'{turning} in place' if in_place else turning
         if how == 'enter':
-            why = f'V={value:.3g} <= alpha={level:.3g} at {label}'
+            why = f'{doing}: {label} is too close (V={value:.3g} <= alpha={level:.3g})'
         elif how == 'ahead':
-            why = (f'the planner\'s command would reach V={float(tab.value_next[k]):.3g} <= alpha={level:.3g} '
-                   f'within {horizon:.3g} s ({label})')
+            why = (f'{doing}: the planner\'s command would bring {label} too close within {horizon:.3g} s '
+                   f'(V={float(tab.value_next[k]):.3g} <= alpha={level:.3g})')
         else:
-            why = f'V={value:.3g} <= alpha+margin={level + cfg.clear_margin:.3g}: not clear yet'
-        if not cfg.constant_speed and tab.fallback[k]:
-            why += '; turning in place (the loiter circle is drawn at full speed)'
+            why = f'{doing}: not yet clear of {label} (V={value:.3g} <= alpha+margin={level + cfg.clear_margin:.3g})'
+        if in_place:
+            why += '; its union value is being solved and its loiter circle is drawn at full speed'
     elif not r.fresh:
         # Nav2 style: no input, zero twist (a constant-speed Dubins robot drives straight on; the
         # filter still guards it against every detected obstacle)
-        why = 'clear; planner silent: zero command'
+        silent = ('planner silent' if r.silence == math.inf else
+                  f'planner silent for {r.silence:.2g} s (cmd_timeout {cfg.cmd_timeout:g} s)')
+        why = f'driving straight on: {silent}' if cfg.constant_speed else f'stopped: {silent}'
     else:
         # the robot's bound, whatever the planner asked (angular.z = 1e30 goes out as w_max)
-        why = 'clear: no obstacle near' if k < 0 else f'clear: V={value:.3g} > alpha={level:.3g}'
+        clear = 'nothing near' if k < 0 else f'clear of {label} (V={value:.3g} > alpha={level:.3g})'
+        why = clear if r.limit else f'passing the planner\'s command: {clear}'
+    if r.limit:
+        why = f'{r.limit}; {why}'
     return FilterOutput(r.omega, v, a, why, **common)

@@ -33,7 +33,6 @@ import numpy as np
 
 from ..reach.grid import wrap_angle
 from ..sim.laser import beam_angles, ray_cast
-from . import sensing
 from .decide import step_many
 from .inputs import RobotFilter
 from .propagation import arc_flow
@@ -87,38 +86,85 @@ class TrialResult:
 
 @dataclass(frozen=True)
 class ScanSensor:
-    """A robot that sees its layout only through a planar laser, as ``supersafe team --sensors
-    scan`` does: ``beams`` beams round the full circle ray-cast from the robot's centre against
-    the discs whose centre is within ``range_max`` (the simulated robot's sensor,
-    ``sim.laser``), the returns made discs by the filter node's pipeline
-    (``sensing.range_discs``: ``robot_radius``, ``depth``, ``cell``, ``max_radius`` as its
-    ``robot_radius``, ``obstacle_depth``, ``sensor_cell``, ``sensor_max_disc_radius``), placed
-    with the pose of the scan's own step (gap 0). ``stale_probability``: the filter decides
-    with the previous step's scan (its message came after the pose), as in the graph.
-    ``markers``: the filter is given the seen discs themselves (a MarkerArray of the exact
-    obstacles, same range), the reference that tells the covering from the rest."""
+    """A robot that sees its layout only through a planar laser, as ``supersafe team --sensors scan``
+    does: ``beams`` beams round the full circle ray-cast from the robot's centre against the discs
+    whose centre is within ``range_max`` (the simulated robot's sensor, ``sim.laser``; +inf where
+    nothing is within range), its scans kept in a local map and judged by the map's one avoid value,
+    as the filter node does with ``detections_type`` laser_scan (``filter_inputs.SensorMap``): each
+    scan's REP 117 readings (``range_readings.scan_rays``, a +inf clearing to range_max with
+    ``inf_is_valid``) put into a ``local_map.LocalMap`` (``cell``, ``size``, ``depth``) at the
+    scan's own pose (gap 0), and the map's value (``map_value``: ``value_cell``,
+    ``value_headings``, ``value_horizon``, ``value_reach``, the robot's clearance ``robot_radius``)
+    solved every ``value_every`` steps and in force one step after it was asked for (a background
+    solve's latency: the value is that of the map at its solve time). ``stale_probability``: the
+    filter decides on the previous scan's map. ``markers``: the filter is given the seen discs
+    themselves (a MarkerArray of the exact obstacles within range), the reference that tells what
+    the map and its value do from what the law does with exact discs."""
 
     beams: int = 360
     range_max: float = 10.0
     robot_radius: float = 0.1
     depth: float = 5.2
-    cell: float = 0.5
-    max_radius: float = 1.6
+    cell: float = 0.2
+    size: float = 30.0
+    inf_is_valid: bool = True
+    value_cell: float = 0.25
+    value_headings: int = 38
+    value_horizon: float = 1.5
+    value_reach: float = 3.0
+    value_every: int = 2
     stale_probability: float = 0.0
     markers: bool = False
 
-    def discs(self, state, layout, radii, config) -> np.ndarray:
-        """(K, 3) discs the filter is given for a scan taken at ``state`` of ``layout`` (K, 2)
-        centres of ``radii``."""
+    def discs(self, state, layout, radii) -> np.ndarray:
+        """``markers``: the (K, 3) discs within range of ``state``, what a MarkerArray detector gives."""
         near = np.hypot(layout[:, 0] - state[0], layout[:, 1] - state[1]) <= self.range_max
-        if self.markers:
-            return np.column_stack([layout[near], radii[near]])
-        ranges = ray_cast(state, beam_angles(self.beams), layout[near], radii[near], self.range_max)
-        a = beam_angles(self.beams)
-        ok = np.isfinite(ranges)
-        points = np.column_stack([ranges[ok] * np.cos(a[ok]), ranges[ok] * np.sin(a[ok])])
-        return sensing.range_discs(points, state, 0.0, (0.0, 0.0, 0.0), self.robot_radius, self.depth,
-                                   self.cell, self.max_radius, config.speed, config.omega_max)
+        return np.column_stack([layout[near], radii[near]])
+
+    def robot(self, config) -> '_MapRobot':
+        """One robot's map, its value (solved inline, in force a step later) and its view."""
+        return _MapRobot(self, config)
+
+
+class _MapRobot:
+    """A ``ScanSensor`` robot's local map and values (``view``: what its filter judges by)."""
+
+    def __init__(self, sensor: ScanSensor, config):
+        from .local_map import LocalMap, MapSettings
+        from .map_rows import MapView
+        from .map_value import MapValueSettings, MapValueWorker
+        self.sensor = sensor
+        self.map = LocalMap(MapSettings(cell=sensor.cell, size=sensor.size, depth=sensor.depth))
+        settings = MapValueSettings(cell=sensor.value_cell, headings=sensor.value_headings,
+                                    horizon=sensor.value_horizon, reach=sensor.value_reach,
+                                    recentre=min(0.5, sensor.value_reach))
+        self.worker = MapValueWorker(config.speed, config.omega_max, sensor.robot_radius, settings, inline=True)
+        self.in_force = None          # the value solved at the last request, in force from the next step
+        self.view = MapView(self.map, sensor.robot_radius, self, 'scan')
+        self.steps = 0
+
+    def latest(self):
+        return self.in_force
+
+    def scan(self, state, layout, radii) -> None:
+        """A scan of ``layout`` taken at ``state``, put into the map."""
+        from .range_readings import scan_rays
+        s = self.sensor
+        a = beam_angles(s.beams)
+        near = np.hypot(layout[:, 0] - state[0], layout[:, 1] - state[1]) <= s.range_max + radii
+        ranges = ray_cast(state, a, layout[near], radii[near], s.range_max)
+        rays = scan_rays(ranges, float(a[0]), float(a[-1]), float(a[1] - a[0]), 0.05, s.range_max,
+                         inf_is_valid=s.inf_is_valid)
+        self.map.follow(float(state[0]), float(state[1]))
+        self.map.integrate_rays((float(state[0]), float(state[1]), float(state[2])), rays)
+
+    def step(self, state) -> None:
+        """One step: the value asked for a step ago comes into force; every ``value_every`` steps the
+        map's value is asked for around ``state``."""
+        self.in_force = self.worker.latest()
+        if self.steps % self.sensor.value_every == 0:
+            self.worker.submit(self.map.snapshot(), (float(state[0]), float(state[1])), stamp=self.steps)
+        self.steps += 1
 
 
 def single_disc_trials(n, rng, distance=9.0, offset=3.0, heading_noise=0.3) -> list:
@@ -244,10 +290,10 @@ def run_trials(trials, guard, step=0.05, stale_probability=0.0, late_probability
     running (``speed_profiles``); None: ``speed`` throughout. The robot drives at the
     linear.x it was sent (clipped to [0, speed]), a constant-speed robot at ``speed``.
 
-    ``sensor``: a ``ScanSensor``: the filter is given the discs of a laser scan of the layout
-    (``solve_clusters=False``, as the node takes them; ``safe_set`` tells it which discs its
-    value function's grid can reach) instead of the layout's discs; collisions are still
-    counted against the layout. ``trace``: a list to which each decision's (trial, t, state,
+    ``sensor``: a ``ScanSensor``: the filter sees the layout through a laser, its scans kept in a
+    local map judged by the map's value (as the node does), or with ``markers`` the discs within
+    range (``safe_set`` tells it which discs its value function's grid can reach); collisions are
+    still counted against the layout. ``trace``: a list to which each decision's (trial, t, state,
     action, discs given) is appended (to look at a crash).
 
     ``guard(filters, t)`` returns one FilterOutput per filter: e.g.
@@ -273,6 +319,8 @@ def run_trials(trials, guard, step=0.05, stale_probability=0.0, late_probability
             radii[i, :len(d)] = d[:, 2]
     inside = np.zeros((n, width), dtype=bool)
     scans = [None] * n                              # with a sensor: the scan's discs each filter holds
+    mapped = sensor is not None and not sensor.markers
+    robots = [sensor.robot(config) for _ in range(n)] if mapped else None
     deepest = np.zeros((n, width))
     active = np.ones(n, dtype=bool)
     res = TrialResult(trials=n)
@@ -303,10 +351,16 @@ def run_trials(trials, guard, step=0.05, stale_probability=0.0, late_probability
                 f.update_pose(state[i], t, stamp=t)
             if sensor is None:
                 f.update_detections(trials[i].discs, t)
+            elif mapped:
+                robot = robots[i]
+                robot.step(state[i])
+                if k == 0 or rng.random() >= sensor.stale_probability:
+                    robot.scan(state[i], discs[i], radii[i])
+                f.update_view(robot.view, t)
             else:
                 if k == 0 or rng.random() >= sensor.stale_probability:
-                    scans[i] = sensor.discs(state[i], discs[i], radii[i], config)
-                f.update_detections(scans[i], t, safe_set, solve_clusters=False)
+                    scans[i] = sensor.discs(state[i], discs[i], radii[i])
+                f.update_detections(scans[i], t, safe_set)
             f.update_command(float(planned[j]), t, None if speeds is None else float(linear[j]))
         outs = guard([filters[i] for i in idx], t)
         decided = np.clip(np.array([o.omega for o in outs]), -omega_max, omega_max)

@@ -6,8 +6,13 @@ one DiagnosticStatus per robot: ``statuses()`` gives them (the robot's last stat
 pass, WARN override, ERROR fail safe, the reason saying which input is stale or refused),
 named ``<node>: <robot>``. Before the same publish it looks at the graph: a publisher on an
 input topic whose type is not the one the filter reads (a TwistStamped planner on
-``cmd_vel_nav`` while Twist is expected) is logged as a WARN naming both types, and every
-status of the node says so (at least WARN) while that publisher stays.
+``cmd_vel_nav`` while Twist is expected), or more than one publisher of it (a second driver
+beside the real one, a replay, a spoof), is logged as a WARN naming the types or the nodes,
+and every status of the node says so (at least WARN) while it stays.
+
+A node that publishes /diagnostics itself (``publishes_diagnostics`` true: a managed filter,
+nodes/managed.py, whose publisher and timer are there in every lifecycle state) gets neither
+from here: it publishes ``array()`` while active.
 """
 from __future__ import annotations
 
@@ -29,8 +34,19 @@ def type_name(msg_type) -> str:
 
 def foreign_publishers(node, topic: str, expected: str) -> list:
     """Types of the publishers on ``topic`` (as ``node`` resolves it) other than ``expected``."""
+    return publishers_of(node, topic, expected)[0]
+
+
+def publishers_of(node, topic: str, expected: str):
+    """(the types of the publishers on ``topic`` other than ``expected``, the fully qualified names
+    of the nodes publishing ``expected`` there, one per publisher, sorted)."""
     infos = node.get_publishers_info_by_topic(node.resolve_topic_name(topic))
-    return sorted({i.topic_type for i in infos} - {expected})
+    names = sorted(_qualified(i.node_namespace, i.node_name) for i in infos if i.topic_type == expected)
+    return sorted({i.topic_type for i in infos} - {expected}), names
+
+
+def _qualified(namespace: str, name: str) -> str:
+    return f'{namespace.rstrip("/")}/{name}' if namespace else f'/{name}'
 
 
 class StatusCopies:
@@ -67,17 +83,26 @@ class FilterDiagnostics:
         self._found = {}           # topic -> its note, while a foreign publisher stays
         self.notes = []            # the input topics' foreign publishers, said in every status
         self.published = 0
-        self.pub = node.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, rosmsg.QOS_STREAM)
-        self.timer = node.create_timer(period, self.publish, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self.pub = self.timer = None
+        if not getattr(node, 'publishes_diagnostics', False):
+            self.pub = node.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, rosmsg.QOS_STREAM)
+            self.timer = node.create_timer(period, self.publish, clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def check_graph(self) -> list:
         n = len(self.inputs)
         for k in range(min(n, self.checks)):
             topic, expected = self.inputs[(self._next + k) % n]
-            others = foreign_publishers(self.node, topic, expected)
+            others, names = publishers_of(self.node, topic, expected)
+            notes = []
             if others:
-                self._found[topic] = (f'{topic} has a publisher of {", ".join(others)}; this filter reads '
-                                      f'{expected} there (its messages are not received: the input looks silent)')
+                notes.append(f'{topic} has a publisher of {", ".join(others)}; this filter reads {expected} there '
+                             '(its messages are not received: the input looks silent)')
+            if len(names) > 1:
+                # two sources on one input: a second driver, a replay, a spoof; their messages mix
+                notes.append(f'{topic} has {len(names)} publishers ({", ".join(names)}): their messages are '
+                             'taken as one source; check that only one should publish there')
+            if notes:
+                self._found[topic] = '; '.join(notes)
             else:
                 self._found.pop(topic, None)
         self._next = (self._next + min(n, self.checks)) % n if n else 0
@@ -86,7 +111,8 @@ class FilterDiagnostics:
             self.complain(f'type {note}', note, level='warn')
         return self.notes
 
-    def publish(self):
+    def array(self) -> DiagnosticArray:
+        """The node's statuses now, each raised to WARN and noted while a foreign publisher stays."""
         notes = self.check_graph()
         out = DiagnosticArray()
         out.header.stamp = self.node.get_clock().now().to_msg()
@@ -95,5 +121,8 @@ class FilterDiagnostics:
                 status.level = bytes([max(status.level[0], WARN)])
                 status.message = '; '.join([status.message, *notes]) if status.message else '; '.join(notes)
             out.status.append(status)
-        self.pub.publish(out)
+        return out
+
+    def publish(self):
+        self.pub.publish(self.array())
         self.published += 1

@@ -116,10 +116,13 @@ class StateReporter:
             self._errors_told[id(store)] = told + len(new)
         return failed
 
-    def state_message(self, name: str, out):
-        """The state of robot ``name`` (one status object per robot, refilled each time)."""
+    def state_message(self, name: str, out, extra=None):
+        """The state of robot ``name`` (one status object per robot, refilled each time); ``extra``:
+        more values (a robot judged by its local map: the map's and its value's)."""
         old = self._msgs.get(name)
         values, message = self.state_values(out), f'{out.action}: {out.reason}'
+        if extra:
+            values.update(extra)
         status = (rosmsg.make_diagnostic(name, values, message, out.level) if old is None else
                   rosmsg.refill_diagnostic(old, name, values, message, out.level))
         self._msgs[name] = status

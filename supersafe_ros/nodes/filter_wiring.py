@@ -51,6 +51,23 @@ def standard_value_function(lo, hi, shape, speed, omega_max, radius, horizon, ca
                          radius, horizon if horizon > 0 else None, cache_dir=cache_dir or None)
 
 
+def describe_age(age: float) -> str:
+    """A stamp's age in words an operator reads: '1.0 h in the past', '2.5 s in the future',
+    '57 years in the past' (a stamp of another clock against the system's)."""
+    a = abs(age)
+    if a < 60.0:
+        size = f'{a:.2g} s'
+    elif a < 3600.0:
+        size = f'{a / 60.0:.1f} min'
+    elif a < 172800.0:
+        size = f'{a / 3600.0:.1f} h'
+    elif a < 3.0e7:
+        size = f'{a / 86400.0:.0f} days'
+    else:
+        size = f'{a / 31557600.0:.0f} years'
+    return f'{size} in the {"past" if age >= 0.0 else "future"}'
+
+
 class FilterWiring:
     """A filter node's parts put together: parameters, filters, the set in force (selector),
     time base and state messages (see the module)."""
@@ -75,10 +92,11 @@ class FilterWiring:
             vf, p.standard_alpha, alpha_offset=p.alpha_offset, use_learned=p.use_learned,
             max_bytes=p.max_value_function_bytes, decode=serialized_to_value_function, level=learned_alpha,
             log=self.log, lock=lock)
+        how = 'loaded from the cache' if getattr(vf, 'from_cache', False) else 'solved and cached'
         self.log.info(
-            f'standard set ready in {time.perf_counter() - t0:.2f} s: grid {tuple(p.standard_shape)}, '
-            f'speed {c.speed}, w_max {c.omega_max}, radius {c.radius}, horizon {p.standard_horizon}, '
-            f'alpha {p.standard_alpha}; '
+            f'standard set {how} in {time.perf_counter() - t0:.2f} s ({getattr(vf, "cache_path", "no file")}): '
+            f'grid {tuple(p.standard_shape)}, speed {c.speed}, w_max {c.omega_max}, radius {c.radius}, '
+            f'horizon {p.standard_horizon}, alpha {p.standard_alpha}; '
             f'{"sim time (wall clock when /clock stands still)" if p.use_sim_time else "wall time"}')
         self.complain = Complaints(self.log).complain
         self._reporter = StateReporter(self.log, self.selector, self.time, lambda: self.params.config)
@@ -152,9 +170,8 @@ class FilterWiring:
         tolerance = self.params.stamp_tolerance
         if tau_stamp is not None and abs(ros - stamp_s) > tolerance:
             raise rosmsg.MessageError(
-                f'stamp {stamp_s:.9g} s is {ros - stamp_s:+.6g} s from the node\'s clock ({ros:.9g} s, '
-                f'{"sim" if self.time.sim else "system"} time): another clock or a clock jump '
-                f'(stamp_tolerance {tolerance:g} s)')
+                f'stamped {describe_age(ros - stamp_s)} by the node\'s {"sim" if self.time.sim else "system"} '
+                f'clock: another clock or a clock jump (stamp_tolerance {tolerance:g} s)')
         return tau_stamp
 
     def close(self):

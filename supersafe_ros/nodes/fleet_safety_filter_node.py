@@ -402,6 +402,18 @@ class FleetSafetyFilter:
         if back:
             self.get_logger().info(f'inputs valid again, filtering: {names(back)}')
 
+    def send_zero_twist(self) -> list:
+        """One zero twist on every robot's cmd_vel (per-robot and batched topics): a managed node
+        going quiet (managed.py), the bases must not keep the last commands; the publishers."""
+        sent = [topics.cmd_pub for topics in self.topics]
+        zero = cdr.twist_bytes(0.0, 0.0)
+        for pub in sent:
+            pub.publish(zero)
+        if self.batched:
+            self.fleet_cmd_pub.publish(fleetmsg.commands_to_msg(np.zeros((self.n, 2))))
+            sent.append(self.fleet_cmd_pub)
+        return sent
+
     def close(self):
         self.wiring.close()
         self.wiring.live.close()

@@ -67,6 +67,7 @@ check of learned sets (on a worker thread, off the control path): ``filter_wirin
 """
 from __future__ import annotations
 
+import re
 import threading
 import time
 
@@ -79,13 +80,14 @@ from std_msgs.msg import Empty
 import numpy as np
 
 from ..filter import FAIL_SAFE
+from ..filter.commands import command_fresh
 from ..filter.lockstep import GIVE_UP, LockstepAnswers
 from ..ros_io import cdr, rosmsg, sensors
 from ..ros_io.direct_take import DirectTake
 from .common import ParameterSpec, declare_all, run_node
 from .filter_diagnostics import FilterDiagnostics, StatusCopies
-from .filter_inputs import (INPUT_PARAMETERS, RANGE_SENSORS, PoseHistory, SensorDiscs, check_types,
-                            command_message_type, message_type, pose_of)
+from .filter_inputs import (INPUT_PARAMETERS, MAP_SENSORS, RANGE_SENSORS, PoseHistory, SensorMap, check_types,
+                            command_message_type, message_type)
 from .filter_state import HoldSummary, StateThrottle
 from .managed import node_classes
 from .filter_wiring import VALUE_FUNCTION_TOPIC, FilterWiring  # noqa: F401  (the topic, re-exported for tests)
@@ -115,6 +117,9 @@ PARAMETERS = (
     *INPUT_PARAMETERS,
 )
 NO_DETECTIONS = np.zeros((0, 2))
+# each pose_type's raw reader: a PoseStamped view of the bytes (ros_io.cdr)
+POSE_READERS = {'pose_stamped': cdr.pose_stamped, 'odometry': cdr.odometry,
+                'pose_with_covariance': cdr.pose_with_covariance}
 
 
 class SafetyFilter:
@@ -134,16 +139,27 @@ class SafetyFilter:
         check_types(p)
         self.types = p
         self.poses = PoseHistory()
-        self.sensor = SensorDiscs(p, self.poses) if p['detections_type'] in RANGE_SENSORS else None
         c = w.params.config
+        self.sensor = None
+        if p['detections_type'] in MAP_SENSORS:
+            self.sensor = SensorMap(p, self.poses, c, w.params.standard_horizon, w.frame, inline=p['lockstep'])
+            s = self.sensor.value_settings
+            self.get_logger().info(
+                f"{self.sensor.view.sensor}: a local map of {p['map_size']:g} m at {p['map_cell']:g} m cells, judged "
+                f"by "
+                f'its avoid value (speed {c.speed:g}, w_max {c.omega_max:g}, clearance {p["robot_radius"]:g} m, '
+                f'horizon {s.horizon:g} s, {s.cell:g} m x {s.headings} headings), solved again in the background at '
+                f'most every {p["value_period"]:g} s while the map changes')
         if self.sensor is not None and c.time_before_collision <= 0.0 and not c.constant_speed:
-            # a scan's discs change every message: the value function alone does not keep the
-            # promise there (bench/results/sensors.md); the speed cut does, for a robot that can stop
+            # the map's value is that of the map at its solve time; what the map learns between
+            # solves is judged only by the speed cut, for a robot that can stop
             self.get_logger().warning(
                 f"detections_type {p['detections_type']}: time_before_collision is 0, so nothing stops this "
-                'robot before an obstacle the scan saw when its discs change between messages; set it > 0 '
+                'robot before an obstacle the map learned since its value was last solved; set it > 0 '
                 '(config/nav2_safety_filter.yaml: 0.5; docs/filter_node.md, "Stop before collision")')
-        self._cmd_frame = ''              # the planner's TwistStamped frame, stamped on cmd_vel
+        self._first_value = None        # the map's first value, told once
+        self._cmd_frame = ''              # the planner's TwistStamped frame and stamp, on the cmd_vel judged from it
+        self._cmd_stamp = None
         self.publish_on_pose = p['publish_on_pose']
         w.live.add('publish_on_pose', lambda v: setattr(self, 'publish_on_pose', bool(v)))
         self.lockstep = p['lockstep']
@@ -154,6 +170,8 @@ class SafetyFilter:
         self._throttle = StateThrottle()
         self._holds = HoldSummary(self.get_logger())
         self._failing = None           # the fail-safe story: None (start), True, False
+        self._silence_told = False     # the planner's silence said (once per silence)
+        self._decided_at = 0.0
         self._waiting_told = False     # said once why it fails safe while starting
         self.decisions = 0
         self.require_detections = p['require_detections']
@@ -164,24 +182,27 @@ class SafetyFilter:
                                              rosmsg.QOS_STREAM)
         self.state_pub = self.create_publisher(DiagnosticStatus, 'safety_filter/state', rosmsg.QOS_STREAM)
         self.timer = None
-        self._set_rate(w.rate)
+        self.direct = None
         # RViz: the level set in force around each detected obstacle (computed only while watched)
         if p['level_set_markers']:
             self.level_set = LevelSetMarkerPublisher(
                 self, lambda: (w.safe_set, self.filter.pose.value, self.filter.detections.value),
                 p['level_set_rate'])
-        self.direct = None
         inputs = self._inputs(p)
         if p['direct_take'] and not self.lockstep:
+            # the inputs and the watchdog on a thread of their own (the executor keeps parameters, lifecycle
+            # and /diagnostics)
             self.direct = DirectTake(self, self.lock, path=w.params.take_path)
             try:
                 for msg_type, topic, callback, raw, qos in inputs:
                     self.direct.add(msg_type, topic, callback, qos, raw=raw)
+                self._set_rate(w.rate)
             except BaseException:
                 self.direct.close()
                 raise
             self.direct.start()
         else:
+            self._set_rate(w.rate)
             # lockstep: the executor reads /clock before a pose that waits with it, so a pose the
             # clock has passed is known as such (_clock_passed); a thread of its own would not be
             for msg_type, topic, callback, raw, qos in inputs:
@@ -202,18 +223,18 @@ class SafetyFilter:
         objects built (on the path from pose to cmd_vel; for detections of any size); the others
         are decoded by rclpy. Ready together, they are taken in this order (the executor's: the
         order made), so a command is judged on the detections that came with it."""
-        pose_raw = p['pose_type'] == 'pose_stamped'
-        inputs = [(message_type(p['pose_type']), 'pose', self.on_pose if pose_raw else self.on_pose_message,
-                   pose_raw, rosmsg.QOS_STREAM)]
+        self._read_pose = POSE_READERS[p['pose_type']]
+        inputs = [(message_type(p['pose_type']), 'pose', self.on_pose, True, rosmsg.QOS_STREAM)]
         if self.require_detections:
             kind = p['detections_type']
             callback = {'pose_array': self.on_detections, 'marker_array': self.on_markers}.get(
                 kind, self.on_range_sensor)
+            # (a costmap's transient-local publisher matches this reliable, volatile stream)
             qos = qos_profile_sensor_data if kind in RANGE_SENSORS else rosmsg.QOS_STREAM
             inputs.append((message_type(kind), 'detections', callback, kind == 'pose_array', qos))
         stamped = p['cmd_vel_stamped']
         inputs.append((command_message_type(stamped), 'cmd_vel_nav',
-                       self.on_stamped_command if stamped else self.on_command, not stamped, rosmsg.QOS_STREAM))
+                       self.on_stamped_command if stamped else self.on_command, True, rosmsg.QOS_STREAM))
         return tuple(inputs)
 
     def _statuses(self) -> list:
@@ -224,13 +245,18 @@ class SafetyFilter:
             out = self._last_out
             if out is not None:
                 state = self.wiring.state_message(self.name, out)
-                return [self._copies.of(0, state, name, ns, None if self.active else
-                                        f'inactive (lifecycle): no cmd_vel; last: {state.message}')]
+                status = self._copies.of(0, state, name, ns, None if self.active else
+                                         f'inactive (lifecycle): no cmd_vel; last: {state.message}')
+                note = self.sensor.problem(self.filter.detections) if self.sensor is not None else ''
+                if note:        # what the sensor's last message says of itself (every beam NaN, ...)
+                    status.level = bytes([max(status.level[0], DiagnosticStatus.WARN[0])])
+                    status.message = f'{status.message}; {note}'
+                return [status]
         return [DiagnosticStatus(level=DiagnosticStatus.ERROR, name=name, hardware_id=ns,
                                  message='no decision yet' if self.active else 'inactive: no cmd_vel')]
 
     def _say_ready(self):
-        """Make the latched safety_filter/ready publisher (once; on the executor's thread)."""
+        """Make the latched safety_filter/ready publisher (once; from the watchdog's thread)."""
         if self.ready_pub is None:
             self.ready_pub = self.create_publisher(Empty, 'safety_filter/ready', rosmsg.QOS_LATCHED)
             self.ready_pub.publish(Empty())
@@ -243,18 +269,22 @@ class SafetyFilter:
 
     def _set_rate(self, rate):
         self.period = 1.0 / rate
+        if self.direct is not None:          # the inputs' thread serves the watchdog (under the lock)
+            self.direct.tick(self.period, self.on_watchdog)
+            return
         if self.timer is not None:
             self.destroy_timer(self.timer)
         self.timer = self.create_timer(self.period, self._locked(self.on_watchdog), clock=self.wiring.steady)
 
     # -- inputs -----------------------------------------------------------------------------
     def on_pose(self, data):
-        """A serialized PoseStamped (raw subscription)."""
+        """A serialized PoseStamped, Odometry or PoseWithCovarianceStamped (``pose_type``; raw: its pose
+        read from the CDR bytes, ``ros_io.cdr``, with the frame and checks of a message's)."""
         w = self.wiring
         t = w.now()
         msg = None
         try:
-            msg = cdr.pose_stamped(data)
+            msg = self._read_pose(data)
             self._take_pose(rosmsg.pose_to_state(msg, w.frame), t, w.stamp(msg.header.stamp, t))
             if not self.require_detections:
                 self.filter.update_detections(NO_DETECTIONS, t)
@@ -273,19 +303,6 @@ class SafetyFilter:
             self.decide(t, answers_pose=True)
         elif self.publish_on_pose:
             self.decide(t)
-
-    def on_pose_message(self, msg):
-        """An Odometry or PoseWithCovarianceStamped (pose_type): its pose.pose in its header's frame."""
-        w = self.wiring
-        t = w.now()
-        try:
-            self._take_pose(pose_of(msg, w.frame), t, w.stamp(msg.header.stamp, t))
-            if not self.require_detections:
-                self.filter.update_detections(NO_DETECTIONS, t)
-        except ValueError as exc:
-            self.filter.reject_pose(str(exc), t)
-            w.complain('pose', f'pose rejected: {exc}; failing safe', level='error')
-        self._answer_pose(t, msg.header.stamp)
 
     def _take_pose(self, state, t, stamp):
         self.filter.update_pose(state, t, stamp=stamp)
@@ -330,23 +347,58 @@ class SafetyFilter:
         self._take_detections(discs, t)
 
     def on_range_sensor(self, msg):
-        """A LaserScan or PointCloud2 (detections_type): its returns as covering discs in map,
-        placed with the pose nearest its stamp (filter_inputs.SensorDiscs); a message with no
-        return in range is "looked, nothing seen"."""
+        """A LaserScan, PointCloud2 or OccupancyGrid (detections_type): checked, placed with the robot's pose
+        at its stamp and put into the local map (filter_inputs.SensorMap); the map's value asked for again;
+        then a decision (every sensor message triggers one, but in lockstep). A message refused leaves the
+        map as it was: the filter fails safe once its last valid view is ``detections_timeout`` old."""
         w = self.wiring
         t = w.now()
-        if not self.poses.stamps:       # starting: the scan came before the first pose (said once, not an error)
-            self.filter.reject_detections('no pose received yet to place the returns with', t)
-            w.complain('detections before pose', 'a scan before the first pose: waiting for a pose to place its '
+        sensor = self.sensor.view.sensor
+        if not self.poses.stamps and self.sensor.kind != 'occupancy_grid':
+            # starting: the scan came before the first pose (said once, not an error)
+            w.complain('detections before pose', f'a {sensor} before the first pose: waiting for a pose to place its '
                        'returns with (failing safe until then)', level='info')
             return
         try:
             stamp = w.stamp(msg.header.stamp, t)
-            discs = self.sensor.discs(msg, t if stamp is None else stamp, w.config, w.config.pose_timeout)
-        except ValueError as exc:
-            self._refuse_detections(exc, t)
+            summary, learned = self.sensor.take(msg, t if stamp is None else stamp, w.config, w.config.pose_timeout)
+        except ValueError as exc:     # MessageError: the fault named; the view stays as it was
+            why = str(exc) if str(exc).startswith(f'{sensor} refused') else f'{sensor} refused: {exc}'
+            self.filter.refuse_view(why, t)
+            # each kind of fault logged (throttled per kind: its words with the numbers masked)
+            w.complain(re.sub(r'[-+0-9.eE]+', '#', why), f'{why}; the map stays as it was (failing safe once its last '
+                       f'valid view is detections_timeout {w.config.detections_timeout:g} s old)', level='error')
+        else:
+            if learned:
+                self.filter.update_view(self.sensor.view, t)
+                self._inputs_ready = True      # the watchdog (executor thread) says so
+                if summary.problem:
+                    w.complain(f'{sensor} note', f'{sensor}: {summary.problem}', level='warn')
+            else:           # it did not look: blind, not "looked, nothing seen" (the map keeps what was seen)
+                self.filter.refuse_view(f'{sensor} did not look: {self.sensor.note}', t)    # (blind)
+                w.complain(f'{sensor} note', f'{sensor}: {self.sensor.note}; the map keeps what was seen (failing '
+                           f'safe once its last view is detections_timeout {w.config.detections_timeout:g} s old)',
+                           level='warn')
+            self._ask_value()
+        if not self.lockstep:
+            self.decide(t)
+
+    def _ask_value(self):
+        """The map's value solved again around the robot (at most every value_period), for the set in force:
+        the learned w_max where a learned set is, the robot's own otherwise."""
+        newest = self.poses.newest
+        if newest is None or not self.active:     # (inactive: no decision reads it; solved again once active)
             return
-        self._take_detections(discs, t, solve_clusters=False)     # new geometry every message: no union solve
+        safe = self.wiring.safe_set
+        learned = safe.source == 'learned' and safe.omega_max is not None
+        omega = safe.omega_max if learned else self.wiring.config.omega_max
+        self.sensor.solve(float(omega), self.wiring.now(), float(newest[0]), float(newest[1]))
+        value = self.sensor.worker.latest()
+        if value is not None and self._first_value is None:
+            self._first_value = value
+            g = value.vf.grid
+            self.get_logger().info(f'{self.sensor.view.sensor} map: its first value solved in {value.solve_s:.3g} s '
+                                   f'(a window of {g.hi[0] - g.lo[0]:.3g} m, grid {g.shape})')
 
     def _refuse_detections(self, exc, t):
         self.filter.reject_detections(str(exc), t)
@@ -364,22 +416,28 @@ class SafetyFilter:
         if d.dropped:
             w.complain('detections dropped', d.note, level='warn' if d.dropped_safely else 'error')
 
-    def on_stamped_command(self, msg):
-        """A TwistStamped (cmd_vel_stamped): its twist judged as on_command's; its frame is the
-        frame of the cmd_vel sent."""
-        self._cmd_frame = msg.header.frame_id
-        self.on_command(msg.twist)
+    def on_stamped_command(self, data):
+        """A serialized TwistStamped (cmd_vel_stamped): its twist judged as on_command's; its header is that
+        of the cmd_vel judged from it."""
+        try:
+            header, twist = cdr.twist_stamped(data)
+        except ValueError:
+            self.on_command(data)       # (unreadable: refused there, said)
+            return
+        self._cmd_frame, self._cmd_stamp = header.frame_id, header.stamp
+        self.on_command(twist)
 
     def on_command(self, data):
         """A serialized Twist (raw subscription), or a Twist."""
         w = self.wiring
         t = w.now()
         try:
-            msg = data if isinstance(data, Twist) else cdr.twist(data)
-            self.filter.update_command(rosmsg.twist_turn_rate(msg), t, msg.linear.x)
-        except ValueError as exc:
-            w.complain('cmd', f'cmd_vel_nav rejected: {exc}; the previous command stays in force until it is '
-                       f'cmd_timeout ({self.filter.config.cmd_timeout:g} s) old, then a zero twist goes out')
+            msg = cdr.twist(data) if isinstance(data, (bytes, bytearray, memoryview)) else data
+            self.filter.update_command(msg.angular.z, t, msg.linear.x)
+        except ValueError as exc:   # not finite (update_command), or unreadable
+            if not self.filter.command.rejected:
+                self.filter.refuse_command(f'unreadable ({exc})', t)
+            w.complain('cmd', f'cmd_vel_nav rejected: {self.filter.command.note}')
         else:
             if self.filter.command.note:
                 w.complain('cmd clipped', f'cmd_vel_nav beyond the robot\'s limits: {self.filter.command.note}')
@@ -415,6 +473,7 @@ class SafetyFilter:
         w = self.wiring
         t = w.now() if t is None else t
         out = self.filter.step(w.safe_set, t)
+        self._decided_at = t
         verdict = self.answers.judge(t, time.monotonic(), out.clusters_solving, answers_pose)
         if not verdict.publish:
             return None
@@ -422,23 +481,28 @@ class SafetyFilter:
             w.complain('cluster_hold', f'{verdict.why}: answering with the fallback until it lands', level='warn')
         elif verdict.held_for is not None:
             self._holds.held(verdict.held_for)
-        self._publish_command(out)
+        self._publish_command(out, t)
         now = time.monotonic()
         self._last_publish = now
         self.decisions += 1
         self._last_out = out
         self._tell_story(out)
         if self._throttle.due(now, out.action, w.set_update, w.state_period):
-            self.state_pub.publish(w.state_message(self.name, out))
+            extra = None if self.sensor is None else self.sensor.state_values(self.filter.detections)
+            self.state_pub.publish(w.state_message(self.name, out, extra))
         return out
 
-    def _publish_command(self, out):
+    def _publish_command(self, out, t):
         if self.types['cmd_vel_stamped']:
-            msg = TwistStamped()
-            msg.header.stamp = self.get_clock().now().to_msg()      # the decision's time
-            msg.header.frame_id = self._cmd_frame
-            msg.twist.linear.x, msg.twist.angular.z = float(out.linear), float(out.omega)
-            self.cmd_pub.publish(msg)
+            # the planner's header on what was judged from its command (as Nav2's collision_monitor keeps it);
+            # the decision's time on what was not (a fail safe, a silent planner's zero twist)
+            judged = out.action != FAIL_SAFE and self._cmd_stamp is not None and command_fresh(self.filter, t)
+            if judged:
+                sec, nanosec = self._cmd_stamp.sec, self._cmd_stamp.nanosec
+            else:
+                sec, nanosec = divmod(self.get_clock().now().nanoseconds, 1_000_000_000)
+            self.cmd_pub.publish(cdr.twist_stamped_bytes(sec, nanosec, self._cmd_frame, float(out.linear),
+                                                         float(out.omega)))      # serialized: no message built
         else:
             self.cmd_pub.publish(cdr.twist_bytes(float(out.linear), float(out.omega)))   # serialized: no Twist built
 
@@ -460,13 +524,45 @@ class SafetyFilter:
         elif not failing and self._failing:
             self._failing = False
             self.get_logger().info(f'inputs valid again: filtering ({out.action}: {out.reason})')
+        # a planner gone silent (a robot that can stop is sent zero twists), once per silence
+        command = self.filter.command
+        silent = (command.value is not None and not command.rejected and not self.filter.config.constant_speed
+                  and not command_fresh(self.filter, self._decided_at))
+        if silent and not self._silence_told:
+            self._silence_told = True
+            self.get_logger().info(f'planner silent for more than cmd_timeout '
+                                   f'({self.filter.config.cmd_timeout:g} s): sending zero twists until it speaks')
+        elif not silent and self._silence_told and command_fresh(self.filter, self._decided_at):
+            self._silence_told = False
+            self.get_logger().info('planner speaking again')
+
+    def send_zero_twist(self) -> list:
+        """One zero twist on cmd_vel (a managed node going quiet, managed.py: the base must not
+        keep the last command), stamped as the decisions are; the publisher it went out on. Under
+        the lock: after a decision under way on the inputs' thread, never before it."""
+        with self.lock:
+            if self.types['cmd_vel_stamped']:
+                msg = TwistStamped()
+                msg.header.stamp = self.get_clock().now().to_msg()
+                msg.header.frame_id = self._cmd_frame          # the planner's last frame
+            else:
+                msg = Twist()
+            self.cmd_pub.publish(msg)
+        return [self.cmd_pub]
 
     def close(self):
-        if self.direct is not None:
-            self.direct.close()
-        self._holds.flush()
-        self.wiring.close()
-        self.wiring.live.close()
+        """Close what build() made, also when it failed half way (a managed node's failed configure)."""
+        for part in ('direct', 'sensor'):
+            made = getattr(self, part, None)
+            if made is not None:
+                made.close()
+        holds = getattr(self, '_holds', None)
+        if holds is not None:
+            holds.flush()
+        wiring = getattr(self, 'wiring', None)
+        if wiring is not None:
+            wiring.close()
+            wiring.live.close()
 
     def destroy_node(self):
         if getattr(self, 'direct', None) is not None:

@@ -47,21 +47,22 @@ def _key(grid: Grid, speed, omega_max, radius, horizon, settings: SolverSettings
 
 def load_or_solve(grid: Grid, speed: float, omega_max: float, radius: float, horizon=None,
                   cache_dir=None, settings: SolverSettings | None = None) -> ValueFunction:
-    """Avoid value of a disc of ``radius`` at the origin, from the cache or solved and cached."""
+    """Avoid value of a disc of ``radius`` at the origin, from the cache or solved and cached
+    (``vf.from_cache`` says which, ``vf.cache_path`` where the file is)."""
     settings = settings or SolverSettings()
     cache = Path(cache_dir) if cache_dir is not None else default_cache_dir()
     path = cache / f'dubins-{_key(grid, speed, omega_max, radius, horizon, settings)}.npz'
     if path.exists():
         try:
             vf = ValueFunction.load_npz(path)
-            vf.from_cache = True
+            vf.from_cache, vf.cache_path = True, path
             return vf
         except (OSError, ValueError, KeyError) as exc:  # a damaged file is solved again
             print(f'supersafe: cached value function {path} unreadable ({exc}); solving again')
     vf = solve_avoid(grid, DubinsCar(speed, omega_max), Disc(0.0, 0.0, radius), horizon, settings)
     cache.mkdir(parents=True, exist_ok=True)
     vf.save_npz(path)
-    vf.from_cache = False
+    vf.from_cache, vf.cache_path = False, path
     return vf
 
 

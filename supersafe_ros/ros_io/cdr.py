@@ -7,8 +7,10 @@ sample of each is decoded, into light views with the message's attribute names
 (``header.stamp.sec``, ``pose.position.x``, ``angular.z``, ...), so the validators of
 ``rosmsg`` read them exactly as they read the messages (same values bit for bit, same
 errors). ``pose_array_xy`` reads a PoseArray's positions as one numpy array (detections of
-any size: bounded work, no object per pose). ``pose_array_bytes`` and ``twist_bytes``
-serialize a PoseArray of positions and a Twist.
+any size: bounded work, no object per pose). ``pose_array_bytes``, ``twist_bytes`` and
+``twist_stamped_bytes`` serialize a PoseArray of positions, a Twist and a TwistStamped; a robot
+stack's Odometry, AMCL's PoseWithCovarianceStamped and a TwistStamped are read the same way
+(``odometry``, ``pose_with_covariance``, ``twist_stamped``: the parts the filter reads).
 
 ``serialized_to_value_function`` reads a /safe_set/value_function message: rclpy's
 ``deserialize_message`` copies a 50 MB Float32MultiArray into a Python array in one C call
@@ -123,18 +125,49 @@ def _align(offset, size):
     return (offset + size - 1) & ~(size - 1)
 
 
-def pose_stamped(data):
-    """A PoseStamped view of serialized bytes (MessageError if they are not one)."""
+def _header_pose(data, type_name: str, skip_strings: int, fallback):
+    """A PoseStamped view of serialized bytes whose Header is followed by ``skip_strings`` strings
+    and then a Pose (7 float64); ``fallback(bytes)`` reads another encoding; MessageError naming
+    ``type_name`` if the bytes are not one."""
     b = body(data)
     if b is None:
-        from geometry_msgs.msg import PoseStamped as Msg
-        return deserialize_message(bytes(data), Msg)
+        return fallback(bytes(data))
     try:
         header, off = _header(b)
+        for _ in range(skip_strings):
+            _, off = _string(b, off)
         values = _POSE.unpack_from(b, _align(off, 8))
     except (struct.error, ValueError) as exc:
-        raise MessageError(f'pose is not a serialized PoseStamped ({exc})') from None
+        raise MessageError(f'pose is not a serialized {type_name} ({exc})') from None
     return PoseStamped(header, Pose(values))
+
+
+def pose_stamped(data):
+    """A PoseStamped view of serialized bytes (MessageError if they are not one)."""
+    def fallback(raw):
+        from geometry_msgs.msg import PoseStamped as Msg
+        return deserialize_message(raw, Msg)
+    return _header_pose(data, 'PoseStamped', 0, fallback)
+
+
+def odometry(data):
+    """A PoseStamped view (its header, ``pose`` the odometry's ``pose.pose``) of a serialized
+    nav_msgs/Odometry (MessageError if the bytes are not one): Header, string child_frame_id,
+    PoseWithCovariance (Pose, 36 float64), TwistWithCovariance; the covariances are not read."""
+    def fallback(raw):
+        from nav_msgs.msg import Odometry as Msg
+        msg = deserialize_message(raw, Msg)
+        return PoseStamped(msg.header, msg.pose.pose)
+    return _header_pose(data, 'Odometry', 1, fallback)
+
+
+def pose_with_covariance(data):
+    """A PoseStamped view (``pose`` its ``pose.pose``) of a serialized PoseWithCovarianceStamped (AMCL's)."""
+    def fallback(raw):
+        from geometry_msgs.msg import PoseWithCovarianceStamped as Msg
+        msg = deserialize_message(raw, Msg)
+        return PoseStamped(msg.header, msg.pose.pose)
+    return _header_pose(data, 'PoseWithCovarianceStamped', 0, fallback)
 
 
 def pose_array_layout(b, what: str):
@@ -191,6 +224,20 @@ def twist(data):
         return Twist(_TWIST.unpack_from(b, 0))
     except struct.error as exc:
         raise MessageError(f'command is not a serialized Twist ({exc})') from None
+
+
+def twist_stamped(data):
+    """(Header view, Twist view) of a serialized TwistStamped (MessageError if the bytes are not one)."""
+    b = body(data)
+    if b is None:
+        from geometry_msgs.msg import TwistStamped as Msg
+        msg = deserialize_message(bytes(data), Msg)
+        return msg.header, msg.twist
+    try:
+        header, off = _header(b)
+        return header, Twist(_TWIST.unpack_from(b, _align(off, 8)))
+    except (struct.error, ValueError) as exc:
+        raise MessageError(f'command is not a serialized TwistStamped ({exc})') from None
 
 
 def _string(b, off):
@@ -256,3 +303,11 @@ def pose_array_bytes(xy, frame_id: str = 'map', sec: int = 0, nanosec: int = 0) 
 def twist_bytes(linear_x: float, angular_z: float) -> bytes:
     """A serialized Twist with linear.x and angular.z (the rest 0), for ``publish``."""
     return ENCAPSULATION + _TWIST.pack(linear_x, 0.0, 0.0, 0.0, 0.0, angular_z)
+
+
+def twist_stamped_bytes(sec: int, nanosec: int, frame_id: str, linear_x: float, angular_z: float) -> bytes:
+    """A serialized TwistStamped with linear.x and angular.z (the rest 0), for ``publish``."""
+    name = frame_id.encode('utf-8') + b'\0'
+    out = _STAMP_LEN.pack(sec, nanosec, len(name)) + name
+    out += bytes(_align(len(out), 8) - len(out))
+    return ENCAPSULATION + out + _TWIST.pack(linear_x, 0.0, 0.0, 0.0, 0.0, angular_z)

@@ -45,6 +45,7 @@ from __future__ import annotations
 
 from contextlib import ExitStack
 import threading
+import time
 import traceback
 
 from rclpy.executors import SingleThreadedExecutor
@@ -81,6 +82,8 @@ class DirectTake:
         self._thread = None
         self._errors = set()
         self.taken = 0
+        self._tick = None                    # (period s, callback): a watchdog served by this thread (``tick``)
+        self._tick_timer = None
         if path == 'private' and not hasattr(_rclpy, 'WaitSet'):
             self._fall_back('rclpy has no _rclpy.WaitSet')
         node.context.on_shutdown(self._on_shutdown)
@@ -109,6 +112,22 @@ class DirectTake:
                 self._fall_back(f'rcl not reachable through ctypes: {exc}')
         return sub
 
+    def tick(self, period: float, callback) -> None:
+        """Call ``callback()`` every ``period`` steady seconds on this thread too, under the lock, between
+        takes (a node's watchdog, off its executor: an executor wake costs ~0.3 ms before its callback
+        runs; served by the private path's wait timeouts, or a steady timer of the helper node on the
+        public path). Again with a new period: that one from now on."""
+        self._tick = (float(period), callback)
+        self._next_tick = time.monotonic() + float(period)
+        if self._tick_timer is not None:
+            self.io.destroy_timer(self._tick_timer)
+            self._tick_timer = None
+        if self.path == 'public':
+            from rclpy.clock import Clock, ClockType
+            self._tick_timer = self.io.create_timer(float(period), lambda: self._deliver('tick', callback, None,
+                                                                                         call=True),
+                                                    clock=Clock(clock_type=ClockType.STEADY_TIME))
+
     def start(self):
         self._started = True
         if self.path == 'private':
@@ -118,6 +137,8 @@ class DirectTake:
             except Exception as exc:   # noqa: BLE001  a private binding that changed: the public path
                 self._fall_back(f'no rcl wait set: {type(exc).__name__}: {exc}')
         if self.path == 'public':
+            if self._tick is not None and self._tick_timer is None:      # (a fall back after tick())
+                self.tick(*self._tick)
             self._executor = SingleThreadedExecutor(context=self.io.context)
             self._executor.add_node(self.io)
             run = self._spin
@@ -149,13 +170,24 @@ class DirectTake:
                     for sub, _ in subs:
                         wait_set.add_subscription(sub.handle)
                     wait_set.add_guard_condition(self._stop.handle)
-                    wait_set.wait(-1)
+                    tick = self._tick
+                    if tick is None:
+                        wait_set.wait(-1)
+                    else:
+                        wait_set.wait(max(0, int((self._next_tick - time.monotonic()) * 1e9)))
                     if self._closing:
                         return
                     ready = wait_set.get_ready_entities('subscription')
                     for sub, callback in subs:
                         if sub.handle.pointer in ready:
                             self._take(sub, callback)
+                    if tick is not None:
+                        now = time.monotonic()
+                        if now >= self._next_tick:
+                            # the next tick a period on; after a long stall, a period from now (no burst)
+                            self._next_tick = (self._next_tick + tick[0] if now - self._next_tick < tick[0]
+                                               else now + tick[0])
+                            self._deliver('tick', tick[1], None, call=True)
         except Exception:   # noqa: BLE001  the context going away, or rcl failing: say so and end
             if not self._closing:
                 self._failed()
@@ -178,11 +210,12 @@ class DirectTake:
         if message is not None:
             self._deliver(sub.topic_name, callback, message)
 
-    def _deliver(self, topic, callback, message):
-        self.taken += 1
+    def _deliver(self, topic, callback, message, call=False):
+        if not call:
+            self.taken += 1
         try:
             with self.lock:
-                callback(message)
+                callback() if call else callback(message)
         except Exception as exc:   # noqa: BLE001  keep serving: the watchdog still stands
             self._said(topic, exc, 'callback failed')
 

@@ -1,5 +1,6 @@
-"""A robot stack's messages read as the filter's arrays: obstacles from markers, laser scans and
-point clouds, the pose from odometry and AMCL's pose, stamped commands.
+"""A robot stack's messages read as the filter's arrays: obstacles from markers, the pose from
+odometry and AMCL's pose (scans, clouds and costmaps go into a local map: ``filter.range_readings``
+checks them, ``nodes.filter_inputs.SensorMap`` takes them).
 
 * ``marker_discs(msg, frame)``: a visualization_msgs/MarkerArray as (N, 3) discs [x, y, r]. A
   message is the full current set of obstacles (as a PoseArray of detections is). CYLINDER and
@@ -8,11 +9,6 @@ point clouds, the pose from odometry and AMCL's pose, stamped commands.
   markers and the other types (arrows, lines, text, meshes...) add no obstacle and are counted
   (``ignored``). Every marker that adds an obstacle must be in ``frame`` with a finite position
   and positive scale, else the whole message is refused (MessageError).
-* ``scan_returns(msg)``: a sensor_msgs/LaserScan's returns (M, 2) in its own frame
-  (``filter.sensing.scan_points``).
-* ``cloud_returns(msg, max_points)``: a sensor_msgs/PointCloud2's x, y (M, 2) in its own frame
-  (``filter.sensing.cloud_xy``: FLOAT32 or FLOAT64 fields, any point_step, either byte order,
-  malformed sizes refused).
 * ``header_pose_to_state(header, pose, frame)``: (x, y, theta) of a pose with a header
   (nav_msgs/Odometry: ``msg.header``, ``msg.pose.pose``; PoseWithCovarianceStamped the same).
 """
@@ -22,7 +18,6 @@ import math
 
 import numpy as np
 
-from ..filter import sensing
 from .rosmsg import MessageError, quaternion_to_yaw
 
 # visualization_msgs/Marker constants (the message's, repeated to keep this module light)
@@ -48,26 +43,6 @@ def marker_discs(msg, frame: str):
         r = math.hypot(sx, sy) / 2.0 if m.type == CUBE else max(sx, sy) / 2.0
         rows.append((x, y, r))
     return np.array(rows, dtype=float).reshape(-1, 3), ignored
-
-
-def scan_returns(msg) -> np.ndarray:
-    """(M, 2) returns of a LaserScan in its frame; MessageError if its geometry is not finite."""
-    try:
-        return sensing.scan_points(msg.ranges, msg.angle_min, msg.angle_increment, msg.range_min,
-                                   msg.range_max)
-    except ValueError as exc:
-        raise MessageError(str(exc)) from None
-
-
-def cloud_returns(msg, max_points: int) -> np.ndarray:
-    """(M, 2) finite x, y of a PointCloud2 in its frame; MessageError with the reason if its
-    layout is malformed or it has more than ``max_points`` points."""
-    fields = {f.name: (int(f.offset), int(f.datatype), int(f.count)) for f in msg.fields}
-    try:
-        return sensing.cloud_xy(msg.data, fields, msg.point_step, msg.row_step, msg.width, msg.height,
-                                msg.is_bigendian, max_points)
-    except (ValueError, TypeError) as exc:
-        raise MessageError(f'point cloud refused: {exc}') from None
 
 
 def header_pose_to_state(header, pose, frame: str) -> tuple:
