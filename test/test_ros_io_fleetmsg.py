@@ -7,7 +7,8 @@ from rclpy.serialization import deserialize_message, serialize_message
 
 from diagnostic_msgs.msg import DiagnosticStatus
 
-from supersafe_ros.ros_io import fleetmsg, rosmsg
+from supersafe_ros.nodes.filter_state import Status
+from supersafe_ros.ros_io import cdr, fleetmsg, rosmsg
 from supersafe_ros.ros_io.rosmsg import MessageError
 
 
@@ -56,19 +57,20 @@ def test_truncated_or_foreign_buffers():
         fleetmsg.posearray_cdr_to_states(data[:-8], 5)
 
 
-def test_refilled_state_status_equals_a_new_one():
-    """A robot's state status is refilled in place (the fleet node's periodic states): it must
-    read back (serialized) exactly as a new one, whether the keys stay or change."""
+def test_a_serialized_state_reads_back_as_a_typed_one():
+    """A robot's state is written as CDR bytes (ros_io.cdr, the fleet node's hundreds a tick): it
+    must read back exactly as the typed status of the same fields, whatever its keys and values."""
     rng = np.random.default_rng(3)
     keys = [f'k{i}' for i in range(19)]
-    status = rosmsg.make_diagnostic('r0', {k: 'x' for k in keys}, 'start', 0)
     for trial in range(30):
         ks = keys if trial % 3 else keys[:int(rng.integers(1, 19))] + ['extra']
-        values = {k: rng.choice(['pass', 1.5, -3, float('nan'), '']) for k in ks}
-        level, message = int(rng.integers(0, 3)), f'm{trial}'
-        status = rosmsg.refill_diagnostic(status, f'r{trial}', values, message, level)
-        fresh = rosmsg.make_diagnostic(f'r{trial}', values, message, level)
-        a, b = (deserialize_message(serialize_message(m), DiagnosticStatus) for m in (status, fresh))
+        values = {k: str(rng.choice(['pass', 1.5, -3, float('nan'), '', 'ünï'])) for k in ks}
+        level, message = int(rng.integers(0, 3)), f'm{trial}' * int(rng.integers(0, 4))
+        status = Status(level, f'r{trial}', message, f'/r{trial}'[:int(rng.integers(0, 4))], values)
+        typed = rosmsg.make_diagnostic(status.name, values, message, level)
+        typed.hardware_id = status.hardware_id
+        a = deserialize_message(cdr.diagnostic_status_bytes(status), DiagnosticStatus)
+        b = deserialize_message(serialize_message(typed), DiagnosticStatus)
         assert (a.level, a.name, a.message, a.hardware_id) == (b.level, b.name, b.message, b.hardware_id)
         assert [(kv.key, kv.value) for kv in a.values] == [(kv.key, kv.value) for kv in b.values]
 

@@ -20,7 +20,8 @@ from rclpy.clock import Clock, ClockType
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 
-from ..ros_io import rosmsg
+from ..ros_io import cdr, rosmsg
+from .filter_state import Status
 
 DIAGNOSTICS_TOPIC = '/diagnostics'
 WARN = DiagnosticStatus.WARN[0]
@@ -49,23 +50,16 @@ def _qualified(namespace: str, name: str) -> str:
     return f'{namespace.rstrip("/")}/{name}' if namespace else f'/{name}'
 
 
-class StatusCopies:
-    """A /diagnostics status of each robot of its own, refilled from the robot's state message
-    (``rosmsg.refill_diagnostic``: a few us, not a new message of ~20 KeyValues): the state's
-    object is refilled by every decision, perhaps on another thread, and is not changed here."""
+def status_copy(state: Status, name: str, hardware_id: str, message: str | None = None) -> Status:
+    """A robot's /diagnostics status from its state message: the state's level and values (shared,
+    not copied: a state is never changed once made), named for the aggregator."""
+    return Status(state.level, name, state.message if message is None else message, hardware_id, state.values)
 
-    def __init__(self):
-        self._copies = {}
 
-    def of(self, key, state, name: str, hardware_id: str, message: str | None = None):
-        values = {kv.key: kv.value for kv in state.values}
-        old = self._copies.get(key)
-        text = state.message if message is None else message
-        status = (rosmsg.make_diagnostic(name, values, text, state.level[0]) if old is None else
-                  rosmsg.refill_diagnostic(old, name, values, text, state.level[0]))
-        status.hardware_id = hardware_id
-        self._copies[key] = status
-        return status
+def array_bytes(node, statuses) -> bytes:
+    """A serialized DiagnosticArray of ``statuses`` (``Status``), stamped with ``node``'s clock now."""
+    sec, nanosec = divmod(node.get_clock().now().nanoseconds, 1_000_000_000)
+    return cdr.diagnostic_array_bytes(sec, nanosec, statuses)
 
 
 class FilterDiagnostics:
@@ -111,17 +105,16 @@ class FilterDiagnostics:
             self.complain(f'type {note}', note, level='warn')
         return self.notes
 
-    def array(self) -> DiagnosticArray:
-        """The node's statuses now, each raised to WARN and noted while a foreign publisher stays."""
+    def array(self) -> bytes:
+        """The node's statuses now, serialized (a DiagnosticArray), each raised to WARN and noted while
+        a foreign publisher stays."""
         notes = self.check_graph()
-        out = DiagnosticArray()
-        out.header.stamp = self.node.get_clock().now().to_msg()
-        for status in self.statuses():
-            if notes:
-                status.level = bytes([max(status.level[0], WARN)])
+        statuses = self.statuses()
+        if notes:
+            for status in statuses:
+                status.level = max(status.level, WARN)
                 status.message = '; '.join([status.message, *notes]) if status.message else '; '.join(notes)
-            out.status.append(status)
-        return out
+        return array_bytes(self.node, statuses)
 
     def publish(self):
         self.pub.publish(self.array())

@@ -1,9 +1,12 @@
 """What a filter node tells: its robots' state messages, and complaints without floods.
 
-* ``StateReporter.state_message(name, out)``: a robot's diagnostic_msgs/DiagnosticStatus
-  (OK pass / WARN override / ERROR fail_safe): the decision's record plus the set update
-  (``set_update``, ``set_update_reason``, counts), the time base and the cluster solves
-  that failed (each one logged once);
+* ``StateReporter.state_message(name, out)``: a robot's state, a ``Status`` (the fields of a
+  diagnostic_msgs/DiagnosticStatus as plain data, published serialized by
+  ``ros_io.cdr.diagnostic_status_bytes``: a fleet sends hundreds a tick, and a typed status of
+  twenty KeyValues costs about twice as much to fill and serialize): OK pass / WARN override /
+  ERROR fail_safe, the decision's record plus the set update (``set_update``,
+  ``set_update_reason``, counts), the time base and the cluster solves that failed (each one
+  logged once), those shared by every robot of a tick read once (``shared_values``);
 * ``StateThrottle`` / ``FleetThrottle``: when a robot's state is due (every change of
   action or set update, else at ``state_rate`` on a fixed phase);
 * ``Complaints.complain(kind, text)``: the same kind of complaint logged at most every
@@ -13,6 +16,7 @@
 """
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 import math
 from operator import ne
 import time
@@ -20,7 +24,6 @@ import time
 import numpy as np
 
 from ..filter import default_cluster_store
-from ..ros_io import rosmsg
 
 LOG_THROTTLE_S = 2.0   # the same kind of complaint at most this often
 HOLD_SUMMARY_S = 30.0  # steady seconds between summaries of held steps
@@ -74,6 +77,18 @@ class HoldSummary:
         self._since, self.count, self.total, self.longest = now, 0, 0.0, 0.0
 
 
+@dataclass(slots=True)
+class Status:
+    """A diagnostic_msgs/DiagnosticStatus as plain data: ``level`` an int (0 OK, 1 WARN, 2 ERROR),
+    ``values`` a dict of strings."""
+
+    level: int
+    name: str
+    message: str = ''
+    hardware_id: str = ''
+    values: dict = field(default_factory=dict)
+
+
 class StateReporter:
     """The state messages of a filter node's robots.
 
@@ -84,20 +99,19 @@ class StateReporter:
     def __init__(self, log, selector, time_base, config):
         self.log = log
         self._selector, self._time, self._config = selector, time_base, config
-        self._msgs = {}                    # robot name -> its status, refilled (rosmsg.refill_diagnostic)
         self._errors_told = {}             # id(store) -> failed solves already logged
         self._store, self._store_config = None, None
 
-    def state_values(self, out) -> dict:
-        values = out.record()
+    def shared_values(self) -> dict:
+        """The values every robot's state carries alike at a time: the set update, the time base,
+        the cluster solves that failed."""
         s = self._selector
-        values['set_update'], values['set_update_reason'] = s.set_update
-        values['sets_accepted'] = str(s.set_updates['accepted'])
-        values['sets_rejected'] = str(s.set_updates['rejected'])
-        values['time_base'] = ('wall (steady)' if not self._time.sim else
-                               'wall (sim time stands still)' if self._time.stalled else 'sim')
-        values['cluster_solves_failed'] = str(self.report_cluster_errors())
-        return values
+        update, reason = s.set_update
+        return {'set_update': update, 'set_update_reason': reason,
+                'sets_accepted': str(s.set_updates['accepted']), 'sets_rejected': str(s.set_updates['rejected']),
+                'time_base': ('wall (steady)' if not self._time.sim else
+                              'wall (sim time stands still)' if self._time.stalled else 'sim'),
+                'cluster_solves_failed': str(self.report_cluster_errors())}
 
     def report_cluster_errors(self) -> int:
         """Log each cluster solve that failed (its cluster stays on the fallback); the count."""
@@ -116,17 +130,15 @@ class StateReporter:
             self._errors_told[id(store)] = told + len(new)
         return failed
 
-    def state_message(self, name: str, out, extra=None):
-        """The state of robot ``name`` (one status object per robot, refilled each time); ``extra``:
-        more values (a robot judged by its local map: the map's and its value's)."""
-        old = self._msgs.get(name)
-        values, message = self.state_values(out), f'{out.action}: {out.reason}'
+    def state_message(self, name: str, out, extra=None, shared=None) -> Status:
+        """The state of robot ``name`` after decision ``out``; ``extra``: more values (a robot judged
+        by its local map: the map's and its value's); ``shared``: ``shared_values()`` if the caller
+        read them for a whole tick."""
+        values = out.record()
+        values.update(self.shared_values() if shared is None else shared)
         if extra:
             values.update(extra)
-        status = (rosmsg.make_diagnostic(name, values, message, out.level) if old is None else
-                  rosmsg.refill_diagnostic(old, name, values, message, out.level))
-        self._msgs[name] = status
-        return status
+        return Status(out.level, name, f'{out.action}: {out.reason}', '', values)
 
 
 class StateThrottle:

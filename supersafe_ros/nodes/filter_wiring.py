@@ -101,6 +101,7 @@ class FilterWiring:
         self.complain = Complaints(self.log).complain
         self._reporter = StateReporter(self.log, self.selector, self.time, lambda: self.params.config)
         self.state_message = self._reporter.state_message
+        self.shared_state_values = self._reporter.shared_values
         # a thread of its own, never the executor's: a 50 MB message is copied there without the GIL
         self.sets = DirectTake(node, nullcontext(), suffix='_sets', path=p.take_path)
         try:

@@ -58,8 +58,8 @@ from std_msgs.msg import Float64MultiArray
 from ..filter import FAIL_SAFE, step_many, update_commands, update_detections_all, update_poses
 from ..ros_io import cdr, fleetmsg, rosmsg
 from .common import ParameterSpec, declare_all, run_node
-from .filter_diagnostics import FilterDiagnostics, StatusCopies
-from .filter_state import FleetThrottle
+from .filter_diagnostics import FilterDiagnostics, array_bytes, status_copy
+from .filter_state import FleetThrottle, Status
 from .filter_wiring import FilterWiring
 from .managed import node_classes
 
@@ -177,7 +177,6 @@ class FleetSafetyFilter:
         if self.batched:
             inputs += [('fleet/poses', PoseArray), ('fleet/detections', PoseArray),
                        ('fleet/cmd_vel_nav', Float64MultiArray)]
-        self._copies = StatusCopies()
         self.diagnostics = FilterDiagnostics(self, self._statuses, inputs, w.complain)
         self.get_logger().info(
             f'filtering {self.n} robots ({", ".join(self.namespaces[:5])}{", ..." if self.n > 5 else ""}) '
@@ -338,16 +337,15 @@ class FleetSafetyFilter:
     def _statuses(self) -> list:
         """Each robot's status on /diagnostics: its last state (see filter_diagnostics)."""
         outs, w, node = self._last_outs, self.wiring, self.get_fully_qualified_name()
+        if outs is None:
+            return [Status(DiagnosticStatus.ERROR[0], f'{node}: {ns}',
+                           'no decision yet' if self.active else 'inactive: no cmd_vel', ns) for ns in self.namespaces]
+        shared = w.shared_state_values()
         out = []
         for i, ns in enumerate(self.namespaces):
-            name = f'{node}: {ns}'
-            if outs is None:
-                out.append(DiagnosticStatus(level=DiagnosticStatus.ERROR, name=name, hardware_id=ns,
-                                            message='no decision yet' if self.active else 'inactive: no cmd_vel'))
-                continue
-            state = w.state_message(ns, outs[i])
-            out.append(self._copies.of(i, state, name, ns, None if self.active else
-                                       f'inactive (lifecycle): no cmd_vel; last: {state.message}'))
+            state = w.state_message(ns, outs[i], shared=shared)
+            out.append(status_copy(state, f'{node}: {ns}', ns, None if self.active else
+                                   f'inactive (lifecycle): no cmd_vel; last: {state.message}'))
         return out
 
     def decide(self, t=None):
@@ -366,18 +364,18 @@ class FleetSafetyFilter:
         now = time.monotonic()
         period, update = w.state_period, w.set_update
         due = self._throttle.due(now, outs.action, update, period)
+        # the states due, each built once for both interfaces and published serialized (ros_io.cdr)
+        shared = w.shared_state_values() if due else None
+        states = [w.state_message(self.namespaces[i], outs[i], shared=shared) for i in due]
         if self.per_robot:
             for topics, v, omega in zip(self.topics, outs.linear, outs.omega):
                 topics.cmd_pub.publish(cdr.twist_bytes(v, omega))   # serialized: no Twist built
-            for i in due:
-                self.topics[i].state_pub.publish(w.state_message(self.namespaces[i], outs[i]))
+            for i, state in zip(due, states):
+                self.topics[i].state_pub.publish(cdr.diagnostic_status_bytes(state))
         if self.batched:
             self.fleet_cmd_pub.publish(fleetmsg.commands_to_msg(np.column_stack([outs.linear, outs.omega])))
-            if due:
-                arr = DiagnosticArray()
-                arr.header.stamp = self.get_clock().now().to_msg()
-                arr.status = [w.state_message(self.namespaces[i], outs[i]) for i in due]
-                self.fleet_state_pub.publish(arr)
+            if states:
+                self.fleet_state_pub.publish(array_bytes(self, states))
         self._tell_story(outs)
         self._last_outs = outs
         return outs

@@ -55,7 +55,8 @@ from rclpy.lifecycle import TransitionCallbackReturn
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 
 from ..ros_io import rosmsg
-from .filter_diagnostics import DIAGNOSTICS_TOPIC
+from .filter_diagnostics import DIAGNOSTICS_TOPIC, array_bytes
+from .filter_state import Status
 
 _ENTITIES = (('publishers', 'destroy_publisher'), ('subscriptions', 'destroy_subscription'),
              ('timers', 'destroy_timer'), ('guards', 'destroy_guard_condition'))
@@ -276,10 +277,8 @@ class ManagedFilter:
                 names = [(s.name, s.hardware_id) for s in self._statuses()]
                 notes = self.diagnostics.check_graph()
             message = inactive_message(self._state_machine.current_state[1], self._configure_failure, notes)
-            out = DiagnosticArray()
-            out.header.stamp = self.get_clock().now().to_msg()
-            out.status = [DiagnosticStatus(level=DiagnosticStatus.WARN, name=name, hardware_id=hardware_id,
-                                           message=message) for name, hardware_id in names]
+            out = array_bytes(self, [Status(DiagnosticStatus.WARN[0], name, message, hardware_id)
+                                     for name, hardware_id in names])
         self._diagnostics_pub.publish(out)
 
 

@@ -85,10 +85,10 @@ from ..filter.lockstep import GIVE_UP, LockstepAnswers
 from ..ros_io import cdr, rosmsg, sensors
 from ..ros_io.direct_take import DirectTake
 from .common import ParameterSpec, declare_all, run_node
-from .filter_diagnostics import FilterDiagnostics, StatusCopies
+from .filter_diagnostics import FilterDiagnostics, status_copy
 from .filter_inputs import (INPUT_PARAMETERS, MAP_SENSORS, RANGE_SENSORS, PoseHistory, SensorMap, check_types,
                             command_message_type, message_type)
-from .filter_state import HoldSummary, StateThrottle
+from .filter_state import HoldSummary, StateThrottle, Status
 from .managed import node_classes
 from .filter_wiring import VALUE_FUNCTION_TOPIC, FilterWiring  # noqa: F401  (the topic, re-exported for tests)
 from .markers import LevelSetMarkerPublisher
@@ -207,7 +207,6 @@ class SafetyFilter:
             # clock has passed is known as such (_clock_passed); a thread of its own would not be
             for msg_type, topic, callback, raw, qos in inputs:
                 self.create_subscription(msg_type, topic, self._locked(callback), qos, raw=raw)
-        self._copies = StatusCopies()
         self.diagnostics = FilterDiagnostics(self, self._statuses, [(i[1], i[0]) for i in inputs], w.complain)
         if self.require_detections:
             self.get_logger().info('filtering cmd_vel_nav -> cmd_vel; waiting for the first pose and detections '
@@ -245,15 +244,15 @@ class SafetyFilter:
             out = self._last_out
             if out is not None:
                 state = self.wiring.state_message(self.name, out)
-                status = self._copies.of(0, state, name, ns, None if self.active else
-                                         f'inactive (lifecycle): no cmd_vel; last: {state.message}')
+                status = status_copy(state, name, ns, None if self.active else
+                                     f'inactive (lifecycle): no cmd_vel; last: {state.message}')
                 note = self.sensor.problem(self.filter.detections) if self.sensor is not None else ''
                 if note:        # what the sensor's last message says of itself (every beam NaN, ...)
-                    status.level = bytes([max(status.level[0], DiagnosticStatus.WARN[0])])
+                    status.level = max(status.level, DiagnosticStatus.WARN[0])
                     status.message = f'{status.message}; {note}'
                 return [status]
-        return [DiagnosticStatus(level=DiagnosticStatus.ERROR, name=name, hardware_id=ns,
-                                 message='no decision yet' if self.active else 'inactive: no cmd_vel')]
+        return [Status(DiagnosticStatus.ERROR[0], name, 'no decision yet' if self.active else 'inactive: no cmd_vel',
+                       ns)]
 
     def _say_ready(self):
         """Make the latched safety_filter/ready publisher (once; from the watchdog's thread)."""
@@ -457,7 +456,7 @@ class SafetyFilter:
             out = self._last_out
             if out is not None and self._throttle.due(now, out.action, self.wiring.set_update,
                                                       self.wiring.state_period):
-                self.state_pub.publish(self.wiring.state_message(self.name, out))
+                self.state_pub.publish(cdr.diagnostic_status_bytes(self.wiring.state_message(self.name, out)))
         elif now - self._last_publish >= self.period * 0.5:
             # half a period, not a whole one: the last output went out a little after the
             # previous tick, so a whole period would skip every other tick (rate / 2)
@@ -489,7 +488,7 @@ class SafetyFilter:
         self._tell_story(out)
         if self._throttle.due(now, out.action, w.set_update, w.state_period):
             extra = None if self.sensor is None else self.sensor.state_values(self.filter.detections)
-            self.state_pub.publish(w.state_message(self.name, out, extra))
+            self.state_pub.publish(cdr.diagnostic_status_bytes(w.state_message(self.name, out, extra)))
         return out
 
     def _publish_command(self, out, t):

@@ -197,20 +197,3 @@ def make_diagnostic(name: str, values: dict, message: str = '', level: int = 0):
     status.message = message
     status.values = [KeyValue(key=str(k), value=str(v)) for k, v in values.items()]
     return status
-
-
-def refill_diagnostic(status, name: str, values: dict, message: str = '', level: int = 0):
-    """``make_diagnostic`` into an existing status: its KeyValue objects are reused when the
-    keys are the same, in the same order (a fleet's periodic states: constructing ~20
-    KeyValues costs ~100 us a status in rclpy, setting their values a tenth of that).
-    Publishing serializes at once, so a status may be refilled after it was published."""
-    kvs = status.values
-    if len(kvs) == len(values) and all(kv.key == k for kv, k in zip(kvs, values)):
-        for kv, v in zip(kvs, values.values()):
-            kv.value = str(v)
-    else:
-        return make_diagnostic(name, values, message, level)
-    status.level = bytes([int(level)])
-    status.name = name
-    status.message = message
-    return status
