@@ -374,3 +374,22 @@ def test_equal_detections_in_separate_arrays_share_their_cluster_frames(standard
         step_many([robot(pose=poses[0], detections=[pair[0], (pair[1][0] + 0.01 * k, pair[1][1])])],
                   standard, 0.0, store)
         assert len(cluster_rows._FRAMES_BY_CONTENT) <= 8
+
+
+def test_decide_many_records_nothing_and_its_record_is_step_many():
+    """A decision is written into the filter only when it is recorded (what a lockstepped node does
+    once its answer goes out); recorded, it is what ``step_many`` writes."""
+    from supersafe_ros.filter.decide import decide_many
+    from supersafe_ros.filter.sent import record_decisions
+    from supersafe_ros.reach.library import load_or_solve
+    vf = load_or_solve(Grid((-10.0, -10.0), (10.0, 10.0), (21, 21, 16)), 3.0, 1.0, 1.8, 2.0)
+    safe = SafeSet(vf, 0.5)
+    held, sent = (robot(pose=at(-3.0, 0.5, 0.0)) for _ in range(2))   # heading at the obstacle: overridden
+    before = (list(held.sent), held.overriding)
+    decisions = decide_many([held], safe, 0.05)
+    assert decisions[0].action == 'override'
+    assert (list(held.sent), held.overriding) == before
+    record_decisions([held], decisions)
+    step_many([sent], safe, 0.05)
+    assert list(held.sent) == list(sent.sent) and len(sent.sent) == len(before[0]) + 1
+    assert held.overriding == sent.overriding is True

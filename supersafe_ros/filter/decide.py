@@ -12,7 +12,9 @@ each step reading what the one before it made and writing nothing back:
    ``approach.limit``: for robots that can stop (``time_before_collision``), each speed cut
    so that the command's path enters no detected disc;
 4. ``outputs.outputs``: the commands and each robot's explanation (``Decisions``);
-5. ``sent.record``: what was sent, written into the filters (the only step that writes).
+5. ``sent.record``: what was sent, written into the filters (the only step that writes);
+   ``step_many`` records every decision, ``decide_many`` none (its caller records what it
+   sends: a lockstepped answer held is not sent).
 """
 from __future__ import annotations
 
@@ -21,12 +23,14 @@ from .constraints import constraint_rows
 from .gather import gather, gather_one_fast
 from .law import decide_rows
 from .outputs import Decisions, outputs
-from .sent import record
+from .sent import record_decisions
 from .types import SafeSet
 
 
-def step_many(filters, safe_set: SafeSet, t, clusters=None) -> Decisions:
-    """One decision per robot filter, with one vectorised evaluation of the law.
+def decide_many(filters, safe_set: SafeSet, t, clusters=None) -> Decisions:
+    """One decision per robot filter, with one vectorised evaluation of the law; nothing of it
+    recorded as sent (steps 1-4): a caller that may keep the commands back (a lockstepped
+    answer held, ``filter.lockstep``) records only those that go out (``sent.record_decisions``).
 
     Robots that can be judged use their current pose and detections; robots that
     fail safe use their last valid pose and detections if younger than
@@ -42,6 +46,11 @@ def step_many(filters, safe_set: SafeSet, t, clusters=None) -> Decisions:
     decided = decide_rows(tab, len(rb.use), n_groups, rb.overriding, rb.margin, rb.failing, rb.fresh, rb.planned,
                           rb.bang, rb.drive, rb.held, rb.constant)
     limits = limit(rb, *decided[:3])
-    decisions = outputs(filters, rb, safe_set, tab, decided, solving, limits, t)
-    record(filters, decisions, t, rb.all_keep)
+    return outputs(filters, rb, safe_set, tab, decided, solving, limits, t)
+
+
+def step_many(filters, safe_set: SafeSet, t, clusters=None) -> Decisions:
+    """``decide_many``, every command sent: the decisions recorded (step 5)."""
+    decisions = decide_many(filters, safe_set, t, clusters)
+    record_decisions(filters, decisions)
     return decisions

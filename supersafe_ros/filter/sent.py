@@ -26,6 +26,11 @@ def record(filters, decisions, t, keep) -> None:
             sent.popleft()
 
 
+def record_decisions(filters, decisions) -> None:
+    """``record`` of ``decisions`` (``decide.decide_many``'s), at their time: what went out."""
+    record(filters, decisions, decisions.t, decisions.keep)
+
+
 def record_sent(f, omega, t, speed=None) -> None:
     """``record`` of one command sent by other means than a decision (a test's, a replay's):
     ``omega`` at ``t``, the robot driving at ``speed`` (None: the configured speed)."""

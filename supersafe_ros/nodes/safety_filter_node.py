@@ -81,6 +81,8 @@ import numpy as np
 
 from ..filter import FAIL_SAFE
 from ..filter.commands import command_fresh
+from ..filter.decide import decide_many
+from ..filter.sent import record_decisions
 from ..filter.lockstep import GIVE_UP, LockstepAnswers
 from ..ros_io import cdr, rosmsg, sensors
 from ..ros_io.direct_take import DirectTake
@@ -471,11 +473,13 @@ class SafetyFilter:
             return None            # a managed node, inactive: no cmd_vel (managed.py)
         w = self.wiring
         t = w.now() if t is None else t
-        out = self.filter.step(w.safe_set, t)
+        decisions = decide_many([self.filter], w.safe_set, t)
+        out = decisions[0]
         self._decided_at = t
         verdict = self.answers.judge(t, time.monotonic(), out.clusters_solving, answers_pose)
         if not verdict.publish:
-            return None
+            return None         # held: not sent, so not recorded as sent
+        record_decisions([self.filter], decisions)
         if verdict.action == GIVE_UP:
             w.complain('cluster_hold', f'{verdict.why}: answering with the fallback until it lands', level='warn')
         elif verdict.held_for is not None:
