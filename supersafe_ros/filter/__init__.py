@@ -17,7 +17,7 @@ Where the decision is made: ``RobotFilter.step`` (one robot) or ``step_many`` (a
   the speed cut of a robot that can stop, so that each command's path enters nothing detected;
 * ``outputs``: the commands and each robot's explanation;
 * ``sent``: what was sent, the one writer of a filter's ``sent`` and ``overriding``;
-* ``decide``: the steps above, in order;
+* ``decide``: the steps above, in order (``decide_many``; ``step_many`` records them too);
 * beside them: ``types`` (FilterConfig, SafeSet, FilterOutput, the actions), ``cluster``
   (union values solved in the background), ``admissibility`` (a learned set must contain the
   standard unsafe set), ``set_selector`` (which learned set is in force, checked off the

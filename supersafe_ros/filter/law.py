@@ -32,8 +32,9 @@ The avoid turn of a pair is the minimally invasive law's u* = w_max sign(dV/dthe
 (``avoid_turn``; ties left), and with a hold H the bang whose hold ends at the larger V
 (``better_bang``), which tends to sign(dV/dtheta) as H -> 0.
 
-``RobotFilter.step`` (one robot's own filter) and ``step_many`` (a fleet) both call
-``decide_rows``: a lone robot's table is the same table with one robot's rows.
+``decide.decide_many`` calls ``decide_rows`` for a fleet and for a lone robot alike
+(``RobotFilter.step`` is ``step_many`` of one): a lone robot's table is the same table with
+one robot's rows.
 """
 from __future__ import annotations
 

@@ -297,7 +297,7 @@ def run_trials(trials, guard, step=0.05, stale_probability=0.0, late_probability
     action, discs given) is appended (to look at a crash).
 
     ``guard(filters, t)`` returns one FilterOutput per filter: e.g.
-    ``lambda fs, t: step_many(fs, safe_set, t)`` or a ``cluster.LayoutGuard``.
+    ``lambda fs, t: step_many(fs, safe_set, t)``.
     """
     rng = rng if rng is not None else np.random.default_rng(0)
     config = config or FilterConfig(speed=speed, omega_max=omega_max)
