@@ -27,7 +27,7 @@ import math
 import numpy as np
 
 from . import cluster
-from .gather import py_max, py_min
+from .elementwise import py_max, py_min
 from .law import better_bang, first_min_of_runs
 from .propagation import arc_flow, bang_ends
 from .types import FilterConfig

@@ -2,9 +2,17 @@
 speed it asks within the robot's limits, and what of it is beyond them.
 
 Every function reads one robot's inputs (``inputs.RobotFilter``) and configuration, never
-writes: ``gather`` reads the same over a fleet's columns, with the same arithmetic.
+writes. Beside each one a fleet needs, its column form (``planned_turns``, ``planned_speeds``,
+``drive_speeds``: numpy arrays, one entry per robot, read by ``gather``), written with the same
+comparisons and arithmetic so that both give the same bits (test/test_filter_commands.py runs
+both). The scalar forms stay for a lone robot's decision: numpy's cost per call (a few us) would
+be most of it.
 """
 from __future__ import annotations
+
+import numpy as np
+
+from .elementwise import py_max
 
 SPEED_TOLERANCE = 1e-9     # a linear.x this close (relatively) to the robot's speed is its speed
 
@@ -27,6 +35,14 @@ def planned_turn(f, t, fresh=None) -> float:
     return clip(f.command.value, f.config.omega_max) if fresh else 0.0
 
 
+def planned_turns(value, fresh, bound) -> np.ndarray:
+    """``planned_turn`` over columns: each robot's command ``value`` clipped to +-``bound`` where
+    ``fresh``, else 0."""
+    clipped = np.where(value < bound, value, bound)
+    clipped = np.where(clipped > -bound, clipped, -bound)
+    return np.where(fresh, clipped, 0.0)
+
+
 def planned_speed(linear, cfg) -> float:
     """The speed the filter passes for a planner's ``linear``.x: clipped to [0, speed] (a reverse
     command is sent as 0: the value functions model forward motion only); None (not given) or
@@ -35,6 +51,12 @@ def planned_speed(linear, cfg) -> float:
     if linear is None or cfg.constant_speed:
         return speed
     return max(0.0, min(speed, linear))
+
+
+def planned_speeds(linear, speed):
+    """``planned_speed`` over columns for robots that can stop: ``linear`` (inf where not given)
+    clipped to [0, ``speed``]."""
+    return py_max(0.0, np.minimum(speed, linear))      # (min(speed, v): equal only when equal)
 
 
 def idle_speed(cfg) -> float:
@@ -61,6 +83,12 @@ def drive_speed(f, fresh, failing) -> float:
     if failing:
         return held_speed(f)
     return planned_speed(f.command.linear, cfg) if fresh else 0.0
+
+
+def drive_speeds(constant, speed, failing, held, fresh, planned) -> np.ndarray:
+    """``drive_speed`` over columns: ``speed`` for a constant-speed robot, else ``held`` (the speed
+    last sent) failing safe, else the ``planned`` speed where ``fresh``, 0 where the planner is silent."""
+    return np.where(constant, speed, np.where(failing, held, np.where(fresh, planned, 0.0)))
 
 
 def command_excess(omega, linear, cfg) -> str:

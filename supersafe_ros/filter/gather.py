@@ -5,9 +5,9 @@ detections), which fail safe but still have a state young enough to avoid from
 (``hold_timeout``), and for those (the rows the law sees) their state now (the pose
 propagated along the arcs held since its stamp, ``filter.propagation``), the planner's command
 clipped to the robot's bound (0 if silent), the lookahead (at least the control period) and
-the configuration fields the law needs, as numpy columns. The same comparisons and
-arithmetic as the per-robot functions (``problem``, ``commands``, ``propagation.plan``;
-Python's min and max as ``py_min`` / ``py_max``), so the same values bit for bit.
+the configuration fields the law needs, as numpy columns: the column forms of the per-robot
+formulas, each written beside its scalar one (``commands.planned_turns``, ``planned_speeds``,
+``drive_speeds``; ``propagation.plan_columns``), so the same values bit for bit.
 
 ``gather_one_fast`` is ``gather`` for a lone robot with a state to judge, in Python floats
 (numpy's cost per call would be most of a robot's own filter's decision).
@@ -20,9 +20,9 @@ from operator import attrgetter, is_, is_not
 
 import numpy as np
 
-from .commands import command_fresh, drive_speed, held_speed, planned_turn
-from .propagation import arc, follow, plan, wrap
-from .sent import segments_since
+from .commands import command_fresh, drive_speed, drive_speeds, held_speed, planned_speeds, planned_turn, planned_turns
+from .elementwise import py_max
+from .propagation import arc, follow, plan, plan_columns, wrap
 
 
 class RobotColumns:
@@ -37,7 +37,6 @@ class RobotColumns:
                  'margin', 'fresh', 'cluster_alpha', 'radii', 'drive', 'held', 'constant', 'views', 'map_values')
 
 
-_NEVER = (math.inf, 0.0, 0.0)   # the (time, turn, speed) a robot with no such command sent shows: no arc starts then
 _VALUE, _T, _STAMP, _REJECTED, _RADII, _LINEAR, _VIEW = (attrgetter(a) for a in (
     'value', 't', 'stamp', 'rejected', 'radii', 'linear', 'view'))
 
@@ -86,12 +85,10 @@ def _config_columns(configs, names):
 
 
 def gather(filters, t) -> RobotColumns:
-    """The fleet's inputs as columns, with ``problem``, ``propagation.plan`` and ``follow``,
-    ``commands.command_fresh``, ``planned_turn`` and ``drive_speed``, and
-    ``RobotFilter.lookahead`` evaluated over them: the same comparisons and the same
-    arithmetic (Python's min and max as ``py_min``/``py_max``), so the same values bit for
-    bit; a robot whose plan is neither of ``sent.segments_since``'s two common cases gets
-    ``segments_since`` itself (a pose older than two commands sent)."""
+    """The fleet's inputs as columns: ``problem``'s test, ``propagation.plan_columns`` and
+    ``follow``, ``commands.command_fresh``, ``planned_turns``, ``planned_speeds`` and
+    ``drive_speeds``, and ``RobotFilter.lookahead`` over them (the same comparisons and
+    arithmetic as the per-robot forms, so the same values bit for bit)."""
     rb = RobotColumns()
     n = len(filters)
     configs = [f.config for f in filters]
@@ -147,34 +144,7 @@ def gather(filters, t) -> RobotColumns:
 
     # propagation.plan: the pose's age, and the arcs held since its stamp
     stamp = np.fromiter(map(_STAMP, poses), dtype=float, count=m)
-    age = t - np.where(stamp < pose_t, stamp, pose_t)
-    age = np.where(compensate, py_max(0.0, py_min(age, hold)), 0.0)
-    rb.age = age
-    t0 = t - age
-    sents = [f.sent for f in filters]
-    last = np.fromiter(itertools.chain.from_iterable(s[-1] if s else _NEVER for s in sents), dtype=float,
-                       count=3 * m).reshape(m, 3)
-    moving = compensate & (t > t0)
-    one = moving & (last[:, 0] <= t0)                        # nothing sent since the pose: one arc
-    # the command before the last, read only for the robots that may need it (most need none)
-    others = np.flatnonzero(moving & ~one)
-    prev = np.zeros((m, 3))
-    prev[others] = np.fromiter(itertools.chain.from_iterable(
-        sents[i][-2] if len(sents[i]) > 1 else _NEVER for i in others.tolist()), dtype=float,
-        count=3 * len(others)).reshape(-1, 3)
-    two = moving & ~one & (prev[:, 0] <= t0) & (t0 < last[:, 0]) & (last[:, 0] < t)   # one command since
-    rest = np.flatnonzero(moving & ~one & ~two).tolist()
-    plans = [segments_since(filters[i], float(t0[i]), t) for i in rest]
-    depth = max([len(p) for p in plans] + [2 if two.any() else 1 if one.any() else 0])
-    omegas, dts, speeds = np.zeros((depth, m)), np.zeros((depth, m)), np.zeros((depth, m))
-    if depth:
-        omegas[0, one], dts[0, one], speeds[0, one] = last[one, 1], t - t0[one], last[one, 2]
-        omegas[0, two], dts[0, two], speeds[0, two] = prev[two, 1], last[two, 0] - t0[two], prev[two, 2]
-    if depth > 1:
-        omegas[1, two], dts[1, two], speeds[1, two] = last[two, 1], t - last[two, 0], last[two, 2]
-    for i, arcs in zip(rest, plans):
-        for k, (w, d, v) in enumerate(arcs):
-            omegas[k, i], dts[k, i], speeds[k, i] = w, d, v
+    rb.age, last, omegas, dts, speeds = plan_columns(filters, t, pose_t, stamp, compensate, hold)
     rb.states, rb.lone = follow(poses_now, omegas, dts, speeds), None
 
     # command_fresh, planned_turn (clipped as clip) and the lookahead
@@ -183,9 +153,7 @@ def gather(filters, t) -> RobotColumns:
     rb.fresh = fresh = (np.fromiter(map(is_not, value, itertools.repeat(None)), dtype=bool, count=m)
                         & (t - np.fromiter(map(_T, commands), dtype=float, count=m) <= cmd_timeout))
     value = np.array([0.0 if v is None else v for v in value] if None in value else value, dtype=float)
-    clipped = np.where(value < bang, value, bang)
-    clipped = np.where(clipped > -bang, clipped, -bang)
-    rb.planned = np.where(fresh, clipped, 0.0)
+    rb.planned = planned_turns(value, fresh, bang)
     # the speeds: the planner's clipped to [0, speed] (planned_speed), driven (drive_speed), last sent
     # (a robot with nothing sent shows _NEVER's speed, 0; linear.x not given: the speed)
     linear = list(map(_LINEAR, commands))
@@ -193,9 +161,9 @@ def gather(filters, t) -> RobotColumns:
         planned_v = speed
     else:
         linear = np.array([math.inf if v is None else v for v in linear] if None in linear else linear, dtype=float)
-        planned_v = py_max(0.0, np.minimum(speed, linear))      # (min(speed, v): equal only when equal)
+        planned_v = planned_speeds(linear, speed)
     rb.constant, rb.held = constant, np.where(constant, speed, last[:, 2])
-    rb.drive = np.where(constant, speed, np.where(rb.failing, rb.held, np.where(fresh, planned_v, 0.0)))
+    rb.drive = drive_speeds(constant, speed, rb.failing, rb.held, fresh, planned_v)
     # measured period: the larger median of the pose and command intervals (each > 0; none: 0)
     windows = ([f.pose_intervals for f in filters], [f.command_intervals for f in filters])
     measured = py_max(*(np.array([0.0 if w.middle is None else w.middle for w in ws], dtype=float)
@@ -203,15 +171,6 @@ def gather(filters, t) -> RobotColumns:
     period = np.where(period > 0.0, period, measured)
     rb.horizon = np.where(compensate, py_max(look, period), look)
     return rb
-
-
-def py_max(a, b):
-    """Python's max(a, b) elementwise (a on ties: -0.0 and 0.0 come out as Python's would)."""
-    return np.where(b > a, b, a)
-
-
-def py_min(a, b):
-    return np.where(b < a, b, a)
 
 
 _ONE = np.zeros(1, np.intp)
