@@ -117,8 +117,9 @@ def test_per_robot_topics_are_a_drop_in_with_one_step_per_tick(setup, monkeypatc
 
 @pytest.mark.ros
 def test_per_robot_bad_input_is_rejected_with_the_reason(setup):
-    """Per-robot topics are taken serialized and read by ros_io.cdr: a bad pose (wrong frame,
-    NaN) fails that robot safe with the validator's reason, a bad command keeps the last one."""
+    """Per-robot topics are taken serialized and read by the single node's Sources: a bad pose
+    (wrong frame, NaN) fails that robot safe with the validator's reason, a command not finite
+    stops it until a valid one comes (as safety_filter_node does)."""
     node, d, spin = setup
     r = 'robot_2'
     d.det[r].publish(rosmsg.xy_to_posearray([OBSTACLE]))
@@ -129,11 +130,16 @@ def test_per_robot_bad_input_is_rejected_with_the_reason(setup):
     nan_cmd = Twist()
     nan_cmd.angular.z = float('nan')
     d.cmd[r].publish(nan_cmd)
-    spin.until(lambda: d.rosout.has('fleet_safety_filter', 'cmd_vel_nav rejected', 'angular.z is not finite'), 10.0,
-               'the bad command logged')
+    spin.until(lambda: d.rosout.has('fleet_safety_filter', 'cmd_vel_nav rejected', 'not finite (angular.z=nan'),
+               10.0, 'the bad command logged')
     d.pose[r].publish(rosmsg.state_to_pose(FAR))
-    spin.until(lambda: d.newest(r).get('action') == 'pass' and d.out[r], 10.0, f'{r} passing again')
-    assert float(d.newest(r)['cmd_angular_z']) == pytest.approx(0.25)    # the previous command
+    spin.until(lambda: d.newest(r).get('action') == 'fail_safe', 10.0, f'{r} stopped on the bad command')
+    assert 'planner command rejected' in d.newest(r)['reason']
+    spin.until(lambda: (d.out[r][-1].linear.x, d.out[r][-1].angular.z) == (0.0, 0.0), 5.0, f'{r} sent a zero twist')
+    d.cmd[r].publish(rosmsg.turn_rate_to_twist(-0.5, 3.0))
+    d.pose[r].publish(rosmsg.state_to_pose(FAR))
+    spin.until(lambda: d.newest(r).get('action') == 'pass', 10.0, f'{r} passing again')
+    assert float(d.newest(r)['cmd_angular_z']) == pytest.approx(-0.5)    # the new command
     odom = rosmsg.state_to_pose(FAR, frame='odom')
     d.pose[r].publish(odom)
     spin.until(lambda: d.newest(r).get('action') == 'fail_safe', 10.0, f'{r} failing safe')

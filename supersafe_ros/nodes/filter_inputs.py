@@ -1,7 +1,9 @@
-"""What safety_filter_node takes from a robot's stack: which message types, read how.
+"""What a filter node takes from a robot's stack (safety_filter_node; fleet_safety_filter_node per
+robot): which message types, read how (``filter_sources``).
 
-``INPUT_PARAMETERS`` (the node's, read-only): ``pose_type``, ``detections_type``,
-``cmd_vel_stamped``, and for a range sensor or a costmap its mount, its local map and the map's
+``INPUT_PARAMETERS`` (safety_filter_node's, read-only): ``TYPE_PARAMETERS`` (``pose_type``,
+``detections_type``, ``cmd_vel_stamped``, ``require_detections``; the fleet node's too) and
+``MAP_PARAMETERS``: for a range sensor or a costmap its mount, its local map and the map's
 value.
 
 * pose (topic ``pose``): ``pose_stamped`` (geometry_msgs/PoseStamped, read raw from its CDR
@@ -33,12 +35,13 @@ from importlib import import_module
 import math
 
 import numpy as np
+from rclpy.qos import qos_profile_sensor_data
 
 from ..filter.local_map import LocalMap, MapSettings
 from ..filter.map_rows import MapView
 from ..filter.map_value import MapValueSettings, MapValueWorker
 from ..filter.range_readings import cloud_xy, interpolated_pose, scan_rays
-from ..ros_io.rosmsg import MessageError
+from ..ros_io.rosmsg import QOS_STREAM, MessageError
 from .common import ParameterSpec
 
 POSE_TYPES = ('pose_stamped', 'odometry', 'pose_with_covariance')   # (their messages: MESSAGE_TYPES)
@@ -48,7 +51,8 @@ MAP_SENSORS = RANGE_SENSORS + ('occupancy_grid',)     # the detections kept in a
 SENSOR_WORDS = {'laser_scan': 'scan', 'point_cloud2': 'cloud', 'occupancy_grid': 'costmap'}
 POSES_KEPT = 64        # poses remembered to place a scan (at 50 Hz: 1.3 s, more than pose_timeout)
 
-INPUT_PARAMETERS = (
+# the input types (both filter nodes'), then the local map's (safety_filter_node's alone)
+TYPE_PARAMETERS = (
     ParameterSpec('pose_type', 'pose_stamped', f'message on pose: one of {POSE_TYPES}'),
     ParameterSpec('detections_type', 'pose_array', f'message on detections: one of {DETECTIONS_TYPES} '
                   '(pose_array: centres of radius; marker_array: CYLINDER discs of their own radius; '
@@ -56,6 +60,11 @@ INPUT_PARAMETERS = (
                   'occupancy_grid: a costmap in frame_id, kept in the local map)'),
     ParameterSpec('cmd_vel_stamped', False, 'cmd_vel_nav and cmd_vel are geometry_msgs/TwistStamped (false: '
                   'Twist)'),
+    ParameterSpec('require_detections', True, 'fail safe until detections arrive and whenever they are stale; '
+                  'false = a robot without an obstacle sensor: every pose comes with "no obstacle" and '
+                  'detections is not subscribed'),
+)
+MAP_PARAMETERS = (
     ParameterSpec('robot_radius', 0.3, 'laser_scan / point_cloud2 / occupancy_grid: the robot\'s own radius: it '
                   'keeps this far from every occupied cell of its local map [m]', 0.0, 100.0),
     ParameterSpec('sensor_x', 0.0, 'laser_scan / point_cloud2: the sensor\'s x in the robot\'s frame [m]',
@@ -90,6 +99,7 @@ INPUT_PARAMETERS = (
     ParameterSpec('max_sensor_points', 1_000_000, 'laser_scan / point_cloud2 / occupancy_grid: a message with more '
                   'beams, points or cells is refused unread (the map stays as it was) [points]', 1, 100_000_000),
 )
+INPUT_PARAMETERS = TYPE_PARAMETERS + MAP_PARAMETERS
 
 
 # each input type's message class, as 'package/Name' (imported when used)
@@ -179,10 +189,17 @@ class SensorMap:
     its stamp and puts it into the map (``MessageError`` naming the fault if refused: the map stays as
     it was); ``solve(omega_max, now)`` asks for the map's value again (in the background, at most
     every ``value_period``, latest wins); ``view`` is what the filter judges by. ``note`` is the last
-    message's problem in plain words ('' if none: e.g. every beam NaN), for /diagnostics."""
+    message's problem in plain words ('' if none: e.g. every beam NaN), for /diagnostics. It is the
+    detections' Source too (``filter_sources``): ``msg_type``, ``topic``, ``raw``, ``qos`` (scans and
+    clouds with the sensor-data QoS; a costmap's transient-local publisher matches the reliable,
+    volatile stream)."""
+
+    topic, raw = 'detections', False
 
     def __init__(self, p: dict, history: PoseHistory, config, horizon: float, frame: str, inline: bool = False):
         self.kind = p['detections_type']
+        self.msg_type = message_type(self.kind)
+        self.qos = qos_profile_sensor_data if self.kind in RANGE_SENSORS else QOS_STREAM
         self.history = history
         self.frame = frame
         self.mount = (p['sensor_x'], p['sensor_y'], p['sensor_yaw'])

@@ -3,10 +3,14 @@
 Parameter ``robots`` lists the namespaces (e.g. ['robot_0', 'robot_1']). Two
 interfaces, each switchable (read-only parameters), used together or alone:
 
-Per-robot topics (``per_robot_topics``), exactly those of safety_filter_node, so it is a
-drop-in for N of them:
+Per-robot topics (``per_robot_topics``), those of safety_filter_node, of the same types
+(``pose_type``, ``detections_type`` pose_array or marker_array, ``cmd_vel_stamped``,
+``require_detections``: read by the same Sources, ``filter_sources``), so it is a drop-in for
+N of them:
   sub  <ns>/pose, <ns>/detections, <ns>/cmd_vel_nav     as safety_filter_node
   pub  <ns>/cmd_vel, <ns>/safety_filter/state           as safety_filter_node
+A range sensor's or a costmap's detections (a local map and its value per robot, solved in
+the background) are safety_filter_node's alone: the fleet node refuses them at start.
 
 Batched topics (``batched_topics``; see docs/fleet.md and ``ros_io.fleetmsg``), for a
 fleet manager or simulator that holds every robot's state; robot i = robots[i]:
@@ -36,7 +40,10 @@ is published serialized, so the cost per robot is a few takes and one publish, n
 callback and a message object per sample.
 A per-robot decision therefore waits for the next tick (at most 1/rate s).
 
-Bad batched input (wrong frame or size, NaN rows) is rejected with a logged reason:
+A bad per-robot input is refused as safety_filter_node refuses it (a bad pose or detections
+fail the robot safe; a command not finite or unreadable stops a robot that can stop until a
+valid one comes). Bad batched input (wrong frame or size, NaN rows) is rejected with a logged
+reason:
 a whole bad pose message fails every robot safe (their newest pose is rejected), a
 bad row only its robot; a bad command row keeps that robot's previous command.
 Parameters, the safe sets, the admissibility check of learned sets and the time
@@ -52,13 +59,17 @@ import numpy as np
 from rclpy.node import Node
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from geometry_msgs.msg import PoseArray, PoseStamped, Twist
+from geometry_msgs.msg import PoseArray
 from std_msgs.msg import Float64MultiArray
 
 from ..filter import FAIL_SAFE, step_many, update_commands, update_detections_all, update_poses
+from ..filter.commands import command_fresh
 from ..ros_io import cdr, fleetmsg, rosmsg
+from ..ros_io.take import take_all, take_newest
 from .common import ParameterSpec, declare_all, run_node
 from .filter_diagnostics import FilterDiagnostics, array_bytes, status_copy
+from .filter_inputs import MAP_SENSORS, TYPE_PARAMETERS, check_types
+from .filter_sources import NO_DETECTIONS, CommandSink, CommandSource, DiscSource, PoseSource
 from .filter_state import FleetThrottle, Status
 from .filter_wiring import FilterWiring
 from .managed import node_classes
@@ -70,6 +81,7 @@ PARAMETERS = (
                   '<ns>/cmd_vel, <ns>/safety_filter/state'),
     ParameterSpec('batched_topics', True, 'serve fleet/poses, fleet/detections, fleet/cmd_vel_nav -> '
                   'fleet/cmd_vel, fleet/safety_filter/state'),
+    *TYPE_PARAMETERS,       # the per-robot topics' types, as safety_filter_node's
 )
 
 
@@ -82,44 +94,20 @@ def robot_namespace(name: str) -> str:
 
 
 class _RobotTopics:
-    """A robot's per-robot endpoints (on the never-spun io node)."""
+    """A robot's per-robot endpoints (on the never-spun io node), of its Sources' types (no
+    detections subscription without ``require_detections``), and its cmd_vel's sink."""
 
-    __slots__ = ('pose', 'detections', 'command', 'cmd_pub', 'state_pub')
+    __slots__ = ('pose', 'detections', 'command', 'sink', 'cmd_pub', 'state_pub')
 
-    def __init__(self, io, ns):
+    def __init__(self, io, ns, sources, stamped):
         noop = lambda msg: None  # noqa: E731  (taken by the tick, never by an executor)
-        self.pose = io.create_subscription(PoseStamped, f'{ns}/pose', noop, rosmsg.QOS_STREAM)
-        self.detections = io.create_subscription(PoseArray, f'{ns}/detections', noop, rosmsg.QOS_STREAM)
-        self.command = io.create_subscription(Twist, f'{ns}/cmd_vel_nav', noop, rosmsg.QOS_STREAM)
-        self.cmd_pub = io.create_publisher(Twist, f'{ns}/cmd_vel', rosmsg.QOS_STREAM)
+        self.pose, self.detections, self.command = (
+            None if source is None else io.create_subscription(source.msg_type, f'{ns}/{source.topic}', noop,
+                                                               source.qos, raw=True)
+            for source in sources)
+        self.sink = CommandSink(stamped)
+        self.cmd_pub = io.create_publisher(self.sink.msg_type, f'{ns}/cmd_vel', rosmsg.QOS_STREAM)
         self.state_pub = io.create_publisher(DiagnosticStatus, f'{ns}/safety_filter/state', rosmsg.QOS_STREAM)
-
-
-def take_newest(sub):
-    """The newest sample waiting on ``sub``, serialized (None if none), the older ones dropped
-    undecoded (the tick decodes the newest with ``ros_io.cdr``)."""
-    return take_newest_counted(sub)[0]
-
-
-def take_all(sub) -> list:
-    """Every sample waiting on ``sub``, oldest first (decoded, or serialized if ``sub`` is raw)."""
-    out, handle, msg_type, raw = [], sub.handle, sub.msg_type, sub.raw
-    while True:
-        got = handle.take_message(msg_type, raw)
-        if got is None:
-            return out
-        out.append(got[0])
-
-
-def take_newest_counted(sub):
-    """(the newest sample waiting on ``sub`` or None, how many were waiting)."""
-    newest, count = None, 0
-    handle, msg_type = sub.handle, sub.msg_type
-    while True:
-        got = handle.take_message(msg_type, True)
-        if got is None:
-            return newest, count
-        newest, count = got[0], count + 1
 
 
 class FleetSafetyFilter:
@@ -132,11 +120,22 @@ class FleetSafetyFilter:
     def build(self):
         node_name = self.get_name()
         p = declare_all(self, PARAMETERS)
+        check_types(p)
+        if p['detections_type'] in MAP_SENSORS:
+            raise ValueError(f"detections_type {p['detections_type']!r}: a local map per robot is safety_filter_node's "
+                             f"alone; the fleet node takes pose_array or marker_array (run a safety_filter_node "
+                             f"per robot for a range sensor or a costmap)")
         self.per_robot, self.batched = p['per_robot_topics'], p['batched_topics']
+        self.require_detections = p['require_detections']
         self.namespaces = [robot_namespace(r) for r in p['robots']]
         if len(set(self.namespaces)) != len(self.namespaces):
             raise ValueError(f'robots lists a namespace twice: {self.namespaces}')
         self.wiring = w = FilterWiring(self, self.namespaces, on_rate=self._set_rate)
+        # the per-robot inputs' Sources (as safety_filter_node's): pose, detections (None: no sensor), command
+        self.sources = (PoseSource(p['pose_type'], w.frame),
+                        DiscSource(p['detections_type'], w.frame) if self.require_detections else None,
+                        CommandSource(p['cmd_vel_stamped']))
+        self.stamped = p['cmd_vel_stamped']
         self.n = len(self.namespaces)
         start = time.monotonic()
         self._throttle = FleetThrottle(self.n, start, w.state_period)
@@ -153,14 +152,15 @@ class FleetSafetyFilter:
                        start_parameter_services=False)
         self.topics = []
         if self.per_robot:
-            self.topics = [_RobotTopics(self.io, ns) for ns in self.namespaces]
+            self.topics = [_RobotTopics(self.io, ns, self.sources, self.stamped) for ns in self.namespaces]
         self.fleet_detections_sub = self.fleet_commands_sub = None
         if self.batched:
             # detections and commands are drained by the tick, before the poses (no executor wake-up
             # of their own: the poses tick, and the timer while they pause)
             noop = lambda msg: None  # noqa: E731
-            self.fleet_detections_sub = self.io.create_subscription(PoseArray, 'fleet/detections', noop,
-                                                                    rosmsg.QOS_STREAM, raw=True)
+            if self.require_detections:
+                self.fleet_detections_sub = self.io.create_subscription(PoseArray, 'fleet/detections', noop,
+                                                                        rosmsg.QOS_STREAM, raw=True)
             self.fleet_commands_sub = self.io.create_subscription(Float64MultiArray, 'fleet/cmd_vel_nav', noop,
                                                                   rosmsg.QOS_STREAM)
             # raw: the poses are read straight from the CDR buffer (fleetmsg.posearray_cdr_to_states)
@@ -172,11 +172,12 @@ class FleetSafetyFilter:
         self.timer = None
         self._set_rate(w.rate)
         self._last_outs = None
-        inputs = [(f'{ns}/{topic}', kind) for ns in self.namespaces if self.per_robot
-                  for topic, kind in (('pose', PoseStamped), ('detections', PoseArray), ('cmd_vel_nav', Twist))]
+        inputs = [(f'{ns}/{source.topic}', source.msg_type) for ns in self.namespaces if self.per_robot
+                  for source in self.sources if source is not None]
         if self.batched:
-            inputs += [('fleet/poses', PoseArray), ('fleet/detections', PoseArray),
-                       ('fleet/cmd_vel_nav', Float64MultiArray)]
+            inputs += [('fleet/poses', PoseArray), ('fleet/cmd_vel_nav', Float64MultiArray)]
+            if self.require_detections:
+                inputs.append(('fleet/detections', PoseArray))
         self.diagnostics = FilterDiagnostics(self, self._statuses, inputs, w.complain)
         self.get_logger().info(
             f'filtering {self.n} robots ({", ".join(self.namespaces[:5])}{", ..." if self.n > 5 else ""}) '
@@ -193,22 +194,23 @@ class FleetSafetyFilter:
     # -- per-robot topics: drained once per tick --------------------------------------------------
     def _drain(self, t):
         w = self.wiring
-        frame = w.frame
+        poses, discs, commands = self.sources
         clipped, dropped = [], []        # robots whose new command was beyond limits, whose detections were cut
         for f, topics in zip(w.filters, self.topics):
-            data = take_newest(topics.pose)
+            data = take_newest(topics.pose)[0]
             if data is not None:
                 try:
-                    msg = cdr.pose_stamped(data)
-                    f.update_pose(rosmsg.pose_to_state(msg, frame), t, stamp=w.stamp(msg.header.stamp, t))
+                    state, stamp = poses.read(data)
+                    f.update_pose(state, t, stamp=w.stamp(stamp, t))
+                    if discs is None:       # no obstacle sensor: every pose comes with "no obstacle"
+                        f.update_detections(NO_DETECTIONS, t)
                 except ValueError as exc:
                     f.reject_pose(str(exc), t)
                     w.complain(f'pose {f.name}', f'{f.name}: pose rejected: {exc}; failing safe', level='error')
-            data = take_newest(topics.detections)
+            data = None if discs is None else take_newest(topics.detections)[0]
             if data is not None:
                 try:
-                    f.update_detections(rosmsg.checked_xy(*cdr.pose_array_xy(data, 'detections'), frame), t,
-                                        w.safe_set)
+                    f.update_detections(discs.read(data), t, w.safe_set)
                 except ValueError as exc:
                     f.reject_detections(str(exc), t)
                     w.complain(f'det {f.name}', f'{f.name}: detections rejected: {exc}; failing safe',
@@ -216,14 +218,16 @@ class FleetSafetyFilter:
                 else:
                     if f.detections.dropped:
                         dropped.append(f)
-            data = take_newest(topics.command)
+            data = take_newest(topics.command)[0]
             if data is not None:
                 try:
-                    msg = cdr.twist(data)
-                    f.update_command(rosmsg.twist_turn_rate(msg), t, msg.linear.x)
-                except ValueError as exc:
-                    w.complain(f'cmd {f.name}', f'{f.name}: cmd_vel_nav rejected: {exc}; keeping the '
-                               f'previous command')
+                    turn, linear, header = commands.read(data)
+                    topics.sink.heard(header)
+                    f.update_command(turn, t, linear)
+                except ValueError as exc:   # not finite (update_command), or unreadable: as safety_filter_node
+                    if not f.command.rejected:
+                        f.refuse_command(f'unreadable ({exc})', t)
+                    w.complain(f'cmd {f.name}', f'{f.name}: cmd_vel_nav rejected: {f.command.note}')
                 else:
                     if f.command.note:
                         clipped.append(f)
@@ -248,7 +252,7 @@ class FleetSafetyFilter:
         the previous message's. They count as arrived now, at most a period after they came."""
         if not self.batched:
             return
-        for msg in take_all(self.fleet_detections_sub):
+        for msg in take_all(self.fleet_detections_sub) if self.require_detections else ():
             self.on_fleet_detections(msg)
         for msg in take_all(self.fleet_commands_sub):
             self.on_fleet_commands(msg)
@@ -297,7 +301,7 @@ class FleetSafetyFilter:
         decides once, on the newest (deciding on each in turn would answer ever older poses)."""
         w = self.wiring
         if self.poses_sub is not None:
-            newer, superseded = take_newest_counted(self.poses_sub)
+            newer, superseded = take_newest(self.poses_sub)
             if newer is not None:
                 data = newer
                 self.superseded_poses += superseded
@@ -324,6 +328,8 @@ class FleetSafetyFilter:
                     w.complain(f'pose {f.name}', f'{f.name}: fleet/poses row rejected: {why}; failing safe',
                                level='error')
             update_poses(w.filters, states, t, stamp=stamp, skip=bad)   # the good rows, validated at once
+            if not self.require_detections:     # no obstacle sensor: every pose comes with "no obstacle"
+                update_detections_all(w.filters, NO_DETECTIONS, t, w.safe_set)
         self.decide(t)
         self._last_batched = time.monotonic()
         self.timer.reset()      # the timer decides only when the poses pause (on_tick)
@@ -368,8 +374,10 @@ class FleetSafetyFilter:
         shared = w.shared_state_values() if due else None
         states = [w.state_message(self.namespaces[i], outs[i], shared=shared) for i in due]
         if self.per_robot:
-            for topics, v, omega in zip(self.topics, outs.linear, outs.omega):
-                topics.cmd_pub.publish(cdr.twist_bytes(v, omega))   # serialized: no Twist built
+            stamped = self.stamped
+            for f, topics, action, v, omega in zip(w.filters, self.topics, outs.action, outs.linear, outs.omega):
+                judged = stamped and action != FAIL_SAFE and command_fresh(f, t)
+                topics.cmd_pub.publish(topics.sink.bytes(v, omega, judged, self._clock_ns))   # serialized
             for i, state in zip(due, states):
                 self.topics[i].state_pub.publish(cdr.diagnostic_status_bytes(state))
         if self.batched:
@@ -379,6 +387,9 @@ class FleetSafetyFilter:
         self._tell_story(outs)
         self._last_outs = outs
         return outs
+
+    def _clock_ns(self) -> int:
+        return self.get_clock().now().nanoseconds
 
     def _tell_story(self, outs):
         """At most one line per kind of change of the robots' fail-safe states per tick (quiet while
@@ -404,9 +415,8 @@ class FleetSafetyFilter:
         """One zero twist on every robot's cmd_vel (per-robot and batched topics): a managed node
         going quiet (managed.py), the bases must not keep the last commands; the publishers."""
         sent = [topics.cmd_pub for topics in self.topics]
-        zero = cdr.twist_bytes(0.0, 0.0)
-        for pub in sent:
-            pub.publish(zero)
+        for topics in self.topics:
+            topics.cmd_pub.publish(topics.sink.bytes(0.0, 0.0, False, self._clock_ns))
         if self.batched:
             self.fleet_cmd_pub.publish(fleetmsg.commands_to_msg(np.zeros((self.n, 2))))
             sent.append(self.fleet_cmd_pub)

@@ -84,6 +84,7 @@ from ..learning.intervention_store import Intervention, InterventionStore, Recor
 from ..learning.estimators import admissible_mask, fit_first_passage_intervals, fit_paper_values
 from ..learning.encounter_window import EncounterWindow
 from ..reach.library import PAPER_OMEGAS, LibrarySpec, load_or_build_library
+from ..ros_io.take import take
 from ..ros_io.vfmsg import value_function_to_msg
 from ..storage import new_run_store, prune_runs
 from .common import LiveParameters, declare, run_node
@@ -314,13 +315,11 @@ class LearnerNode(Node):
     # they were sent (stamps order the rest: see learning.encounters).
     def _take(self, sub):
         try:
-            with sub.handle:
-                taken = sub.handle.take_message(sub.msg_type, sub.raw)
+            return take(sub)
         except Exception as exc:     # a failed take must not lose what was handled already
             self.get_logger().warn(f'{sub.topic_name}: take failed ({exc}); the executor continues',
                                    throttle_duration_sec=5.0)
             return None
-        return None if taken is None else taken[0]
 
     def _take_events(self):
         if self.markers_sub is not None:

@@ -71,25 +71,20 @@ import re
 import threading
 import time
 
-from rclpy.qos import qos_profile_sensor_data
-
 from diagnostic_msgs.msg import DiagnosticStatus
-from geometry_msgs.msg import Twist, TwistStamped
 from std_msgs.msg import Empty
-
-import numpy as np
 
 from ..filter import FAIL_SAFE
 from ..filter.commands import command_fresh
 from ..filter.decide import decide_many
 from ..filter.sent import record_decisions
 from ..filter.lockstep import GIVE_UP, LockstepAnswers
-from ..ros_io import cdr, rosmsg, sensors
+from ..ros_io import cdr, rosmsg
 from ..ros_io.direct_take import DirectTake
 from .common import ParameterSpec, declare_all, run_node
 from .filter_diagnostics import FilterDiagnostics, status_copy
-from .filter_inputs import (INPUT_PARAMETERS, MAP_SENSORS, RANGE_SENSORS, PoseHistory, SensorMap, check_types,
-                            command_message_type, message_type)
+from .filter_inputs import INPUT_PARAMETERS, MAP_SENSORS, PoseHistory, SensorMap, check_types
+from .filter_sources import NO_DETECTIONS, CommandSink, CommandSource, DiscSource, PoseSource
 from .filter_state import HoldSummary, StateThrottle, Status
 from .managed import node_classes
 from .filter_wiring import VALUE_FUNCTION_TOPIC, FilterWiring  # noqa: F401  (the topic, re-exported for tests)
@@ -113,15 +108,8 @@ PARAMETERS = (
     ParameterSpec('level_set_rate', 2.0, 'rate of safety_filter/level_set markers [Hz, steady clock]', 0.1, 50.0),
     ParameterSpec('level_set_markers', True, 'publish the level set in force at the robot\'s heading around '
                   'each detected obstacle on safety_filter/level_set (LINE_STRIPs, for RViz)'),
-    ParameterSpec('require_detections', True, 'fail safe until detections arrive and whenever they are stale; '
-                  'false = a robot without an obstacle sensor: every pose comes with "no obstacle" and '
-                  'detections is not subscribed'),
     *INPUT_PARAMETERS,
 )
-NO_DETECTIONS = np.zeros((0, 2))
-# each pose_type's raw reader: a PoseStamped view of the bytes (ros_io.cdr)
-POSE_READERS = {'pose_stamped': cdr.pose_stamped, 'odometry': cdr.odometry,
-                'pose_with_covariance': cdr.pose_with_covariance}
 
 
 class SafetyFilter:
@@ -139,7 +127,6 @@ class SafetyFilter:
         self.filter = w.filters[0]
         p = declare_all(self, PARAMETERS)
         check_types(p)
-        self.types = p
         self.poses = PoseHistory()
         c = w.params.config
         self.sensor = None
@@ -160,8 +147,7 @@ class SafetyFilter:
                 'robot before an obstacle the map learned since its value was last solved; set it > 0 '
                 '(config/nav2_safety_filter.yaml: 0.5; docs/filter_node.md, "Stop before collision")')
         self._first_value = None        # the map's first value, told once
-        self._cmd_frame = ''              # the planner's TwistStamped frame and stamp, on the cmd_vel judged from it
-        self._cmd_stamp = None
+        self.sink = CommandSink(p['cmd_vel_stamped'])     # cmd_vel (with the planner's last header)
         self.publish_on_pose = p['publish_on_pose']
         w.live.add('publish_on_pose', lambda v: setattr(self, 'publish_on_pose', bool(v)))
         self.lockstep = p['lockstep']
@@ -180,8 +166,7 @@ class SafetyFilter:
         self.ready_pub = None          # safety_filter/ready: made once the filter can judge
         self._inputs_ready = not self.require_detections
 
-        self.cmd_pub = self.create_publisher(command_message_type(p['cmd_vel_stamped']), 'cmd_vel',
-                                             rosmsg.QOS_STREAM)
+        self.cmd_pub = self.create_publisher(self.sink.msg_type, 'cmd_vel', rosmsg.QOS_STREAM)
         self.state_pub = self.create_publisher(DiagnosticStatus, 'safety_filter/state', rosmsg.QOS_STREAM)
         self.timer = None
         self.direct = None
@@ -219,24 +204,24 @@ class SafetyFilter:
                                    'sensor, every pose is judged with no obstacle; waiting for the first pose')
 
     def _inputs(self, p) -> tuple:
-        """(type, topic, callback, raw, qos) of each input, as ``p`` (the parameters) say. The
-        default types are read raw, straight from their CDR bytes (ros_io.cdr), no message
-        objects built (on the path from pose to cmd_vel; for detections of any size); the others
-        are decoded by rclpy. Ready together, they are taken in this order (the executor's: the
-        order made), so a command is judged on the detections that came with it."""
-        self._read_pose = POSE_READERS[p['pose_type']]
-        inputs = [(message_type(p['pose_type']), 'pose', self.on_pose, True, rosmsg.QOS_STREAM)]
+        """(type, topic, callback, raw, qos) of each input, as ``p`` (the parameters) say, read by
+        its Source (``filter_sources``). Poses, commands and PoseArrays are read raw, straight from
+        their CDR bytes (ros_io.cdr), no message objects built (on the path from pose to cmd_vel;
+        for detections of any size); the others are decoded by rclpy. Ready together, they are
+        taken in this order (the executor's: the order made), so a command is judged on the
+        detections that came with it."""
+        self.pose_source = PoseSource(p['pose_type'], self.wiring.frame)
+        self.command_source = CommandSource(p['cmd_vel_stamped'])
+        sources = [(self.pose_source, self.on_pose)]
         if self.require_detections:
             kind = p['detections_type']
-            callback = {'pose_array': self.on_detections, 'marker_array': self.on_markers}.get(
-                kind, self.on_range_sensor)
-            # (a costmap's transient-local publisher matches this reliable, volatile stream)
-            qos = qos_profile_sensor_data if kind in RANGE_SENSORS else rosmsg.QOS_STREAM
-            inputs.append((message_type(kind), 'detections', callback, kind == 'pose_array', qos))
-        stamped = p['cmd_vel_stamped']
-        inputs.append((command_message_type(stamped), 'cmd_vel_nav',
-                       self.on_stamped_command if stamped else self.on_command, True, rosmsg.QOS_STREAM))
-        return tuple(inputs)
+            if kind in MAP_SENSORS:
+                sources.append((self.sensor, self.on_range_sensor))
+            else:
+                self.disc_source = DiscSource(kind, self.wiring.frame)
+                sources.append((self.disc_source, self.on_detections))
+        sources.append((self.command_source, self.on_command))
+        return tuple((s.msg_type, s.topic, callback, s.raw, s.qos) for s, callback in sources)
 
     def _statuses(self) -> list:
         """This robot's status on /diagnostics: its last state (see filter_diagnostics)."""
@@ -280,19 +265,19 @@ class SafetyFilter:
     # -- inputs -----------------------------------------------------------------------------
     def on_pose(self, data):
         """A serialized PoseStamped, Odometry or PoseWithCovarianceStamped (``pose_type``; raw: its pose
-        read from the CDR bytes, ``ros_io.cdr``, with the frame and checks of a message's)."""
+        read from the CDR bytes, with the frame and checks of a message's: ``PoseSource``)."""
         w = self.wiring
         t = w.now()
-        msg = None
+        stamp = None
         try:
-            msg = self._read_pose(data)
-            self._take_pose(rosmsg.pose_to_state(msg, w.frame), t, w.stamp(msg.header.stamp, t))
+            state, stamp = self.pose_source.read(data)
+            self._take_pose(state, t, w.stamp(stamp, t))
             if not self.require_detections:
                 self.filter.update_detections(NO_DETECTIONS, t)
         except ValueError as exc:   # MessageError is a ValueError
             self.filter.reject_pose(str(exc), t)
             w.complain('pose', f'pose rejected: {exc}; failing safe', level='error')
-        self._answer_pose(t, None if msg is None else msg.header.stamp)
+        self._answer_pose(t, stamp)
 
     def _answer_pose(self, t, stamp):
         """After a pose (``stamp``: its header's, None if unreadable): lockstep answers it,
@@ -324,28 +309,16 @@ class SafetyFilter:
         return True
 
     def on_detections(self, data):
-        """A serialized PoseArray (raw subscription): its positions read as one array, and at most
+        """A serialized PoseArray (raw subscription: its positions read as one array) or a MarkerArray
+        (the full current set of discs, each of its own radius): ``DiscSource``. At most
         ``max_detections`` of them kept (the nearest; the state and a log line say which were dropped)."""
-        w = self.wiring
-        t = w.now()
+        t = self.wiring.now()
         try:
-            xy = rosmsg.checked_xy(*cdr.pose_array_xy(data, 'detections'), w.frame)
+            rows = self.disc_source.read(data)
         except ValueError as exc:
             self._refuse_detections(exc, t)
             return
-        self._take_detections(xy, t)
-
-    def on_markers(self, msg):
-        """A MarkerArray (detections_type marker_array): the full current set of discs, each of
-        its own radius (ros_io.sensors.marker_discs)."""
-        w = self.wiring
-        t = w.now()
-        try:
-            discs, _ = sensors.marker_discs(msg, w.frame)
-        except ValueError as exc:
-            self._refuse_detections(exc, t)
-            return
-        self._take_detections(discs, t)
+        self._take_detections(rows, t)
 
     def on_range_sensor(self, msg):
         """A LaserScan, PointCloud2 or OccupancyGrid (detections_type): checked, placed with the robot's pose
@@ -417,24 +390,15 @@ class SafetyFilter:
         if d.dropped:
             w.complain('detections dropped', d.note, level='warn' if d.dropped_safely else 'error')
 
-    def on_stamped_command(self, data):
-        """A serialized TwistStamped (cmd_vel_stamped): its twist judged as on_command's; its header is that
-        of the cmd_vel judged from it."""
-        try:
-            header, twist = cdr.twist_stamped(data)
-        except ValueError:
-            self.on_command(data)       # (unreadable: refused there, said)
-            return
-        self._cmd_frame, self._cmd_stamp = header.frame_id, header.stamp
-        self.on_command(twist)
-
     def on_command(self, data):
-        """A serialized Twist (raw subscription), or a Twist."""
+        """A serialized Twist or TwistStamped (``cmd_vel_stamped``; raw subscription), or a Twist:
+        ``CommandSource``. A TwistStamped's header is that of the cmd_vel judged from it."""
         w = self.wiring
         t = w.now()
         try:
-            msg = cdr.twist(data) if isinstance(data, (bytes, bytearray, memoryview)) else data
-            self.filter.update_command(msg.angular.z, t, msg.linear.x)
+            turn, linear, header = self.command_source.read(data)
+            self.sink.heard(header)
+            self.filter.update_command(turn, t, linear)
         except ValueError as exc:   # not finite (update_command), or unreadable
             if not self.filter.command.rejected:
                 self.filter.refuse_command(f'unreadable ({exc})', t)
@@ -495,19 +459,12 @@ class SafetyFilter:
             self.state_pub.publish(cdr.diagnostic_status_bytes(w.state_message(self.name, out, extra)))
         return out
 
+    def _clock_ns(self) -> int:
+        return self.get_clock().now().nanoseconds
+
     def _publish_command(self, out, t):
-        if self.types['cmd_vel_stamped']:
-            # the planner's header on what was judged from its command (as Nav2's collision_monitor keeps it);
-            # the decision's time on what was not (a fail safe, a silent planner's zero twist)
-            judged = out.action != FAIL_SAFE and self._cmd_stamp is not None and command_fresh(self.filter, t)
-            if judged:
-                sec, nanosec = self._cmd_stamp.sec, self._cmd_stamp.nanosec
-            else:
-                sec, nanosec = divmod(self.get_clock().now().nanoseconds, 1_000_000_000)
-            self.cmd_pub.publish(cdr.twist_stamped_bytes(sec, nanosec, self._cmd_frame, float(out.linear),
-                                                         float(out.omega)))      # serialized: no message built
-        else:
-            self.cmd_pub.publish(cdr.twist_bytes(float(out.linear), float(out.omega)))   # serialized: no Twist built
+        judged = out.action != FAIL_SAFE and command_fresh(self.filter, t)
+        self.cmd_pub.publish(self.sink.bytes(out.linear, out.omega, judged, self._clock_ns))
 
     def _tell_story(self, out):
         """One log line per change of the fail-safe state (not one per decision): nothing while
@@ -544,13 +501,7 @@ class SafetyFilter:
         keep the last command), stamped as the decisions are; the publisher it went out on. Under
         the lock: after a decision under way on the inputs' thread, never before it."""
         with self.lock:
-            if self.types['cmd_vel_stamped']:
-                msg = TwistStamped()
-                msg.header.stamp = self.get_clock().now().to_msg()
-                msg.header.frame_id = self._cmd_frame          # the planner's last frame
-            else:
-                msg = Twist()
-            self.cmd_pub.publish(msg)
+            self.cmd_pub.publish(self.sink.bytes(0.0, 0.0, False, self._clock_ns))
         return [self.cmd_pub]
 
     def close(self):

@@ -52,6 +52,8 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 
+from .take import take
+
 TAKE_PATHS = ('private', 'public')
 
 
@@ -202,8 +204,7 @@ class DirectTake:
             if taker is not None:
                 message = taker.take(sub)
             else:
-                taken = sub.handle.take_message(sub.msg_type, sub.raw)
-                message = None if taken is None else taken[0]
+                message = take(sub)
         except (RuntimeError, MemoryError) as exc:    # rcl failed to take: nothing was taken
             self._said(sub.topic_name, exc, 'take failed')
             return

@@ -1,0 +1,188 @@
+"""A fleet robot takes what a lone robot takes: Odometry (or PoseWithCovarianceStamped) poses,
+MarkerArray discs, TwistStamped commands both ways, no sensor at all (require_detections false),
+on the same topics of the same types as safety_filter_node; the same behaviour, run on both
+nodes; a range sensor refused by the fleet node at start."""
+import pytest
+
+from diagnostic_msgs.msg import DiagnosticStatus
+from geometry_msgs.msg import PoseWithCovarianceStamped, TwistStamped
+from nav_msgs.msg import Odometry
+from visualization_msgs.msg import MarkerArray
+
+from supersafe_ros.nodes.fleet_safety_filter_node import FleetSafetyFilterNode
+from supersafe_ros.nodes.safety_filter_node import SafetyFilterNode
+from supersafe_ros.ros_io import rosmsg
+
+from graph_support import Spinner, matched, params
+from sensor_graph_support import obstacle_markers
+
+DISC = (4.0, -2.0, 1.2)                 # a marker disc of its own radius (not the node's radius 1.8)
+FAR = (-3.5, 5.0, 0.0)                  # clear: the planner's command passes
+INTO = (DISC[0] - 2.6, DISC[1] + 0.4, 0.0)   # heading at the disc, left of its centre: the filter turns left
+# long timeouts: no test here waits for an input to go stale (a busy machine reads replies late)
+QUIET = dict(pose_timeout=30.0, detections_timeout=30.0, cmd_timeout=30.0, hold_timeout=30.0, rate=20.0,
+             state_rate=100.0, standard_shape=[41, 41, 24])
+
+
+def make_filter(ctx, kind, ns, **types):
+    """safety_filter_node in ``ns``, or a fleet node (in /) of the one robot ``ns``."""
+    if kind == 'single':
+        return SafetyFilterNode(context=ctx, namespace=ns, parameter_overrides=params(
+            level_set_markers=False, direct_take=False, **QUIET, **types))
+    return FleetSafetyFilterNode(context=ctx, node_name=f'fleet_{ns.strip("/")}', parameter_overrides=params(
+        robots=[ns.strip('/')], batched_topics=False, **QUIET, **types))
+
+
+class Stack:
+    """A robot's stack: Odometry or PoseWithCovarianceStamped poses, MarkerArray detections,
+    TwistStamped commands; it records the filter's TwistStamped cmd_vel and states."""
+
+    def __init__(self, ctx, ns, pose_msg=Odometry, detections=True):
+        from rclpy.node import Node
+        self.node = n = Node(f'stack_{ns.strip("/")}', namespace=ns, context=ctx)
+        self.pose_msg = pose_msg
+        self.pose = n.create_publisher(pose_msg, 'pose', rosmsg.QOS_STREAM)
+        self.det = n.create_publisher(MarkerArray, 'detections', rosmsg.QOS_STREAM) if detections else None
+        self.cmd = n.create_publisher(TwistStamped, 'cmd_vel_nav', rosmsg.QOS_STREAM)
+        self.out, self.states = [], []
+        self.subs = [n.create_subscription(TwistStamped, 'cmd_vel', self.out.append, rosmsg.QOS_STREAM),
+                     n.create_subscription(DiagnosticStatus, 'safety_filter/state',
+                                           lambda m: self.states.append(rosmsg.diagnostic_values(m)),
+                                           rosmsg.QOS_STREAM)]
+
+    def endpoints(self):
+        return [e for e in (self.pose, self.det, self.cmd, *self.subs) if e is not None]
+
+    def send_pose(self, state, frame='map'):
+        p = rosmsg.state_to_pose(state, frame=frame)
+        m = self.pose_msg()
+        m.header.frame_id, m.header.stamp = frame, self.node.get_clock().now().to_msg()
+        target = m.pose.pose
+        target.position, target.orientation = p.pose.position, p.pose.orientation
+        self.pose.publish(m)
+
+    def send_cmd(self, omega, linear=3.0, sec=7, frame='base_link'):
+        m = TwistStamped()
+        m.header.frame_id, m.header.stamp.sec = frame, sec
+        m.twist.linear.x, m.twist.angular.z = linear, omega
+        self.cmd.publish(m)
+
+    def newest(self):
+        return self.states[-1] if self.states else {}
+
+
+@pytest.fixture
+def rig(ros_context):
+    made = []
+
+    def make(kind, ns, pose_msg=Odometry, detections=True, **types):
+        f = make_filter(ros_context, kind, ns, cmd_vel_stamped=True, **types)
+        s = Stack(ros_context, ns, pose_msg, detections)
+        spin = Spinner(ros_context, f, s.node)
+        spin.until(lambda: matched(*s.endpoints()), 15.0, f'{ns} topics to match')
+        made.append((spin, f, s))
+        return f, s, spin
+    yield make
+    for spin, f, s in made:
+        spin.shutdown()
+        f.close()
+        f.destroy_node()
+        s.node.destroy_node()
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize('kind', ['single', 'fleet'])
+def test_odometry_markers_and_stamped_commands_are_judged_alike_on_both_nodes(rig, kind):
+    ns = f'/in_{kind}'
+    f, s, spin = rig(kind, ns, pose_type='odometry', detections_type='marker_array')
+    s.det.publish(obstacle_markers([DISC]))
+    s.send_cmd(0.25)
+    s.send_pose(FAR)
+    spin.until(lambda: s.newest().get('action') == 'pass', 15.0, f'{ns} passing')
+    assert float(s.newest()['cmd_angular_z']) == pytest.approx(0.25)
+    spin.until(lambda: s.out and s.out[-1].twist.angular.z == pytest.approx(0.25), 10.0, 'the pass on cmd_vel')
+    judged = s.out[-1]
+    assert (judged.header.frame_id, judged.header.stamp.sec) == ('base_link', 7)     # the planner's header
+    # heading at the disc of its own radius: the avoid turn, left (the disc is to the right)
+    s.send_cmd(-0.5, sec=8)
+    s.send_pose(INTO)
+    spin.until(lambda: s.newest().get('action') == 'override', 15.0, f'{ns} overriding')
+    assert s.newest()['obstacle_index'] == '0'
+    spin.until(lambda: s.out[-1].twist.angular.z == pytest.approx(1.0), 10.0, 'the avoid turn on cmd_vel')
+    # a marker in another frame: refused, failing safe, a zero twist stamped by the node's clock
+    s.det.publish(obstacle_markers([DISC], frame='odom'))
+    s.send_pose(FAR)
+    spin.until(lambda: s.newest().get('action') == 'fail_safe', 15.0, f'{ns} failing safe')
+    assert 'frame' in s.newest()['reason']
+    spin.until(lambda: (s.out[-1].twist.linear.x, s.out[-1].twist.angular.z) == (0.0, 0.0)
+               and s.out[-1].header.stamp.sec != 8, 10.0, 'a zero twist of the node\'s own stamp')
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize('kind', ['single', 'fleet'])
+def test_a_robot_without_a_sensor_is_judged_with_no_obstacle_on_both_nodes(rig, kind):
+    ns = f'/blind_{kind}'
+    f, s, spin = rig(kind, ns, PoseWithCovarianceStamped, detections=False, pose_type='pose_with_covariance',
+                     require_detections=False)
+    s.send_cmd(-0.3)
+    s.send_pose(INTO)       # no disc known: what would be an override passes
+    spin.until(lambda: s.newest().get('action') == 'pass', 15.0, f'{ns} passing without detections')
+    assert float(s.newest()['cmd_angular_z']) == pytest.approx(-0.3)
+    names = {name for name, _ in s.node.get_topic_names_and_types()}
+    assert f'{ns}/cmd_vel' in names
+    assert not s.node.get_subscriptions_info_by_topic(f'{ns}/detections')     # nobody listens there
+
+
+def endpoint_types(node, ns):
+    """{(topic, 'sub' or 'pub'): types} of the topics under ``ns`` on the graph."""
+    out = {}
+    for topic, _ in node.get_topic_names_and_types():
+        if not topic.startswith(ns + '/'):
+            continue
+        for side, infos in (('sub', node.get_subscriptions_info_by_topic(topic)),
+                            ('pub', node.get_publishers_info_by_topic(topic))):
+            theirs = [i for i in infos if not i.node_name.startswith('probe')]
+            if theirs:
+                out[(topic[len(ns):], side)] = sorted({i.topic_type for i in theirs})
+    return out
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize('types', [
+    dict(pose_type='pose_stamped', detections_type='pose_array', cmd_vel_stamped=False),
+    dict(pose_type='odometry', detections_type='marker_array', cmd_vel_stamped=True),
+    dict(pose_type='pose_with_covariance', detections_type='pose_array', cmd_vel_stamped=True),
+    dict(pose_type='odometry', detections_type='pose_array', cmd_vel_stamped=False, require_detections=False),
+], ids=['defaults', 'nav2', 'amcl', 'no_sensor'])
+def test_a_fleet_of_one_shows_the_topics_and_types_of_a_single_filter(ros_context, types):
+    """`ros2 topic info` of a robot's per-robot topics: the same names, directions and types for a
+    fleet node of one robot as for safety_filter_node with the same parameters."""
+    from rclpy.node import Node
+    probe = Node('probe_topics', context=ros_context)
+    seen = {}
+    for kind in ('single', 'fleet'):
+        ns = f'/graph_{kind}'
+        f = make_filter(ros_context, kind, ns, **types)
+        spin = Spinner(ros_context, f, probe)
+        try:
+            want = {'/pose', '/cmd_vel_nav', '/cmd_vel', '/safety_filter/state'}
+            if types.get('require_detections', True):
+                want.add('/detections')
+            spin.until(lambda: want <= {t for t, _ in endpoint_types(probe, ns)}, 15.0, f'{kind} topics on the graph')
+            seen[kind] = {k: v for k, v in endpoint_types(probe, ns).items() if k[0] in want}
+        finally:
+            spin.shutdown()
+            f.close()
+            f.destroy_node()
+    probe.destroy_node()
+    assert seen['fleet'] == seen['single']
+    assert seen['single'][('/pose', 'sub')] == [
+        {'pose_stamped': 'geometry_msgs/msg/PoseStamped', 'odometry': 'nav_msgs/msg/Odometry',
+         'pose_with_covariance': 'geometry_msgs/msg/PoseWithCovarianceStamped'}[types['pose_type']]]
+
+
+@pytest.mark.ros
+def test_the_fleet_node_refuses_a_range_sensor_at_start_naming_the_node_that_takes_it(ros_context):
+    with pytest.raises(ValueError, match='safety_filter_node per robot'):
+        FleetSafetyFilterNode(context=ros_context, node_name='fleet_scan', parameter_overrides=params(
+            robots=['scan_robot'], detections_type='laser_scan'))
