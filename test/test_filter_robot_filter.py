@@ -393,3 +393,35 @@ def test_decide_many_records_nothing_and_its_record_is_step_many():
     step_many([sent], safe, 0.05)
     assert list(held.sent) == list(sent.sent) and len(sent.sent) == len(before[0]) + 1
     assert held.overriding == sent.overriding is True
+
+
+def test_a_decision_writes_nothing_into_its_filters_until_recorded_caches_included():
+    """``decide_many`` leaves every filter as it was, its caches too (the detections' index and
+    pick, the clusters' frames: ``filter.derived``); ``record_decisions`` writes them with what was
+    sent, and the next decision reads them (the same objects, not built again)."""
+    import pickle
+    from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore
+    from supersafe_ros.filter.decide import decide_many
+    from supersafe_ros.filter.nearby import NEAR_QUERY_MIN
+    from supersafe_ros.filter.sent import record_decisions
+    from supersafe_ros.reach.library import load_or_solve
+    vf = load_or_solve(Grid((-10.0, -10.0), (10.0, 10.0), (21, 21, 16)), 3.0, 1.0, 1.8, 2.0)
+    safe = SafeSet(vf, 0.5)
+    store = ClusterStore(ClusterSettings(disk_cache=False), background=False)
+    many = NEAR_QUERY_MIN + 36       # judged through the index (nearby), a close pair among them (a cluster)
+    field = np.column_stack([np.arange(many) * 6.0 + 20.0, np.full(many, 40.0)])
+    field[:2] = [(OBSTACLE[0] + 1.0, OBSTACLE[1]), (OBSTACLE[0] + 1.0, OBSTACLE[1] + 2.5)]
+    fleet = [robot(pose=at(-4.0, 1.0, 0.0), detections=field), robot(pose=at(-3.0, -1.5, 0.2), detections=field),
+             robot(pose=at(-4.0, 0.5, 0.0), detections=field[:2])]     # a pair alone: its clusters' frames
+    before = [{name: pickle.dumps(value) for name, value in vars(f).items()} for f in fleet]
+    decisions = decide_many(fleet, safe, 0.05, store)
+    assert len(decisions.derived) > 0
+    for f, was in zip(fleet, before):        # every attribute, to its contents
+        assert {name: pickle.dumps(value) for name, value in vars(f).items()} == was
+    assert all(f.derived == {} for f in fleet)
+    record_decisions(fleet, decisions)
+    kept = [dict(f.derived) for f in fleet]
+    assert [sorted(k) for k in kept] == [['near_index', 'near_pick']] * 2 + [['clusters']]
+    again = decide_many(fleet, safe, 0.1, store)
+    record_decisions(fleet, again)
+    assert all(f.derived[k] is v[k] for f, v in zip(fleet, kept) for k in v)     # read, not built again

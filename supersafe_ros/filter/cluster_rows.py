@@ -27,6 +27,7 @@ import math
 import numpy as np
 
 from . import cluster
+from .derived import Derived
 from .elementwise import py_max, py_min
 from .law import better_bang, first_min_of_runs
 from .propagation import arc_flow, bang_ends
@@ -111,7 +112,7 @@ _NO_CLUSTERS = dict(robot=_NONE_I, index=_NONE_I, value=_NONE_F, level=_NONE_F,
 
 
 def cluster_rows(filters, configs, states, planned, horizon, speed, bang, cluster_alpha, dets, start,
-                 store_arg, frames=None) -> dict:
+                 store_arg, frames=None, derived=None) -> dict:
     """The cluster constraints of every robot, as table columns (see ``law.ConstraintTable``).
 
     A robot with clusters enabled and more than one detection gets, per cluster of its
@@ -132,11 +133,14 @@ def cluster_rows(filters, configs, states, planned, horizon, speed, bang, cluste
     read per distinct cluster value, one fallback evaluation per store. The rows' turns
     are read on demand (``turns_of``, for the rows robots avoid by). ``frames``: per robot,
     its ``ClusterFrames`` when given (a robot's detections within reach, ``filter.nearby``;
-    None: those of its detections array).
+    None: those of its detections array). ``derived``: the decision's ``filter.derived.Derived``
+    (None: one of its own, kept by no one); the frames are read and kept through it.
     """
+    if derived is None:
+        derived = Derived()
     m = len(filters)
     solving = np.zeros(m, dtype=np.intp)
-    entries = _entries(filters, configs, dets, store_arg, frames)
+    entries = _entries(filters, configs, dets, store_arg, frames, derived)
     if not entries:
         return dict(_NO_CLUSTERS, solving=solving)
     fc = _FrameColumns(entries)
@@ -215,10 +219,10 @@ def cluster_rows(filters, configs, states, planned, horizon, speed, bang, cluste
                 member_pairs=member_pairs, member_groups=member_inst, n_groups=n_inst, solving=solving)
 
 
-def _entries(filters, configs, dets, store_arg, frames=None) -> list:
+def _entries(filters, configs, dets, store_arg, frames, derived) -> list:
     """[(ClusterFrames, store, robot rows)] of the robots with clusters: robots with one
     detections array and configuration share an entry (a batched fleet: one); each robot
-    keeps its frames (``RobotFilter.derived['clusters']``) while its detections array is the same."""
+    keeps its frames (its ``'clusters'``, ``derived``) while its detections array is the same."""
     entries = {}      # (frames, store) -> rows of the robots that use them, in order
     shared = {}
     stores = {}       # id(config) -> its default store (robots of a fleet share one config)
@@ -247,12 +251,12 @@ def _entries(filters, configs, dets, store_arg, frames=None) -> list:
             store = store.fallback_twin()
         fr = frames[row] if frames is not None else None
         if fr is None:
-            cache = f.derived.get('clusters')
+            cache = derived.get(f, 'clusters')
             if cache is None or cache[0] is not det:
                 got = shared.get((id(det), id(store)))
                 if got is None:
                     got = shared[(id(det), id(store))] = cluster_frames(det, store)
-                cache = f.derived['clusters'] = (det, got)
+                cache = derived.put(f, 'clusters', (det, got))
             fr = cache[1]
         if fr.n:
             entry = entries.get((id(fr), id(store)))

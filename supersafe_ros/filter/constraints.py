@@ -33,10 +33,11 @@ _ONE_ROBOT = np.zeros(1, np.intp)
 _ONE_ROBOT.flags.writeable = False
 
 
-def constraint_rows(rb, safe_set, clusters):
+def constraint_rows(rb, safe_set, clusters, derived=None):
     """(the table of every robot's constraints, its number of groups, per robot row the
     clusters near it whose union value is being solved) from ``gather``'s columns ``rb``;
-    ``clusters``: the ClusterStore (None: the process's shared one, ``filter.cluster``)."""
+    ``clusters``: the ClusterStore (None: the process's shared one, ``filter.cluster``);
+    ``derived``: the decision's ``filter.derived.Derived`` (what it keeps, written by the recorder)."""
     m = len(rb.use)
     dets, states, lone = rb.dets, rb.states, rb.lone
     if lone is not None:       # (a lone robot's count in Python: numpy's max costs more than it)
@@ -47,7 +48,8 @@ def constraint_rows(rb, safe_set, clusters):
         many = m and counts.max() > NEAR_QUERY_MIN
     narrowed = None
     if many:
-        narrowed = narrow(rb.filters, rb.configs, dets, states, rb.horizon, rb.speed, rb.margin, safe_set, clusters)
+        narrowed = narrow(rb.filters, rb.configs, dets, states, rb.horizon, rb.speed, rb.margin, safe_set, clusters,
+                          derived)
         dets = narrowed.dets
         counts = np.fromiter(map(len, dets), dtype=np.intp, count=m)
     vf, alpha = safe_set.vf, float(safe_set.alpha)
@@ -95,7 +97,7 @@ def constraint_rows(rb, safe_set, clusters):
             return pair_turns(vf, rel[p], value[p], horizon[r], speed[r], bang[r])
 
     cl = cluster_rows(rb.filters, rb.configs, states, planned, horizon, speed, bang, rb.cluster_alpha, dets, start,
-                      clusters, narrowed.frames if narrowed is not None else None)
+                      clusters, narrowed.frames if narrowed is not None else None, derived)
     if narrowed is None:
         tab, n_groups = constraint_table(pair_robot, position, counts, value, value_next, centres, alpha, cl,
                                          pair_turns_of)

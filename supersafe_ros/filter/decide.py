@@ -12,7 +12,8 @@ each step reading what the one before it made and writing nothing back:
    ``approach.limit``: for robots that can stop (``time_before_collision``), each speed cut
    so that the command's path enters no detected disc;
 4. ``outputs.outputs``: the commands and each robot's explanation (``Decisions``);
-5. ``sent.record``: what was sent, written into the filters (the only step that writes);
+5. ``sent.record``: what was sent, written into the filters, with what the decision keeps for the
+   next (``derived.Derived``: the clusters' frames, the detections' index; the only step that writes);
    ``step_many`` records every decision, ``decide_many`` none (its caller records what it
    sends: a lockstepped answer held is not sent).
 """
@@ -20,6 +21,7 @@ from __future__ import annotations
 
 from .approach import limit
 from .constraints import constraint_rows
+from .derived import Derived
 from .gather import gather, gather_one_fast
 from .law import decide_rows
 from .outputs import Decisions, outputs
@@ -42,11 +44,14 @@ def decide_many(filters, safe_set: SafeSet, t, clusters=None) -> Decisions:
     rb = gather_one_fast(filters[0], t) if len(filters) == 1 else None
     if rb is None:
         rb = gather(filters, t)
-    tab, n_groups, solving = constraint_rows(rb, safe_set, clusters)
+    derived = Derived()
+    tab, n_groups, solving = constraint_rows(rb, safe_set, clusters, derived)
     decided = decide_rows(tab, len(rb.use), n_groups, rb.overriding, rb.margin, rb.failing, rb.fresh, rb.planned,
                           rb.bang, rb.drive, rb.held, rb.constant)
     limits = limit(rb, *decided[:3])
-    return outputs(filters, rb, safe_set, tab, decided, solving, limits, t)
+    decisions = outputs(filters, rb, safe_set, tab, decided, solving, limits, t)
+    decisions.derived = derived
+    return decisions
 
 
 def step_many(filters, safe_set: SafeSet, t, clusters=None) -> Decisions:

@@ -85,8 +85,7 @@ class RobotFilter:
         self.pose_intervals = _NO_INTERVALS      # windows of the last intervals (immutable: robots
         self.command_intervals = _NO_INTERVALS   # fed by one message share them)
         # what a decision derived from this robot's detections array and keeps for the next while
-        # that array is the same (never an input): 'clusters' (cluster_rows), 'near_index' and
-        # 'near_pick' (nearby)
+        # that array is the same (never an input; filter.derived: written by the recorder)
         self.derived = {}
         self.view = None       # a robot judged by its local map: its MapView (filter.map_rows), else None
 

@@ -30,6 +30,7 @@ from scipy.spatial import cKDTree
 
 from . import cluster
 from .cluster_rows import ClusterFrames, default_cluster_store
+from .derived import Derived
 
 NEAR_QUERY_MIN = 64      # up to this many detections a robot judges them all
 UNSEEN, OVERSIZE = -1, -2
@@ -129,10 +130,14 @@ class Narrowed:
                         else names.copy())
 
 
-def narrow(filters, configs, dets, states, horizon, speed, margin, safe_set, store_arg):
+def narrow(filters, configs, dets, states, horizon, speed, margin, safe_set, store_arg, derived=None):
     """The detections each robot judges (see the module), or None if every robot judges all of
     its own (none has more than NEAR_QUERY_MIN). ``dets``, ``states`` (propagated), ``horizon``,
-    ``speed``, ``margin``: per robot row; ``store_arg``: as ``decide.step_many``'s."""
+    ``speed``, ``margin``: per robot row; ``store_arg``: as ``decide.step_many``'s; ``derived``: the
+    decision's ``filter.derived.Derived`` (None: one of its own, kept by no one), through which each
+    robot's index and last pick are read and kept."""
+    if derived is None:
+        derived = Derived()
     counts = np.fromiter(map(len, dets), dtype=np.intp, count=len(dets))
     big = np.flatnonzero(counts > NEAR_QUERY_MIN)
     if len(big) == 0:
@@ -149,7 +154,7 @@ def narrow(filters, configs, dets, states, horizon, speed, margin, safe_set, sto
         if store is not None and not f.detections.solve_clusters:     # (as cluster_rows._entries)
             store = store.fallback_twin()
         st = store.settings if store is not None else settings_of(cfg)
-        index = _index(f, det, st.link_distance if store is not None else None, shared)
+        index = _index(f, det, st.link_distance if store is not None else None, shared, derived)
         key = (st, float(speed[i]), float(horizon[i]), float(margin[i]))
         radius = radii.get(key)
         if radius is None:
@@ -161,12 +166,12 @@ def narrow(filters, configs, dets, states, horizon, speed, margin, safe_set, sto
         for (i, store, st, _), near in zip(robots, near_all):
             f, det = filters[i], dets[i]
             picked, groups, canon = index.pick(near, st.key_resolution)
-            memo = f.derived.get('near_pick')      # the last decision's, kept while the same are picked
+            memo = derived.get(f, 'near_pick')      # the last decision's, kept while the same are picked
             if (memo is None or memo[0] is not det or memo[1] is not store or len(memo[2]) != len(picked)
                     or not np.array_equal(memo[2], picked)):
                 sub = det[picked]
                 frames = ClusterFrames(sub, store, groups, canon) if store is not None else None
-                memo = f.derived['near_pick'] = (det, store, picked, sub, frames)
+                memo = derived.put(f, 'near_pick', (det, store, picked, sub, frames))
             out.dets[i], out.frames[i] = memo[3], memo[4]
             position[i] = picked
             kept = f.detections.kept if f.detections.value is det else None
@@ -175,17 +180,16 @@ def narrow(filters, configs, dets, states, horizon, speed, margin, safe_set, sto
     return out
 
 
-def _index(f, det, link, shared) -> DetectionIndex:
-    """Robot ``f``'s index of ``det``: kept while its detections are that array, shared by the
-    robots given the same one (``shared``, for one decision)."""
-    cache = f.derived.get('near_index')
+def _index(f, det, link, shared, derived) -> DetectionIndex:
+    """Robot ``f``'s index of ``det``: kept while its detections are that array (``derived``), shared
+    by the robots given the same one (``shared``, for one decision)."""
+    cache = derived.get(f, 'near_index')
     if cache is not None and cache.det is det and cache.link == link:
         return cache
     got = shared.get((id(det), link))
     if got is None:
         got = shared[(id(det), link)] = DetectionIndex(det, link)
-    f.derived['near_index'] = got
-    return got
+    return derived.put(f, 'near_index', got)
 
 
 def within_limit(centres, origins, limit):

@@ -26,17 +26,19 @@ class Decisions(Sequence):
     ``omega``, ``linear`` and ``action`` are lists: the commands to send, all a batched caller
     needs every tick; ``overriding`` and ``driven`` (the speed each robot drives under its
     command: the linear.x sent, a constant-speed robot's speed) are what ``sent.record``
-    remembers, at ``t``, each robot's commands older than ``keep`` (a column) forgotten.
+    remembers, at ``t``, each robot's commands older than ``keep`` (a column) forgotten, with
+    ``derived`` (``filter.derived.Derived``: the caches the decision filled).
     ``decisions[i]`` is robot i's ``FilterOutput`` with its reason, built on
     first access from values fixed at the decision (formatting a thousand reasons costs more
     than deciding them, and most are never read).
     """
 
-    __slots__ = ('omega', 'linear', 'action', 'overriding', 'driven', 't', 'keep', '_describe', '_built')
+    __slots__ = ('omega', 'linear', 'action', 'overriding', 'driven', 't', 'keep', 'derived', '_describe', '_built')
 
     def __init__(self, omega, linear, action, overriding, driven, describe, t=0.0, keep=None):
         self.omega, self.linear, self.action, self._describe = omega, linear, action, describe
         self.overriding, self.driven, self.t, self.keep = overriding, driven, t, keep
+        self.derived = None     # what the decision keeps for the next (filter.derived), applied when recorded
         self._built = [None] * len(action)
 
     def __len__(self):

@@ -1,5 +1,6 @@
 """What the filter sent, and what the robot did under it since: the one writer of a robot's
-``sent`` commands and ``overriding`` flag (``record``, the last step of every decision), and
+``sent`` commands, ``overriding`` flag and a decision's caches (``record``, ``record_decisions``:
+the last step of every decision), and
 the one reader that turns them into the arcs the robot held (``segments_since``).
 
 A command sent at ts holds until the next one; each is remembered with the speed the robot
@@ -27,8 +28,11 @@ def record(filters, decisions, t, keep) -> None:
 
 
 def record_decisions(filters, decisions) -> None:
-    """``record`` of ``decisions`` (``decide.decide_many``'s), at their time: what went out."""
+    """``record`` of ``decisions`` (``decide.decide_many``'s), at their time: what went out, and the
+    caches the decision filled (``decisions.derived``, ``filter.derived``) put into the filters."""
     record(filters, decisions, decisions.t, decisions.keep)
+    if decisions.derived is not None:
+        decisions.derived.apply()
 
 
 def record_sent(f, omega, t, speed=None) -> None:
