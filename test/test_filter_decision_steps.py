@@ -9,10 +9,23 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def steps() -> list:
+def section() -> str:
     text = (ROOT / 'docs' / 'filter_learner.md').read_text()
-    section = text.split('## How a decision is made', 1)[1].split('\n## ', 1)[0]
-    return re.findall(r'^\d+\. `([\w/]+\.py):(\w+)`', section, flags=re.M)
+    return text.split('## How a decision is made', 1)[1].split('\n## ', 1)[0]
+
+
+def listed_in(text: str) -> list:
+    return re.findall(r'^\d+\. `([\w/]+\.py):(\w+)`', text, flags=re.M)
+
+
+def steps() -> list:
+    """The decision's steps (the section's first list)."""
+    return listed_in(section().split('\n### ', 1)[0])
+
+
+def node_steps() -> list:
+    """The node's steps around it ("The node around it")."""
+    return listed_in(section().split('\n### The node around it', 1)[1])
 
 
 def defined(path: Path) -> set:
@@ -21,8 +34,8 @@ def defined(path: Path) -> set:
 
 
 def test_every_step_names_a_function_that_exists():
-    named = steps()
-    assert len(named) >= 10, named
+    named = steps() + node_steps()
+    assert len(steps()) >= 10 and len(node_steps()) >= 5, named
     for path, name in named:
         assert (ROOT / path).is_file(), path
         assert name in defined(ROOT / path), f'{path} defines no {name}'
@@ -47,3 +60,36 @@ def test_the_steps_of_step_many_are_listed_in_the_order_it_runs_them():
     assert {'decide_many', 'gather', 'constraint_rows', 'decide_rows', 'outputs', 'record_decisions'} <= set(in_both), \
         in_both
     assert in_both == sorted(in_both, key=listed.index), (in_both, listed)
+
+
+def method_calls(path: str, cls: str, method: str) -> list:
+    """The names called in ``cls.method``'s body (``f(...)``, ``x.f(...)``), in the order written."""
+    tree = ast.parse((ROOT / path).read_text())
+    klass = next(n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == cls)
+    body = next(n for n in klass.body if isinstance(n, ast.FunctionDef) and n.name == method)
+    calls = sorted((n for n in ast.walk(body) if isinstance(n, ast.Call)), key=lambda n: (n.lineno, n.col_offset))
+    return [c.func.id if isinstance(c.func, ast.Name) else c.func.attr for c in calls
+            if isinstance(c.func, (ast.Name, ast.Attribute))]
+
+
+def in_order(called, wanted) -> bool:
+    """``wanted`` appears in ``called`` in that order (others between)."""
+    it = iter(called)
+    return all(any(c == w for c in it) for w in wanted)
+
+
+def test_the_node_half_runs_in_the_order_listed():
+    """safety_filter_node: a pose is read by its Source, then taken by the filter; a decision is
+    made, judged by the lockstep policy, recorded, then published through the sink and the state
+    reporter, in that order (and the fleet's tick: Sources, step_many, sinks)."""
+    names = [name for _, name in node_steps()]
+    assert names[:2] == ['PoseSource', 'RobotFilter'] and 'decide_many' in names
+    node = 'supersafe_ros/nodes/safety_filter_node.py'
+    assert in_order(method_calls(node, 'SafetyFilter', 'on_pose'), ['read', '_take_pose', '_answer_pose'])
+    decide = method_calls(node, 'SafetyFilter', 'decide')
+    assert in_order(decide, ['decide_many', 'judge', 'record_decisions', '_publish_command', 'state_message']), decide
+    assert 'bytes' in method_calls(node, 'SafetyFilter', '_publish_command')
+    fleet = 'supersafe_ros/nodes/fleet_safety_filter_node.py'
+    assert in_order(method_calls(fleet, 'FleetSafetyFilter', '_drain'), ['read', 'update_pose', 'read', 'read'])
+    tick = method_calls(fleet, 'FleetSafetyFilter', 'decide')
+    assert in_order(tick, ['_drain', 'step_many', 'bytes', 'state_message']), tick

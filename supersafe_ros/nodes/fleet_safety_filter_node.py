@@ -367,23 +367,23 @@ class FleetSafetyFilter:
         self.ticks += 1
         self.decisions += 1
         self.failing_safe = outs.action.count(FAIL_SAFE)
-        now = time.monotonic()
-        period, update = w.state_period, w.set_update
-        due = self._throttle.due(now, outs.action, update, period)
-        # the states due, each built once for both interfaces and published serialized (ros_io.cdr)
-        shared = w.shared_state_values() if due else None
-        states = [w.state_message(self.namespaces[i], outs[i], shared=shared) for i in due]
+        # the commands first (serialized: no message built), then the states due, each built once for
+        # both interfaces and published serialized (ros_io.cdr)
         if self.per_robot:
             stamped = self.stamped
             for f, topics, action, v, omega in zip(w.filters, self.topics, outs.action, outs.linear, outs.omega):
                 judged = stamped and action != FAIL_SAFE and command_fresh(f, t)
-                topics.cmd_pub.publish(topics.sink.bytes(v, omega, judged, self._clock_ns))   # serialized
-            for i, state in zip(due, states):
-                self.topics[i].state_pub.publish(cdr.diagnostic_status_bytes(state))
+                topics.cmd_pub.publish(topics.sink.bytes(v, omega, judged, self._clock_ns))
         if self.batched:
             self.fleet_cmd_pub.publish(fleetmsg.commands_to_msg(np.column_stack([outs.linear, outs.omega])))
-            if states:
-                self.fleet_state_pub.publish(array_bytes(self, states))
+        due = self._throttle.due(time.monotonic(), outs.action, w.set_update, w.state_period)
+        shared = w.shared_state_values() if due else None
+        states = [w.state_message(self.namespaces[i], outs[i], shared=shared) for i in due]
+        if self.per_robot:
+            for i, state in zip(due, states):
+                self.topics[i].state_pub.publish(cdr.diagnostic_status_bytes(state))
+        if self.batched and states:
+            self.fleet_state_pub.publish(array_bytes(self, states))
         self._tell_story(outs)
         self._last_outs = outs
         return outs
