@@ -24,8 +24,8 @@ import numpy as np
 
 from supersafe_ros.filter import FilterConfig, RobotFilter, SafeSet, step_many
 from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore
-from supersafe_ros.filter.trials import (cup_layout, layout_trials, random_layout, row_layout, run_trials,
-                                         single_disc_trials)
+from supersafe_ros.sim.trials import (cup_layout, layout_trials, random_layout, row_layout, run_trials,
+                                      single_disc_trials)
 from supersafe_ros.reach.dynamics import DubinsCar
 from supersafe_ros.reach.grid import Grid
 from supersafe_ros.reach.library import load_or_solve

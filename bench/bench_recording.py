@@ -9,7 +9,7 @@ Sections:
              how many reach the bag, and the recorder's CPU share of a core while it records.
              Bursts beyond what one Python thread takes (a few thousand per second) overflow
              the queues (the recorder's 1000, the publisher's 200) and lose messages.
-  contour    filter.contours.level_set_contour on the standard set (65 x 65 x 42): ms per call.
+  contour    runtime.contours.level_set_contour on the standard set (65 x 65 x 42): ms per call.
 
 Runs in its own ROS_DOMAIN_ID with loopback-only discovery. Say the load (printed).
 """
@@ -99,7 +99,7 @@ def bench_recorder(n: int, rate: float):
 
 
 def bench_contour(repeat: int = 20):
-    from supersafe_ros.filter.contours import level_set_contour
+    from supersafe_ros.runtime.contours import level_set_contour
     from supersafe_ros.nodes.filter_wiring import standard_value_function
     vf = standard_value_function([-8.0, -8.0], [8.0, 8.0], [65, 65, 42], 3.0, 1.0, 1.8, 3.0)
     times = []

@@ -16,7 +16,7 @@ import pytest
 
 from supersafe_ros.filter import FilterConfig, SafeSet, step_many
 from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore
-from supersafe_ros.filter.trials import CollisionTrial, cup_layout, layout_trials, row_layout, run_trials
+from supersafe_ros.sim.trials import CollisionTrial, cup_layout, layout_trials, row_layout, run_trials
 from supersafe_ros.reach.dynamics import DubinsCar
 from supersafe_ros.reach.grid import Grid
 from supersafe_ros.reach.sets import Disc

@@ -11,8 +11,8 @@ import pytest
 
 from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore, canonical, components, to_frame
 from supersafe_ros.filter import FilterConfig, RobotFilter, SafeSet, step_many
-from supersafe_ros.filter.trials import (cup_layout, layout_trials, random_layout, row_layout, run_trials,
-                                         single_disc_trials, speed_profiles, standard_guard)
+from supersafe_ros.sim.trials import (cup_layout, layout_trials, random_layout, row_layout, run_trials,
+                                      single_disc_trials, speed_profiles, standard_guard)
 from supersafe_ros.reach.dynamics import DubinsCar
 from supersafe_ros.reach.grid import Grid
 from supersafe_ros.reach.sets import Disc
@@ -223,7 +223,7 @@ CUP_ENTERED = (np.array([[3.14090601, 0.0], [-3.14090601, 3.48206514], [-3.14090
 
 
 def test_a_cluster_turn_is_chosen_over_a_hold_its_grid_resolves(monkeypatch):
-    from supersafe_ros.filter.trials import CollisionTrial
+    from supersafe_ros.sim.trials import CollisionTrial
     from supersafe_ros.reach.library import load_or_solve
     standard = SafeSet(load_or_solve(Grid((-8, -8), (8, 8), (65, 65, 42)), 3.0, 1.0, 1.8, 3.0), 0.0)
     trial = CollisionTrial(*CUP_ENTERED)

@@ -9,7 +9,7 @@ from filter_support import at, robot
 from supersafe_ros.filter import FilterConfig, RobotFilter, SafeSet, step_many, update_detections_all
 from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore
 from supersafe_ros.filter.discs import RING_SLACK, checked_discs, covering_ring, ring_size
-from supersafe_ros.filter.trials import layout_trials, run_trials
+from supersafe_ros.sim.trials import layout_trials, run_trials
 from supersafe_ros.reach.dynamics import DubinsCar
 from supersafe_ros.reach.grid import Grid
 from supersafe_ros.reach.sets import Disc

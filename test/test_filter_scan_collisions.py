@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from supersafe_ros.filter import FilterConfig, SafeSet, step_many
-from supersafe_ros.filter.trials import ScanSensor, field_trials, run_trials
+from supersafe_ros.sim.trials import ScanSensor, field_trials, run_trials
 from supersafe_ros.reach.dynamics import DubinsCar
 from supersafe_ros.reach.grid import Grid
 from supersafe_ros.reach.sets import Disc

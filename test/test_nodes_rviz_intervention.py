@@ -1,7 +1,7 @@
 """RViz: clicks on obstacles are interventions, and the level set in force is drawn.
 
 Core: supersafe_ros.interventions (shared with the web console) and
-filter.contours. Topic level: rviz_intervention_node in-process (the test plays the
+runtime.contours. Topic level: rviz_intervention_node in-process (the test plays the
 world, the robots and RViz), and safety_filter_node's level-set markers."""
 import math
 
@@ -12,7 +12,7 @@ from rclpy.parameter import Parameter
 from geometry_msgs.msg import PointStamped, PoseArray, PoseStamped
 from visualization_msgs.msg import Marker, MarkerArray
 
-from supersafe_ros.filter.contours import level_set_contour, level_sets_around
+from supersafe_ros.runtime.contours import level_set_contour, level_sets_around
 from supersafe_ros.interventions import (NoIntervention, intervention_at_point, intervention_on_obstacle,
                                          obstacle_under_point)
 from supersafe_ros.nodes.markers import level_set_lines, level_set_markers, obstacles_to_markers

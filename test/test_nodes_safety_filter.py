@@ -317,7 +317,7 @@ def test_use_learned_turned_off_while_a_set_is_checked_keeps_the_standard_set(se
     """The value-function worker puts a set in force under the node's lock, and only if the
     levels and use_learned are still those it was checked with."""
     import threading
-    import supersafe_ros.filter.set_selector as set_selector
+    import supersafe_ros.runtime.set_selector as set_selector
     node, driver, spin = setup
     entered, release = threading.Event(), threading.Event()
     check = set_selector.check_learned_set

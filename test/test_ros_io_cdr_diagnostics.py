@@ -38,3 +38,18 @@ def test_an_array_reads_back_with_its_stamp_and_every_status(frame):
         same(got, status)
     empty = deserialize_message(diagnostic_array_bytes(1, 2, [], frame), DiagnosticArray)
     assert list(empty.status) == []
+
+
+def test_the_strings_kept_stay_bounded_and_every_status_reads_back():
+    """Values that never recur (a number per robot per tick) fill the kept strings up to their bound
+    at most; a status is the same bytes whether its strings were kept or not."""
+    from supersafe_ros.ros_io import cdr
+    status = statuses()[0]
+    first = diagnostic_status_bytes(status)
+    assert diagnostic_status_bytes(status) == first          # its strings kept now
+    for i in range(cdr._ENCODED_KEPT + 10):
+        made = Status(0, 'r', 'm', 'h', {'x': f'{i * 0.001:.6f}'})
+        diagnostic_status_bytes(made)
+        assert len(cdr._ENCODED) <= cdr._ENCODED_KEPT
+    same(deserialize_message(diagnostic_status_bytes(made), DiagnosticStatus), made)
+    assert diagnostic_status_bytes(status) == first

@@ -16,16 +16,18 @@ Where the decision is made: ``RobotFilter.step`` (one robot) or ``step_many`` (a
 * ``law``: the rule over the constraint table (enter, ahead, stay; the command); ``approach``:
   the speed cut of a robot that can stop, so that each command's path enters nothing detected;
 * ``outputs``: the commands and each robot's explanation;
-* ``sent``: what was sent, the one writer of a filter's ``sent`` and ``overriding``;
+* ``sent``: what was sent, the one writer of a filter's ``sent``, ``overriding`` and the caches a
+  decision filled (``derived``);
 * ``decide``: the steps above, in order (``decide_many``; ``step_many`` records them too);
 * beside them: ``types`` (FilterConfig, SafeSet, FilterOutput, the actions), ``cluster``
   (union values solved in the background), ``admissibility`` (a learned set must contain the
-  standard unsafe set), ``set_selector`` (which learned set is in force, checked off the
-  control path), ``lockstep`` (when a lockstepped filter answers a pose), ``timebase``
-  (input ages), ``contours`` (RViz level sets), ``range_readings`` (a scan's or a cloud's
-  readings, checked), ``local_map`` (what the sensors saw, a rolling window of cells),
-  ``map_value`` (the map's one avoid value, solved in the background), ``trials``
-  (closed-loop collision trials).
+  standard unsafe set), ``range_readings`` (a scan's or a cloud's readings, checked),
+  ``local_map`` (what the sensors saw, a rolling window of cells), ``map_value`` (the map's one
+  avoid value, solved in the background).
+
+The nodes' run time around it (lockstep answers, the set in force, the time base, RViz level
+sets) is ``supersafe_ros.runtime``; the closed-loop collision trials that count the filter's
+collisions are a simulation, ``sim.trials``.
 """
 from .cluster_rows import default_cluster_store
 from .decide import step_many

@@ -32,7 +32,7 @@ from .types import SafeSet
 def decide_many(filters, safe_set: SafeSet, t, clusters=None) -> Decisions:
     """One decision per robot filter, with one vectorised evaluation of the law; nothing of it
     recorded as sent (steps 1-4): a caller that may keep the commands back (a lockstepped
-    answer held, ``filter.lockstep``) records only those that go out (``sent.record_decisions``).
+    answer held, ``runtime.lockstep``) records only those that go out (``sent.record_decisions``).
 
     Robots that can be judged use their current pose and detections; robots that
     fail safe use their last valid pose and detections if younger than

@@ -33,7 +33,7 @@ from .types import FilterConfig, FilterOutput, SafeSet
 PERIOD_SAMPLES = 16    # intervals in the median that measures the control period
 NO_DISCS = np.zeros((0, 2))
 NO_DISCS.flags.writeable = False
-_COMMAND, _LINEAR = attrgetter('command'), attrgetter('linear')
+_COMMAND, _LINEAR, _CONFIG = attrgetter('command'), attrgetter('linear'), attrgetter('config')
 
 
 @dataclass
@@ -241,11 +241,15 @@ def update_commands(filters, omegas, t, skip=None, linears=None) -> list:
     t = float(t)
     _accept_rows(filters, 'command', w.tolist(), take, t, t, None if lin is None else lin.tolist())
     # the rows beyond their robot's limits get a note (the few: the rest were cleared above)
-    bound = np.fromiter((f.config.omega_max for f in filters), dtype=float, count=n)
+    configs = list(map(_CONFIG, filters))
+    if n and all(map(is_, configs, repeat(configs[0]))):     # a fleet of one configuration: its limits
+        bound, speed, constant = configs[0].omega_max, configs[0].speed, configs[0].constant_speed
+    else:
+        bound = np.fromiter((c.omega_max for c in configs), dtype=float, count=n)
+        speed = np.fromiter((c.speed for c in configs), dtype=float, count=n)
+        constant = np.fromiter((c.constant_speed for c in configs), dtype=bool, count=n)
     off = (w > bound) | (w < -bound)
     if lin is not None:
-        speed = np.fromiter((f.config.speed for f in filters), dtype=float, count=n)
-        constant = np.fromiter((f.config.constant_speed for f in filters), dtype=bool, count=n)
         off |= np.where(constant, ~(np.abs(lin - speed) <= SPEED_TOLERANCE * np.maximum(1.0, speed)),
                         (lin > speed) | (lin < 0.0))
     beyond = np.flatnonzero(off & take).tolist()
@@ -268,15 +272,15 @@ def _accept_rows(filters, name, rows, take, t, stamp, linears=None) -> None:
     windows = 'pose_intervals' if name == 'pose' else 'command_intervals'
     made = {}      # (window before, previous stamp) -> window after (kept alive here: ids stay unique)
     pose = name == 'pose'
-    if not pose and (linears is not None or not all(map(is_, map(_LINEAR, map(_COMMAND, filters)), repeat(None)))):
-        # each command's linear.x (None: not given), in a pass of its own (the pose rows' loop as before)
-        for f, v, ok in zip(filters, repeat(None) if linears is None else linears, take.tolist()):
-            if ok:
-                f.command.linear = v
-    for f, row, ok in zip(filters, rows, take.tolist()):
+    # each command's linear.x (None: not given; left alone where it is None already)
+    set_linear = not pose and (linears is not None
+                               or not all(map(is_, map(_LINEAR, map(_COMMAND, filters)), repeat(None))))
+    for f, row, ok, v in zip(filters, rows, take.tolist(), repeat(None) if linears is None else linears):
         if not ok:
             continue
         inp = f.pose if pose else f.command
+        if set_linear:
+            inp.linear = v
         previous = inp.stamp if inp.value is not None else None
         inp.value, inp.t, inp.rejected, inp.stamp, inp.note = row, t, '', stamp, ''
         if previous is not None and stamp > previous:

@@ -18,7 +18,7 @@ Filters on robot hosts get ``clock_stall_timeout`` = ``LINK_STALL_TIMEOUT`` (1 s
 instead of the one-host team's 20 s (``team.CLUSTER_HOLD_TIMEOUT`` + 5 s, longer than a
 step held for a cluster solve): across hosts a /clock that stands still most
 likely means the link to host 0 is down, and the filter must then judge its inputs'
-ages on the wall clock soon (filter.timebase), so it fails safe within
+ages on the wall clock soon (runtime.timebase), so it fails safe within
 max(pose_timeout, 1 s) of the cut (docs/deployment.md, link faults).
 """
 from __future__ import annotations

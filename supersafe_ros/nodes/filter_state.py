@@ -92,8 +92,8 @@ class Status:
 class StateReporter:
     """The state messages of a filter node's robots.
 
-    ``selector``: the set in force and its updates (``filter.set_selector``); ``time``:
-    the time base (``filter.timebase.FilterTime``); ``config()``: the filter config in
+    ``selector``: the set in force and its updates (``runtime.set_selector``); ``time``:
+    the time base (``runtime.timebase.FilterTime``); ``config()``: the filter config in
     force (its cluster store holds the failed solves)."""
 
     def __init__(self, log, selector, time_base, config):

@@ -5,7 +5,7 @@
 * every shared filter parameter (``filter_parameters``), the live ones in force when set;
 * one ``RobotFilter`` per robot name, all sharing the live ``FilterConfig``;
 * the standard set (true dynamics, from the cache or solved at start);
-* the set in force (``filter.set_selector``): ``/safe_set/value_function`` is taken as
+* the set in force (``runtime.set_selector``): ``/safe_set/value_function`` is taken as
   serialized bytes by a thread of its own on a helper node ``<name>_sets``, with the GIL
   released while the bytes are copied (``ros_io.direct_take``, ``gil_free``: rclpy's take
   held it for the whole copy, 0.2-0.8 s for 50 MB, and the control path stood still; the
@@ -13,7 +13,7 @@
   an oversize message is refused by its length before anything is decoded; then it is
   decoded and checked for admissibility on a worker thread, off the control path; the
   state messages say what became of each set (``set_update``, ``set_update_reason``);
-* the filter's time base (``filter.timebase.FilterTime``): ages on sim time while
+* the filter's time base (``runtime.timebase.FilterTime``): ages on sim time while
   /clock advances, on the steady clock when ``use_sim_time`` is false or ROS time
   stands still (no /clock), so a stale input is detected either way;
 * state messages and throttled complaints (``filter_state``).
@@ -28,8 +28,8 @@ from rclpy.clock import Clock, ClockType
 from std_msgs.msg import Float32MultiArray
 
 from ..filter import RobotFilter, default_cluster_store
-from ..filter.set_selector import LearnedSetSelector
-from ..filter.timebase import FilterTime
+from ..runtime.set_selector import LearnedSetSelector
+from ..runtime.timebase import FilterTime
 from ..learning.levels import learned_alpha
 from ..ros_io import rosmsg
 from ..ros_io.direct_take import DirectTake
@@ -154,7 +154,7 @@ class FilterWiring:
 
     # -- time ------------------------------------------------------------------------------------------
     def now(self) -> float:
-        """tau: the filter's time (see filter.timebase). Wall mode reads no ROS clock (the
+        """tau: the filter's time (see runtime.timebase). Wall mode reads no ROS clock (the
         steady clock is time.monotonic, CLOCK_MONOTONIC like rclpy's STEADY_TIME, cheaper)."""
         ros = self.node.get_clock().now().nanoseconds * 1e-9 if self.time.sim else 0.0
         return self.time.now(ros, time.monotonic())

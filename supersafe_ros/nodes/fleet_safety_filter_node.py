@@ -172,6 +172,7 @@ class FleetSafetyFilter:
         self.timer = None
         self._set_rate(w.rate)
         self._last_outs = None
+        self._last_states = [None] * self.n     # each robot's last state message published
         inputs = [(f'{ns}/{source.topic}', source.msg_type) for ns in self.namespaces if self.per_robot
                   for source in self.sources if source is not None]
         if self.batched:
@@ -248,14 +249,15 @@ class FleetSafetyFilter:
     # -- batched topics ---------------------------------------------------------------------------------
     def _drain_batched(self):
         """Every fleet/detections and fleet/cmd_vel_nav message waiting, oldest first, each
-        applied (or rejected, and logged) as its own callback would: a bad row falls back to
+        checked (or rejected, and logged) as its own callback would: a bad row falls back to
         the previous message's. They count as arrived now, at most a period after they came."""
         if not self.batched:
             return
         for msg in take_all(self.fleet_detections_sub) if self.require_detections else ():
             self.on_fleet_detections(msg)
-        for msg in take_all(self.fleet_commands_sub):
-            self.on_fleet_commands(msg)
+        commands = take_all(self.fleet_commands_sub)
+        if commands:
+            self.on_fleet_commands(*commands)
 
     def on_fleet_detections(self, msg):
         """A serialized PoseArray (the raw subscription's; a PoseArray is taken too), read as one
@@ -276,22 +278,41 @@ class FleetSafetyFilter:
             w.complain('fleet/detections dropped', f'fleet/detections: {d.note}',
                        level='warn' if d.dropped_safely else 'error')
 
-    def on_fleet_commands(self, msg: Float64MultiArray):
+    def on_fleet_commands(self, *msgs: Float64MultiArray):
+        """One or more fleet/cmd_vel_nav messages, oldest first, as if each were taken in turn: a
+        message or row refused is said and keeps the previous command; of the rest, each robot's
+        newest row is its command (the older rows, arrived at the same time, would be replaced by
+        it at once: each robot's command is updated once, however many messages waited)."""
         w = self.wiring
         t = w.now()
-        try:
-            commands, bad = fleetmsg.msg_to_commands(msg, self.n)
-        except ValueError as exc:
-            w.complain('fleet cmd', f'fleet/cmd_vel_nav rejected: {exc}; keeping the previous commands',
-                       level='error')
-            return
-        for f, why in zip(w.filters, bad):
-            if why:
-                f.command.note = f'{why}: rejected, the previous command kept'
-                w.complain(f'cmd {f.name}', f'{f.name}: fleet/cmd_vel_nav row rejected: {why}; keeping the '
+        newest = None                           # (N, 2): each robot's newest good row
+        taken = np.zeros(self.n, bool)          # robots with a good row in some message
+        newest_bad = ()                         # why each row of the newest readable message was refused
+        for msg in msgs:
+            try:
+                commands, bad = fleetmsg.msg_to_commands(msg, self.n)
+            except ValueError as exc:
+                w.complain('fleet cmd', f'fleet/cmd_vel_nav rejected: {exc}; keeping the previous commands',
+                           level='error')
+                continue
+            good = np.fromiter((not why for why in bad), dtype=bool, count=self.n)
+            for i in np.flatnonzero(~good).tolist():
+                f = w.filters[i]
+                w.complain(f'cmd {f.name}', f'{f.name}: fleet/cmd_vel_nav row rejected: {bad[i]}; keeping the '
                            f'previous command', level='error')
+            if newest is None:
+                newest = np.array(commands, dtype=float)
+            else:
+                newest[good] = commands[good]
+            taken |= good
+            newest_bad = bad
+        if newest is None:
+            return
         # the good rows, validated at once; those beyond their robot's limits said
-        beyond = update_commands(w.filters, commands[:, 1], t, skip=bad, linears=commands[:, 0])
+        beyond = update_commands(w.filters, newest[:, 1], t, skip=~taken, linears=newest[:, 0])
+        for f, why in zip(w.filters, newest_bad):
+            if why:     # (after the update: the newest message's word stays, as in turn)
+                f.command.note = f'{why}: rejected, the previous command kept'
         self._tell_excess([w.filters[i] for i in beyond], [], 'fleet/cmd_vel_nav', '')
 
     def on_fleet_poses(self, data: bytes):
@@ -341,15 +362,19 @@ class FleetSafetyFilter:
         self.decide()
 
     def _statuses(self) -> list:
-        """Each robot's status on /diagnostics: its last state (see filter_diagnostics)."""
+        """Each robot's status on /diagnostics: its last state message (see filter_diagnostics; at
+        most 1/state_rate old, and every change of action at once: not built again for
+        /diagnostics, which a fleet of thousands would pay for each second)."""
         outs, w, node = self._last_outs, self.wiring, self.get_fully_qualified_name()
         if outs is None:
             return [Status(DiagnosticStatus.ERROR[0], f'{node}: {ns}',
                            'no decision yet' if self.active else 'inactive: no cmd_vel', ns) for ns in self.namespaces]
-        shared = w.shared_state_values()
+        shared = None
         out = []
-        for i, ns in enumerate(self.namespaces):
-            state = w.state_message(ns, outs[i], shared=shared)
+        for i, (ns, state) in enumerate(zip(self.namespaces, self._last_states)):
+            if state is None:       # (none published yet)
+                shared = shared or w.shared_state_values()
+                state = w.state_message(ns, outs[i], shared=shared)
             out.append(status_copy(state, f'{node}: {ns}', ns, None if self.active else
                                    f'inactive (lifecycle): no cmd_vel; last: {state.message}'))
         return out
@@ -379,6 +404,9 @@ class FleetSafetyFilter:
         due = self._throttle.due(time.monotonic(), outs.action, w.set_update, w.state_period)
         shared = w.shared_state_values() if due else None
         states = [w.state_message(self.namespaces[i], outs[i], shared=shared) for i in due]
+        kept = self._last_states
+        for i, state in zip(due, states):
+            kept[i] = state
         if self.per_robot:
             for i, state in zip(due, states):
                 self.topics[i].state_pub.publish(cdr.diagnostic_status_bytes(state))

@@ -94,7 +94,7 @@ LEVEL_SET_OBSTACLES = 64      # drawn around at most this many detections, the n
 def level_set_markers(contours, stamp=None, frame=rosmsg.MAP_FRAME, source: str = 'standard',
                       width: float = 0.06) -> MarkerArray:
     """DELETEALL, then one LINE_STRIP per polyline of ``contours`` (per obstacle, a list of
-    (K, 2) map-frame polylines, as filter.contours.level_sets_around returns), z = 0.05 so
+    (K, 2) map-frame polylines, as runtime.contours.level_sets_around returns), z = 0.05 so
     they show above the ground; blue for the standard set, green for a learned one."""
     out = MarkerArray()
     clear = Marker()
@@ -150,7 +150,7 @@ class LevelSetMarkerPublisher:
     def publish(self):
         if self.pub.get_subscription_count() == 0:
             return
-        from ..filter.contours import level_sets_around
+        from ..runtime.contours import level_sets_around
         safe_set, pose, detections = self.snapshot()
         contours = []
         if safe_set is not None and pose is not None and detections is not None:

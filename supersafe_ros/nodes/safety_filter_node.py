@@ -56,12 +56,12 @@ pose near a cluster whose union value is still being solved is held (the lockste
 clock waits, sim time stands still) until the value is in force, at most that many
 steady seconds; the clock's ``ack_timeout`` must be longer.
 
-Ages of inputs: on the filter's time base (``filter.timebase``): sim time while
+Ages of inputs: on the filter's time base (``runtime.timebase``): sim time while
 /clock advances, the steady clock with ``use_sim_time`` false or when ROS time
 stands still longer than ``clock_stall_timeout``. A stale input is detected whatever
 ``use_sim_time`` says.
 
-When a lockstepped pose is answered (skipped, held, given up): ``filter.lockstep``.
+When a lockstepped pose is answered (skipped, held, given up): ``runtime.lockstep``.
 Safe set, parameters at run time, value-function decoding and the admissibility
 check of learned sets (on a worker thread, off the control path): ``filter_wiring``.
 """
@@ -78,7 +78,7 @@ from ..filter import FAIL_SAFE
 from ..filter.commands import command_fresh
 from ..filter.decide import decide_many
 from ..filter.sent import record_decisions
-from ..filter.lockstep import GIVE_UP, LockstepAnswers
+from ..runtime.lockstep import GIVE_UP, LockstepAnswers
 from ..ros_io import cdr, rosmsg
 from ..ros_io.direct_take import DirectTake
 from .common import ParameterSpec, declare_all, run_node

@@ -321,15 +321,32 @@ def twist_stamped_bytes(sec: int, nanosec: int, frame_id: str, linear_x: float, 
 _PAD = (b'', b'\0', b'\0\0', b'\0\0\0')
 
 
+# each string's CDR form (its length, bytes, NUL), kept for the strings that recur: a state's keys,
+# its actions and words, every robot's name (a status costs about half as much with them kept)
+_ENCODED: dict = {}
+_ENCODED_KEPT = 1 << 14       # then it is emptied and filled again (bounded memory, whatever the values)
+
+
+def _encoded(s: str) -> bytes:
+    b = s.encode('utf-8')
+    got = _COUNT.pack(len(b) + 1) + b + b'\0'
+    if len(_ENCODED) >= _ENCODED_KEPT:
+        _ENCODED.clear()
+    _ENCODED[s] = got
+    return got
+
+
 def _strings_into(parts: list, offset: int, strings) -> int:
     """Each of ``strings`` appended to ``parts`` as CDR strings from ``offset`` (its length 4-aligned,
     then the bytes and their NUL); the offset after them."""
-    pack = _COUNT.pack
+    get, append = _ENCODED.get, parts.append
     for s in strings:
-        b = s.encode('utf-8')
+        got = get(s) or _encoded(s)
         pad = -offset & 3
-        parts += (_PAD[pad], pack(len(b) + 1), b, b'\0')
-        offset += pad + 5 + len(b)
+        if pad:
+            append(_PAD[pad])
+        append(got)
+        offset += pad + len(got)
     return offset
 
 

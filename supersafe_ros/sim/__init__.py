@@ -1,4 +1,5 @@
-"""ROS-free simulation core of the team task: robots, world, planner, supervisor judgement."""
+"""ROS-free simulation core of the team task: robots, world, planner, supervisor judgement; and
+the filter's closed-loop collision trials (``trials``)."""
 from .dubins_sim import LossySensor, RobotSim
 from .planner import goal_seeking_turn_rate
 from .world import World, WorldConfig

@@ -1,4 +1,4 @@
-"""LockstepAnswers (filter.lockstep): when a lockstepped filter answers a pose, without ROS.
+"""LockstepAnswers (runtime.lockstep): when a lockstepped filter answers a pose, without ROS.
 
 The promise (docs/graph_safety.md): each pose is answered once, on that pose; a pose
 the clock has passed is skipped; while a cluster near the robot is being solved the
@@ -8,7 +8,7 @@ is solving; the watchdog keeps quiet for ``silence`` seconds after a pose.
 """
 import pytest
 
-from supersafe_ros.filter.lockstep import ANSWER, GIVE_UP, HOLD, LockstepAnswers, Verdict
+from supersafe_ros.runtime.lockstep import ANSWER, GIVE_UP, HOLD, LockstepAnswers, Verdict
 
 SOLVING, NONE_SOLVING = 1, 0
 

@@ -1,4 +1,4 @@
-"""LearnedSetSelector (filter.set_selector): which safe set is in force, without ROS.
+"""LearnedSetSelector (runtime.set_selector): which safe set is in force, without ROS.
 
 Messages are given as bytes; the decoder here looks them up in a table (the node
 passes ros_io.cdr.serialized_to_value_function), the level is alpha = mu + k sigma, the value functions are
@@ -9,8 +9,8 @@ import threading
 import numpy as np
 import pytest
 
-import supersafe_ros.filter.set_selector as set_selector
-from supersafe_ros.filter.set_selector import LearnedSetSelector
+import supersafe_ros.runtime.set_selector as set_selector
+from supersafe_ros.runtime.set_selector import LearnedSetSelector
 from supersafe_ros.reach.grid import Grid
 from supersafe_ros.reach.value_function import ValueFunction
 

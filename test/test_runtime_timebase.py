@@ -1,7 +1,7 @@
 """The filter's time base (ROS-free): honest ages with or without a running /clock."""
 import pytest
 
-from supersafe_ros.filter.timebase import FilterTime
+from supersafe_ros.runtime.timebase import FilterTime
 
 
 def test_wall_mode_follows_the_steady_clock_whatever_ros_time_does():

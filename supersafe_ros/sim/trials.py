@@ -31,12 +31,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..filter.decide import step_many
+from ..filter.inputs import RobotFilter
+from ..filter.propagation import arc_flow
+from ..filter.types import FilterConfig
 from ..reach.grid import wrap_angle
-from ..sim.laser import beam_angles, ray_cast
-from .decide import step_many
-from .inputs import RobotFilter
-from .propagation import arc_flow
-from .types import FilterConfig
+from .laser import beam_angles, ray_cast
 
 
 @dataclass(frozen=True)

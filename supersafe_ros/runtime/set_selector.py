@@ -33,9 +33,9 @@ import time
 
 import numpy as np
 
-from .admissibility import check_learned_set
-from .types import SafeSet
-from .law import evaluate_pairs
+from ..filter.admissibility import check_learned_set
+from ..filter.types import SafeSet
+from ..filter.law import evaluate_pairs
 
 MESSAGE, RESELECT = 'message', 'reselect'    # the worker's jobs: a new message, the same set again
 
