@@ -130,9 +130,9 @@ class _MapRobot:
     """A ``ScanSensor`` robot's local map and values (``view``: what its filter judges by)."""
 
     def __init__(self, sensor: ScanSensor, config):
-        from .local_map import LocalMap, MapSettings
-        from .map_rows import MapView
-        from .map_value import MapValueSettings, MapValueWorker
+        from ..filter.local_map import LocalMap, MapSettings
+        from ..filter.map_rows import MapView
+        from ..filter.map_value import MapValueSettings, MapValueWorker
         self.sensor = sensor
         self.map = LocalMap(MapSettings(cell=sensor.cell, size=sensor.size, depth=sensor.depth))
         settings = MapValueSettings(cell=sensor.value_cell, headings=sensor.value_headings,
@@ -148,7 +148,7 @@ class _MapRobot:
 
     def scan(self, state, layout, radii) -> None:
         """A scan of ``layout`` taken at ``state``, put into the map."""
-        from .range_readings import scan_rays
+        from ..filter.range_readings import scan_rays
         s = self.sensor
         a = beam_angles(s.beams)
         near = np.hypot(layout[:, 0] - state[0], layout[:, 1] - state[1]) <= s.range_max + radii
