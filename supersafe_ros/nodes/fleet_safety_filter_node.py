@@ -56,6 +56,7 @@ from operator import eq
 import time
 
 import numpy as np
+from rclpy.lifecycle import LifecycleNode
 from rclpy.node import Node
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
@@ -72,7 +73,7 @@ from .filter_inputs import MAP_SENSORS, TYPE_PARAMETERS, check_types
 from .filter_sources import NO_DETECTIONS, CommandSink, CommandSource, DiscSource, PoseSource
 from .filter_state import FleetThrottle, Status
 from .filter_wiring import FilterWiring
-from .managed import node_classes
+from .managed import ManagedFilter
 
 # this node's own parameters (the filter's are in filter_parameters), in the order declared
 PARAMETERS = (
@@ -456,8 +457,21 @@ class FleetSafetyFilter:
         self.io.destroy_node()
 
 
-FleetSafetyFilterNode, ManagedFleetSafetyFilterNode = node_classes(FleetSafetyFilter, 'fleet_safety_filter',
-                                                                   'FleetSafetyFilter')
+class FleetSafetyFilterNode(FleetSafetyFilter, Node):
+    """The FleetSafetyFilter as a plain node: built and deciding from construction."""
+
+    def __init__(self, node_name='fleet_safety_filter', **kwargs):
+        Node.__init__(self, node_name, **kwargs)
+        self.build()
+
+
+class ManagedFleetSafetyFilterNode(ManagedFilter, FleetSafetyFilter, LifecycleNode):
+    """The FleetSafetyFilter as a managed (lifecycle) node: built on configure, deciding while active
+    (nodes/managed.py)."""
+
+    def __init__(self, node_name='fleet_safety_filter', **kwargs):
+        LifecycleNode.__init__(self, node_name, **kwargs)
+        self.start_lifecycle()
 
 
 def main(args=None):

@@ -280,27 +280,3 @@ class ManagedFilter:
             out = array_bytes(self, [Status(DiagnosticStatus.WARN[0], name, message, hardware_id)
                                      for name, hardware_id in names])
         self._diagnostics_pub.publish(out)
-
-
-def node_classes(body, node_name: str, class_name: str) -> tuple:
-    """(plain, managed) node classes of a filter ``body`` (a class with ``build()``):
-    ``<class_name>Node`` builds in its constructor and decides from then on;
-    ``Managed<class_name>Node`` builds on configure and decides while active."""
-    from rclpy.lifecycle import LifecycleNode
-    from rclpy.node import Node
-
-    def plain_init(self, node_name=node_name, **kwargs):
-        Node.__init__(self, node_name, **kwargs)
-        self.build()
-
-    def managed_init(self, node_name=node_name, **kwargs):
-        LifecycleNode.__init__(self, node_name, **kwargs)
-        self.start_lifecycle()
-
-    plain = type(f'{class_name}Node', (body, Node), {
-        '__init__': plain_init, '__module__': body.__module__,
-        '__doc__': f'{body.__name__} as a plain node: built and deciding from construction.'})
-    managed = type(f'Managed{class_name}Node', (ManagedFilter, body, LifecycleNode), {
-        '__init__': managed_init, '__module__': body.__module__,
-        '__doc__': f'{body.__name__} as a managed (lifecycle) node: see nodes/managed.py.'})
-    return plain, managed

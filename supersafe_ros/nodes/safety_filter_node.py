@@ -71,6 +71,9 @@ import re
 import threading
 import time
 
+from rclpy.lifecycle import LifecycleNode
+from rclpy.node import Node
+
 from diagnostic_msgs.msg import DiagnosticStatus
 from std_msgs.msg import Empty
 
@@ -86,7 +89,7 @@ from .filter_diagnostics import FilterDiagnostics, status_copy
 from .filter_inputs import INPUT_PARAMETERS, MAP_SENSORS, PoseHistory, SensorMap, check_types
 from .filter_sources import NO_DETECTIONS, CommandSink, CommandSource, DiscSource, PoseSource
 from .filter_state import HoldSummary, StateThrottle, Status
-from .managed import node_classes
+from .managed import ManagedFilter
 from .filter_wiring import VALUE_FUNCTION_TOPIC, FilterWiring  # noqa: F401  (the topic, re-exported for tests)
 from .markers import LevelSetMarkerPublisher
 
@@ -526,7 +529,21 @@ class SafetyFilter:
         return super().destroy_node()
 
 
-SafetyFilterNode, ManagedSafetyFilterNode = node_classes(SafetyFilter, 'safety_filter', 'SafetyFilter')
+class SafetyFilterNode(SafetyFilter, Node):
+    """The SafetyFilter as a plain node: built and deciding from construction."""
+
+    def __init__(self, node_name='safety_filter', **kwargs):
+        Node.__init__(self, node_name, **kwargs)
+        self.build()
+
+
+class ManagedSafetyFilterNode(ManagedFilter, SafetyFilter, LifecycleNode):
+    """The SafetyFilter as a managed (lifecycle) node: built on configure, deciding while active
+    (nodes/managed.py)."""
+
+    def __init__(self, node_name='safety_filter', **kwargs):
+        LifecycleNode.__init__(self, node_name, **kwargs)
+        self.start_lifecycle()
 
 
 def main(args=None):
