@@ -20,17 +20,19 @@ from ..reach.value_function import ValueFunction
 
 
 @dataclass(frozen=True)
-class Verdict:
+class Admission:
+    """Whether a learned set may be used (``ok``), why, and the containment check behind it."""
+
     ok: bool
     reason: str
     containment: Containment | None = None
 
 
 def check_learned_set(standard: ValueFunction, standard_alpha: float,
-                      learned: ValueFunction, learned_alpha: float, tol: float | None = None) -> Verdict:
+                      learned: ValueFunction, learned_alpha: float, tol: float | None = None) -> Admission:
     """Accept ``learned`` at ``learned_alpha`` only if its unsafe set contains the standard one."""
     c = contains(learned, learned_alpha, standard, standard_alpha, tol=tol)
     if c.ok:
-        return Verdict(True, f'admissible: {c.describe()}', c)
-    return Verdict(False, f'less conservative than the standard set at alpha {standard_alpha:.3g}: '
-                          f'{c.describe()}', c)
+        return Admission(True, f'admissible: {c.describe()}', c)
+    return Admission(False, f'less conservative than the standard set at alpha {standard_alpha:.3g}: '
+                            f'{c.describe()}', c)

@@ -195,15 +195,15 @@ def blocked_turns(filters, away) -> np.ndarray:
     return out
 
 
-def limit(rb, omega, linear, action_code):
-    """The law's commands ``omega``, ``linear`` (per robot row of ``rb``, ``gather.RobotColumns``:
-    its state now ``rb.states`` and its detections ``rb.dets``, all of them, with ``rb.radii``; a
+def limit(cols, omega, linear, action_code):
+    """The law's commands ``omega``, ``linear`` (per robot row of ``cols``, ``gather.RobotColumns``:
+    its state now ``cols.states`` and its detections ``cols.dets``, all of them, with ``cols.radii``; a
     robot judged by its local map: the map's occupied cells, ``map_rows.cut_discs``)
     with each speed cut to what its path over tau allows (``allowed_speeds``), for the robots
     whose configuration has ``time_before_collision`` > 0 (robots that can stop); a robot cut to
     0 where the law passes or overrides (``action_code`` 0 or 1) turns in place
     (``blocked_turns``). None if no robot has it on (nothing changed)."""
-    configs = rb.configs
+    configs = cols.configs
     if not configs:
         return None
     c0 = configs[0]
@@ -217,11 +217,11 @@ def limit(rb, omega, linear, action_code):
         on = tbc > 0.0
         if not on.any():
             return None
-    on &= ~rb.constant & (np.asarray(linear) > 0.0)
+    on &= ~cols.constant & (np.asarray(linear) > 0.0)
     lim = Limits()
     lim.linear, lim.omega = np.array(linear, dtype=float), np.array(omega, dtype=float)
     lim.asked = lim.linear.copy()
-    lim.tau = np.maximum(np.asarray(rb.horizon, dtype=float), tbc)
+    lim.tau = np.maximum(np.asarray(cols.horizon, dtype=float), tbc)
     m = len(configs)
     lim.limited, lim.blocked = np.zeros(m, bool), np.zeros(m, bool)
     lim.obstacle = np.full(m, -1, dtype=np.intp)
@@ -231,19 +231,19 @@ def limit(rb, omega, linear, action_code):
     if len(idx) == 0:
         return lim
     dets, radii = [], []
-    views = rb.views
+    views = cols.views
     for i in idx.tolist():
         view = None if views is None else views[i]
         if view is None:
-            dets.append(rb.dets[i])
-            radii.append(rb.configs[i].radius if rb.radii[i] is None else rb.radii[i])
+            dets.append(cols.dets[i])
+            radii.append(cols.configs[i].radius if cols.radii[i] is None else cols.radii[i])
         else:            # the live map's occupied cells, each cell's disc grown by the clearance
             reach = float(lim.linear[i]) * float(lim.tau[i])
-            centres, radius = cut_discs(view, float(rb.states[i, 0]), float(rb.states[i, 1]), reach)
+            centres, radius = cut_discs(view, float(cols.states[i, 0]), float(cols.states[i, 1]), reach)
             dets.append(centres)
             radii.append(radius)
             lim.mapped[i] = True
-    speed, blocker, away, gap = allowed_speeds(rb.states[idx], lim.linear[idx], lim.omega[idx], lim.tau[idx], dets,
+    speed, blocker, away, gap = allowed_speeds(cols.states[idx], lim.linear[idx], lim.omega[idx], lim.tau[idx], dets,
                                                radii)
     cut = speed < lim.linear[idx]
     lim.limited[idx] = cut
@@ -254,6 +254,6 @@ def limit(rb, omega, linear, action_code):
     lim.blocked[idx] = blocked
     if blocked.any():
         stuck = idx[blocked]
-        lim.omega[stuck] = np.asarray(rb.bang, dtype=float)[stuck] * blocked_turns(
-            [rb.filters[i] for i in stuck.tolist()], away[blocked])
+        lim.omega[stuck] = np.asarray(cols.bang, dtype=float)[stuck] * blocked_turns(
+            [cols.filters[i] for i in stuck.tolist()], away[blocked])
     return lim

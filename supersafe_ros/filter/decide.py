@@ -41,15 +41,15 @@ def decide_many(filters, safe_set: SafeSet, t, clusters=None) -> Decisions:
     robots' configuration; see ``filter.cluster``). Returns ``Decisions``: the
     commands as lists, each robot's ``FilterOutput`` built when read.
     """
-    rb = gather_one_fast(filters[0], t) if len(filters) == 1 else None
-    if rb is None:
-        rb = gather(filters, t)
+    cols = gather_one_fast(filters[0], t) if len(filters) == 1 else None
+    if cols is None:
+        cols = gather(filters, t)
     derived = Derived()
-    tab, n_groups, solving = constraint_rows(rb, safe_set, clusters, derived)
-    decided = decide_rows(tab, len(rb.use), n_groups, rb.overriding, rb.margin, rb.failing, rb.fresh, rb.planned,
-                          rb.bang, rb.drive, rb.held, rb.constant)
-    limits = limit(rb, *decided[:3])
-    decisions = outputs(filters, rb, safe_set, tab, decided, solving, limits, t)
+    table, n_groups, solving = constraint_rows(cols, safe_set, clusters, derived)
+    decided = decide_rows(table, len(cols.use), n_groups, cols.overriding, cols.margin, cols.failing, cols.fresh,
+                          cols.planned, cols.bang, cols.drive, cols.held, cols.constant)
+    limits = limit(cols, *decided[:3])
+    decisions = outputs(filters, cols, safe_set, table, decided, solving, limits, t)
     decisions.derived = derived
     return decisions
 

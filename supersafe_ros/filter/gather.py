@@ -89,15 +89,15 @@ def gather(filters, t) -> RobotColumns:
     ``follow``, ``commands.command_fresh``, ``planned_turns``, ``planned_speeds`` and
     ``drive_speeds``, and ``RobotFilter.lookahead`` over them (the same comparisons and
     arithmetic as the per-robot forms, so the same values bit for bit)."""
-    rb = RobotColumns()
+    cols = RobotColumns()
     n = len(filters)
     configs = [f.config for f in filters]
     (pose_timeout, det_timeout, hold, bang_all, compensate, cmd_timeout, look, period, speed, margin,
-     cluster_alpha, rb.all_keep, constant_all) = _config_columns(configs, (
+     cluster_alpha, cols.all_keep, constant_all) = _config_columns(configs, (
         'pose_timeout', 'detections_timeout', 'hold_timeout', 'omega_max', 'compensate_delay', 'cmd_timeout',
         'lookahead', 'control_period', 'speed', 'clear_margin', 'cluster_alpha', 'sent_kept', 'constant_speed'))
-    rb.all_constant = constant_all != 0.0
-    rb.all_configs, rb.all_bang = configs, bang_all
+    cols.all_constant = constant_all != 0.0
+    cols.all_configs, cols.all_bang = configs, bang_all
     poses, dets = [f.pose for f in filters], [f.detections for f in filters]
     pose_t = np.fromiter(map(_T, poses), dtype=float, count=n)
     det_t = np.fromiter(map(_T, dets), dtype=float, count=n)
@@ -110,7 +110,7 @@ def gather(filters, t) -> RobotColumns:
             clean &= ~np.fromiter(map(bool, map(_REJECTED, inputs)), dtype=bool, count=n)
     commands = [f.command for f in filters]
     if any(map(_REJECTED, commands)):       # a robot that can stop stops on a refused command
-        clean &= ~(np.fromiter(map(bool, map(_REJECTED, commands)), dtype=bool, count=n) & ~rb.all_constant)
+        clean &= ~(np.fromiter(map(bool, map(_REJECTED, commands)), dtype=bool, count=n) & ~cols.all_constant)
     views = list(map(_VIEW, filters))
     values = None
     if any(map(is_not, views, itertools.repeat(None))):     # robots judged by their maps' values
@@ -118,42 +118,42 @@ def gather(filters, t) -> RobotColumns:
         pending = (v is not None and mv is None and v.local_map.holds_any() for v, mv in zip(views, values))
         clean &= ~np.fromiter(pending, dtype=bool, count=n)
     judged = has & clean & ~(t - pose_t > pose_timeout) & ~(t - det_t > det_timeout)
-    rb.problems = [''] * n
+    cols.problems = [''] * n
     for i in np.flatnonzero(~judged).tolist():
-        rb.problems[i] = problem(filters[i], t)[0]
+        cols.problems[i] = problem(filters[i], t)[0]
     use = np.flatnonzero(judged | (has & (t - pose_t <= hold) & (t - det_t <= hold)))
-    rb.use, m = use, len(use)
+    cols.use, m = use, len(use)
     if m < n:
         filters, configs, poses, pose_values, det_values = (
             [x[i] for i in use.tolist()] for x in (filters, configs, poses, pose_values, det_values))
         pose_t = pose_t[use]
         (hold, compensate, cmd_timeout, look, period, speed, bang, margin, cluster_alpha, constant) = (
             c[use] for c in (hold, compensate, cmd_timeout, look, period, speed, bang_all, margin, cluster_alpha,
-                             rb.all_constant))
+                             cols.all_constant))
     else:
-        bang, constant = bang_all, rb.all_constant
-    rb.filters, rb.configs, rb.failing = filters, configs, ~judged[use]
-    rb.views = None if values is None else [views[i] for i in use.tolist()]
-    rb.map_values = None if values is None else [values[i] for i in use.tolist()]
-    rb.speed, rb.bang, rb.margin, rb.cluster_alpha = speed, bang, margin, cluster_alpha
-    rb.dets = det_values
-    rb.radii = list(map(_RADII, dets)) if m == n else [d.radii for d in map(attrgetter('detections'), filters)]
+        bang, constant = bang_all, cols.all_constant
+    cols.filters, cols.configs, cols.failing = filters, configs, ~judged[use]
+    cols.views = None if values is None else [views[i] for i in use.tolist()]
+    cols.map_values = None if values is None else [values[i] for i in use.tolist()]
+    cols.speed, cols.bang, cols.margin, cols.cluster_alpha = speed, bang, margin, cluster_alpha
+    cols.dets = det_values
+    cols.radii = list(map(_RADII, dets)) if m == n else [d.radii for d in map(attrgetter('detections'), filters)]
     poses_now = np.array(pose_values, dtype=float).reshape(m, 3)
-    rb.overriding = np.fromiter((f.overriding for f in filters), dtype=bool, count=m)
+    cols.overriding = np.fromiter((f.overriding for f in filters), dtype=bool, count=m)
     compensate = compensate != 0.0
 
     # propagation.plan: the pose's age, and the arcs held since its stamp
     stamp = np.fromiter(map(_STAMP, poses), dtype=float, count=m)
-    rb.age, last, omegas, dts, speeds = plan_columns(filters, t, pose_t, stamp, compensate, hold)
-    rb.states, rb.lone = follow(poses_now, omegas, dts, speeds), None
+    cols.age, last, omegas, dts, speeds = plan_columns(filters, t, pose_t, stamp, compensate, hold)
+    cols.states, cols.lone = follow(poses_now, omegas, dts, speeds), None
 
     # command_fresh, planned_turn (clipped as clip) and the lookahead
     commands = [f.command for f in filters]
     value = list(map(_VALUE, commands))
-    rb.fresh = fresh = (np.fromiter(map(is_not, value, itertools.repeat(None)), dtype=bool, count=m)
-                        & (t - np.fromiter(map(_T, commands), dtype=float, count=m) <= cmd_timeout))
+    cols.fresh = fresh = (np.fromiter(map(is_not, value, itertools.repeat(None)), dtype=bool, count=m)
+                          & (t - np.fromiter(map(_T, commands), dtype=float, count=m) <= cmd_timeout))
     value = np.array([0.0 if v is None else v for v in value] if None in value else value, dtype=float)
-    rb.planned = planned_turns(value, fresh, bang)
+    cols.planned = planned_turns(value, fresh, bang)
     # the speeds: the planner's clipped to [0, speed] (planned_speed), driven (drive_speed), last sent
     # (a robot with nothing sent shows _NEVER's speed, 0; linear.x not given: the speed)
     linear = list(map(_LINEAR, commands))
@@ -162,15 +162,15 @@ def gather(filters, t) -> RobotColumns:
     else:
         linear = np.array([math.inf if v is None else v for v in linear] if None in linear else linear, dtype=float)
         planned_v = planned_speeds(linear, speed)
-    rb.constant, rb.held = constant, np.where(constant, speed, last[:, 2])
-    rb.drive = drive_speeds(constant, speed, rb.failing, rb.held, fresh, planned_v)
+    cols.constant, cols.held = constant, np.where(constant, speed, last[:, 2])
+    cols.drive = drive_speeds(constant, speed, cols.failing, cols.held, fresh, planned_v)
     # measured period: the larger median of the pose and command intervals (each > 0; none: 0)
     windows = ([f.pose_intervals for f in filters], [f.command_intervals for f in filters])
     measured = py_max(*(np.array([0.0 if w.middle is None else w.middle for w in ws], dtype=float)
                         for ws in windows))
     period = np.where(period > 0.0, period, measured)
-    rb.horizon = np.where(compensate, py_max(look, period), look)
-    return rb
+    cols.horizon = np.where(compensate, py_max(look, period), look)
+    return cols
 
 
 _ONE = np.zeros(1, np.intp)
@@ -185,7 +185,7 @@ def gather_one_fast(f, t):
     if not usable:
         return None
     cfg = f.config
-    rb = RobotColumns()
+    cols = RobotColumns()
     age, arcs = plan(f, t)
     x, y, th = f.pose.value.tolist()
     for omega, dt, v in arcs:
@@ -194,19 +194,19 @@ def gather_one_fast(f, t):
         th = wrap(th)
     fresh = command_fresh(f, t)
     # the one row's float columns, made in one call (views of one array)
-    (rb.bang, rb.all_keep, rb.speed, rb.margin, rb.cluster_alpha, rb.age, rb.horizon, rb.planned, rb.drive,
-     rb.held) = np.array(
+    (cols.bang, cols.all_keep, cols.speed, cols.margin, cols.cluster_alpha, cols.age, cols.horizon, cols.planned,
+     cols.drive, cols.held) = np.array(
         [[cfg.omega_max], [cfg.sent_kept], [cfg.speed], [cfg.clear_margin], [cfg.cluster_alpha], [age],
          [f.lookahead()], [planned_turn(f, t, fresh)], [drive_speed(f, fresh, bool(why))], [held_speed(f)]],
         dtype=float)
-    rb.all_bang = rb.bang
-    rb.failing, rb.overriding, rb.fresh, rb.constant = np.array(
+    cols.all_bang = cols.bang
+    cols.failing, cols.overriding, cols.fresh, cols.constant = np.array(
         [[bool(why)], [f.overriding], [fresh], [cfg.constant_speed]])
-    rb.all_constant = rb.constant
-    rb.filters, rb.use, rb.problems, rb.configs, rb.all_configs = [f], _ONE, [why], [cfg], [cfg]
-    rb.radii, rb.dets = [f.detections.radii], [f.detections.value]
+    cols.all_constant = cols.constant
+    cols.filters, cols.use, cols.problems, cols.configs, cols.all_configs = [f], _ONE, [why], [cfg], [cfg]
+    cols.radii, cols.dets = [f.detections.radii], [f.detections.value]
     view = f.view
-    rb.views, rb.map_values = (None, None) if view is None else ([view], [view.value()])
-    rb.lone = (x, y, th)
-    rb.states = np.array([rb.lone])
-    return rb
+    cols.views, cols.map_values = (None, None) if view is None else ([view], [view.value()])
+    cols.lone = (x, y, th)
+    cols.states = np.array([cols.lone])
+    return cols

@@ -145,7 +145,7 @@ def first_min_of_runs(score, run, starts) -> np.ndarray:
     return at[np.concatenate(([True], run[at[1:]] != run[at[:-1]]))]
 
 
-def govern(tab, overriding, margin, n_groups, m):
+def govern(table, overriding, margin, n_groups, m):
     """(constraint, why) per robot row that makes the filter override, or (smallest, '') to pass.
 
     Within a cluster its sound constraint (union value or fallback) comes first: if
@@ -157,22 +157,22 @@ def govern(tab, overriding, margin, n_groups, m):
     level), stay (overriding and V <= level + clear margin); within each, the
     smallest V - level (resp. V_next - level), first in the robot's list on ties.
     """
-    r = tab.robot
-    enter = tab.value <= tab.level
-    ahead = tab.value_next <= tab.level
-    stay = overriding[r] & (tab.value <= tab.level + margin[r])
+    r = table.robot
+    enter = table.value <= table.level
+    ahead = table.value_next <= table.level
+    stay = overriding[r] & (table.value <= table.level + margin[r])
     acts = enter | ahead | stay
     if not acts.any():          # every robot passes (most decisions): nothing to order
         return np.full(m, -1, dtype=np.intp), np.zeros(m, dtype=np.int8)
     governed = np.zeros(n_groups, bool)
-    governed[tab.group[tab.sound & acts]] = True
-    use = tab.sound | ~governed[tab.group]
+    governed[table.group[table.sound & acts]] = True
+    use = table.sound | ~governed[table.group]
     # each acting row by the first kind it has (1 enter, 2 ahead, 3 stay) and that kind's score:
     # a robot's first kind with a hit is its rows' smallest kind, and its rows of that kind are
     # exactly those whose first kind it is, so one ordering by (kind, score, position) finds it
     code = np.where(enter, 1, np.where(ahead, 2, 3)).astype(np.int8)
-    score = np.where(code == 2, tab.value_next, tab.value) - tab.level
-    k = first_min(r, tab.position, score, use & acts, m, rank=code)
+    score = np.where(code == 2, table.value_next, table.value) - table.level
+    k = first_min(r, table.position, score, use & acts, m, rank=code)
     kind = np.zeros(m, dtype=np.int8)      # 0 pass, 1 enter, 2 ahead, 3 stay
     got = k >= 0
     kind[got] = code[k[got]]
@@ -182,14 +182,14 @@ def govern(tab, overriding, margin, n_groups, m):
 KINDS = ('', 'enter', 'ahead', 'stay')     # why a row governs, by ``govern``'s code
 
 
-def smallest(tab, m) -> np.ndarray:
+def smallest(table, m) -> np.ndarray:
     """Per robot row: the constraint with the smallest finite V - alpha (the first in the
     robot's list on ties), -1 if none: the one a pass names and a fail safe avoids."""
-    return first_min(tab.robot, tab.position, tab.value - tab.level, np.isfinite(tab.value), m)
+    return first_min(table.robot, table.position, table.value - table.level, np.isfinite(table.value), m)
 
 
-def decide_rows(tab, m, n_groups, overriding, margin, failing, fresh, planned, bang, drive, held, constant):
-    """The rule for the M robot rows of ``tab``: (omega, linear, action code 0 pass / 1
+def decide_rows(table, m, n_groups, overriding, margin, failing, fresh, planned, bang, drive, held, constant):
+    """The rule for the M robot rows of ``table``: (omega, linear, action code 0 pass / 1
     override / 2 fail safe, overrides, the row each robot names, why it governs (``KINDS``)).
 
     ``overriding``, ``margin``, ``failing``, ``fresh``, ``planned``, ``bang``, ``drive``,
@@ -197,10 +197,10 @@ def decide_rows(tab, m, n_groups, overriding, margin, failing, fresh, planned, b
     valid state judged instead; ``planned``: the planner's turn clipped, 0 if silent;
     ``drive``: the speed of the command judged, ``commands.drive_speed``; ``held``: the speed
     last sent; ``constant``: a constant-speed robot, failing safe with the stop-turn). Avoid
-    turns are read (``tab.turns_of``) only for the robots that avoid.
+    turns are read (``table.turns_of``) only for the robots that avoid.
     """
-    k_gov, kind = govern(tab, overriding, margin, n_groups, m)
-    k_small = smallest(tab, m)
+    k_gov, kind = govern(table, overriding, margin, n_groups, m)
+    k_small = smallest(table, m)
     acts = kind > 0
     # a robot that can stop stops (a zero twist) whenever it fails safe or its planner is silent:
     # nothing to judge, and standing still is safe; a constant-speed robot cannot stop
@@ -211,12 +211,12 @@ def decide_rows(tab, m, n_groups, overriding, margin, failing, fresh, planned, b
     named = np.where(overrides, k_gov, k_small)   # the constraint each robot's output names
     avoiding = overrides | (failing & constant & (k_small >= 0))
     turn = np.zeros(m)
-    turn[avoiding] = tab.turns_of(named[avoiding])
+    turn[avoiding] = table.turns_of(named[avoiding])
     omega = np.where(avoiding, bang * turn, np.where(failing & constant, bang, np.where(failing, 0.0, planned)))
     linear = np.where(failing, np.where(avoiding, held, 0.0), np.where(overrides | fresh, drive, 0.0))
     if overrides.any() and not constant.all():     # a robot that can stop: in place on a loiter fallback
         loiter = overrides & ~constant
-        loiter[loiter] = tab.fallback[named[loiter]]
+        loiter[loiter] = table.fallback[named[loiter]]
         linear[loiter] = 0.0
     code = np.where(failing, 2, np.where(overrides, 1, 0))
     return omega, linear, code, overrides, named, kind

@@ -123,11 +123,12 @@ class Narrowed:
 
     __slots__ = ('dets', 'frames', 'position', 'names', 'counts')
 
-    def rename(self, tab, start, cl) -> None:
+    def rename(self, table, start, clusters_found) -> None:
         """The table's obstacles as indices in each robot's message."""
         names = self.names
-        tab.obstacle = (np.concatenate([names, names[start[cl['robot']] + cl['obstacle']]]) if len(cl['robot'])
-                        else names.copy())
+        found = clusters_found
+        table.obstacle = (np.concatenate([names, names[start[found['robot']] + found['obstacle']]])
+                          if len(found['robot']) else names.copy())
 
 
 def narrow(filters, configs, dets, states, horizon, speed, margin, safe_set, store_arg, derived=None):

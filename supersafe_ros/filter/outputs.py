@@ -56,26 +56,26 @@ class Decisions(Sequence):
         return f'Decisions({list(self)!r})'
 
 
-def outputs(filters, rb, safe_set, tab, decided, solving, limits=None, t=math.nan) -> Decisions:
+def outputs(filters, cols, safe_set, table, decided, solving, limits=None, t=math.nan) -> Decisions:
     """Every robot's command (as lists), whether it overrides, the speed the robot drives under
     it (the linear.x sent, a constant-speed robot's speed), and a builder of its FilterOutput:
-    the law's answer ``decided`` (``law.decide_rows`` over ``tab``) for the rows of ``rb``
+    the law's answer ``decided`` (``law.decide_rows`` over ``table``) for the rows of ``cols``
     spread back to all robots (a robot with no recent valid state stops: a zero twist, or a
     constant-speed robot's stop-turn). ``limits``: ``approach.limit``'s speeds and turns, where
     time_before_collision cut them (None: the law's stand); ``t``: the decision's time (how long the
     planner has been silent)."""
-    n, use = len(filters), rb.use
+    n, use = len(filters), cols.use
     m = len(use)
     omega, linear, code, over, named, kind = decided
     if limits is not None:
         omega, linear = limits.omega, limits.linear
-    moved = np.where(rb.constant, rb.speed, linear)
+    moved = np.where(cols.constant, cols.speed, linear)
     if m < n:       # spread to every robot (rows of ``use`` in place; no recent valid state: stop)
         rows = np.full(n, -1, dtype=np.intp)
         rows[use] = np.arange(m)
-        all_speed = np.fromiter((c.speed for c in rb.all_configs), dtype=float, count=n)
-        spread = (np.where(rb.all_constant, rb.all_bang, 0.0), np.zeros(n), np.full(n, 2), np.zeros(n, bool),
-                  np.where(rb.all_constant, all_speed, 0.0))
+        all_speed = np.fromiter((c.speed for c in cols.all_configs), dtype=float, count=n)
+        spread = (np.where(cols.all_constant, cols.all_bang, 0.0), np.zeros(n), np.full(n, 2), np.zeros(n, bool),
+                  np.where(cols.all_constant, all_speed, 0.0))
         for full, part in zip(spread, (omega, linear, code, over, moved)):
             full[use] = part
         omega, linear, code, over, moved = spread
@@ -84,9 +84,9 @@ def outputs(filters, rb, safe_set, tab, decided, solving, limits=None, t=math.na
         rows = range(n)
     omega, linear, over = omega.tolist(), linear.tolist(), over.tolist()
     action = _ACTIONS[code].tolist()
-    problems, configs = rb.problems, rb.all_configs      # configs as at the decision (a parameter change
+    problems, configs = cols.problems, cols.all_configs      # configs as at the decision (a parameter change
     common = set_fields(safe_set)                        # replaces a robot's)
-    fresh, kind, named, ages, horizon = rb.fresh.tolist(), kind.tolist(), named.tolist(), rb.age, rb.horizon
+    fresh, kind, named, ages, horizon = cols.fresh.tolist(), kind.tolist(), named.tolist(), cols.age, cols.horizon
 
     def describe(i) -> FilterOutput:
         row = rows[i]
@@ -94,7 +94,7 @@ def outputs(filters, rb, safe_set, tab, decided, solving, limits=None, t=math.na
             out = explain(Reasons(problems[i], configs[i], omega[i], linear[i], action[i], common, lost=True))
         else:
             command_t = filters[i].command.t
-            out = explain(Reasons(problems[i], configs[i], omega[i], linear[i], action[i], common, tab, named[row],
+            out = explain(Reasons(problems[i], configs[i], omega[i], linear[i], action[i], common, table, named[row],
                                   kind[row], fresh[row], float(horizon[row]), float(ages[row]), int(solving[row]),
                                   silence=t - command_t if command_t > -math.inf else math.inf,
                                   limit='' if limits is None else limits.headline(row)))
@@ -105,7 +105,7 @@ def outputs(filters, rb, safe_set, tab, decided, solving, limits=None, t=math.na
             out.cmd_clipped = f.command.note
         return out
 
-    return Decisions(omega, linear, action, over, moved.tolist(), describe, t, rb.all_keep)
+    return Decisions(omega, linear, action, over, moved.tolist(), describe, t, cols.all_keep)
 
 
 def set_fields(safe_set) -> dict:
@@ -129,7 +129,7 @@ class Reasons:
     linear: float
     action: str
     set_fields: dict
-    tab: object = None
+    table: object = None
     row: int = -1
     kind: int = 0
     fresh: bool = False
@@ -144,21 +144,22 @@ class Reasons:
 def explain(r: Reasons) -> FilterOutput:
     """One robot's FilterOutput: its command and why (``Reasons``), in words an operator reads
     (what the robot does, then why; the numbers behind it are the output's own fields)."""
-    problem, cfg, v, a, tab, k, kind, horizon = r.problem, r.cfg, r.linear, r.action, r.tab, r.row, r.kind, r.horizon
+    problem, cfg, v, a, table, k = r.problem, r.cfg, r.linear, r.action, r.table, r.row
+    kind, horizon = r.kind, r.horizon
     common = dict(r.set_fields, pose_age=r.age, lookahead=horizon, clusters_solving=r.solving)
     if k < 0:
         common.update(obstacle_index=-1, obstacle_xy=(math.nan, math.nan), value=math.inf)
         value = level = math.nan
     else:
-        value, level = float(tab.value[k]), float(tab.level[k])
-        members, obstacle = int(tab.members[k]), int(tab.obstacle[k])
-        common.update(obstacle_index=obstacle, obstacle_xy=tuple(float(c) for c in tab.xy[k]), value=value,
+        value, level = float(table.value[k]), float(table.level[k])
+        members, obstacle = int(table.members[k]), int(table.obstacle[k])
+        common.update(obstacle_index=obstacle, obstacle_xy=tuple(float(c) for c in table.xy[k]), value=value,
                       alpha=level)
-        source = 'map' if tab.mapped[k] else 'cluster-fallback' if tab.fallback[k] else 'cluster'   # a sound row's
-        if tab.sound[k]:
+        source = 'map' if table.mapped[k] else 'cluster-fallback' if table.fallback[k] else 'cluster'   # a sound row's
+        if table.sound[k]:
             common['source'] = source
-        if tab.mapped[k]:        # a local map's value: it names the nearest occupied cell (filter.map_rows)
-            gap = float(tab.gap[k])
+        if table.mapped[k]:        # a local map's value: it names the nearest occupied cell (filter.map_rows)
+            gap = float(table.gap[k])
             label = (f'an obstacle {max(gap, 0.0):.2g} m away' if math.isfinite(gap) else
                      'the mapped obstacles')
         elif members > 1:
@@ -176,13 +177,13 @@ def explain(r: Reasons) -> FilterOutput:
                    f'{"no recent valid state" if r.lost else "no obstacle near the last valid state"}')
     elif a == OVERRIDE:
         how = KINDS[kind]
-        in_place = not cfg.constant_speed and tab.fallback[k]
+        in_place = not cfg.constant_speed and table.fallback[k]
         doing = f'{turning} in place' if in_place else turning
         if how == 'enter':
             why = f'{doing}: {label} is too close (V={value:.3g} <= alpha={level:.3g})'
         elif how == 'ahead':
             why = (f'{doing}: the planner\'s command would bring {label} too close within {horizon:.3g} s '
-                   f'(V={float(tab.value_next[k]):.3g} <= alpha={level:.3g})')
+                   f'(V={float(table.value_next[k]):.3g} <= alpha={level:.3g})')
         else:
             why = f'{doing}: not yet clear of {label} (V={value:.3g} <= alpha+margin={level + cfg.clear_margin:.3g})'
         if in_place:
