@@ -17,7 +17,7 @@ SUBCOMMANDS = [
     ('supersafe_ros.team_cli', 'team: run the ROS 2 node graph as separate processes'),
     ('supersafe_ros.study.cli', 'study / demo: the paper study in simulation'),
     ('supersafe_ros.recording.cli', 'record: record every topic to a rosbag2 MCAP bag'),
-    ('supersafe_ros.console.session_runner', "session: the paper's protocol for one person in the console"),
+    ('supersafe_ros.session.runner', "session: the paper's protocol for one person in the console"),
     ('supersafe_ros.study.power', 'power: participants needed, from a simulated study'),
     ('supersafe_ros.cache_cli', 'cache: the files the package keeps (sizes, where), and clearing them'),
 ]

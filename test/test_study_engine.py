@@ -167,7 +167,7 @@ def test_the_core_records_do_not_depend_on_the_number_of_workers(tmp_path):
 
 
 def test_the_papers_phase3_plays_six_games_on_the_versions_and_averages_each_treatments_two(tmp_path):
-    from supersafe_ros.console.analysis import analyse
+    from supersafe_ros.session.analysis import analyse
     from supersafe_ros.study.design import paper_plan, version_world_seed
     parser = argparse.ArgumentParser()
     cli.add_parser(parser.add_subparsers(dest='command'))

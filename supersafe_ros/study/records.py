@@ -1,6 +1,6 @@
 """A subject's record as data: its games' counts, its learned sets, and JSON.
 
-A record (``runner.run_subject``; a human participant's from ``console.session``):
+A record (``runner.run_subject``; a human participant's from ``session.protocol``):
 {'subject', 'phase2', 'states' (Phase II intervention states), 'fits' and 'learned_vfs'
 (learned condition -> fit dict / ValueFunction, or None), 'games': {condition: counts
 and H2 measures}, 'sweep': {k: counts}}.

@@ -31,7 +31,7 @@ from pathlib import Path
 import sys
 import time
 
-from ..console.session import write_subject
+from ..session.protocol import write_subject
 from ..sim.supervisor_models import DEFAULT_MODEL
 from ..team import team_env
 from .analysis import ordered
@@ -145,7 +145,7 @@ def run_study(subjects: list, opts: StudyOptions, out=sys.stdout) -> dict:
             records.append(run_subject(i, subject, opts, conditions, progress, phase2, player))
     for i, rec in enumerate(records):
         # the subject's files, in the layout a human participant's session also writes
-        # (console/session.py), so the analysis can mix the two
+        # (session/protocol.py), so the analysis can mix the two
         write_subject(Path(opts.out_dir) / 'subjects' / f's{i:02d}', rec)
     return {'records': records, 'wall': time.monotonic() - t_start}
 

@@ -2,7 +2,7 @@
 
 ``summarize`` pools the per-subject records (``records``) with the statistics of
 ``analysis`` and ``posthoc`` (paired tests; Tukey's independent-groups HSD is kept as a
-labelled reference); a human participant's record (``console.session``) counts like a
+labelled reference); a human participant's record (``session.protocol``) counts like a
 simulated subject's. Crashes stand beside false positives (a supervisor that saves false
 positives by missing undetected obstacles is not a better one): each Table 1 row and each
 paired test carries the conditions' crash totals.

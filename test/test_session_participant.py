@@ -24,7 +24,7 @@ import sys
 import pytest
 import yaml
 
-from supersafe_ros.console import session as S
+from supersafe_ros.session import protocol as S
 from supersafe_ros.study.design import paper_plan
 from supersafe_ros.study.subjective import TEAM_ITEMS
 from console_support import (DESKTOP, LAPTOP, Browser, dump_stacks, free_port, wait_for_server, wait_for_sim,
@@ -321,7 +321,7 @@ def test_scripted_participant_completes_the_whole_protocol_on_a_laptop_screen(tm
     assert set(f'obstacle_{o}' for o in handled) <= set(frames) and len(frames) >= len(handled) + 1
 
     out = io.StringIO()
-    from supersafe_ros.console.analysis import analyse
+    from supersafe_ros.session.analysis import analyse
     assert analyse([tmp_path], csv_path=tmp_path / 'study.csv', out=out) == 0
     assert '1 complete (1 human, 0 simulated)' in out.getvalue() and 'Phase III forms: paper' in out.getvalue()
     assert 'no statistical test is meaningful' in out.getvalue()

@@ -22,7 +22,7 @@ import subprocess
 import time
 
 from ..team import Team, TeamMonitor, _param_value, process_name
-from .state import ConsoleState
+from ..console.state import ConsoleState
 
 SET_GATE_TOPIC = '/session/set_in_force'
 
@@ -39,7 +39,7 @@ class PhaseNode:
         from ..nodes.common import StepAcknowledger
         from ..ros_io import rosmsg
         from ..ros_io.background_node import BackgroundNode
-        from .bridge import ConsoleBridge
+        from ..console.bridge import ConsoleBridge
         self.ros = BackgroundNode('supervisor', env['ROS_DOMAIN_ID'])
         self.context, self.node = self.ros.context, self.ros.node
         state.reset(robots)

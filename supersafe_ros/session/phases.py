@@ -1,4 +1,4 @@
-"""The phases of a participant session (``Session`` in session_runner.py runs them).
+"""The phases of a participant session (``Session`` in runner.py runs them).
 
 Each phase that moves robots runs a graph of node processes (as `supersafe team`
 starts them) without the simulated supervisor, with this process's ``PhaseNode`` in
@@ -15,7 +15,7 @@ import time
 from ..team import node_argv, team_layout
 from .fit_view import fit_view
 from .phase_graph import SET_GATE_TOPIC, PhaseGraph, PhaseNode, add_clock_gate, set_clock_param, without
-from .session import LIKERT_POINTS, intervention_states, participant_number
+from .protocol import LIKERT_POINTS, intervention_states, participant_number
 
 SCENE_PAUSE = 3.0                          # wall s between calibration scenes
 

@@ -40,9 +40,9 @@ import threading
 import time
 
 from ..team import team_env
-from .session import ParticipantExists, SessionStore, check_answers, subject_record, write_subject
-from .session_phases import SessionPhases
-from .state import ConsoleState, Field
+from ..console.state import ConsoleState, Field
+from .phases import SessionPhases
+from .protocol import ParticipantExists, SessionStore, check_answers, subject_record, write_subject
 
 # rclpy, the console's web server and the study's modules (numpy, scipy, matplotlib) are
 # imported where a phase needs them: `supersafe` imports this module to build its parser
@@ -62,7 +62,7 @@ class Session(SessionPhases):
     stop_grace = STOP_GRACE
 
     def __init__(self, args, out=sys.stdout):
-        from .server import ConsoleServer
+        from ..console.server import ConsoleServer
         self.args = args
         self.out = out
         self.store = SessionStore(args.out, args.participant, args.offsets, args.phase3)

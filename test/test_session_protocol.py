@@ -1,7 +1,7 @@
 """`supersafe session` without ROS: the participant protocol's bookkeeping, the fit screen's
 words, and the researcher's --analyse (listing, descriptive table, tests only when
 meaningful, the CSV export). The scripted participants in Chromium are in
-test_console_participant.py."""
+test_session_participant.py."""
 import csv
 import io
 import json
@@ -13,9 +13,9 @@ import warnings
 import numpy as np
 import pytest
 
-from supersafe_ros.console import session as S
-from supersafe_ros.console.analysis import analyse, find_participants
-from supersafe_ros.console.fit_view import fit_view, turn_x
+from supersafe_ros.session import protocol as S
+from supersafe_ros.session.analysis import analyse, find_participants
+from supersafe_ros.session.fit_view import fit_view, turn_x
 from supersafe_ros.study.design import paper_plan, short_plan
 from supersafe_ros.study.subjective import TEAM_ITEMS
 
@@ -69,7 +69,7 @@ def test_the_plan_is_fixed_when_a_participant_is_created_and_kept_on_resume(tmp_
     assert store.data['plan'] == paper_plan(8) and store.data['plays'] == [] and len(store.data['order']) == 6
     again = S.SessionStore(tmp_path, '8', n_offsets=2, phase3='short')
     assert again.data['plan']['form'] == 'paper'                 # a resumed participant keeps its form
-    from supersafe_ros.console.analysis import phase_reached
+    from supersafe_ros.session.analysis import phase_reached
     data = dict(store.data, scenes=[{}, {}], fit={'paper': None}, plays=[{}, {}], answers=[{}])
     assert phase_reached(data) == 'Phase III, 2 of 6 games, 1 of 3 questionnaires'
     short = S.SessionStore(tmp_path, '9', n_offsets=2, phase3='short')
@@ -293,7 +293,7 @@ def test_sigint_and_sigterm_before_any_phase_end_the_session_cleanly(tmp_path):
         if sig == signal.SIGTERM:
             # the main thread (in the session's run) and the web server's thread
             assert len(re.findall(r'^(Current thread|Thread) 0x[0-9a-f]+', stacks, re.M)) >= 2, stacks
-            assert 'session_runner.py' in stacks and 'server.py' in stacks, stacks
+            assert 'session/runner.py' in stacks and 'server.py' in stacks, stacks
         assert 'interrupted: resume with the same command' in out and 'Traceback' not in out, out
         assert 'Task was destroyed' not in out, out
         assert json.loads((tmp_path / 's1' / 'session.json').read_text())['scenes'] == []
@@ -317,7 +317,7 @@ class ScriptedSession:
 
     def __init__(self, store, phase3='paper'):
         import argparse
-        from supersafe_ros.console.session_runner import Session
+        from supersafe_ros.session.runner import Session
         self.protocol = Session.protocol.__get__(self)
         self.store, self.events = store, []
         self.args = argparse.Namespace(phase1_seconds=0, stop_after=None, estimator='paper', game_seconds=5.0,

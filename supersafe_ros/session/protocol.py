@@ -1,6 +1,6 @@
 """The paper's protocol for one human participant, without ROS: the bookkeeping.
 
-``supersafe session`` (session_runner.py) runs the phases; this module decides what
+``supersafe session`` (runner.py) runs the phases; this module decides what
 they are and keeps the record:
 
 * Phase II offsets: the 42 lateral offsets in [-2.25, 2.25], shuffled by a generator

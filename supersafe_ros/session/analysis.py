@@ -33,7 +33,7 @@ import warnings
 import numpy as np
 
 from ..study.subjective import PREFERENCE, TEAM_ITEMS, format_subjective, ratings, subjective_analysis
-from .session import load_subject
+from .protocol import load_subject
 
 MIN_SUBJECTS_FOR_TESTS = 3
 COUNTS = ('false_positives', 'interventions', 'crashes', 'trips')
