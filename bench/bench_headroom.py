@@ -213,16 +213,22 @@ def bench_fleet(args, checkouts):
                         ticks += 1
                         next_tick += 0.02
                         d.spin_for(max(0.0, next_tick - time.monotonic()))
-                feed(1.0)       # warm-up: the first detections, the first ticks' caches
-                t0, cpu0 = time.monotonic(), bench_nodes.cpu_seconds(child.pid)
-                feed(args.window)
-                t1, cpu = time.monotonic(), bench_nodes.cpu_seconds(child.pid) - cpu0
-                feed(0.5)
-                d.spin_until(lambda: reports and int(reports[-1]['t']) >= int(t1 * 1e9), 30.0, 'a report after')
-                print_figures('fleet', tag, m, reports, t0, t1, cpu)
+                measure('fleet', tag, m, feed, child, d, reports, args.window)
             finally:
                 d.close()
                 bench_nodes.stop([child])
+
+
+def measure(section, tag, size, feed, child, d, reports, window):
+    """One row: ``feed`` 1 s (warm-up: the first detections, the first ticks' caches), then the
+    window with the node's CPU, then until the node's report covers the window; its figures."""
+    feed(1.0)
+    t0, cpu0 = time.monotonic(), bench_nodes.cpu_seconds(child.pid)
+    feed(window)
+    t1, cpu = time.monotonic(), bench_nodes.cpu_seconds(child.pid) - cpu0
+    feed(0.5)
+    d.spin_until(lambda: reports and int(reports[-1]['t']) >= int(t1 * 1e9), 30.0, 'a report after')
+    print_figures(section, tag, size, reports, t0, t1, cpu)
 
 
 def bench_batched(args, checkouts):
@@ -267,13 +273,7 @@ def bench_batched(args, checkouts):
                         ticks += 1
                         next_tick += 0.02
                         d.spin_for(max(0.0, next_tick - time.monotonic()))
-                feed(1.0)
-                t0, cpu0 = time.monotonic(), bench_nodes.cpu_seconds(child.pid)
-                feed(args.window)
-                t1, cpu = time.monotonic(), bench_nodes.cpu_seconds(child.pid) - cpu0
-                feed(0.5)
-                d.spin_until(lambda: reports and int(reports[-1]['t']) >= int(t1 * 1e9), 30.0, 'a report after')
-                print_figures('batched', tag, n, reports, t0, t1, cpu)
+                measure('batched', tag, n, feed, child, d, reports, args.window)
             finally:
                 d.close()
                 bench_nodes.stop([child])
