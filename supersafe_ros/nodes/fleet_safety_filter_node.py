@@ -33,9 +33,10 @@ flowing poses cost no timer wake-up, and with batched topics alone the timer dec
 no poses have come for 1.5 periods (its second wake-up, two periods after the last
 poses, then one per period). Per-robot topics, fleet/detections and fleet/cmd_vel_nav
 are not taken through the executor one message at a time: their subscriptions belong to a
-helper node that is never spun, and each tick drains them: every batched message waiting,
-in order (decoded by rclpy); the newest sample of each per-robot topic (serialized,
-decoded with ``ros_io.cdr``: light views read by the same validators). Each robot's cmd_vel
+helper node that is never spun, and each tick drains them (``ros_io.take``): every batched
+message waiting, in order (decoded by rclpy; of the commands, each robot's newest good row
+applied once); the newest sample of each per-robot topic (serialized, read by the Sources of
+``filter_sources``). Each robot's cmd_vel
 is published serialized, so the cost per robot is a few takes and one publish, not a
 callback and a message object per sample.
 A per-robot decision therefore waits for the next tick (at most 1/rate s).
