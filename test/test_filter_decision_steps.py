@@ -80,14 +80,14 @@ def in_order(called, wanted) -> bool:
 
 def test_the_node_half_runs_in_the_order_listed():
     """safety_filter_node: a pose is read by its Source, then taken by the filter; a decision is
-    made, judged by the lockstep policy, recorded, then published through the sink and the state
-    reporter, in that order (and the fleet's tick: Sources, step_many, sinks)."""
+    made, judged by the lockstep policy, published through the sink, recorded, then said by the
+    state reporter, in that order (and the fleet's tick: Sources, step_many, sinks)."""
     names = [name for _, name in node_steps()]
     assert names[:2] == ['PoseSource', 'RobotFilter'] and 'decide_many' in names
     node = 'supersafe_ros/nodes/safety_filter_node.py'
     assert in_order(method_calls(node, 'SafetyFilter', 'on_pose'), ['read', '_take_pose', '_answer_pose'])
     decide = method_calls(node, 'SafetyFilter', 'decide')
-    assert in_order(decide, ['decide_many', 'judge', 'record_decisions', '_publish_command', 'state_message']), decide
+    assert in_order(decide, ['decide_many', 'judge', '_publish_command', 'record_decisions', 'state_message']), decide
     assert 'bytes' in method_calls(node, 'SafetyFilter', '_publish_command')
     fleet = 'supersafe_ros/nodes/fleet_safety_filter_node.py'
     assert in_order(method_calls(fleet, 'FleetSafetyFilter', '_drain'), ['read', 'update_pose', 'read', 'read'])

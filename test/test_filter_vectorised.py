@@ -183,6 +183,7 @@ def test_vectorised_step_many_decides_as_the_per_robot_reference(standard, solve
             seen['reasons'].update(tag for tag in REASON_TAGS if tag in a.reason)
             seen['sources'].add(a.source)
             seen['solving'] += a.clusters_solving
+            assert new.clusters_solving(i) == a.clusters_solving       # (read without the output)
             seen['ties'] += ('obstacle 7' in a.reason or 'obstacle 6' in a.reason)
         t += 0.02
         for (filters, _), rng, outs in zip(fleets, rngs, (new, ref)):

@@ -33,16 +33,23 @@ class Decisions(Sequence):
     than deciding them, and most are never read).
     """
 
-    __slots__ = ('omega', 'linear', 'action', 'overriding', 'driven', 't', 'keep', 'derived', '_describe', '_built')
+    __slots__ = ('omega', 'linear', 'action', 'overriding', 'driven', 't', 'keep', 'derived', '_describe', '_built',
+                 '_solving')
 
-    def __init__(self, omega, linear, action, overriding, driven, describe, t=0.0, keep=None):
+    def __init__(self, omega, linear, action, overriding, driven, describe, t=0.0, keep=None, solving=None):
         self.omega, self.linear, self.action, self._describe = omega, linear, action, describe
+        self._solving = solving
         self.overriding, self.driven, self.t, self.keep = overriding, driven, t, keep
         self.derived = None     # what the decision keeps for the next (filter.derived), applied when recorded
         self._built = [None] * len(action)
 
     def __len__(self):
         return len(self._built)
+
+    def clusters_solving(self, i) -> int:
+        """Robot i's clusters near it whose union value is being solved (its output's
+        ``clusters_solving``), without building its output."""
+        return 0 if self._solving is None else self._solving(i)
 
     def __getitem__(self, i):
         if isinstance(i, slice):
@@ -105,7 +112,10 @@ def outputs(filters, cols, safe_set, table, decided, solving, limits=None, t=mat
             out.cmd_clipped = f.command.note
         return out
 
-    return Decisions(omega, linear, action, over, moved.tolist(), describe, t, cols.all_keep)
+    def solving_of(i) -> int:
+        return int(solving[rows[i]]) if rows[i] >= 0 else 0
+
+    return Decisions(omega, linear, action, over, moved.tolist(), describe, t, cols.all_keep, solving_of)
 
 
 def set_fields(safe_set) -> dict:

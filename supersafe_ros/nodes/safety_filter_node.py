@@ -441,17 +441,18 @@ class SafetyFilter:
         w = self.wiring
         t = w.now() if t is None else t
         decisions = decide_many([self.filter], w.safe_set, t)
-        out = decisions[0]
         self._decided_at = t
-        verdict = self.answers.judge(t, time.monotonic(), out.clusters_solving, answers_pose)
+        verdict = self.answers.judge(t, time.monotonic(), decisions.clusters_solving(0), answers_pose)
         if not verdict.publish:
             return None         # held: not sent, so not recorded as sent
+        # the command first (the robot waits for it; its explanation is built after)
+        self._publish_command(decisions.action[0], decisions.linear[0], decisions.omega[0], t)
         record_decisions([self.filter], decisions)
+        out = decisions[0]
         if verdict.action == GIVE_UP:
             w.complain('cluster_hold', f'{verdict.why}: answering with the fallback until it lands', level='warn')
         elif verdict.held_for is not None:
             self._holds.held(verdict.held_for)
-        self._publish_command(out, t)
         now = time.monotonic()
         self._last_publish = now
         self.decisions += 1
@@ -465,9 +466,9 @@ class SafetyFilter:
     def _clock_ns(self) -> int:
         return self.get_clock().now().nanoseconds
 
-    def _publish_command(self, out, t):
-        judged = out.action != FAIL_SAFE and command_fresh(self.filter, t)
-        self.cmd_pub.publish(self.sink.bytes(out.linear, out.omega, judged, self._clock_ns))
+    def _publish_command(self, action, linear, omega, t):
+        judged = self.sink.stamped and action != FAIL_SAFE and command_fresh(self.filter, t)
+        self.cmd_pub.publish(self.sink.bytes(linear, omega, judged, self._clock_ns))
 
     def _tell_story(self, out):
         """One log line per change of the fail-safe state (not one per decision): nothing while
