@@ -295,7 +295,8 @@ class SafetyFilter:
 
     def _take_pose(self, state, t, stamp):
         self.filter.update_pose(state, t, stamp=stamp)
-        self.poses.add(t if stamp is None else stamp, state)
+        if self.sensor is not None:     # (the poses a local map places its returns with)
+            self.poses.add(t if stamp is None else stamp, state)
 
     def _clock_passed(self, stamp) -> bool:
         """Lockstep with sim time: True (and said) if /clock is already past this pose, which
