@@ -5,6 +5,7 @@ nodes; a range sensor refused by the fleet node at start."""
 import pytest
 
 from diagnostic_msgs.msg import DiagnosticStatus
+from std_msgs.msg import Empty
 from geometry_msgs.msg import PoseWithCovarianceStamped, TwistStamped
 from nav_msgs.msg import Odometry
 from visualization_msgs.msg import MarkerArray
@@ -101,6 +102,10 @@ def test_odometry_markers_and_stamped_commands_are_judged_alike_on_both_nodes(ri
     spin.until(lambda: s.newest().get('action') == 'pass', 15.0, f'{ns} passing')
     assert float(s.newest()['cmd_angular_z']) == pytest.approx(0.25)
     spin.until(lambda: s.out and s.out[-1].twist.angular.z == pytest.approx(0.25), 10.0, 'the pass on cmd_vel')
+    # its filter can judge: safety_filter/ready, latched (a subscriber that comes now still gets it)
+    ready = []
+    s.subs.append(s.node.create_subscription(Empty, 'safety_filter/ready', ready.append, rosmsg.QOS_LATCHED))
+    spin.until(lambda: ready, 15.0, f'{ns} ready')
     judged = s.out[-1]
     assert (judged.header.frame_id, judged.header.stamp.sec) == ('base_link', 7)     # the planner's header
     # heading at the disc of its own radius: the avoid turn, left (the disc is to the right)
@@ -168,6 +173,8 @@ def test_a_fleet_of_one_shows_the_topics_and_types_of_a_single_filter(ros_contex
             want = {'/pose', '/cmd_vel_nav', '/cmd_vel', '/safety_filter/state'}
             if types.get('require_detections', True):
                 want.add('/detections')
+            else:       # no sensor: ready from the start
+                want.add('/safety_filter/ready')
             spin.until(lambda: want <= {t for t, _ in endpoint_types(probe, ns)}, 15.0, f'{kind} topics on the graph')
             seen[kind] = {k: v for k, v in endpoint_types(probe, ns).items() if k[0] in want}
         finally:

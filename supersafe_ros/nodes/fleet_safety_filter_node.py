@@ -9,6 +9,7 @@ Per-robot topics (``per_robot_topics``), those of safety_filter_node, of the sam
 N of them:
   sub  <ns>/pose, <ns>/detections, <ns>/cmd_vel_nav     as safety_filter_node
   pub  <ns>/cmd_vel, <ns>/safety_filter/state           as safety_filter_node
+  pub  <ns>/safety_filter/ready                         as safety_filter_node (latched, once it can judge)
 A range sensor's or a costmap's detections (a local map and its value per robot, solved in
 the background) are safety_filter_node's alone: the fleet node refuses them at start.
 
@@ -62,7 +63,7 @@ from rclpy.node import Node
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseArray
-from std_msgs.msg import Float64MultiArray
+from std_msgs.msg import Empty, Float64MultiArray
 
 from ..filter import FAIL_SAFE, step_many, update_commands, update_detections_all, update_poses
 from ..filter.commands import command_fresh
@@ -97,11 +98,13 @@ def robot_namespace(name: str) -> str:
 
 class _RobotTopics:
     """A robot's per-robot endpoints (on the never-spun io node), of its Sources' types (no
-    detections subscription without ``require_detections``), and its cmd_vel's sink."""
+    detections subscription without ``require_detections``), and its cmd_vel's sink; ``ready``:
+    its latched ``safety_filter/ready``, made once its filter can judge (``say_ready``)."""
 
-    __slots__ = ('pose', 'detections', 'command', 'sink', 'cmd_pub', 'state_pub')
+    __slots__ = ('ns', 'pose', 'detections', 'command', 'sink', 'cmd_pub', 'state_pub', 'ready')
 
     def __init__(self, io, ns, sources, stamped):
+        self.ns, self.ready = ns, None
         noop = lambda msg: None  # noqa: E731  (taken by the tick, never by an executor)
         self.pose, self.detections, self.command = (
             None if source is None else io.create_subscription(source.msg_type, f'{ns}/{source.topic}', noop,
@@ -110,6 +113,12 @@ class _RobotTopics:
         self.sink = CommandSink(stamped)
         self.cmd_pub = io.create_publisher(self.sink.msg_type, f'{ns}/cmd_vel', rosmsg.QOS_STREAM)
         self.state_pub = io.create_publisher(DiagnosticStatus, f'{ns}/safety_filter/state', rosmsg.QOS_STREAM)
+
+    def say_ready(self, io):
+        """The latched ``safety_filter/ready``, as safety_filter_node's: made and sent once."""
+        if self.ready is None:
+            self.ready = io.create_publisher(Empty, f'{self.ns}/safety_filter/ready', rosmsg.QOS_LATCHED)
+            self.ready.publish(Empty())
 
 
 class FleetSafetyFilter:
@@ -155,6 +164,9 @@ class FleetSafetyFilter:
         self.topics = []
         if self.per_robot:
             self.topics = [_RobotTopics(self.io, ns, self.sources, self.stamped) for ns in self.namespaces]
+            if not self.require_detections:     # no obstacle sensor: every robot can judge from its first pose
+                for topics in self.topics:
+                    topics.say_ready(self.io)
         self.fleet_detections_sub = self.fleet_commands_sub = None
         if self.batched:
             # detections and commands are drained by the tick, before the poses (no executor wake-up
@@ -219,6 +231,7 @@ class FleetSafetyFilter:
                     w.complain(f'det {f.name}', f'{f.name}: detections rejected: {exc}; failing safe',
                                level='error')
                 else:
+                    topics.say_ready(self.io)      # (once: its filter can judge)
                     if f.detections.dropped:
                         dropped.append(f)
             data = take_newest(topics.command)[0]
@@ -275,6 +288,8 @@ class FleetSafetyFilter:
             w.complain('fleet detections', f'fleet/detections rejected: {exc}; failing safe', level='error')
             return
         update_detections_all(w.filters, xy, t, w.safe_set)     # one array shared by every robot
+        for topics in self.topics:      # (each robot's safety_filter/ready, once)
+            topics.say_ready(self.io)
         d = w.filters[0].detections if w.filters else None
         if d is not None and d.dropped:
             w.complain('fleet/detections dropped', f'fleet/detections: {d.note}',
