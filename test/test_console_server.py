@@ -375,7 +375,8 @@ def test_a_click_is_answered_with_what_the_world_did_and_a_flood_is_limited():
         answers = asyncio.run(run())
         ok = [a['obstacle'] for a in answers if a['ok']]
         assert len(ok) == len(set(ok)) and 1 <= len(ok) <= 9        # nine obstacles left, each once at most
-        assert fed.clicked == [3] + ok                              # only those reached the "world"
+        # only those reached the "world" (the world's stand-ins answer on timers of their own: any order)
+        assert fed.clicked[0] == 3 and sorted(fed.clicked[1:]) == sorted(ok)
         reasons = {a['message'] for a in answers if not a['ok']}
         assert reasons <= {'That obstacle is already gone.', 'That obstacle is already being removed.',
                            'Too many clicks: wait a moment, then click again.'}, reasons

@@ -128,7 +128,8 @@ class Participant:
         wait_until(lambda: self.p()['waiting'] != 'true' or self.p()['phase'] != phase, 30, f'{phase} to start')
 
     def phase2(self, stops, sim_seconds):
-        """Space when the robot is 2.5-6 m before the obstacle, in the first ``stops`` scenes;
+        """Space at the first look that finds the robot 0-6 m before the obstacle (a busy machine
+        looks seldom: a narrower window was missed once in CI), in the first ``stops`` scenes;
         the rest pass; within ``sim_seconds`` of the scenes' clock. Returns the obstacles stopped."""
         from selenium.webdriver.common.keys import Keys
         handled = set()
@@ -140,7 +141,7 @@ class Participant:
             if p['overlay']:
                 self.check('phase2 pause')
             if (p['obstacle'] is not None and p['obstacle'] not in handled and len(handled) < stops
-                    and p['x'] is not None and -6.0 <= p['x'] <= -2.5):
+                    and p['x'] is not None and -6.0 <= p['x'] <= 0.0):
                 self.d.find_element('tag name', 'body').send_keys(Keys.SPACE)
                 handled.add(p['obstacle'])
                 self.check('phase2 running')
@@ -373,7 +374,7 @@ def test_sigint_in_phase_two_and_in_a_game_then_the_same_command_resumes_to_the_
 
         def first_scene():
             p = person.p()
-            if not handled and p['obstacle'] is not None and p['x'] is not None and -6.0 <= p['x'] <= -2.5:
+            if not handled and p['obstacle'] is not None and p['x'] is not None and -6.0 <= p['x'] <= 0.0:
                 d.find_element('tag name', 'body').send_keys(Keys.SPACE)
                 handled.add(p['obstacle'])
             return len(json.loads(session_json.read_text())['scenes']) == 1
