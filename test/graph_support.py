@@ -54,6 +54,26 @@ class Spinner:
         self.executor.shutdown()
 
 
+class FilterRigs:
+    """The filters a test makes, each with its stack's node and a Spinner over both; ``close()``
+    ends them all (spinners first, then each filter's close and both nodes)."""
+
+    def __init__(self, ctx):
+        self.ctx, self.made = ctx, []
+
+    def add(self, f, stack_node) -> Spinner:
+        spin = Spinner(self.ctx, f, stack_node)
+        self.made.append((spin, f, stack_node))
+        return spin
+
+    def close(self):
+        for spin, f, stack_node in self.made:
+            spin.shutdown()
+            f.close()
+            f.destroy_node()
+            stack_node.destroy_node()
+
+
 def matched(*endpoints) -> bool:
     """Every publisher has a subscriber and every subscription a publisher."""
     for e in endpoints:

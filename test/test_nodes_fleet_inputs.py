@@ -14,7 +14,7 @@ from supersafe_ros.nodes.fleet_safety_filter_node import FleetSafetyFilterNode
 from supersafe_ros.nodes.safety_filter_node import SafetyFilterNode
 from supersafe_ros.ros_io import rosmsg
 
-from graph_support import Spinner, matched, params
+from graph_support import FilterRigs, Spinner, matched, params
 from sensor_graph_support import obstacle_markers
 
 DISC = (4.0, -2.0, 1.2)                 # a marker disc of its own radius (not the node's radius 1.8)
@@ -74,21 +74,16 @@ class Stack:
 
 @pytest.fixture
 def rig(ros_context):
-    made = []
+    rigs = FilterRigs(ros_context)
 
     def make(kind, ns, pose_msg=Odometry, detections=True, **types):
         f = make_filter(ros_context, kind, ns, cmd_vel_stamped=True, **types)
         s = Stack(ros_context, ns, pose_msg, detections)
-        spin = Spinner(ros_context, f, s.node)
+        spin = rigs.add(f, s.node)
         spin.until(lambda: matched(*s.endpoints()), 15.0, f'{ns} topics to match')
-        made.append((spin, f, s))
         return f, s, spin
     yield make
-    for spin, f, s in made:
-        spin.shutdown()
-        f.close()
-        f.destroy_node()
-        s.node.destroy_node()
+    rigs.close()
 
 
 @pytest.mark.ros

@@ -19,7 +19,7 @@ from sensor_msgs.msg import LaserScan, PointCloud2
 from supersafe_ros.nodes.safety_filter_node import ManagedSafetyFilterNode, SafetyFilterNode
 from supersafe_ros.ros_io import rosmsg
 
-from graph_support import Rosout, Spinner, matched, params
+from graph_support import FilterRigs, Rosout, Spinner, matched, params
 from sensor_graph_support import xy_cloud
 
 pytestmark = pytest.mark.ros   # rclpy nodes in this process
@@ -82,20 +82,14 @@ def new_state(spin, stack, count, what, **expected):
 
 @pytest.fixture
 def rig(ros_context, request):
-    made = []
+    rigs = FilterRigs(ros_context)
 
     def make(ns, detections=LaserScan, **kw):
         f = filter_node(ros_context, ns, **kw)
         s = Stack(ros_context, ns, detections)
-        spin = Spinner(ros_context, f, s.node)
-        made.append((spin, f, s))
-        return f, s, spin
+        return f, s, rigs.add(f, s.node)
     yield make
-    for spin, f, s in made:
-        spin.shutdown()
-        f.close()
-        f.destroy_node()
-        s.node.destroy_node()
+    rigs.close()
 
 
 def occupied_at(f, x, y) -> bool:

@@ -7,11 +7,12 @@ planner command through these, so a fleet's robot takes what a lone robot takes
 * ``PoseSource(pose_type, frame)``: ``read(data)`` -> ((x, y, theta), the header's stamp), from the
   CDR bytes of a PoseStamped, Odometry or PoseWithCovarianceStamped (``ros_io.cdr``);
 * ``CommandSource(stamped)``: ``read(data)`` -> (turn rate, linear.x, the header or None), from a
-  Twist's or a TwistStamped's bytes (a Twist object is read too);
+  Twist's or a TwistStamped's bytes (a Twist object is read too); ``take(f, data, t, sink)`` puts
+  it into a robot's filter, or refuses it there;
 * ``DiscSource(kind, frame)``: ``read(data)`` -> detections rows, from a PoseArray's bytes (centres
   (N, 2)) or a MarkerArray (discs (N, 3) of their own radii; bytes are deserialized);
 * ``CommandSink(stamped)``: a robot's cmd_vel as bytes, a Twist's or a TwistStamped's (the planner's
-  last header kept for it).
+  last header kept for it; ``cmd_vel`` of a decision, ``bytes`` of any command).
 
 Each ``read`` raises ValueError (``MessageError``) naming what is wrong; the caller rejects the
 input, fails safe and complains. The range sensors' and the costmap's Source is
@@ -21,6 +22,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..filter import FAIL_SAFE
+from ..filter.commands import command_fresh
 from ..ros_io import cdr, rosmsg, sensors
 from .filter_inputs import command_message_type, message_type
 
@@ -67,6 +70,21 @@ class CommandSource:
             twist = cdr.twist(data)
         return twist.angular.z, twist.linear.x, header
 
+    def take(self, f, data, t, sink) -> bool:
+        """The command in ``data`` as robot filter ``f``'s newest, at ``t`` (its header kept by
+        ``sink``); False if refused, not finite or unreadable: a robot that can stop then stops
+        until a valid command comes (``RobotFilter.refuse_command``). ``f.command.note`` says why,
+        or what was beyond the robot's limits."""
+        try:
+            turn, linear, header = self.read(data)
+            sink.heard(header)
+            f.update_command(turn, t, linear)
+        except ValueError as exc:       # not finite (update_command, which refuses it), or unreadable
+            if not f.command.rejected:
+                f.refuse_command(f'unreadable ({exc})', t)
+            return False
+        return True
+
 
 class DiscSource:
     """A robot's detections of objects: a PoseArray of centres (raw) or a MarkerArray of discs."""
@@ -108,6 +126,12 @@ class CommandSink:
         """The header of a planner command read (None: a Twist's, nothing to keep)."""
         if header is not None:
             self.frame, self.stamp = header.frame_id, header.stamp
+
+    def cmd_vel(self, f, t, action: str, linear: float, omega: float, clock_ns) -> bytes:
+        """The bytes of robot filter ``f``'s decision at ``t`` (``action``, ``linear``, ``omega``): it
+        was judged from the planner's command when it is no fail safe and that command is fresh."""
+        judged = self.stamped and action != FAIL_SAFE and command_fresh(f, t)
+        return self.bytes(linear, omega, judged, clock_ns)
 
     def bytes(self, linear: float, omega: float, judged: bool, clock_ns) -> bytes:
         """The cmd_vel's bytes; ``judged``: the command came from the planner's, fresh;

@@ -66,7 +66,6 @@ from geometry_msgs.msg import PoseArray
 from std_msgs.msg import Empty, Float64MultiArray
 
 from ..filter import FAIL_SAFE, step_many, update_commands, update_detections_all, update_poses
-from ..filter.commands import command_fresh
 from ..ros_io import cdr, fleetmsg, rosmsg
 from ..ros_io.take import take_all, take_newest
 from .common import ParameterSpec, declare_all, run_node
@@ -236,17 +235,10 @@ class FleetSafetyFilter:
                         dropped.append(f)
             data = take_newest(topics.command)[0]
             if data is not None:
-                try:
-                    turn, linear, header = commands.read(data)
-                    topics.sink.heard(header)
-                    f.update_command(turn, t, linear)
-                except ValueError as exc:   # not finite (update_command), or unreadable: as safety_filter_node
-                    if not f.command.rejected:
-                        f.refuse_command(f'unreadable ({exc})', t)
+                if not commands.take(f, data, t, topics.sink):
                     w.complain(f'cmd {f.name}', f'{f.name}: cmd_vel_nav rejected: {f.command.note}')
-                else:
-                    if f.command.note:
-                        clipped.append(f)
+                elif f.command.note:
+                    clipped.append(f)
         self._tell_excess(clipped, dropped, 'cmd_vel_nav', 'detections')
 
     def _tell_excess(self, clipped, dropped, commands, detections):
@@ -412,10 +404,8 @@ class FleetSafetyFilter:
         # the commands first (serialized: no message built), then the states due, each built once for
         # both interfaces and published serialized (ros_io.cdr)
         if self.per_robot:
-            stamped = self.stamped
             for f, topics, action, v, omega in zip(w.filters, self.topics, outs.action, outs.linear, outs.omega):
-                judged = stamped and action != FAIL_SAFE and command_fresh(f, t)
-                topics.cmd_pub.publish(topics.sink.bytes(v, omega, judged, self._clock_ns))
+                topics.cmd_pub.publish(topics.sink.cmd_vel(f, t, action, v, omega, self._clock_ns))
         if self.batched:
             self.fleet_cmd_pub.publish(fleetmsg.commands_to_msg(np.column_stack([outs.linear, outs.omega])))
         due = self._throttle.due(time.monotonic(), outs.action, w.set_update, w.state_period)

@@ -399,17 +399,10 @@ class SafetyFilter:
         ``CommandSource``. A TwistStamped's header is that of the cmd_vel judged from it."""
         w = self.wiring
         t = w.now()
-        try:
-            turn, linear, header = self.command_source.read(data)
-            self.sink.heard(header)
-            self.filter.update_command(turn, t, linear)
-        except ValueError as exc:   # not finite (update_command), or unreadable
-            if not self.filter.command.rejected:
-                self.filter.refuse_command(f'unreadable ({exc})', t)
+        if not self.command_source.take(self.filter, data, t, self.sink):
             w.complain('cmd', f'cmd_vel_nav rejected: {self.filter.command.note}')
-        else:
-            if self.filter.command.note:
-                w.complain('cmd clipped', f'cmd_vel_nav beyond the robot\'s limits: {self.filter.command.note}')
+        elif self.filter.command.note:
+            w.complain('cmd clipped', f'cmd_vel_nav beyond the robot\'s limits: {self.filter.command.note}')
         if not self.lockstep:       # in lockstep the next pose's answer judges it
             self.decide(t)
 
@@ -468,8 +461,7 @@ class SafetyFilter:
         return self.get_clock().now().nanoseconds
 
     def _publish_command(self, action, linear, omega, t):
-        judged = self.sink.stamped and action != FAIL_SAFE and command_fresh(self.filter, t)
-        self.cmd_pub.publish(self.sink.bytes(linear, omega, judged, self._clock_ns))
+        self.cmd_pub.publish(self.sink.cmd_vel(self.filter, t, action, linear, omega, self._clock_ns))
 
     def _tell_story(self, out):
         """One log line per change of the fail-safe state (not one per decision): nothing while
