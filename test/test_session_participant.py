@@ -146,7 +146,9 @@ class Participant:
                 handled.add(p['obstacle'])
                 self.check('phase2 running')
             return False
-        wait_for_sim(step, self.sim_time, sim_seconds, 'Phase II to end', period=0.03)
+        wait_for_sim(step, self.sim_time, sim_seconds,
+                     lambda: f'Phase II to end (obstacles stopped {sorted(handled)}; page: {self.p()})',
+                     period=0.03)
         return handled
 
     def game(self, clicks, on_running=None):

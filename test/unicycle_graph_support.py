@@ -82,6 +82,7 @@ SCAN_EVERY = 5            # steps: the scan at 10 Hz
 BEAMS, RANGE_MIN, RANGE_MAX = 360, 0.05, 8.0
 LASER_MOUNT = (0.1, 0.0, 0.0)        # base_link -> laser (x, y, yaw), as config/nav2_safety_filter.yaml
 SPOOF_RATE = 30.0         # Hz of sim time
+PLANNER_FRAME = 'base_link'   # the planner's commands' header frame
 START_TIME = 1.0          # s: sim time at step 0 (ROS time 0 reads as "no /clock" to the filter)
 TURNING_V, TURNING_W = 0.01, 0.05    # turning in place: |v| below, |w| above
 SCAN_FAULTS = ('scan_nan', 'scan_neg_inf', 'scan_negative', 'scan_range_min_above_max', 'scan_angle_increment_0')
@@ -247,6 +248,7 @@ class TripGraph:
             self.sensor_pub = self.robot.create_publisher(PointCloud2, topic + 'cloud', qos['sensor'])
         self.received = []                     # (v, w) of every cmd_vel
         self.received_stamps = []              # and its header stamp (ns)
+        self.received_frames = []              # and its header frame
         self.cmd_sub = self.robot.create_subscription(TwistStamped, topic + 'cmd_vel', self._on_cmd, qos['every'])
         self.cmd_pub = self.planner_node.create_publisher(TwistStamped, topic + 'cmd_vel_nav', qos['stream'])
         self.clock_pub = self.monitor.create_publisher(Clock, '/clock', qos['clock'])
@@ -324,6 +326,7 @@ class TripGraph:
     def _on_cmd(self, msg):
         self.received.append((msg.twist.linear.x, msg.twist.angular.z))
         self.received_stamps.append(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
+        self.received_frames.append(msg.header.frame_id)
 
     def _on_state(self, msg):
         values = _state_values(msg)
@@ -372,7 +375,15 @@ class TripGraph:
         robot stands at its start while the filter takes its first odometry, scan and command, and
         its answer is not applied. Without it the watchdog's start-up fail safe (no command yet) could
         go out after step 0's command was published and before it was taken, and the robot would
-        start a step late (seen: 1 trip in 3; the trips' outcomes then differ)."""
+        start a step late (seen: 1 trip in 3; the trips' outcomes then differ).
+
+        The warm-up ends on an answer judged from its command: in the planner's frame (a filter
+        stamps what it did not judge from a command with its clock, in the last frame it heard: none
+        before the first) and at a speed when the planner asked for one. The watchdog runs on the
+        filter's input thread, which the harness does not stop: its "stopped: planner silent" zero
+        twist, stamped t0 - dt by the filter's clock before the command was taken, once ended the
+        warm-up, and at step 0 the command was still not taken: the robot started a step late (CI,
+        2026-12-04: the empty trip in 7.46 s against the planner's 7.44 s)."""
         pubs = [self.odom_pub, self.sensor_pub, self.cmd_pub, self.clock_pub] + (
             [self.spoof_pub] if self.spoof is not None else [])
         self.until(lambda: all(p.get_subscription_count() > 0 for p in pubs)
@@ -384,8 +395,13 @@ class TripGraph:
         ranges = laser_ranges(self.scenario.world, start)
         self.sensor_pub.publish(point_cloud(t_ns, ranges) if self.detections == 'cloud' else laser_scan(t_ns, ranges))
         before = len(self.received)
-        self.cmd_pub.publish(twist_stamped(self.planner.command(start), t_ns))
-        self._answer(before, 'the answer to the warm-up', t_ns)
+        asked = self.planner.command(start)
+        self.cmd_pub.publish(twist_stamped(asked, t_ns))
+
+        def judged():
+            return any(self.received_stamps[i] >= t_ns and self.received_frames[i] == PLANNER_FRAME
+                       and (self.received[i][0] > 0.0 or asked[0] <= 0.0) for i in range(before, len(self.received)))
+        self.until(judged, 'the answer judged from the warm-up command', filter_too=self.answers_on_executor)
         self._drain()
 
     def _clock(self, t_ns):
@@ -578,7 +594,7 @@ def twist_stamped(vw, t_ns):
     from geometry_msgs.msg import TwistStamped
     m = TwistStamped()
     _stamp(m.header, t_ns)
-    m.header.frame_id = 'base_link'
+    m.header.frame_id = PLANNER_FRAME
     m.twist.linear.x, m.twist.angular.z = float(vw[0]), float(vw[1])
     return m
 
