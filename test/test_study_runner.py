@@ -281,3 +281,34 @@ def test_both_graphs_run_the_studys_supervisor_model(tmp_path):
         argvs, _ = games.graph_argvs(3, supervisor_params(subject, model), 0.2, 0.0)
         sup = [a for a in argvs if 'supersafe_ros.nodes.supervisor_node' in a]
         assert len(sup) == 1 and f'model:={model}' in sup[0]
+
+
+def test_a_conditions_set_runs_at_the_same_level_on_both_engines():
+    """``condition_set`` chooses once; the core engine's filter set and the graph's message
+    put the same value function in force at the same level."""
+    from supersafe_ros.learning.levels import learned_alpha as filter_alpha    # what the filter node uses
+    from supersafe_ros.ros_io.vfmsg import msg_metadata
+    from supersafe_ros.study.engine import filter_safe_set, node_params
+    std, cons = protocol.reference_sets()
+    std_alpha = float(node_params('safety_filter')['standard_alpha'])
+    fit = {'omega_max': 1.0, 'mu': 0.5, 'sigma': 0.2}
+    learned = {'learned': (cons, fit), 'learned_online': (cons, fit), 'learned_fp': (None, None)}
+    cases = [('standard', 0.0, 'standard', std, None), ('conservative', 0.0, 'conservative', cons, None),
+             ('learned', 2.0, 'learned', cons, 0.9), ('learned_fp', 0.0, 'standard', std, None)]
+    for condition, k, ran, vf, alpha in cases:
+        chosen = protocol.condition_set(condition, learned, k)
+        assert (chosen.condition, chosen.ran, chosen.value_function) == (condition, ran, vf)
+        assert chosen.alpha == (None if alpha is None else pytest.approx(alpha))
+        core = filter_safe_set(chosen)
+        meta = msg_metadata(games.set_message(chosen))
+        graph_level = std_alpha if meta['source'] == 'standard' else filter_alpha(meta, 0.0)
+        assert core.vf is vf and core.alpha == pytest.approx(graph_level)
+        assert core.source == ('standard' if ran == 'standard' else 'learned')
+        assert meta['condition'] == ran and not chosen.learns_during_game
+    assert protocol.condition_set('learned_online', learned).learns_during_game
+    assert not protocol.condition_set('learned_online', learned, 1.0).learns_during_game
+    assert not protocol.condition_set('learned_online', {}).learns_during_game      # no fit: Standard
+    # a set whose unsafe set is smaller than the standard one: the filters would reject it
+    below = protocol.condition_set('learned', {'learned': (std, {'mu': -0.5, 'sigma': 0.1})})
+    with pytest.raises(RuntimeError, match='would reject the learned set'):
+        filter_safe_set(below)
