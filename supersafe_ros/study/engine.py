@@ -23,6 +23,8 @@ the two side by side.
   study's model ``opts.supervisor``: ``sim.supervisor_models``) and
   the condition's safe set (``filter_safe_set``), checked for admissibility as each filter
   checks a received set.
+* ``CoreEngine``: the two behind the study's interface (``engines.Engine``); its subjects
+  may run in parallel processes.
 
 Nothing here imports rclpy or ROS messages.
 """
@@ -48,6 +50,7 @@ from ..sim.supervisor_models import DEFAULT_MODEL, AttentiveParams
 from ..sim.watcher import Watcher
 from ..sim.world import WorldConfig
 from ..team import robot_names, start_poses
+from .analysis import CONDITIONS
 from .game_trace import GameTrace
 from .online import OnlineLearner
 from .protocol import (FP_LEARNER, PHASE2_X0, PHASE2_X_END, SPEED, ConditionSet, Phase2Result,
@@ -289,3 +292,38 @@ def filter_safe_set(chosen: ConditionSet) -> SafeSet:
     if not verdict.ok:
         raise RuntimeError(f'the filters would reject the {chosen.condition} set: {verdict.reason}')
     return SafeSet(chosen.value_function, level, 'learned')
+
+
+class CoreEngine:
+    """The study's engine in this process (``engines.Engine``): ``CoreStudy``'s Phase II and
+    games. Each subject's record depends on its seeds only and no ROS runs here, so its
+    subjects may run in parallel (forked) processes or on a cluster."""
+
+    name = 'core'
+    parallel_subjects = True
+    conditions = CONDITIONS
+
+    def __init__(self):
+        self.study = CoreStudy()
+
+    def phase2(self, i: int, subject, opts, with_fp: bool) -> Phase2Result:
+        return self.study.phase2(subject, opts, with_fp=with_fp)
+
+    def games(self, i: int, subject, world_seed: int, phase2: Phase2Result, opts) -> 'CoreGames':
+        return CoreGames(self.study, subject, phase2, opts)
+
+
+class CoreGames:
+    """Phase III of one subject in this process; ``phase2``: its Phase II (the encounters a
+    set that learns during its game starts from)."""
+
+    def __init__(self, study: CoreStudy, subject, phase2: Phase2Result, opts):
+        self.study, self.subject, self.phase2, self.opts = study, subject, phase2, opts
+
+    def play(self, chosen: ConditionSet, world_seed: int) -> dict:
+        online = self.phase2.fp_records if chosen.learns_during_game else None
+        return self.study.play(self.subject, world_seed, filter_safe_set(chosen), self.opts,
+                               online_records=online)
+
+    def close(self):
+        pass

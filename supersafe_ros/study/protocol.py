@@ -10,8 +10,8 @@ nodes' parameters, the reference sets, the seeds and what Phase II returns.
   nodes and the graph's renamed first-passage learner take them.
 * ``supervisor_seed``: a subject's noise in Phase III; ``sweep_condition``: the learned
   condition whose alpha the observed sweep raises.
-* ``Phase2Result``: Phase II of one subject, from ``engine.CoreStudy.phase2`` or
-  ``graph_phase2.run_phase2``.
+* ``Phase2Result``: Phase II of one subject, from either engine's ``phase2``
+  (``engines.Engine``).
 * ``ConditionSet`` (``condition_set``): the safe set a condition's game runs, as each
   engine's ``play`` takes it.
 """
@@ -73,7 +73,6 @@ class StudyOptions:
     phase3: str = 'same-world'       # same-world: each condition once on the subject's world; paper: study.design
 
 
-ENGINES = ('core', 'graph')
 PHASE3_FORMS = ('same-world', 'paper')
 
 
