@@ -81,5 +81,5 @@ def test_learned_online_is_a_core_engine_condition():
     assert 'learned_online' in cli.options_from_args(parser.parse_args(['study'])).conditions
     graph = cli.options_from_args(parser.parse_args(['study', '--engine', 'graph']))
     assert 'learned_online' not in graph.conditions and 'learned_fp' in graph.conditions
-    with pytest.raises(ValueError, match='core engine'):
+    with pytest.raises(ValueError, match='learned_online does not run on the graph engine'):
         cli.options_from_args(parser.parse_args(['study', '--engine', 'graph', '--conditions', 'learned_online']))

@@ -272,7 +272,7 @@ def test_learned_fp_is_the_first_passage_learner_message_with_its_newest_counts(
 
 def test_both_graphs_run_the_studys_supervisor_model(tmp_path):
     """The graph engine's supervisor nodes get the study's model (Phase II and the games)."""
-    from supersafe_ros.study.runner import supervisor_params
+    from supersafe_ros.study.graph_engine import supervisor_params
     subject = Subject(0, 0.5, 1.0, 0.2, 100)
     for model in ('memoryless', 'attentive'):
         argvs = graph_phase2.phase2_argvs(subject, protocol.StudyOptions(supervisor=model), tmp_path / 'i.jsonl', 0.0)
@@ -281,3 +281,112 @@ def test_both_graphs_run_the_studys_supervisor_model(tmp_path):
         argvs, _ = games.graph_argvs(3, supervisor_params(subject, model), 0.2, 0.0)
         sup = [a for a in argvs if 'supersafe_ros.nodes.supervisor_node' in a]
         assert len(sup) == 1 and f'model:={model}' in sup[0]
+
+
+def test_a_conditions_set_runs_at_the_same_level_on_both_engines():
+    """``condition_set`` chooses once; the core engine's filter set and the graph's message
+    put the same value function in force at the same level."""
+    from supersafe_ros.learning.levels import learned_alpha as filter_alpha    # what the filter node uses
+    from supersafe_ros.ros_io.vfmsg import msg_metadata
+    from supersafe_ros.study.engine import filter_safe_set, node_params
+    std, cons = protocol.reference_sets()
+    std_alpha = float(node_params('safety_filter')['standard_alpha'])
+    fit = {'omega_max': 1.0, 'mu': 0.5, 'sigma': 0.2}
+    learned = {'learned': (cons, fit), 'learned_online': (cons, fit), 'learned_fp': (None, None)}
+    cases = [('standard', 0.0, 'standard', std, None), ('conservative', 0.0, 'conservative', cons, None),
+             ('learned', 2.0, 'learned', cons, 0.9), ('learned_fp', 0.0, 'standard', std, None)]
+    for condition, k, ran, vf, alpha in cases:
+        chosen = protocol.condition_set(condition, learned, k)
+        assert (chosen.condition, chosen.ran, chosen.value_function) == (condition, ran, vf)
+        assert chosen.alpha == (None if alpha is None else pytest.approx(alpha))
+        core = filter_safe_set(chosen)
+        meta = msg_metadata(games.set_message(chosen))
+        graph_level = std_alpha if meta['source'] == 'standard' else filter_alpha(meta, 0.0)
+        assert core.vf is vf and core.alpha == pytest.approx(graph_level)
+        assert core.source == ('standard' if ran == 'standard' else 'learned')
+        assert meta['condition'] == ran and not chosen.learns_during_game
+    assert protocol.condition_set('learned_online', learned).learns_during_game
+    assert not protocol.condition_set('learned_online', learned, 1.0).learns_during_game
+    assert not protocol.condition_set('learned_online', {}).learns_during_game      # no fit: Standard
+    # a set whose unsafe set is smaller than the standard one: the filters would reject it
+    below = protocol.condition_set('learned', {'learned': (std, {'mu': -0.5, 'sigma': 0.1})})
+    with pytest.raises(RuntimeError, match='would reject the learned set'):
+        filter_safe_set(below)
+
+
+class RecordingEngine:
+    """An engine (engines.Engine) that records what the runner asks of it; its games end
+    with no counts, and ``fail_at`` makes that game fail."""
+
+    name = 'recording'
+    parallel_subjects = False
+    conditions = ('standard', 'learned', 'learned_online', 'conservative')
+
+    def __init__(self, fail_at=None):
+        self.calls, self.fail_at = [], fail_at
+        std, self.learned_vf = protocol.reference_sets()
+        self.fit = {'omega_max': 0.75, 'mu': 0.5, 'sigma': 0.2, 'estimator': 'paper'}
+
+    def phase2(self, i, subject, opts, with_fp):
+        self.calls.append(('phase2', i, subject.index, with_fp))
+        p2 = protocol.Phase2Result([], np.zeros((0, 3)), None, self.fit, 1.0, 0.0, fp_fit=dict(self.fit))
+        p2.vf = p2.fp_vf = self.learned_vf
+        return p2
+
+    def games(self, i, subject, world_seed, phase2, opts):
+        self.calls.append(('games', i, world_seed))
+        engine = self
+
+        class Games:
+            def play(self, chosen, seed):
+                engine.calls.append(('play', chosen.condition, chosen.ran, chosen.alpha, chosen.learns_during_game,
+                                     seed))
+                if len(engine.calls) == engine.fail_at:
+                    raise RuntimeError('the game failed')
+                return {'stats': {'sim_time': f'{opts.game_seconds:.3f}'}, 'interventions': [], 'wall': 0.0,
+                        'wall_running': 0.0, 'cpu_s': 0.0, 'cpu_by_process': {}, 'resends': 0}
+
+            def close(self):
+                engine.calls.append(('close', i))
+        return Games()
+
+
+def test_the_runner_asks_the_engine_for_phase2_and_each_game():
+    import io
+    from supersafe_ros.study import runner
+    engine = RecordingEngine()
+    opts = protocol.StudyOptions(seed=4, game_seconds=10.0, sweep_k=(0.0, 1.0), conditions=RecordingEngine.conditions)
+    subject = Subject(1, 0.5, 1.0, 0.2, 100)
+    rec = runner.run_subject(engine, 1, subject, opts, list(opts.conditions), runner.Progress(2, io.StringIO()))
+    world = 4 * 1000 + 1
+    assert engine.calls == [('phase2', 1, 1, True), ('games', 1, world),
+                            ('play', 'standard', 'standard', None, False, world),
+                            ('play', 'learned', 'learned', 0.5, False, world),
+                            ('play', 'learned_online', 'learned_online', 0.5, True, world),
+                            ('play', 'conservative', 'conservative', None, False, world),
+                            ('play', 'learned', 'learned', pytest.approx(0.7), False, world),    # the sweep
+                            ('close', 1)]
+    assert rec['phase2']['engine'] == 'recording'
+    assert {c: (g['set'], g['engine'], g['complete']) for c, g in rec['games'].items()} == \
+        {c: (c, 'recording', True) for c in opts.conditions}
+    assert rec['sweep'][1.0]['alpha'] == pytest.approx(0.7) and rec['sweep'][0.0] is rec['games']['learned']
+    # a game that fails still frees the subject's games (a kept-alive graph)
+    failing = RecordingEngine(fail_at=4)
+    with pytest.raises(RuntimeError, match='the game failed'):
+        runner.run_subject(failing, 0, subject, opts, ['standard', 'learned'], runner.Progress(1, io.StringIO()))
+    assert failing.calls[-1] == ('close', 0) and len(failing.calls) == 5
+    # without a first-passage condition Phase II needs no first-passage fit
+    assert failing.calls[0] == ('phase2', 0, 1, False)
+
+
+def test_each_engine_is_chosen_by_its_name_and_says_what_it_plays():
+    from supersafe_ros.study.engines import ENGINES, check_conditions, engine_named
+    engines = {name: engine_named(name) for name in ENGINES}
+    assert {name: e.name for name, e in engines.items()} == {'core': 'core', 'graph': 'graph'}
+    assert engines['core'].parallel_subjects and not engines['graph'].parallel_subjects
+    assert set(engines['core'].conditions) - set(engines['graph'].conditions) == {'learned_online'}
+    check_conditions(engines['core'], ('standard', 'learned_online'))
+    with pytest.raises(ValueError, match='learned_online does not run on the graph engine'):
+        check_conditions(engines['graph'], ('standard', 'learned_online'))
+    with pytest.raises(ValueError, match="engine 'ros' is not one of"):
+        engine_named('ros')

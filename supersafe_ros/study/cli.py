@@ -15,6 +15,7 @@ import sys
 import time
 
 from .analysis import CONDITIONS, LABELS, PAPER_STATS, format_h2, format_table1, ordered
+from .engines import ENGINES
 from .posthoc import format_posthoc
 from .online import format_online
 from .validity import format_validity
@@ -75,7 +76,7 @@ def _add_supervisor(parser):
 
 
 def _add_engine(parser):
-    parser.add_argument('--engine', choices=('core', 'graph'), default='core',
+    parser.add_argument('--engine', choices=ENGINES, default='core',
                         help='core (default): the same closed loop in this process with the ROS-free '
                              'core modules, deterministic for a seed, ~2 ms of CPU per lockstep step (plus '
                              'each new obstacle cluster\'s value, solved once into the cache); graph: every '
@@ -130,21 +131,21 @@ def parse_conditions(text: str) -> tuple:
 
 
 def options_from_args(args):
+    from .engines import check_conditions, engine_named
     from .protocol import StudyOptions
-    engine = getattr(args, 'engine', 'core')
-    conditions = args.conditions or ','.join(c for c in CONDITIONS if engine == 'core' or c != 'learned_online')
+    engine = engine_named(getattr(args, 'engine', 'core'))
+    conditions = args.conditions or ','.join(engine.conditions)
     opts = StudyOptions(subjects=args.subjects, seed=args.seed, step=args.step,
                         rate_factor=args.rate_factor, game_seconds=args.game_seconds,
                         conditions=parse_conditions(conditions),
                         out_dir=Path(args.out), domain_id=args.domain_id,
                         sweep_subjects=max(0, args.sweep_subjects), plots=not args.no_plots,
-                        engine=engine, workers=max(0, getattr(args, 'workers', 0)),
+                        engine=engine.name, workers=max(0, getattr(args, 'workers', 0)),
                         scheduler=getattr(args, 'scheduler', '') or '')
     opts.supervisor = getattr(args, 'supervisor', opts.supervisor)
-    if opts.scheduler and engine != 'core':
-        raise ValueError('--scheduler runs the core engine\'s subjects (--engine core)')
-    if engine == 'graph' and 'learned_online' in opts.conditions:
-        raise ValueError('learned_online runs on the core engine only (--engine core)')
+    if opts.scheduler and not engine.parallel_subjects:
+        raise ValueError(f'--scheduler runs subjects in parallel: the {engine.name} engine runs them one at a time')
+    check_conditions(engine, opts.conditions)
     opts.phase3 = getattr(args, 'phase3', 'same-world')
     if opts.phase3 == 'paper':
         from .design import TREATMENTS

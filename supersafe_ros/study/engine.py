@@ -21,8 +21,10 @@ the two side by side.
 * Phase III (``CoreStudy.play``): ``sim.team_loop.TeamLoop`` with the team's two robots,
   the world seed of the subject, the subject's supervisor (seed ``supervisor_seed``, the
   study's model ``opts.supervisor``: ``sim.supervisor_models``) and
-  the condition's safe set, checked for admissibility as each filter checks a received
-  set.
+  the condition's safe set (``filter_safe_set``), checked for admissibility as each filter
+  checks a received set.
+* ``CoreEngine``: the two behind the study's interface (``engines.Engine``); its subjects
+  may run in parallel processes.
 
 Nothing here imports rclpy or ROS messages.
 """
@@ -41,7 +43,6 @@ from ..learning.encounters import EncounterBuilder
 from ..learning.phase2_stream import feed, phase2_events
 from ..learning.estimators import (admissible_mask, encounter_intervals, fit_first_passage_intervals,
                                    fit_paper_values)
-from ..learning.levels import learned_alpha
 from ..reach.grid import Grid
 from ..reach.library import LibrarySpec, load_or_build_library, load_or_solve
 from ..sim.team_loop import RobotParams, TeamLoop, cluster_settings, process_cluster_store
@@ -49,10 +50,11 @@ from ..sim.supervisor_models import DEFAULT_MODEL, AttentiveParams
 from ..sim.watcher import Watcher
 from ..sim.world import WorldConfig
 from ..team import robot_names, start_poses
+from .analysis import CONDITIONS
 from .game_trace import GameTrace
 from .online import OnlineLearner
-from .protocol import (FP_LEARNER, PHASE2_X0, PHASE2_X_END, SPEED, Phase2Result, config_params,
-                       reference_sets, supervisor_seed)
+from .protocol import (FP_LEARNER, PHASE2_X0, PHASE2_X_END, SPEED, ConditionSet, Phase2Result,
+                       condition_set, config_params, reference_sets, supervisor_seed)
 
 N_ROBOTS = 2                     # the team of study.games.GameGraph
 MIN_INTERVENTIONS = 3            # learner.yaml min_interventions
@@ -214,9 +216,8 @@ def scenes_from_events(events) -> list:
 
 
 class CoreStudy:
-    """One study's in-process engine (the counterpart of ``graph_phase2`` and ``games``)."""
-
-    name = 'core'
+    """The study's phases in this process, each on what it is given: a subject's Phase II,
+    a condition's filter set, one game (``CoreEngine`` serves them to the study's runner)."""
 
     def phase2(self, subject, opts, with_fp: bool = True) -> Phase2Result:
         t0, cpu0 = time.monotonic(), time.process_time()
@@ -242,22 +243,9 @@ class CoreStudy:
 
     # -- Phase III --------------------------------------------------------------------------
     def safe_set(self, condition: str, learned: dict, k: float = 0.0):
-        """(SafeSet, alpha or None, what ran) of one condition; ``learned``: condition ->
-        (ValueFunction or None, fit or None). A set the filters would reject is an error,
-        as it stops the graph's game."""
-        standard_vf, conservative_vf = reference_sets()
-        std_alpha = float(node_params('safety_filter')['standard_alpha'])
-        if condition == 'conservative':
-            vf, alpha, ran = conservative_vf, 0.0, 'conservative'
-        elif condition in learned and learned[condition][0] is not None:
-            vf, fit = learned[condition][:2]
-            alpha, ran = learned_alpha(fit, k), condition
-        else:
-            return SafeSet(standard_vf, std_alpha, 'standard'), None, 'standard'
-        verdict = check_learned_set(standard_vf, std_alpha, vf, alpha)
-        if not verdict.ok:
-            raise RuntimeError(f'the filters would reject the {condition} set: {verdict.reason}')
-        return SafeSet(vf, alpha, 'learned'), (alpha if ran != 'conservative' else None), ran
+        """(SafeSet, alpha or None, what ran) of one condition (``protocol.condition_set``)."""
+        chosen = condition_set(condition, learned, k)
+        return filter_safe_set(chosen), chosen.alpha, chosen.ran
 
     def play(self, subject, world_seed: int, safe_set: SafeSet, opts, filtered: bool = True,
              online_records=None) -> dict:
@@ -288,3 +276,54 @@ class CoreStudy:
                 'resends': 0, 'cpu_s': cpu, 'cpu_by_process': {f'study ({os.getpid()})': round(cpu, 2)},
                 'decisions': dict(loop.decisions), 'steps': loop.steps, 'trace': trace.to_dict(),
                 'online': online.history if online is not None else None}
+
+
+def filter_safe_set(chosen: ConditionSet) -> SafeSet:
+    """The filters' SafeSet of a condition's set: Standard at the filters' standard level,
+    any other set at its level (None: 0) after the admissibility check each filter makes on
+    a received set. A set the filters would reject is an error, as it stops the graph's
+    game."""
+    std_alpha = float(node_params('safety_filter')['standard_alpha'])
+    if chosen.ran == 'standard':
+        return SafeSet(chosen.value_function, std_alpha, 'standard')
+    level = 0.0 if chosen.alpha is None else chosen.alpha
+    standard_vf, _ = reference_sets()
+    verdict = check_learned_set(standard_vf, std_alpha, chosen.value_function, level)
+    if not verdict.ok:
+        raise RuntimeError(f'the filters would reject the {chosen.condition} set: {verdict.reason}')
+    return SafeSet(chosen.value_function, level, 'learned')
+
+
+class CoreEngine:
+    """The study's engine in this process (``engines.Engine``): ``CoreStudy``'s Phase II and
+    games. Each subject's record depends on its seeds only and no ROS runs here, so its
+    subjects may run in parallel (forked) processes or on a cluster."""
+
+    name = 'core'
+    parallel_subjects = True
+    conditions = CONDITIONS
+
+    def __init__(self):
+        self.study = CoreStudy()
+
+    def phase2(self, i: int, subject, opts, with_fp: bool) -> Phase2Result:
+        return self.study.phase2(subject, opts, with_fp=with_fp)
+
+    def games(self, i: int, subject, world_seed: int, phase2: Phase2Result, opts) -> 'CoreGames':
+        return CoreGames(self.study, subject, phase2, opts)
+
+
+class CoreGames:
+    """Phase III of one subject in this process; ``phase2``: its Phase II (the encounters a
+    set that learns during its game starts from)."""
+
+    def __init__(self, study: CoreStudy, subject, phase2: Phase2Result, opts):
+        self.study, self.subject, self.phase2, self.opts = study, subject, phase2, opts
+
+    def play(self, chosen: ConditionSet, world_seed: int) -> dict:
+        online = self.phase2.fp_records if chosen.learns_during_game else None
+        return self.study.play(self.subject, world_seed, filter_safe_set(chosen), self.opts,
+                               online_records=online)
+
+    def close(self):
+        pass

@@ -8,7 +8,7 @@ this process, on a context whose DDS participant the graph discovered once, with
 games, with the clock stopped, the runner resets everything a game depends on and waits for
 each node to confirm:
 
-1. the condition's safe set (``condition_message``): one latched message on
+1. the condition's safe set (``set_message``): one latched message on
    ``/safe_set/value_function`` (the filters run with ``use_learned`` true and
    ``alpha_offset`` 0). Standard is marked ``source: standard`` (each filter puts its own
    standard set back in force); Conservative (the radius-3.6 value function) and Learned
@@ -32,9 +32,8 @@ import threading
 import time
 from pathlib import Path
 
-from ..learning.levels import learned_alpha
 from ..team import Team, TeamMonitor, node_argv, robot_names, start_poses, team_layout
-from .protocol import reference_sets
+from .protocol import ConditionSet, condition_set
 
 N_ROBOTS = 2
 RESEND_S = 15.0       # wall seconds before a reset request is sent again
@@ -54,19 +53,23 @@ def game_message(vf, alpha: float | None, label: str, **meta):
                                  alpha=level, mu=None, sigma=None, **meta)
 
 
+def set_message(chosen: ConditionSet):
+    """The value-function message of a condition's set (``protocol.condition_set``): a
+    learned set with its level and its fit's mu, sigma and w_max; Standard and Conservative
+    with none (``game_message``)."""
+    if chosen.alpha is None:
+        return game_message(chosen.value_function, None, chosen.ran)
+    fit = chosen.fit
+    return game_message(chosen.value_function, chosen.alpha, chosen.ran, fit_mu=fit['mu'],
+                        fit_sigma=fit['sigma'], omega_max=fit['omega_max'])
+
+
 def condition_message(condition: str, learned: dict, alpha_offset: float = 0.0):
     """(message, alpha or None, what ran) of one condition; ``learned``: condition ->
     (value function, fit) of the subject's learned sets. A learned condition without a
     fit runs the Standard set (and is counted so)."""
-    standard_vf, conservative_vf = reference_sets()
-    if condition == 'conservative':
-        return game_message(conservative_vf, None, condition), None, 'conservative'
-    if condition in learned and learned[condition][0] is not None:
-        vf, fit = learned[condition]
-        alpha = learned_alpha(fit, alpha_offset)
-        return game_message(vf, alpha, condition, fit_mu=fit['mu'], fit_sigma=fit['sigma'],
-                            omega_max=fit['omega_max']), alpha, condition
-    return game_message(standard_vf, None, 'standard'), None, 'standard'
+    chosen = condition_set(condition, learned, alpha_offset)
+    return set_message(chosen), chosen.alpha, chosen.ran
 
 
 def graph_argvs(world_seed: int, supervisor: dict, step: float, rate_factor: float) -> tuple:

@@ -74,11 +74,12 @@ def phase2_argvs(subject: Subject, opts: StudyOptions, store: Path, first_offset
 
 
 def run_phase2(subject: Subject, opts: StudyOptions, domain_id: int, log_dir: Path,
-               progress=None) -> Phase2Result:
+               with_fp: bool = True) -> Phase2Result:
+    """Phase II of ``subject`` on its own graph (logs in ``log_dir``); ``with_fp``: with the
+    first-passage learner (Learned FP) beside the paper's."""
     env = team_env(domain_id)
     log_dir.mkdir(parents=True, exist_ok=True)
     store = log_dir / 'interventions.jsonl'
-    with_fp = 'learned_fp' in opts.conditions
     if store.exists():
         store.unlink()
     # the first-passage learner's interventions and encounters (<store>.encounters.jsonl)

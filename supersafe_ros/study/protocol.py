@@ -10,8 +10,10 @@ nodes' parameters, the reference sets, the seeds and what Phase II returns.
   nodes and the graph's renamed first-passage learner take them.
 * ``supervisor_seed``: a subject's noise in Phase III; ``sweep_condition``: the learned
   condition whose alpha the observed sweep raises.
-* ``Phase2Result``: Phase II of one subject, from ``engine.CoreStudy.phase2`` or
-  ``graph_phase2.run_phase2``.
+* ``Phase2Result``: Phase II of one subject, from either engine's ``phase2``
+  (``engines.Engine``).
+* ``ConditionSet`` (``condition_set``): the safe set a condition's game runs, as each
+  engine's ``play`` takes it.
 """
 from __future__ import annotations
 
@@ -22,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from ..learning.data import PHASE2_OFFSETS
+from ..learning.levels import learned_alpha
 from ..reach.grid import Grid
 from ..reach.library import load_or_solve
 from ..sim.supervisor_models import DEFAULT_MODEL
@@ -70,7 +73,6 @@ class StudyOptions:
     phase3: str = 'same-world'       # same-world: each condition once on the subject's world; paper: study.design
 
 
-ENGINES = ('core', 'graph')
 PHASE3_FORMS = ('same-world', 'paper')
 
 
@@ -123,3 +125,34 @@ class Phase2Result:
     fp_vf: object = None               # core engine: the first-passage fit's ValueFunction
     fp_records: list = field(default_factory=list)   # core engine: its Phase II encounters
     cpu_s: float | None = None         # core engine: CPU seconds of the phase
+
+
+@dataclass(frozen=True)
+class ConditionSet:
+    """The safe set one game of a condition runs, on either engine."""
+
+    condition: str                     # the condition asked for
+    ran: str                           # what runs: the condition, or 'standard' (a learned one without a fit)
+    value_function: object
+    alpha: float | None                # a learned set's level (mu + k sigma); None: the set's own level
+    fit: dict | None = None            # a learned set's fit
+    alpha_offset: float = 0.0          # k
+
+    @property
+    def learns_during_game(self) -> bool:
+        """``learned_online`` at alpha = mu: the set keeps learning from the game (study.online)."""
+        return self.ran == 'learned_online' and self.alpha_offset == 0.0
+
+
+def condition_set(condition: str, learned: dict, alpha_offset: float = 0.0) -> ConditionSet:
+    """The set of one condition; ``learned``: condition -> (value function or None, fit or
+    None) of the subject's learned sets. Conservative is the radius-3.6 set at level 0; a
+    learned condition with a fit its set at alpha = mu + ``alpha_offset`` sigma; a learned
+    condition without a fit runs the Standard set (and is counted so)."""
+    standard_vf, conservative_vf = reference_sets()
+    if condition == 'conservative':
+        return ConditionSet(condition, 'conservative', conservative_vf, None, alpha_offset=alpha_offset)
+    if condition in learned and learned[condition][0] is not None:
+        vf, fit = learned[condition][:2]
+        return ConditionSet(condition, condition, vf, learned_alpha(fit, alpha_offset), fit, alpha_offset)
+    return ConditionSet(condition, 'standard', standard_vf, None, alpha_offset=alpha_offset)
