@@ -115,21 +115,23 @@ def serve(checkout: str, m: int, batched: bool, core: int | None):
             setattr(w, name, states.wrap(getattr(w, name)))
     import importlib
     for module, name in (('supersafe_ros.ros_io.cdr', 'diagnostic_status_bytes'),
-                         ('supersafe_ros.nodes.fleet_safety_filter_node', 'array_bytes')):
+                         ('supersafe_ros.nodes.fleet_safety_filter_node', 'array_bytes'),
+                         ('supersafe_ros.nodes.filter_topics', 'array_bytes')):
         module = importlib.import_module(module)
         if hasattr(module, name):       # a checkout that serializes its states itself
             setattr(module, name, states.wrap(getattr(module, name)))
     for topics in getattr(node, 'topics', []):
         topics.state_pub.publish = states.wrap(topics.state_pub.publish)
-    if batched:
-        node.fleet_state_pub.publish = states.wrap(node.fleet_state_pub.publish)
+    if batched:     # (the batched states' publisher: the node's, or its FleetTopics')
+        fleet_states = getattr(node, 'fleet_state_pub', None) or node.fleet.state_pub
+        fleet_states.publish = states.wrap(fleet_states.publish)
     node.decide = decisions.wrap(node.decide)
     report = node.create_publisher(DiagnosticStatus, '/bench/decisions', rosmsg.QOS_EVENTS)
     node.create_timer(0.25, lambda: report.publish(rosmsg.make_diagnostic('decisions', {
         't': time.monotonic_ns(), 'ticks': node.ticks, 'fail_safe': node.failing_safe,
-        'superseded': getattr(node, 'superseded_poses', 0), 'state_s': f'{states.seconds:.9f}',
+        'superseded': bench_nodes.superseded(node), 'state_s': f'{states.seconds:.9f}',
         'decide_s': f'{decisions.seconds:.9f}',
-        'decisions': ','.join(str(int(v)) for v in node.decisions)})), clock=w.steady)
+        'decisions': ','.join(str(int(v)) for v in getattr(node, 'decided', node.decisions))})), clock=w.steady)
     ex = SingleThreadedExecutor()
     ex.add_node(node)
     try:

@@ -423,6 +423,12 @@ def bench_nodes(args):
 
 
 # -- fleet node ----------------------------------------------------------------------------------
+def superseded(node) -> int:
+    """fleet/poses superseded so far (the node's count in any checkout's form)."""
+    fleet = getattr(node, 'fleet', None)
+    return getattr(node, 'superseded_poses', None) or getattr(fleet, 'superseded', 0)
+
+
 def serve_fleet(m, batched, core, profile=''):
     """Child: one fleet_safety_filter_node for /bench_0 .. /bench_<m-1>, on ``core`` if not None."""
     import rclpy
@@ -444,8 +450,9 @@ def serve_fleet(m, batched, core, profile=''):
     report = node.create_publisher(DiagnosticStatus, '/bench/decisions', rosmsg.QOS_EVENTS)
     node.create_timer(0.25, lambda: report.publish(rosmsg.make_diagnostic('decisions', {
         't': time.monotonic_ns(), 'ticks': node.ticks, 'fail_safe': node.failing_safe,
-        'superseded': getattr(node, 'superseded_poses', 0),
-        'decisions': ','.join(str(int(v)) for v in node.decisions)})), clock=node.wiring.steady)
+        'superseded': superseded(node),
+        'decisions': ','.join(str(int(v)) for v in getattr(node, 'decided', node.decisions))})),
+        clock=node.wiring.steady)
     freeze_startup_objects()    # as run_node does
     ex = SingleThreadedExecutor()
     ex.add_node(node)

@@ -22,6 +22,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from supersafe_ros.nodes.dubins_robot_node import DubinsRobotNode
 from supersafe_ros.nodes.planner_node import PlannerNode
+from supersafe_ros.nodes.fleet_safety_filter_node import FleetSafetyFilterNode
 from supersafe_ros.nodes.safety_filter_node import SafetyFilterNode
 from supersafe_ros.ros_io import rosmsg
 
@@ -77,17 +78,24 @@ def scan_cloud(scan) -> PointCloud2:
 class SensorGraph:
     """The graph of the module, built in ``ctx``; ``filter_params`` are the filter's own."""
 
-    def __init__(self, ctx, detections_type='laser_scan', detections_topic='scan', **filter_params):
+    def __init__(self, ctx, detections_type='laser_scan', detections_topic='scan', fleet=False, **filter_params):
+        """``fleet``: the filter is a fleet_safety_filter_node in / whose one robot is robot_0 (else a
+        safety_filter_node in robot_0's namespace)."""
         sim = dict(use_sim_time=True)
         self.robot = DubinsRobotNode(context=ctx, namespace=NS, parameter_overrides=params(
             **sim, initial_x=START[0], initial_y=START[1], initial_theta=START[2], speed=3.0, w_max=1.0,
             rate=20.0, command_timeout=0.5, timeout_behavior='stop', miss_probability=0.0, seed=1,
             sensors='scan', cmd_vel_stamped=True, follow_speed=True, lockstep=True, sensor_range=10.0))
-        self.filter = SafetyFilterNode(context=ctx, namespace=NS, cli_args=[
-            '--ros-args', '-r', 'pose:=odom', '-r', f'detections:={detections_topic}'],
-            parameter_overrides=params(**sim, lockstep=True, pose_type='odometry', cmd_vel_stamped=True,
-                                       detections_type=detections_type, level_set_markers=False,
-                                       **filter_params))
+        values = params(**sim, lockstep=True, pose_type='odometry', cmd_vel_stamped=True,
+                        detections_type=detections_type, level_set_markers=False, **filter_params)
+        if fleet:
+            self.filter = FleetSafetyFilterNode(context=ctx, cli_args=[
+                '--ros-args', '-r', f'{NS}/pose:={NS}/odom', '-r', f'{NS}/detections:={NS}/{detections_topic}'],
+                parameter_overrides=values + params(robots=[NS.strip('/')]))
+        else:
+            self.filter = SafetyFilterNode(context=ctx, namespace=NS, cli_args=[
+                '--ros-args', '-r', 'pose:=odom', '-r', f'detections:={detections_topic}'],
+                parameter_overrides=values)
         self.planner = PlannerNode(context=ctx, namespace=NS, cli_args=['--ros-args', '-r', 'pose:=odom'],
                                    parameter_overrides=params(**sim, pose_type='odometry', cmd_vel_stamped=True,
                                                               speed=3.0, slow_radius=8.0, goal_tolerance=1.0,

@@ -79,17 +79,21 @@ def in_order(called, wanted) -> bool:
 
 
 def test_the_node_half_runs_in_the_order_listed():
-    """safety_filter_node: a pose is read by its Source, then taken by the filter; a decision is
-    made, judged by the lockstep policy, published through the sink, recorded, then said by the
-    state reporter, in that order (and the fleet's tick: Sources, step_many, sinks)."""
+    """safety_filter_node (the one filter node): a pose is read by its Source, then taken by the
+    filter, then decided; a decision is made, judged by the lockstep policy, sent through each
+    robot's topics, recorded, told, and its states said, in that order; a tick takes every robot's
+    inputs before it decides them."""
     names = [name for _, name in node_steps()]
     assert names[:2] == ['PoseSource', 'RobotFilter'] and 'decide_many' in names
     node = 'supersafe_ros/nodes/safety_filter_node.py'
-    assert in_order(method_calls(node, 'SafetyFilter', 'on_pose'), ['read', '_take_pose', '_answer_pose'])
+    assert in_order(method_calls(node, 'SafetyFilter', 'take_pose'), ['read', 'update_pose'])
+    assert in_order(method_calls(node, 'SafetyFilter', 'on_pose'), ['take_pose', 'decide'])
+    assert in_order(method_calls(node, 'SafetyFilter', 'on_command'), ['take_command', 'decide'])
     decide = method_calls(node, 'SafetyFilter', 'decide')
-    assert in_order(decide, ['decide_many', 'judge', '_publish_command', 'record_decisions', 'state_message']), decide
-    assert 'cmd_vel' in method_calls(node, 'SafetyFilter', '_publish_command')
-    fleet = 'supersafe_ros/nodes/fleet_safety_filter_node.py'
-    assert in_order(method_calls(fleet, 'FleetSafetyFilter', '_drain'), ['read', 'update_pose', 'read', 'take'])
-    tick = method_calls(fleet, 'FleetSafetyFilter', 'decide')
-    assert in_order(tick, ['_drain', 'step_many', 'cmd_vel', 'state_message']), tick
+    assert in_order(decide, ['decide_many', 'judge', '_send', 'record_decisions', '_after']), decide
+    assert 'send' in method_calls(node, 'SafetyFilter', '_send')
+    assert 'cmd_vel' in method_calls('supersafe_ros/nodes/filter_topics.py', 'RobotTopics', 'send')
+    assert in_order(method_calls(node, 'SafetyFilter', '_after'), ['tell', 'due', '_say_states'])
+    assert 'state_message' in method_calls(node, 'SafetyFilter', '_say_states')
+    tick = method_calls(node, 'SafetyFilter', 'decide_all')
+    assert in_order(tick, ['_take_batched', 'take', 'taker', 'decide']), tick

@@ -1,8 +1,8 @@
-"""The filter nodes' parameter tables against FilterConfig and the shipped config files.
+"""The filter node's parameter table against FilterConfig and the shipped config files.
 
-Each default has one source: FilterConfig's field defaults for its fields, the tables
-(filter_parameters, each node's PARAMETERS) for the rest. The YAML files repeat them
-for the reader; any drift fails here.
+Each default has one source: FilterConfig's field defaults for its fields, the table
+(filter_parameters.PARAMETERS, the one node's: safety_filter_node and fleet_safety_filter_node
+alike) for the rest. The YAML files repeat them for the reader; any drift fails here.
 """
 from dataclasses import fields
 from pathlib import Path
@@ -11,21 +11,20 @@ import pytest
 import yaml
 
 from supersafe_ros.filter import FilterConfig
-from supersafe_ros.nodes import fleet_safety_filter_node, safety_filter_node
-from supersafe_ros.nodes.filter_parameters import CONFIG_PARAMETERS, FILTER_PARAMETERS, check_config_field
+from supersafe_ros.nodes.filter_parameters import (CONFIG_PARAMETERS, FILTER_PARAMETERS, PARAMETERS,
+                                                   check_config_field, decision_mode, robot_namespaces)
 
 CONFIG = Path(__file__).resolve().parents[1] / 'config'
 RCLPY_DEFAULTS = {'use_sim_time': False}     # declared by rclpy itself
 
-NODES = {
-    'safety_filter.yaml': FILTER_PARAMETERS + safety_filter_node.PARAMETERS,
-    'fleet_safety_filter.yaml': fleet_safety_filter_node.PARAMETERS + FILTER_PARAMETERS,
-}
+NODES = {'safety_filter.yaml': PARAMETERS, 'fleet_safety_filter.yaml': PARAMETERS}
 # values a config file sets on purpose, not as the node's default (each with its reason)
 DEPLOYMENT_VALUES = {
     'fleet_safety_filter.yaml': {
-        'robots': ['robot_0', 'robot_1'],    # an example fleet; the node alone serves robot_0
+        'robots': ['robot_0', 'robot_1'],    # an example fleet; the node alone serves its own namespace
+        'batched_topics': True,              # a fleet manager's one message a tick
         'state_rate': 2.0,                   # per robot: a fleet sends fewer periodic states
+        'level_set_markers': False,          # a publisher per robot (RViz): not for a fleet
     },
 }
 LIVE = {
@@ -34,7 +33,7 @@ LIVE = {
                            'state_rate', 'max_value_function_bytes', 'clock_stall_timeout', 'publish_on_pose',
                            'max_detections', 'stamp_tolerance', 'time_before_collision'},
 }
-LIVE['fleet_safety_filter.yaml'] = LIVE['safety_filter.yaml'] - {'publish_on_pose'}
+LIVE['fleet_safety_filter.yaml'] = LIVE['safety_filter.yaml']
 
 
 def config_values(name):
@@ -83,3 +82,26 @@ def test_a_config_value_is_checked_against_filter_config_before_it_is_applied():
     assert 'pose_timeout must be finite and >= 0' in check_config_field(config, 'pose_timeout', float('nan'))
     assert check_config_field(config, 'lookahead', -1.0)
     assert config == FilterConfig()        # nothing applied
+
+
+def test_robots_resolve_as_topic_names_do_and_name_each_namespace_once():
+    assert robot_namespaces('/', ['']) == ['/']
+    assert robot_namespaces('/robot_0', ['']) == ['/robot_0']
+    assert robot_namespaces('/', ['robot_0', '/fleet/r1/']) == ['/robot_0', '/fleet/r1']
+    assert robot_namespaces('/site', ['robot_0', '/robot_1']) == ['/site/robot_0', '/robot_1']
+    with pytest.raises(ValueError, match='twice'):
+        robot_namespaces('/', ['robot_0', '/robot_0'])
+    with pytest.raises(ValueError, match='empty'):
+        robot_namespaces('/', [])
+
+
+def test_a_robot_on_its_own_topics_is_decided_on_its_inputs_a_fleet_on_ticks():
+    assert decision_mode('auto', 1, True, False) == 'input'
+    assert decision_mode('auto', 2, True, False) == 'tick'
+    assert decision_mode('auto', 1, True, True) == 'tick'       # a fleet/poses message is a tick
+    assert decision_mode('tick', 1, True, False) == 'tick'
+    assert decision_mode('input', 60, True, False) == 'input'
+    with pytest.raises(ValueError, match='batched_topics'):
+        decision_mode('input', 1, True, True)
+    with pytest.raises(ValueError, match='one of'):
+        decision_mode('sometimes', 1, True, False)

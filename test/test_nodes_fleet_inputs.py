@@ -1,7 +1,8 @@
 """A fleet robot takes what a lone robot takes: Odometry (or PoseWithCovarianceStamped) poses,
 MarkerArray discs, TwistStamped commands both ways, no sensor at all (require_detections false),
 on the same topics of the same types as safety_filter_node; the same behaviour, run on both
-nodes; a range sensor refused by the fleet node at start."""
+nodes; and a fleet node of one robot shows on the graph (nodes, topics, parameters) exactly what a
+single filter with the same parameters shows, for every pose_type and detections_type."""
 import pytest
 
 from diagnostic_msgs.msg import DiagnosticStatus
@@ -134,7 +135,7 @@ def test_a_robot_without_a_sensor_is_judged_with_no_obstacle_on_both_nodes(rig, 
 
 
 def endpoint_types(node, ns):
-    """{(topic, 'sub' or 'pub'): types} of the topics under ``ns`` on the graph."""
+    """{(topic, 'sub' or 'pub'): sorted (type, node) pairs} of the topics under ``ns`` on the graph."""
     out = {}
     for topic, _ in node.get_topic_names_and_types():
         if not topic.startswith(ns + '/'):
@@ -143,48 +144,63 @@ def endpoint_types(node, ns):
                             ('pub', node.get_publishers_info_by_topic(topic))):
             theirs = [i for i in infos if not i.node_name.startswith('probe')]
             if theirs:
-                out[(topic[len(ns):], side)] = sorted({i.topic_type for i in theirs})
+                out[(topic, side)] = sorted({(i.topic_type, f'{i.node_namespace}/{i.node_name}') for i in theirs})
     return out
 
 
-@pytest.mark.ros
-@pytest.mark.parametrize('types', [
+TYPES = [
     dict(pose_type='pose_stamped', detections_type='pose_array', cmd_vel_stamped=False),
     dict(pose_type='odometry', detections_type='marker_array', cmd_vel_stamped=True),
     dict(pose_type='pose_with_covariance', detections_type='pose_array', cmd_vel_stamped=True),
     dict(pose_type='odometry', detections_type='pose_array', cmd_vel_stamped=False, require_detections=False),
-], ids=['defaults', 'nav2', 'amcl', 'no_sensor'])
-def test_a_fleet_of_one_shows_the_topics_and_types_of_a_single_filter(ros_context, types):
-    """`ros2 topic info` of a robot's per-robot topics: the same names, directions and types for a
-    fleet node of one robot as for safety_filter_node with the same parameters."""
+    dict(pose_type='odometry', detections_type='laser_scan', cmd_vel_stamped=True, time_before_collision=0.5),
+    dict(pose_type='pose_with_covariance', detections_type='point_cloud2', cmd_vel_stamped=True,
+         time_before_collision=0.5),
+    dict(pose_type='pose_stamped', detections_type='occupancy_grid', cmd_vel_stamped=False,
+         time_before_collision=0.5),
+]
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize('types', TYPES, ids=['defaults', 'nav2', 'amcl', 'no_sensor', 'scan', 'cloud', 'costmap'])
+def test_a_fleet_of_one_shows_the_graph_of_a_single_filter(ros_context, types):
+    """`ros2 node list`, `ros2 topic info -v` and `ros2 param list`/`get`: the same for
+    fleet_safety_filter_node of one robot as for safety_filter_node with the same parameters (the
+    fleet node given the single one's name; and, in its own name, the same topics and types for the
+    robot it names); for every pose_type and detections_type, range sensors and costmaps included."""
     from rclpy.node import Node
-    probe = Node('probe_topics', context=ros_context)
+    probe = Node('probe_graph', context=ros_context)
     seen = {}
-    for kind in ('single', 'fleet'):
-        ns = f'/graph_{kind}'
-        f = make_filter(ros_context, kind, ns, **types)
+    quiet = dict(level_set_markers=False, **QUIET, **types)
+    made = {'single': lambda ns: SafetyFilterNode(context=ros_context, namespace=ns,
+                                                  parameter_overrides=params(**quiet)),
+            'fleet': lambda ns: FleetSafetyFilterNode(context=ros_context, node_name='safety_filter', namespace=ns,
+                                                      parameter_overrides=params(**quiet)),
+            'fleet_named': lambda ns: FleetSafetyFilterNode(context=ros_context, node_name='fleet_graph',
+                                                            parameter_overrides=params(robots=[ns], **quiet))}
+    for kind, make in made.items():
+        ns = f'/graph_{types["detections_type"]}'
+        f = make(ns)
         spin = Spinner(ros_context, f, probe)
         try:
-            want = {'/pose', '/cmd_vel_nav', '/cmd_vel', '/safety_filter/state'}
-            if types.get('require_detections', True):
-                want.add('/detections')
-            else:       # no sensor: ready from the start
-                want.add('/safety_filter/ready')
+            want = {f'{ns}/{t}' for t in ('pose', 'cmd_vel_nav', 'cmd_vel', 'safety_filter/state')}
+            want |= {f'{ns}/detections'} if types.get('require_detections', True) else {f'{ns}/safety_filter/ready'}
             spin.until(lambda: want <= {t for t, _ in endpoint_types(probe, ns)}, 15.0, f'{kind} topics on the graph')
-            seen[kind] = {k: v for k, v in endpoint_types(probe, ns).items() if k[0] in want}
+            nodes = sorted(f'{n_ns.rstrip("/")}/{n}' for n, n_ns in probe.get_node_names_and_namespaces()
+                           if not n.startswith('probe'))
+            seen[kind] = dict(topics=endpoint_types(probe, '/'), nodes=nodes,
+                              params={name: f.get_parameter(name).value for name in f._parameters})
         finally:
             spin.shutdown()
             f.close()
             f.destroy_node()
     probe.destroy_node()
-    assert seen['fleet'] == seen['single']
-    assert seen['single'][('/pose', 'sub')] == [
-        {'pose_stamped': 'geometry_msgs/msg/PoseStamped', 'odometry': 'nav_msgs/msg/Odometry',
-         'pose_with_covariance': 'geometry_msgs/msg/PoseWithCovarianceStamped'}[types['pose_type']]]
-
-
-@pytest.mark.ros
-def test_the_fleet_node_refuses_a_range_sensor_at_start_naming_the_node_that_takes_it(ros_context):
-    with pytest.raises(ValueError, match='safety_filter_node per robot'):
-        FleetSafetyFilterNode(context=ros_context, node_name='fleet_scan', parameter_overrides=params(
-            robots=['scan_robot'], detections_type='laser_scan'))
+    single, fleet, named = seen['single'], seen['fleet'], seen['fleet_named']
+    assert fleet == single
+    assert f'/graph_{types["detections_type"]}/safety_filter' in single['nodes']
+    # in its own name: the robot's topics of the same types (served by the fleet node's helper)
+    strip = lambda topics: {k: sorted({t for t, _ in v}) for k, v in topics.items()  # noqa: E731
+                            if k[0].startswith('/graph_') and '/safety_filter/level_set' not in k[0]}
+    assert strip(named['topics']) == strip(single['topics'])
+    assert set(named['params']) == set(single['params'])
+    assert {k for k, v in named['params'].items() if v != single['params'][k]} == {'robots'}

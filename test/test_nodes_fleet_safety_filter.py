@@ -1,4 +1,5 @@
-"""fleet_safety_filter_node at topic level: per-robot topics (drop-in) and the batched interface."""
+"""fleet_safety_filter_node (safety_filter_node for a fleet) at topic level: per-robot topics (drop-in)
+and the batched interface; what it says of its robots."""
 import math
 import time
 
@@ -10,7 +11,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import Pose, PoseArray, PoseStamped, Twist
 from std_msgs.msg import Float64MultiArray
 
-from supersafe_ros.nodes import fleet_safety_filter_node as fleet_module
+from supersafe_ros.nodes import filter_batched, safety_filter_node as filter_module
 from supersafe_ros.nodes.fleet_safety_filter_node import FleetSafetyFilterNode
 from supersafe_ros.ros_io import fleetmsg, rosmsg
 
@@ -73,7 +74,8 @@ class Driver:
 def setup(ros_context):
     # no test here waits for an input to go stale: timeouts long enough that a reply read a few
     # busy seconds after its tick (load 10: seen with 2 s) is still the tick's, not a fail safe
-    params = [Parameter('robots', value=ROBOTS), Parameter('standard_shape', value=[41, 41, 24]),
+    params = [Parameter('robots', value=ROBOTS), Parameter('batched_topics', value=True),
+              Parameter('standard_shape', value=[41, 41, 24]),
               Parameter('pose_timeout', value=30.0), Parameter('detections_timeout', value=30.0),
               Parameter('cmd_timeout', value=30.0), Parameter('hold_timeout', value=30.0),
               Parameter('state_rate', value=100.0), Parameter('rate', value=20.0)]
@@ -92,8 +94,8 @@ def setup(ros_context):
 def test_per_robot_topics_are_a_drop_in_with_one_step_per_tick(setup, monkeypatch):
     node, d, spin = setup
     calls = []
-    real = fleet_module.step_many
-    monkeypatch.setattr(fleet_module, 'step_many', lambda filters, *a, **k: calls.append(len(filters))
+    real = filter_module.decide_many
+    monkeypatch.setattr(filter_module, 'decide_many', lambda filters, *a, **k: calls.append(len(filters))
                         or real(filters, *a, **k))
     # robot_0 clear, robot_1 heading at the disc, robot_2 silent
     for r, s, w in (('robot_0', FAR, 0.3), ('robot_1', INTO, -0.4)):
@@ -245,8 +247,8 @@ def test_poses_that_wait_are_superseded_by_the_newest(setup, ros_context, monkey
     node, d, spin = setup
     batched_tick(d, spin, [FAR, FAR, FAR], [0.3, 0.3, 0.3], actions('pass', 'pass', 'pass'), 'all passing')
     decided = []
-    real = fleet_module.update_poses
-    monkeypatch.setattr(fleet_module, 'update_poses', lambda filters, states, *a, **k: decided.append(
+    real = filter_batched.update_poses
+    monkeypatch.setattr(filter_batched, 'update_poses', lambda filters, states, *a, **k: decided.append(
         np.array(states)) or real(filters, states, *a, **k))
     # an observer of its own (not spun with the filter) tells when the burst has been delivered
     observer = Node('fleet_test_observer', context=ros_context)
@@ -258,7 +260,7 @@ def test_poses_that_wait_are_superseded_by_the_newest(setup, ros_context, monkey
         deadline = time.monotonic() + 10.0
         while d.fleet_poses.get_subscription_count() < 2 and time.monotonic() < deadline:
             ex.spin_once(timeout_sec=0.01)
-        before = node.superseded_poses
+        before = node.fleet.superseded
         burst = [[(FAR[0] + k, FAR[1], 0.0)] * 3 for k in range(5)]
         for states in burst:
             d.fleet_poses.publish(fleet_poses(states))
@@ -270,7 +272,7 @@ def test_poses_that_wait_are_superseded_by_the_newest(setup, ros_context, monkey
         observer.destroy_node()
     spin.until(lambda: decided and decided[-1][0, 0] == pytest.approx(burst[-1][0][0]), 10.0,
                'a decision on the newest poses')
-    superseded = node.superseded_poses - before
+    superseded = node.fleet.superseded - before
     assert len(decided) < 5 and len(decided) + superseded == 5, (len(decided), superseded)
     assert node.wiring.filters[0].pose.value[0] == pytest.approx(burst[-1][0][0])
     spin.until(lambda: d.rosout.has('fleet_safety_filter', 'fleet/poses', 'superseded'), 5.0, 'the warning')
@@ -284,6 +286,10 @@ def test_robots_parameter_is_read_only_and_must_name_distinct_robots(setup, ros_
     with pytest.raises(ValueError, match='twice'):
         FleetSafetyFilterNode(node_name='fleet_dup', context=ros_context,
                               parameter_overrides=[Parameter('robots', value=['a', '/a/'])])
+    with pytest.raises(ValueError, match='decide_on input'):
+        FleetSafetyFilterNode(node_name='fleet_input_batched', context=ros_context, parameter_overrides=[
+            Parameter('robots', value=['a']), Parameter('batched_topics', value=True),
+            Parameter('decide_on', value='input')])
 
 
 def test_held_steps_are_debug_lines_and_an_info_summary_at_most_every_period():
@@ -304,15 +310,24 @@ def test_held_steps_are_debug_lines_and_an_info_summary_at_most_every_period():
     assert [lv for lv, _ in log.lines].count('info') == 2 and '1 step held in the last 10 s' in log.lines[-1][1]
 
 
-def test_fleet_throttle_publishes_as_a_throttle_per_robot():
-    """FleetThrottle (the fleet node's arrays) says the same robots are due, tick by tick, as one
-    StateThrottle per robot: on its phase, on a change of action or of the set, and after pauses
-    (the phase restarts)."""
-    from supersafe_ros.nodes.filter_state import FleetThrottle, StateThrottle
+def test_a_robots_state_is_due_on_its_phase_on_a_change_and_alike_decided_alone_or_with_the_fleet():
+    """StateThrottle: with nothing changing, robot i of n is due once a period on its phase i / n; a
+    change of its action or of the set makes it due at once; after a pause of two periods its phase
+    restarts. Deciding the robots one at a time (decide_on input) gives each the same dues as
+    deciding them all at once (a tick)."""
+    from supersafe_ros.nodes.filter_state import StateThrottle
+    n, period, start = 4, 1.0, 100.0
+    th = StateThrottle(n, start, period)
+    dues = {i: [] for i in range(n)}
+    for k in range(1, 41):            # steady, 0.1 s ticks: each robot due once a period, on its phase
+        now = start + 0.1 * k
+        for i in th.due(now, range(n), ['pass'] * n, 'set', period):
+            dues[i].append(round(now - start, 6))
+    # (the first tick: every robot, its action new)
+    assert dues[0] == [0.1, 1.0, 2.0, 3.0, 4.0] and dues[2] == [0.1, 0.5, 1.5, 2.5, 3.5]
     rng = np.random.default_rng(3)
-    n, period, start = 37, 0.5, 100.0
-    fleet = FleetThrottle(n, start, period)
-    each = [StateThrottle(i / n, start, period) for i in range(n)]
+    n, period = 37, 0.5
+    fleet, alone = StateThrottle(n, start, period), StateThrottle(n, start, period)
     updates = [object(), object()]
     now, kinds = start, set()
     for tick in range(500):
@@ -323,50 +338,88 @@ def test_fleet_throttle_publishes_as_a_throttle_per_robot():
             now += rng.choice([0.02, 0.02, 0.02, 0.3, 1.2])
             actions = [str(a) for a in rng.choice(['pass', 'override', 'fail_safe'], n, p=[0.9, 0.07, 0.03])]
             update = updates[int(rng.random() < 0.02)]
-        want = [i for i, th in enumerate(each) if th.due(now, actions[i], update, period)]
-        got = fleet.due(now, actions, update, period)
+        got = fleet.due(now, range(n), actions, update, period)
+        want = [i for i in range(n) if alone.due(now, (i,), (actions[i],), update, period)]
         assert got == want, f'tick {tick}'
         kinds.add(0 < len(got) < n)
     assert kinds == {True, False}       # some ticks with a few robots due, some with all or none
 
 
-@pytest.mark.ros
-def test_fleet_story_tells_each_kind_of_change_once_per_tick(ros_context, monkeypatch):
-    """The fleet's INFO/ERROR story: quiet while robots start failing safe, one line for the robots
-    whose inputs became valid, one for those that failed safe (with the first one's reason), one
-    for those back; nothing when nothing changed."""
-    node = FleetSafetyFilterNode(node_name='fleet_story', context=ros_context, parameter_overrides=[
-        Parameter('robots', value=['a', 'b', 'c', 'd']), Parameter('per_robot_topics', value=False)])
-    lines = []
+class _Log:
+    def __init__(self):
+        self.lines = []
 
-    class Log:
-        def info(self, text):
-            lines.append(('info', text))
+    def info(self, text):
+        self.lines.append(('info', text))
 
-        def error(self, text):
-            lines.append(('error', text))
-    monkeypatch.setattr(node, 'get_logger', lambda: Log())
+    def error(self, text):
+        self.lines.append(('error', text))
 
-    class Outs(list):
-        def __init__(self, actions):
-            super().__init__(type('Out', (), {'reason': f'why {i}'})() for i in range(len(actions)))
-            self.action = actions
-    try:
-        tell = lambda *a: (lines.clear(), node._tell_story(Outs(list(a))), list(lines))[2]   # noqa: E731
-        assert tell('fail_safe', 'fail_safe', 'fail_safe', 'fail_safe') == []          # starting: quiet
-        assert tell('pass', 'override', 'fail_safe', 'fail_safe') == [
-            ('info', 'inputs valid, filtering: 2 robot(s) (/a, /b)')]
-        assert tell('pass', 'override', 'fail_safe', 'fail_safe') == []                # no change
-        assert tell('fail_safe', 'pass', 'pass', 'fail_safe') == [
-            ('info', 'inputs valid, filtering: 1 robot(s) (/c)'),
-            ('error', 'failing safe: 1 robot(s) (/a); first: why 0')]
-        assert tell('pass', 'fail_safe', 'pass', 'pass') == [
-            ('info', 'inputs valid, filtering: 1 robot(s) (/d)'),
-            ('error', 'failing safe: 1 robot(s) (/b); first: why 1'),
-            ('info', 'inputs valid again, filtering: 1 robot(s) (/a)')]
-    finally:
-        node.close()
-        node.destroy_node()
+
+class _Decisions(list):
+    """What Story reads of a decision: the actions, and each robot's output (action, reason)."""
+
+    def __init__(self, actions):
+        super().__init__(type('Out', (), {'action': a, 'reason': f'why {i}'})() for i, a in enumerate(actions))
+        self.action = actions
+
+
+def _filters(n):
+    from supersafe_ros.filter import FilterConfig, RobotFilter
+    filters = [RobotFilter(FilterConfig(), f'/r{i}') for i in range(n)]
+    for f in filters:
+        f.update_pose((0.0, 0.0, 0.0), 0.0)
+    return filters
+
+
+def test_a_fleets_story_tells_each_kind_of_change_once_per_decision():
+    """Story: quiet while robots start failing safe, one line for the robots whose inputs became
+    valid, one for those that failed safe (with the first one's reason), one for those back;
+    nothing when nothing changed; robots decided alone are told alone."""
+    from supersafe_ros.nodes.filter_state import Story
+    log, filters = _Log(), _filters(4)
+    story = Story(log, ['/a', '/b', '/c', '/d'])
+
+    def tell(*actions, rows=range(4)):
+        log.lines.clear()
+        story.tell(list(rows), _Decisions(list(actions)), [filters[i] for i in rows], 0.0)
+        return [line for line in log.lines if 'until the inputs are valid' not in line[1]]
+    assert tell('fail_safe', 'fail_safe', 'fail_safe', 'fail_safe') == []          # starting: quiet
+    assert tell('pass', 'override', 'fail_safe', 'fail_safe') == [
+        ('info', 'inputs valid for 2 robot(s) (/a, /b): the first: filtering (pass: why 0)')]
+    assert tell('pass', 'override', 'fail_safe', 'fail_safe') == []                # no change
+    assert tell('fail_safe', 'pass', 'pass', 'fail_safe') == [
+        ('info', 'inputs valid for 1 robot(s) (/c): the first: filtering (pass: why 2)'),
+        ('error', 'failing safe for 1 robot(s) (/a): the first: why 0')]
+    assert tell('pass', 'fail_safe', 'pass', 'pass') == [
+        ('info', 'inputs valid for 1 robot(s) (/d): the first: filtering (pass: why 3)'),
+        ('error', 'failing safe for 1 robot(s) (/b): the first: why 1'),
+        ('info', 'inputs valid again for 1 robot(s) (/a): the first: filtering (pass: why 0)')]
+    assert tell('pass', rows=[1]) == [('info', 'inputs valid again for 1 robot(s) (/b): the first: filtering '
+                                               '(pass: why 0)')]
+
+
+def test_a_lone_robots_story_says_its_reason_and_its_planners_silence_once():
+    from supersafe_ros.nodes.filter_state import Story
+    log, (f,) = _Log(), _filters(1)
+    story = Story(log, ['/robot_0'])
+    story.tell([0], _Decisions(['fail_safe']), [f], 0.0)
+    assert log.lines == [('info', 'failing safe until the inputs are valid: why 0')]     # once, while starting
+    story.tell([0], _Decisions(['fail_safe']), [f], 0.0)
+    story.tell([0], _Decisions(['pass']), [f], 0.0)
+    story.tell([0], _Decisions(['fail_safe']), [f], 0.0)
+    assert log.lines[1:] == [('info', 'inputs valid: filtering (pass: why 0)'), ('error', 'failing safe: why 0')]
+    log.lines.clear()
+    f.update_command(0.1, 1.0)
+    story.tell([0], _Decisions(['pass']), [f], 1.0)           # fresh: nothing to say of the planner
+    story.tell([0], _Decisions(['pass']), [f], 1.0 + f.config.cmd_timeout + 0.1)
+    story.tell([0], _Decisions(['pass']), [f], 1.0 + f.config.cmd_timeout + 0.2)     # said once per silence
+    f.update_command(0.1, 3.0)
+    story.tell([0], _Decisions(['pass']), [f], 3.0)
+    assert log.lines == [('info', 'inputs valid again: filtering (pass: why 0)'),
+                         ('info', 'planner silent for more than cmd_timeout (0.5 s): sending zero twists until '
+                                  'it speaks'),
+                         ('info', 'planner speaking again')]
 
 
 @pytest.mark.ros

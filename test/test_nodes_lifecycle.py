@@ -360,15 +360,15 @@ def test_shutdown_from_each_primary_state(ros_node, tmp_path, state, by):
 @pytest.mark.ros
 def test_the_managed_fleet_filter_refuses_invalid_transitions_and_stops_every_robot(ros_node, tmp_path):
     node, spin = ros_node
-    robots = ['/lf_0', '/lf_1']
+    robots = ['/lf/lf_0', '/lf/lf_1']      # (resolved as topic names are: in the node's namespace)
     out = {f'{r}/cmd_vel': [] for r in robots}
     for topic, received in out.items():
         node.create_subscription(Twist, topic, received.append, rosmsg.QOS_EVERY_SAMPLE)
     batched = []
     node.create_subscription(Float64MultiArray, '/lf/fleet/cmd_vel', batched.append, rosmsg.QOS_EVERY_SAMPLE)
     # no input ever: every robot fails safe, stop_turn = (0, +omega_max), not the zero twist
-    proc = start_script(tmp_path, 'managed_fleet_safety_filter', '/lf', 'robots:=[lf_0, lf_1]', 'rate:=20.0',
-                        'fail_safe_command:=stop_turn')
+    proc = start_script(tmp_path, 'managed_fleet_safety_filter', '/lf', 'robots:=[lf_0, lf_1]', 'batched_topics:=true',
+                        'rate:=20.0', 'fail_safe_command:=stop_turn')
     lc = Managed(node, spin, proc, '/lf/fleet_safety_filter', tmp_path / 'managed_fleet_safety_filter.log')
     topics = {**{t: (received, twist_of) for t, received in out.items()},
               'fleet/cmd_vel': (batched, lambda m: tuple(m.data))}

@@ -294,7 +294,7 @@ def test_read_only_and_out_of_range_parameter_sets_are_refused(setup, name, valu
     assert not result.successful and result.reason
     assert node.get_parameter(name).value == before
     if name == 'speed':
-        assert node.filter.config.speed == 3.0
+        assert node.filters[0].config.speed == 3.0
 
 
 def test_inputs_are_taken_by_the_helper_node_or_by_the_filter_node(setup):
@@ -353,10 +353,9 @@ def test_use_learned_turned_off_while_a_set_is_checked_keeps_the_standard_set(se
 def test_every_parameter_is_declared_from_its_table_live_or_read_only(setup):
     """Descriptors as the tables say (description, range, read-only unless live), and every
     live parameter has something that puts it into force."""
-    from supersafe_ros.nodes.filter_parameters import FILTER_PARAMETERS
-    from supersafe_ros.nodes.safety_filter_node import PARAMETERS
+    from supersafe_ros.nodes.filter_parameters import PARAMETERS
     node, driver, spin = setup
-    specs = FILTER_PARAMETERS + PARAMETERS
+    specs = PARAMETERS
     for spec, desc in zip(specs, node.describe_parameters([p.name for p in specs])):
         assert desc.description == spec.description and desc.read_only is not spec.live, spec.name
         ranges = list(desc.floating_point_range) + list(desc.integer_range)
@@ -468,7 +467,7 @@ def test_a_filter_without_detections_fails_safe_and_is_not_ready_until_they_come
         spin.until(lambda: ready, 5.0, 'safety_filter/ready')
         # detections stop; poses and commands go on
         states = feed_until(driver, spin, lambda st: st and st[-1]['action'] == 'fail_safe', 'a fail-safe')
-        assert 'detections stale' in states[-1]['reason'] and node.ready_pub is not None
+        assert 'detections stale' in states[-1]['reason'] and node.topics[0].ready is not None
     finally:
         spin.shutdown()
         node.destroy_node()

@@ -29,7 +29,7 @@ def setup(ros_context):
               Parameter('lockstep_silence', value=60.0), Parameter('cluster_hold_timeout', value=60.0)]
     node = SafetyFilterNode(namespace=NS, context=ros_context, parameter_overrides=params)
     # the cluster solver of this process: requests are recorded, solved only when the test says
-    store = default_cluster_store(node.filter.config)
+    store = default_cluster_store(node.filters[0].config)
     asked = {}
 
     def request(key, centres):
@@ -104,7 +104,7 @@ def test_the_answer_waits_for_a_clusters_value(setup):
     spin.until(lambda: asked, 5.0, 'the cluster solve to be requested')
     spin.spin_for(0.5)
     assert out == [], 'answered while the cluster value was being solved'
-    assert node.answers.holds >= 1
+    assert node.answers[0].holds >= 1
     key, centres = next(iter(asked.items()))
     store._solve(key, centres)          # the value lands
     spin.until(lambda: len(out) >= 1 and state_of(driver, out[0]), 20.0, 'the held answer')
@@ -156,11 +156,11 @@ def test_a_pose_the_clock_has_passed_is_not_answered(ros_context):
         spin.until(lambda: len(out) == 1, 5.0, 'the answer to the current pose')
         tick(12)                      # the clock went on without an answer to the pose of 11
         send_pose(11)
-        spin.until(lambda: node.answers.poses_skipped == 1, 5.0, 'the passed pose to be skipped')
+        spin.until(lambda: node.answers[0].poses_skipped == 1, 5.0, 'the passed pose to be skipped')
         assert len(out) == 1, 'a pose the clock had passed was answered'
         send_pose(12)
         spin.until(lambda: len(out) == 2, 5.0, 'the answer to the current pose')
-        assert node.answers.poses_skipped == 1
+        assert node.answers[0].poses_skipped == 1
     finally:
         spin.shutdown()
         node.destroy_node()

@@ -1,7 +1,9 @@
-"""safety_filter_node's robot-stack inputs at topic level, on the wall clock, through the default
-direct_take path: Odometry + LaserScan / PointCloud2 + TwistStamped, bad input (NaN ranges, a
-malformed or huge cloud, a wrong frame, a pose of another clock), /diagnostics, a foreign
-publisher type, and the managed node's lifecycle through the lifecycle_msgs services."""
+"""The filter's robot-stack inputs at topic level, on the wall clock: Odometry + LaserScan /
+PointCloud2 / OccupancyGrid + TwistStamped, bad input (NaN ranges, a malformed or huge cloud, a wrong
+frame, a pose of another clock), /diagnostics, a foreign publisher type; each on both nodes: a
+safety_filter_node of the robot (decided on its inputs, taken by the default direct_take path) and a
+fleet_safety_filter_node of it and a second robot (decided on ticks); and the managed nodes'
+lifecycle through the lifecycle_msgs services."""
 import math
 import time
 
@@ -16,6 +18,7 @@ from lifecycle_msgs.srv import ChangeState, GetState
 from nav_msgs.msg import Odometry
 from sensor_msgs.msg import LaserScan, PointCloud2
 
+from supersafe_ros.nodes.fleet_safety_filter_node import FleetSafetyFilterNode
 from supersafe_ros.nodes.safety_filter_node import ManagedSafetyFilterNode, SafetyFilterNode
 from supersafe_ros.ros_io import rosmsg
 
@@ -67,11 +70,16 @@ class Stack:
         self.cmd.publish(m)
 
 
-def filter_node(ctx, ns, detections_type='laser_scan', managed=False, **extra):
+def filter_node(ctx, ns, detections_type='laser_scan', managed=False, kind='single', **extra):
+    """The filter of robot ``ns``: a safety_filter_node in its namespace (``single``), or a fleet node in /
+    of it and a second robot (``fleet``: ticks)."""
+    values = dict(pose_type='odometry', detections_type=detections_type, cmd_vel_stamped=True,
+                  level_set_markers=False, rate=20.0, **extra)
+    if kind == 'fleet':
+        return FleetSafetyFilterNode(context=ctx, parameter_overrides=params(
+            robots=[ns.strip('/'), ns.strip('/') + '_idle'], **values))
     cls = ManagedSafetyFilterNode if managed else SafetyFilterNode
-    return cls(context=ctx, namespace=ns, parameter_overrides=params(
-        pose_type='odometry', detections_type=detections_type, cmd_vel_stamped=True, level_set_markers=False,
-        rate=20.0, **extra))
+    return cls(context=ctx, namespace=ns, parameter_overrides=params(**values))
 
 
 def new_state(spin, stack, count, what, **expected):
@@ -80,13 +88,13 @@ def new_state(spin, stack, count, what, **expected):
                15.0, what)
 
 
-@pytest.fixture
+@pytest.fixture(params=['single', 'fleet'])
 def rig(ros_context, request):
     rigs = FilterRigs(ros_context)
 
     def make(ns, detections=LaserScan, **kw):
-        f = filter_node(ros_context, ns, **kw)
-        s = Stack(ros_context, ns, detections)
+        f = filter_node(ros_context, f'{ns}_{request.param}', kind=request.param, **kw)
+        s = Stack(ros_context, f'{ns}_{request.param}', detections)
         return f, s, rigs.add(f, s.node)
     yield make
     rigs.close()
@@ -94,7 +102,7 @@ def rig(ros_context, request):
 
 def occupied_at(f, x, y) -> bool:
     """Whether the filter's local map holds (x, y) occupied (the cell or a neighbour: returns land on edges)."""
-    return len(f.sensor.map.occupied_centres(x, y, 0.1)) > 0
+    return len(f.sensors[0].map.occupied_centres(x, y, 0.1)) > 0
 
 
 def test_a_scan_goes_into_the_map_and_bad_scans_are_refused_until_blind(rig):
@@ -104,7 +112,7 @@ def test_a_scan_goes_into_the_map_and_bad_scans_are_refused_until_blind(rig):
     detections_timeout old, the cause in its reason."""
     f, s, spin = rig('/scan_robot', detections_timeout=0.3)
     spin.until(lambda: matched(s.odom, s.det, s.cmd, *s.subs), 15.0, 'the filter to match')
-    assert f.direct is not None, 'the default path: inputs taken by a thread of their own'
+    assert (f.direct is not None) == (f.mode == 'input'), 'a lone robot\'s inputs taken by a thread of their own'
     ranges = np.full(360, np.inf)
     ranges[170:190] = 4.0                      # a wall 4 m ahead, NaN and beyond-range beams elsewhere
     ranges[10], ranges[20] = np.nan, 50.0
@@ -115,9 +123,9 @@ def test_a_scan_goes_into_the_map_and_bad_scans_are_refused_until_blind(rig):
         s.send_scan(ranges)
         s.send_cmd(1.0)
         spin.until(lambda: len(s.out) > n, 5.0, 'an answer')
-        if f.sensor.worker.latest() is not None and s.out[-1].twist.linear.x == 1.0:
+        if f.sensors[0].worker.latest() is not None and s.out[-1].twist.linear.x == 1.0:
             break
-    m = f.sensor.map
+    m = f.sensors[0].map
     assert occupied_at(f, 4.0, 0.0) and not occupied_at(f, 2.0, 0.0), 'the wall ahead, seen through before it'
     cells = m.occupied_centres(0.0, 0.0, 10.0)
     assert len(cells) == int(np.count_nonzero(m.occupied)) >= 20
@@ -126,9 +134,9 @@ def test_a_scan_goes_into_the_map_and_bad_scans_are_refused_until_blind(rig):
     assert s.out[-1].twist.linear.x == 1.0, 'the planner\'s speed passed'
     assert s.out[-1].header.frame_id == 'base_link'
     # looked, nothing seen (no return in range): fresh; +inf clears nothing (inf_is_valid false): the wall stays
-    t = f.filter.detections.t
+    t = f.filters[0].detections.t
     s.send_scan(np.full(360, np.inf))
-    spin.until(lambda: f.filter.detections.t > t, 5.0, 'an empty scan taken')
+    spin.until(lambda: f.filters[0].detections.t > t, 5.0, 'an empty scan taken')
     assert occupied_at(f, 4.0, 0.0)
     # a scan whose geometry is not finite: refused, logged; blind at detections_timeout, failing safe, said
     n = len(s.states)
@@ -177,9 +185,9 @@ def test_a_costmap_is_one_more_detections_type(rig):
         s.send_cmd(0.5)
         spin.until(lambda: len(s.out) > n, 5.0, 'an answer')
         out = s.out[-1]
-        if f.sensor.worker.latest() is not None and s.states and s.states[-1]['action'] != 'fail_safe':
+        if f.sensors[0].worker.latest() is not None and s.states and s.states[-1]['action'] != 'fail_safe':
             break
-    cells = f.sensor.map.occupied_centres
+    cells = f.sensors[0].map.occupied_centres
     assert len(cells(0.725, 0.025, 0.03)) and not len(cells(0.625, 0.025, 0.03)), 'lethal cells only'
     st = s.states[-1]
     # the robot's rim 0.5 m from the lethal cells, its planner driving straight at them: the map's value turns it
@@ -201,7 +209,7 @@ def test_a_pose_of_another_clock_fails_safe_with_an_error(rig):
     spin.until(lambda: s.rosout.has('safety_filter', 'pose rejected', 'another clock'), 10.0, 'the ERROR')
     # a pose in another frame: refused too
     s.send_pose(frame='odom')
-    spin.until(lambda: "expected 'map'" in f.filter.pose.rejected, 10.0, 'the wrong frame refused')
+    spin.until(lambda: "expected 'map'" in f.filters[0].pose.rejected, 10.0, 'the wrong frame refused')
 
 
 def test_clouds_malformed_or_huge_are_refused_with_bounded_work(rig):
@@ -210,21 +218,21 @@ def test_clouds_malformed_or_huge_are_refused_with_bounded_work(rig):
     rng = np.random.default_rng(0)
     xy = rng.uniform(-4, 4, (100_000, 2))
     for dtype in ('<f4', '>f8'):               # float32 little-endian, float64 big-endian
-        before = f.filter.detections.t
+        before = f.filters[0].detections.t
         s.send_pose()
         s.det.publish(xy_cloud(_header(s), xy, dtype))
-        spin.until(lambda: f.filter.detections.t > before and not f.filter.detections.refused, 15.0,
+        spin.until(lambda: f.filters[0].detections.t > before and not f.filters[0].detections.refused, 15.0,
                    f'a {dtype} cloud of 100k points')
-        assert int(np.count_nonzero(f.sensor.map.occupied)) > 100
+        assert int(np.count_nonzero(f.sensors[0].map.occupied)) > 100
     bad = xy_cloud(_header(s), xy[:10])
     bad.data = bytes(bad.data)[:50]            # shorter than its points
     s.det.publish(bad)
-    spin.until(lambda: 'data' in f.filter.detections.refused, 10.0, 'a malformed cloud refused')
+    spin.until(lambda: 'data' in f.filters[0].detections.refused, 10.0, 'a malformed cloud refused')
     spin.until(lambda: s.rosout.has('safety_filter', 'cloud refused', 'data'), 10.0, 'and logged')
     huge = xy_cloud(_header(s), np.zeros((1, 2)))
     huge.width = 10_000_000                    # claims more points than max_sensor_points: refused unread
     s.det.publish(huge)
-    spin.until(lambda: 'max_points' in f.filter.detections.refused, 10.0, 'a huge cloud refused')
+    spin.until(lambda: 'max_points' in f.filters[0].detections.refused, 10.0, 'a huge cloud refused')
     spin.until(lambda: s.rosout.has('safety_filter', 'cloud refused', '10000000'), 10.0, 'said with its size')
 
 
@@ -235,16 +243,17 @@ def _header(s):
 
 def test_diagnostics_and_a_foreign_type_on_an_input(rig):
     f, s, spin = rig('/diag_robot')
+    ns = f.namespaces[0]
     import rclpy
     ctx = rclpy.Context()                   # a participant of its own: one takes one type per topic
     rclpy.init(context=ctx)
     other = Node('twist_planner', context=ctx)
-    wrong = other.create_publisher(Twist, '/diag_robot/cmd_vel_nav', rosmsg.QOS_STREAM)
-    spin.until(lambda: any(st.name.endswith('/diag_robot') for a in s.diagnostics for st in a.status), 15.0,
+    wrong = other.create_publisher(Twist, f'{ns}/cmd_vel_nav', rosmsg.QOS_STREAM)
+    spin.until(lambda: any(st.name.endswith(ns) for a in s.diagnostics for st in a.status), 15.0,
                '/diagnostics')
     spin.until(lambda: s.rosout.has('safety_filter', 'geometry_msgs/msg/Twist', 'geometry_msgs/msg/TwistStamped'),
                15.0, 'the WARN naming both types')
-    ours = [st for a in s.diagnostics for st in a.status if st.name.endswith('/diag_robot')]
+    ours = [st for a in s.diagnostics for st in a.status if st.name.endswith(ns)]
     assert ours[-1].level[0] >= DiagnosticStatus.WARN[0]
     other.destroy_publisher(wrong)
     other.destroy_node()
@@ -279,7 +288,7 @@ def test_the_managed_filter_publishes_only_while_active(ros_context):
             s.send_pose()
             s.send_scan(np.full(360, np.inf))
             s.send_cmd(1.0)
-            spin.until(lambda: f.filter.pose.value is not None, 5.0, 'inputs taken while inactive')
+            spin.until(lambda: f.filters[0].pose.value is not None, 5.0, 'inputs taken while inactive')
         assert f.decisions == 0 and not s.out, 'inactive: no cmd_vel'
         transition(Transition.TRANSITION_ACTIVATE)
         assert label() == 'active'
@@ -287,7 +296,7 @@ def test_the_managed_filter_publishes_only_while_active(ros_context):
         transition(Transition.TRANSITION_DEACTIVATE)
         n = f.decisions
         s.send_cmd(1.0)
-        spin.until(lambda: f.filter.command.t > 0, 5.0, 'a command taken while inactive')
+        spin.until(lambda: f.filters[0].command.t > 0, 5.0, 'a command taken while inactive')
         assert f.decisions == n
         transition(Transition.TRANSITION_CLEANUP)
         assert label() == 'unconfigured'
@@ -308,7 +317,8 @@ def test_the_managed_fleet_filter_says_each_robot_on_diagnostics_once_configured
     watcher = Node('fleet_watcher', context=ros_context)
     arrays, out = [], []
     watcher.create_subscription(DiagnosticArray, '/diagnostics', arrays.append, rosmsg.QOS_EVERY_SAMPLE)
-    cmd = watcher.create_subscription(Twist, '/fm_0/cmd_vel', out.append, rosmsg.QOS_EVERY_SAMPLE)
+    # (robots resolved as topic names are: in the node's namespace)
+    cmd = watcher.create_subscription(Twist, '/fleet_m/fm_0/cmd_vel', out.append, rosmsg.QOS_EVERY_SAMPLE)
     spin = Spinner(ros_context, f, watcher)
     change = watcher.create_client(ChangeState, '/fleet_m/fleet_safety_filter/change_state')
 
@@ -331,7 +341,8 @@ def test_the_managed_fleet_filter_says_each_robot_on_diagnostics_once_configured
 
         def inactive():        # (an array sent before the configure may still come after it)
             return [st for st in ours(configured) if st.message.startswith('inactive (lifecycle state inactive)')]
-        spin.until(lambda: {st.hardware_id for st in inactive()} == {'/fm_0', '/fm_1'}, 15.0, 'a status per robot')
+        spin.until(lambda: {st.hardware_id for st in inactive()} == {'/fleet_m/fm_0', '/fleet_m/fm_1'}, 15.0,
+                   'a status per robot')
         assert not out, 'inactive: no cmd_vel'
         assert all(st.level == DiagnosticStatus.WARN for st in inactive())
         transition(Transition.TRANSITION_ACTIVATE)

@@ -8,7 +8,9 @@ with no collision, never faster than the planner asked, and where the planner's 
 by the robot's radius + 0.3 m, within 1.25 times the planner's own time with no turning in place;
 and a robot facing a wall it has seen while each faulty input comes: no collision, the cause in a
 log line and on /diagnostics, and zero twists where the robot can stop. The messages the harness
-sends, faults included, are checked without nodes."""
+sends, faults included, are checked without nodes. Each on both nodes: the managed safety_filter_node
+(decided on its inputs) and a managed fleet_safety_filter_node of the robot and an idle second one
+(decided on ticks)."""
 import math
 
 import numpy as np
@@ -31,44 +33,51 @@ def never_touched_nor_sped(r):
     return f
 
 
+NODES = pytest.mark.parametrize('fleet', [False, True], ids=['single', 'fleet'])
+
+
 @pytest.mark.ros
 @pytest.mark.slow
-def test_through_a_door_past_a_box_corner_and_posts_of_three_sizes(ros_context):
+@NODES
+def test_through_a_door_past_a_box_corner_and_posts_of_three_sizes(ros_context, fleet):
     """The issue's world: a wall with a 1.2 m door (robot radius 0.25), a box turned 45 degrees with
     its corner toward the robot, posts of three sizes; the filter as config/nav2_safety_filter.yaml
     sets it: no collision with anything the scan saw, through the door, never faster than asked,
     and never turning in place (nothing blocks every speed on the planner's path)."""
     scenario = uw.scenario('combined')
     assert len({r for _, _, r in scenario.world.discs}) == 3 and scenario.world.polygons and scenario.world.walls
-    r = trips.run_trip(ros_context, 'combined', max_time=TRIP_TIME)
+    r = trips.run_trip(ros_context, 'combined', max_time=TRIP_TIME, fleet=fleet)
     f = never_touched_nor_sped(r)
     assert r.reached, f'not through the door in {TRIP_TIME} s: {f}'
     assert f['ratio'] <= PLANNERS_TIME, f
     assert f['turning_time'] == 0.0, f
-    assert any(d[2].startswith('/safety_filter') for d in r.diagnostics), r.diagnostics[:3]
+    node = '/fleet_safety_filter' if fleet else '/safety_filter'
+    assert any(d[2].startswith(node) for d in r.diagnostics), r.diagnostics[:3]
 
 
 @pytest.mark.ros
 @pytest.mark.slow
 @pytest.mark.parametrize('name', ['open_field', 'lane', 'door'])
-def test_a_trip_clear_of_everything_takes_about_the_planners_time(ros_context, name):
+@NODES
+def test_a_trip_clear_of_everything_takes_about_the_planners_time(ros_context, name, fleet):
     """Trips whose planner path keeps clear of every obstacle by the robot's radius + 0.3 m (the lane's
     by more, the door's centre line by 0.35 m): at most 1.25 times the planner's own time, no turning
     in place (each trip once took 2 to more than 3 times it, circling at the door)."""
     scenario = uw.scenario(name)
     assert scenario.path_clearance >= 0.3 - 1e-9, scenario.path_clearance
-    r = trips.run_trip(ros_context, name, max_time=TRIP_TIME)
+    r = trips.run_trip(ros_context, name, max_time=TRIP_TIME, fleet=fleet)
     f = never_touched_nor_sped(r)
     assert r.reached and f['ratio'] <= PLANNERS_TIME, f
     assert f['turning_time'] == 0.0, f
 
 
 @pytest.mark.ros
-def test_with_nothing_in_the_way_the_trip_is_the_planners_own(ros_context):
+@NODES
+def test_with_nothing_in_the_way_the_trip_is_the_planners_own(ros_context, fleet):
     # the harness adds no delay: each command is passed and applied over its own step
     empty = uw.Scenario('empty', uw.World(), (0.0, 0.0, 0.0), ((0.0, 0.0), (2.0, 0.0), (2.0, 1.5)), (2.0, 1.5),
                         math.inf)
-    r = trips.run_trip(ros_context, empty, max_time=20.0, ns='/robot_0')
+    r = trips.run_trip(ros_context, empty, max_time=20.0, ns='/robot_0_fleet' if fleet else '/robot_0', fleet=fleet)
     assert r.reached and r.time == pytest.approx(uw.planner_time(empty), abs=1e-9)
     assert np.array_equal(r.sent, r.asked), 'every command passed unchanged'
     assert set(r.actions[1:]) == {'pass'}
@@ -95,7 +104,9 @@ FAULT_CASES = [
 @pytest.mark.ros
 @pytest.mark.slow
 @pytest.mark.parametrize('fault, detections, said, stops', FAULT_CASES, ids=[c[0] for c in FAULT_CASES])
-def test_a_faulty_input_never_drives_the_robot_into_a_wall_it_has_seen(ros_context, fault, detections, said, stops):
+@NODES
+def test_a_faulty_input_never_drives_the_robot_into_a_wall_it_has_seen(ros_context, fault, detections, said, stops,
+                                                                       fleet):
     """Faulty or spoofed input while the planner drives at a wall 1.5 m ahead that good scans have shown:
     no collision; the cause in a log line of the filter and on /diagnostics; where the filter can no
     longer judge (blind, or nothing to pass) zero twists from then on, at the watchdog's rate; where it
@@ -104,7 +115,7 @@ def test_a_faulty_input_never_drives_the_robot_into_a_wall_it_has_seen(ros_conte
     # a namespace of its own: the /rosout lines of each test's filter under a logger name of their own (a
     # second node of one name in a process shares the first's rosout publisher)
     graph = trips.TripGraph(ros_context, 'facing_wall', fault=fault, fault_step=25, detections=detections,
-                            ns=f'/{fault}')
+                            ns=f'/{fault}{"_fleet" if fleet else ""}', fleet=fleet)
     try:
         r = graph.run(max_time=4.0)     # at 0.5 m/s the wall is reached in 2.5 s without the filter
         assert r.figures()['collisions'] == 0 and r.figures()['least_clearance'] > 0.0, r.figures()

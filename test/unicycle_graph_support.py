@@ -83,6 +83,7 @@ BEAMS, RANGE_MIN, RANGE_MAX = 360, 0.05, 8.0
 LASER_MOUNT = (0.1, 0.0, 0.0)        # base_link -> laser (x, y, yaw), as config/nav2_safety_filter.yaml
 SPOOF_RATE = 30.0         # Hz of sim time
 PLANNER_FRAME = 'base_link'   # the planner's commands' header frame
+HARNESS_CALLBACKS = 8         # the harness's callbacks run per turn of the filter's executor
 START_TIME = 1.0          # s: sim time at step 0 (ROS time 0 reads as "no /clock" to the filter)
 TURNING_V, TURNING_W = 0.01, 0.05    # turning in place: |v| below, |w| above
 SCAN_FAULTS = ('scan_nan', 'scan_neg_inf', 'scan_negative', 'scan_range_min_above_max', 'scan_angle_increment_0')
@@ -215,7 +216,8 @@ class TripGraph:
     """The graph of the module for one trip of ``scenario`` (a name or an own_simulator().Scenario)."""
 
     def __init__(self, ctx, scenario, *, fault=None, fault_step=0, detections='scan', ns='',
-                 filter_overrides=None, params_file=None, deadline=20.0, planner_config=None, start=None):
+                 filter_overrides=None, params_file=None, deadline=20.0, planner_config=None, start=None,
+                 fleet=False):
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.node import Node
         from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
@@ -235,6 +237,7 @@ class TripGraph:
         self.ns = ns.rstrip('/')
         qos = _qos()
         self.ctx = ctx
+        self.fleet = fleet
         self.filter = self._make_filter(ctx, detections, filter_overrides or {}, params_file)
         sim = _params(use_sim_time=True)
         self.robot = Node('unicycle_robot', namespace=self.ns or '/', context=ctx, parameter_overrides=sim)
@@ -276,7 +279,9 @@ class TripGraph:
         # answered it with a decision on the previous command (seen after a garbage collection)
         self.filter_executor = SingleThreadedExecutor(context=ctx)
         self.filter_executor.add_node(self.filter)
-        self.answers_on_executor = any(sub.topic_name.endswith('/cmd_vel_nav') for sub in self.filter.subscriptions)
+        # a filter that takes cmd_vel_nav itself, or decides on a tick of its executor's (decide_on tick)
+        takes_commands = any(sub.topic_name.endswith('/cmd_vel_nav') for sub in self.filter.subscriptions)
+        self.answers_on_executor = takes_commands or getattr(self.filter, 'mode', None) == 'tick'
         self.state_xy = np.asarray(self.scenario.start, dtype=float)
         self.t0_ns = int(round(START_TIME * 1e9))
         self.records = dict(poses=[], asked=[], sent=[], actions=[], reasons=[])
@@ -297,15 +302,22 @@ class TripGraph:
         body = bodies[0]
         self.file_parameters = dict(body['ros__parameters'])
         self.params_file = path
-        if self.ns:        # the file names a node of the root namespace: the same parameters for ours
+        cls, name = ManagedSafetyFilterNode, 'safety_filter'
+        values = dict(use_sim_time=True, **({'detections_type': 'point_cloud2'} if detections == 'cloud' else {}))
+        if self.fleet:
+            # a fleet node of this robot and an idle second one, deciding both on ticks (at 100 Hz: a
+            # step waits for the next tick)
+            from supersafe_ros.nodes.fleet_safety_filter_node import ManagedFleetSafetyFilterNode
+            cls, name = ManagedFleetSafetyFilterNode, 'fleet_safety_filter'
+            values.update(robots=['', 'idle'], rate=100.0)
+        if self.ns or self.fleet:        # the file names safety_filter in the root namespace: the same for ours
             self._tmp = tempfile.NamedTemporaryFile('w', suffix='.yaml', prefix='trip_params_')
-            yaml.safe_dump({f'{self.ns}/safety_filter': body}, self._tmp)
+            yaml.safe_dump({f'{self.ns}/{name}': body}, self._tmp)
             self._tmp.flush()
             path = Path(self._tmp.name)
         topic = 'cloud' if detections == 'cloud' else 'scan'
-        values = dict(use_sim_time=True, **({'detections_type': 'point_cloud2'} if detections == 'cloud' else {}))
         values.update(overrides)
-        node = ManagedSafetyFilterNode(
+        node = cls(
             context=ctx, namespace=self.ns or '/',
             cli_args=['--ros-args', '--params-file', str(path), '-r', 'pose:=odom', '-r', f'detections:={topic}'],
             parameter_overrides=_params(**values))
@@ -353,7 +365,12 @@ class TripGraph:
                                 self.result())
             if filter_too:
                 self.filter_executor.spin_once(timeout_sec=0.005)
-                self.executor.spin_once(timeout_sec=0.0)
+                # what came meanwhile, a few callbacks of it (a filter deciding on ticks sends a cmd_vel each
+                # tick: one callback a turn fell behind them, answers 150 ms late)
+                for _ in range(HARNESS_CALLBACKS):
+                    self.executor.spin_once(timeout_sec=0.0)
+                    if condition():
+                        return
             else:
                 self.executor.spin_once(timeout_sec=0.01)
 

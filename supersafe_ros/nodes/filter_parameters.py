@@ -1,17 +1,28 @@
-"""The parameters both filter nodes share: one table, read in one place, live ones kept current.
+"""The filter node's parameters: one table, read in one place, live ones kept current.
 
-``FILTER_PARAMETERS`` lists each parameter with its description and range. The
-defaults of ``FilterConfig``'s fields (speed, omega_max, radius, the timeouts,
-margins, lookahead, control period) are read from ``FilterConfig`` itself, so they
-have one source; config/safety_filter.yaml and config/fleet_safety_filter.yaml
-repeat every default (test/test_nodes_filter_parameters.py fails when they drift).
+``PARAMETERS`` is every parameter of the filter node (safety_filter_node; fleet_safety_filter_node
+is the same node under another name), each with its description and range, in the order declared:
 
-``FilterParameters(node)`` declares them and holds their values (the config, the
-standard set's grid, the levels, rates and limits). ``keep_current(lock, effects)``
-registers the live ones (``live``: take effect when set at run time; the rest are
-read-only): a set is first checked (``check``: would ``FilterConfig`` take it?), then
-applied under ``lock``: the value is stored here, then ``effects[name](value)`` puts
-it into force (``effects['config'](config)`` for a new ``FilterConfig``).
+* ``FILTER_PARAMETERS``: the filter itself (the true dynamics, levels, timeouts, rates, the
+  standard set's grid). The defaults of ``FilterConfig``'s fields (speed, omega_max, radius, the
+  timeouts, margins, lookahead, control period) are read from ``FilterConfig`` itself, so they
+  have one source;
+* ``ROBOT_PARAMETERS``: which robots, on which topics, decided when (``robots``,
+  ``per_robot_topics``, ``batched_topics``, ``decide_on``), the lockstep and the level-set markers;
+* ``TYPE_PARAMETERS``: the message types a robot's stack sends (``pose_type``, ``detections_type``,
+  ``cmd_vel_stamped``, ``require_detections``);
+* ``MAP_PARAMETERS``: for a range sensor or a costmap, its mount, its local map and the map's value.
+
+config/safety_filter.yaml, config/fleet_safety_filter.yaml repeat every default
+(test/test_nodes_filter_parameters.py fails when they drift).
+
+``FilterParameters(node)`` declares them all and holds their values (``values``, by name; the
+config, the standard set's grid, the levels, rates and limits as attributes; ``robots`` resolved
+and the decision trigger, ``mode``). ``keep_current(lock, effects)`` registers the live ones
+(``live``: take effect when set at run time; the rest are read-only): a set is first checked
+(``check``: would ``FilterConfig`` take it?), then applied under ``lock``: the value is stored
+here, then ``effects[name](value)`` puts it into force (``effects['config'](config)`` for a new
+``FilterConfig``).
 """
 from __future__ import annotations
 
@@ -85,8 +96,8 @@ FILTER_PARAMETERS = (
     # staleness, fail safe, hysteresis, lookahead
     *CONFIG_PARAMETERS,
     # output and limits
-    ParameterSpec('rate', 50.0, 'decision rate [Hz, steady clock]: watchdog (one robot) or tick (fleet)',
-                  0.1, 1000.0, live=True),
+    ParameterSpec('rate', 50.0, 'decision rate [Hz, steady clock]: the watchdog (decide_on input) or the tick '
+                  '(decide_on tick)', 0.1, 1000.0, live=True),
     ParameterSpec('state_rate', 10.0, 'most state messages per second and robot while the action does not '
                   'change [Hz]', 0.1, 1000.0, live=True),
     ParameterSpec('max_value_function_bytes', 64 * 1024 * 1024,
@@ -94,8 +105,8 @@ FILTER_PARAMETERS = (
                   live=True),
     ParameterSpec('clock_stall_timeout', 2.0, 'with use_sim_time: ROS time standing still longer than this '
                   '[steady s] counts as stopped, and ages follow the wall clock', 0.01, 600.0, live=True),
-    ParameterSpec('take_path', 'private', 'how the inputs taken off the executor (the value function; one '
-                  'robot\'s pose, detections and cmd_vel_nav with direct_take) are taken: private = an rcl wait '
+    ParameterSpec('take_path', 'private', 'how the inputs taken off the executor (the value function; the '
+                  'robots\' pose, detections and cmd_vel_nav with direct_take) are taken: private = an rcl wait '
                   'set of their own and the value function copied without the GIL (rclpy\'s private '
                   '_rclpy.WaitSet, rcl through ctypes; falls back to public with a WARN when rclpy lacks them); '
                   'public = the helper node spun by a SingleThreadedExecutor of its own (bench/results/take.md)'),
@@ -109,6 +120,135 @@ FILTER_PARAMETERS = (
                   0.0, 1000.0),
     *STAMP_PARAMETERS,
 )
+
+
+POSE_TYPES = ('pose_stamped', 'odometry', 'pose_with_covariance')
+DETECTIONS_TYPES = ('pose_array', 'marker_array', 'laser_scan', 'point_cloud2', 'occupancy_grid')
+RANGE_SENSORS = ('laser_scan', 'point_cloud2')
+MAP_SENSORS = RANGE_SENSORS + ('occupancy_grid',)     # the detections kept in a local map
+DECIDE_ON = ('auto', 'input', 'tick')
+INPUT, TICK = 'input', 'tick'                         # the decision triggers (``FilterParameters.mode``)
+
+# which robots, on which topics, decided when
+ROBOT_PARAMETERS = (
+    ParameterSpec('robots', [''], 'the robots this node filters, each the namespace of its topics, resolved as '
+                  'a topic name is (\'robot_0\': <node namespace>/robot_0/pose; \'/robot_0\': absolute); \'\' = '
+                  'this node\'s own namespace (one robot); row i of the batched topics is robots[i]'),
+    ParameterSpec('per_robot_topics', True, 'serve each robot\'s own topics: <robot>/pose, <robot>/detections, '
+                  '<robot>/cmd_vel_nav -> <robot>/cmd_vel, <robot>/safety_filter/state, <robot>/safety_filter/ready'),
+    ParameterSpec('batched_topics', False, 'serve fleet/poses, fleet/detections, fleet/cmd_vel_nav -> '
+                  'fleet/cmd_vel, fleet/safety_filter/state (one message a tick for every robot)'),
+    ParameterSpec('decide_on', 'auto', f'when a robot is decided, one of {DECIDE_ON}: input = at once on each '
+                  'planner command and range-sensor message (each pose too with publish_on_pose or lockstep), that '
+                  'robot alone, and by a watchdog at rate when nothing went out; tick = every robot at once at rate '
+                  '(and on each fleet/poses), on the newest of each input: the most robots per core, a decision '
+                  'waiting up to 1/rate; auto = input for one robot on its own topics, tick otherwise'),
+    ParameterSpec('publish_on_pose', False, 'decide_on input: also decide and publish on every pose (not in a '
+                  'lockstep graph)', live=True),
+    ParameterSpec('lockstep', False, 'the robots are lockstepped (sim_clock_node): answer each pose once, on '
+                  'that pose; planner commands and the watchdog do not publish (decide_on input)'),
+    ParameterSpec('lockstep_silence', 2.0, 'lockstep: the watchdog publishes only after this long without '
+                  'a pose [steady s]', 0.01, 3600.0),
+    ParameterSpec('cluster_hold_timeout', 0.0, 'lockstep: hold the answer to a pose while a cluster\'s union '
+                  'value is being solved, at most this long [steady s]; 0 = never hold (the fallback acts)',
+                  0.0, 600.0),
+    ParameterSpec('direct_take', True, 'decide_on input: pose, detections and cmd_vel_nav are taken by a thread '
+                  'of their own that waits on them alone, off the executor\'s wake-up over every entity: about '
+                  '0.3 ms less from pose to cmd_vel; false = the executor takes them. Not with lockstep (there a '
+                  'pose must be read after the /clock before it)'),
+    ParameterSpec('level_set_rate', 2.0, 'rate of <robot>/safety_filter/level_set markers [Hz, steady clock]',
+                  0.1, 50.0),
+    ParameterSpec('level_set_markers', True, 'publish the level set in force at each robot\'s heading around '
+                  'each detected obstacle on <robot>/safety_filter/level_set (LINE_STRIPs, for RViz; computed only '
+                  'while someone listens)'),
+)
+
+# the message types a robot's stack sends (nodes/filter_sources.py reads them)
+TYPE_PARAMETERS = (
+    ParameterSpec('pose_type', 'pose_stamped', f'message on pose: one of {POSE_TYPES}'),
+    ParameterSpec('detections_type', 'pose_array', f'message on detections: one of {DETECTIONS_TYPES} '
+                  '(pose_array: centres of radius; marker_array: CYLINDER discs of their own radius; '
+                  'laser_scan / point_cloud2: returns in the sensor\'s frame, kept in a local map; '
+                  'occupancy_grid: a costmap in frame_id, kept in the local map)'),
+    ParameterSpec('cmd_vel_stamped', False, 'cmd_vel_nav and cmd_vel are geometry_msgs/TwistStamped (false: '
+                  'Twist)'),
+    ParameterSpec('require_detections', True, 'fail safe until detections arrive and whenever they are stale; '
+                  'false = a robot without an obstacle sensor: every pose comes with "no obstacle" and '
+                  'detections is not subscribed'),
+)
+# a range sensor's or a costmap's local map and its value (nodes/filter_sources.py: SensorMap)
+MAP_PARAMETERS = (
+    ParameterSpec('robot_radius', 0.3, 'laser_scan / point_cloud2 / occupancy_grid: the robot\'s own radius: it '
+                  'keeps this far from every occupied cell of its local map [m]', 0.0, 100.0),
+    ParameterSpec('sensor_x', 0.0, 'laser_scan / point_cloud2: the sensor\'s x in the robot\'s frame [m]',
+                  -100.0, 100.0),
+    ParameterSpec('sensor_y', 0.0, 'laser_scan / point_cloud2: the sensor\'s y in the robot\'s frame [m]',
+                  -100.0, 100.0),
+    ParameterSpec('sensor_yaw', 0.0, 'laser_scan / point_cloud2: the sensor\'s yaw in the robot\'s frame '
+                  '[rad]', -7.0, 7.0),
+    ParameterSpec('obstacle_depth', 0.0, 'laser_scan / point_cloud2: each return also marks its beam this far '
+                  'behind it in the local map (the far side the sensor cannot see; a beam that later passes '
+                  'there clears it; 0 = the surface alone) [m]', 0.0, 100.0),
+    ParameterSpec('inf_is_valid', False, 'laser_scan: a +inf range is a beam that saw nothing up to range_max '
+                  'and clears its cells (as Nav2\'s obstacle layer); false: it clears nothing (REP 117 leaves '
+                  'it to the driver)'),
+    ParameterSpec('map_cell', 0.05, 'laser_scan / point_cloud2 / occupancy_grid: the local map\'s cell side [m]',
+                  0.005, 10.0),
+    ParameterSpec('map_size', 10.0, 'the local map\'s window side, centred on the robot and moved with it '
+                  '(what leaves it is forgotten) [m]', 0.5, 1000.0),
+    ParameterSpec('value_cell', 0.0, 'the local map\'s value: its grid\'s spacing [m]; 0 = (value_reach + speed '
+                  'x horizon) / 28 in whole map cells, about 60 x 60 nodes a heading (0.1 m for 0.5 m/s over 3 s)',
+                  0.0, 10.0),
+    ParameterSpec('value_headings', 32, 'the local map\'s value: headings of its grid', 8, 256),
+    ParameterSpec('value_horizon', 0.0, 'the local map\'s value: its horizon [s] (0 = standard_horizon; a fast '
+                  'robot\'s window grows with speed x horizon)', 0.0, 60.0),
+    ParameterSpec('value_reach', 1.0, 'the local map\'s value: how far the robot may go from the solved window\'s '
+                  'centre with its value sound (it is solved around the robot again once 0.5 m away) [m]', 0.1, 100.0),
+    ParameterSpec('value_period', 0.5, 'the local map\'s value is solved again (in the background) at most every '
+                  'this many seconds of the filter\'s time while the map changes, and not while inactive', 0.0, 60.0),
+    ParameterSpec('occupied_threshold', 100, 'occupancy_grid: a cell of at least this value is occupied, 0 .. '
+                  'this - 1 free, -1 unknown (leaves what the map held; Nav2\'s costmap: 100 lethal, 99 '
+                  'inscribed)', 1, 100),
+    ParameterSpec('max_sensor_points', 1_000_000, 'laser_scan / point_cloud2 / occupancy_grid: a message with more '
+                  'beams, points or cells is refused unread (the map stays as it was) [points]', 1, 100_000_000),
+)
+
+# every parameter of the filter node, in the order declared
+PARAMETERS = FILTER_PARAMETERS + ROBOT_PARAMETERS + TYPE_PARAMETERS + MAP_PARAMETERS
+
+
+def robot_namespaces(own: str, robots) -> list:
+    """Each entry of ``robots`` resolved as a namespace is, against the node's namespace ``own``
+    ('robot_0' in '/': '/robot_0'; '/robot_0' absolute; '' the node's own). ValueError for none,
+    or a namespace listed twice."""
+    out = []
+    for entry in robots:
+        name = str(entry).strip()
+        if name.startswith('/'):
+            out.append('/' + name.strip('/'))
+        elif name.strip('/'):
+            out.append(own.rstrip('/') + '/' + name.strip('/'))
+        else:
+            out.append(own)
+    if not out:
+        raise ValueError('robots is empty: name at least one robot (\'\' = this node\'s own namespace)')
+    if len(set(out)) != len(out):
+        raise ValueError(f'robots lists a namespace twice: {out}')
+    return out
+
+
+def decision_mode(decide_on: str, robots: int, per_robot_topics: bool, batched_topics: bool) -> str:
+    """INPUT or TICK (see ``decide_on``'s description): ``auto`` is INPUT for one robot on its own
+    topics alone; ``input`` needs per-robot topics and no batched ones (a fleet/poses message is a
+    tick of every robot). ValueError for a choice that does not hold."""
+    if decide_on not in DECIDE_ON:
+        raise ValueError(f'decide_on {decide_on!r} is not one of {DECIDE_ON}')
+    if decide_on == 'auto':
+        return INPUT if robots == 1 and per_robot_topics and not batched_topics else TICK
+    if decide_on == INPUT and (batched_topics or not per_robot_topics):
+        raise ValueError('decide_on input decides a robot on its own topics\' inputs: it needs per_robot_topics '
+                         'true and batched_topics false (a fleet/poses message is a tick of every robot)')
+    return decide_on
 
 
 def check_config_field(config: FilterConfig, name: str, value) -> str | None:
@@ -126,7 +266,7 @@ class FilterParameters:
 
     def __init__(self, node):
         self._node = node
-        v = declare_all(node, FILTER_PARAMETERS)
+        self.values = v = declare_all(node, PARAMETERS)
         self.standard_alpha = v['standard_alpha']
         self.alpha_offset = v['alpha_offset']
         self.use_learned = v['use_learned']
@@ -147,6 +287,19 @@ class FilterParameters:
         self.take_path = v['take_path']
         if self.take_path not in TAKE_PATHS:
             raise ValueError(f'take_path must be one of {", ".join(TAKE_PATHS)}, got {self.take_path!r}')
+        if v['pose_type'] not in POSE_TYPES:
+            raise ValueError(f"pose_type {v['pose_type']!r} is not one of {POSE_TYPES}")
+        if v['detections_type'] not in DETECTIONS_TYPES:
+            raise ValueError(f"detections_type {v['detections_type']!r} is not one of {DETECTIONS_TYPES}")
+        self.robots = robot_namespaces(node.get_namespace(), v['robots'])
+        self.per_robot_topics, self.batched_topics = v['per_robot_topics'], v['batched_topics']
+        if not (self.per_robot_topics or self.batched_topics):
+            raise ValueError('per_robot_topics and batched_topics are both false: no topic to filter')
+        self.mode = decision_mode(v['decide_on'], len(self.robots), self.per_robot_topics, self.batched_topics)
+        self.lockstep = v['lockstep']
+        if self.lockstep and self.mode != INPUT:
+            raise ValueError('lockstep answers each robot\'s pose on that pose: it needs decide_on input (one robot '
+                             'on its own topics with auto)')
 
     def keep_current(self, lock, effects: dict) -> LiveParameters:
         """Register every live parameter (and use_sim_time); ``effects``: name -> what puts a

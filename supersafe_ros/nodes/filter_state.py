@@ -7,8 +7,10 @@
   ERROR fail_safe, the decision's record plus the set update (``set_update``,
   ``set_update_reason``, counts), the time base and the cluster solves that failed (each one
   logged once), those shared by every robot of a tick read once (``shared_values``);
-* ``StateThrottle`` / ``FleetThrottle``: when a robot's state is due (every change of
-  action or set update, else at ``state_rate`` on a fixed phase);
+* ``StateThrottle``: when each robot's state is due (every change of action or set update,
+  else at ``state_rate`` on a fixed phase);
+* ``Story``: the robots' fail-safe states and planners' silences in the log, a line per kind of
+  change;
 * ``Complaints.complain(kind, text)``: the same kind of complaint logged at most every
   ``LOG_THROTTLE_S``;
 * ``HoldSummary``: lockstep answers held for a cluster solve, one INFO line every
@@ -18,12 +20,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 import math
-from operator import ne
 import time
 
-import numpy as np
-
-from ..filter import default_cluster_store
+from ..filter import FAIL_SAFE, default_cluster_store
+from ..filter.commands import command_fresh
 
 LOG_THROTTLE_S = 2.0   # the same kind of complaint at most this often
 HOLD_SUMMARY_S = 30.0  # steady seconds between summaries of held steps
@@ -142,44 +142,108 @@ class StateReporter:
 
 
 class StateThrottle:
-    """When to publish a robot's state: on every change of action or set update, and every
-    ``period`` on a fixed phase (``phase`` in [0, 1) of a period), so that a fleet's periodic
-    states are spread over the period instead of all falling on one tick."""
+    """When each of a node's n robots' state is due: on every change of its action or of the set
+    update, and every ``period`` on a fixed phase (robot i on phase i / n, so that a fleet's periodic
+    states are spread over the period instead of all falling on one tick). Plain lists and one loop
+    over the robots decided (a numpy pass costs a lone robot more than its whole check)."""
 
     __slots__ = ('t', 'action', 'update')
 
-    def __init__(self, phase=0.0, now=None, period=1.0):
-        self.t = -math.inf if now is None else now - period * (1.0 - phase)
-        self.action, self.update = None, None
-
-    def due(self, now, action, update, period) -> bool:
-        changed = action != self.action or update is not self.update
-        self.action, self.update = action, update
-        if now - self.t >= period:
-            # keep the phase; restart it after a long pause (or at start)
-            self.t = self.t + period if now - self.t < 2.0 * period else now
-            return True
-        return changed
-
-
-class FleetThrottle:
-    """``StateThrottle`` for a fleet's n robots at once (robot i on phase i / n), as arrays: the
-    same rule and the same arithmetic, without a call per robot each tick."""
-
     def __init__(self, n, now, period):
-        self.t = now - period * (1.0 - np.arange(n) / n)
-        self.action, self.update = [None] * n, None
+        self.t = [now - period * (1.0 - i / n) for i in range(n)]
+        self.action, self.update = [None] * n, [None] * n
 
-    def due(self, now, actions, update, period) -> list:
-        """The robots (indices) whose state is due, given every robot's action now."""
-        n = len(self.t)
-        changed = np.fromiter(map(ne, actions, self.action), dtype=bool, count=n)
-        if update is not self.update:
-            changed[:] = True
-        self.action, self.update = list(actions), update
-        late = now - self.t >= period
-        if late.any():
-            t = self.t[late]
-            # keep the phase; restart it after a long pause (or at start)
-            self.t[late] = np.where(now - t < 2.0 * period, t + period, now)
-        return np.flatnonzero(late | changed).tolist()
+    def due(self, now, rows, actions, update, period) -> list:
+        """The robots of ``rows`` (indices, ``actions`` theirs in order) whose state is due at ``now``."""
+        out = []
+        t, last, updates = self.t, self.action, self.update
+        for i, action in zip(rows, actions):
+            changed = action != last[i] or update is not updates[i]
+            last[i], updates[i] = action, update
+            since = now - t[i]
+            if since >= period:
+                # keep the phase; restart it after a long pause (or at start)
+                t[i] = t[i] + period if since < 2.0 * period else now
+                out.append(i)
+            elif changed:
+                out.append(i)
+        return out
+
+
+class Story:
+    """What a node says of its robots' fail-safe states and planners in its log: one line per kind
+    of change per decision, not one per decision (``tell``): quiet while starting (the node said
+    once that it waits), INFO once a robot's inputs are valid, ERROR when they are lost, INFO when
+    back; a planner gone silent (a robot that can stop is sent zero twists) and speaking again, once
+    per silence. A node of one robot says that robot's reason; of a fleet, how many robots and which
+    (the first five), with the first one's reason."""
+
+    def __init__(self, log, names):
+        self.log, self.names = log, list(names)
+        n = len(self.names)
+        self.failing = [None] * n          # None: starting; True: failing safe; False: filtering
+        self.waiting_told = [False] * n    # starting: why it fails safe, said once
+        self.silent = [False] * n          # the planner's silence said
+
+    def who(self, rows) -> str:
+        """'' for a node of one robot; ' for K robot(s) (names)' for a fleet's."""
+        if len(self.names) == 1:
+            return ''
+        shown = ', '.join(self.names[i] for i in rows[:5])
+        return f' for {len(rows)} robot(s) ({shown}{", ..." if len(rows) > 5 else ""})'
+
+    def tell(self, rows, decisions, filters, t) -> None:
+        """After ``decisions`` of the robots ``rows`` (their ``filters``, in order) at filter time ``t``."""
+        started, waiting, lost, back, silent, speaking = [], [], [], [], [], []
+        failing_before, told, said_silent = self.failing, self.waiting_told, self.silent
+        for k, (i, action) in enumerate(zip(rows, decisions.action)):
+            failing = action == FAIL_SAFE
+            before = failing_before[i]
+            if before is None:
+                if not failing:
+                    failing_before[i] = False
+                    started.append(k)
+                elif not told[i] and filters[k].pose.value is not None:
+                    told[i] = True        # a pose to answer, but not yet what it takes: why, once
+                    waiting.append(k)
+            elif failing != before:
+                failing_before[i] = failing
+                (lost if failing else back).append(k)
+            f = filters[k]
+            command = f.command
+            if command.value is not None and not f.config.constant_speed:
+                fresh = command_fresh(f, t)
+                if not fresh and not command.rejected and not said_silent[i]:
+                    said_silent[i] = True
+                    silent.append(k)
+                elif fresh and said_silent[i]:
+                    said_silent[i] = False
+                    speaking.append(k)
+        rows = list(rows)
+        if started:
+            self._say('info', 'inputs valid', started, rows, decisions, 'filtering ({})')
+        if waiting:
+            self._say('info', 'failing safe until the inputs are valid', waiting, rows, decisions, '{}', reason=True)
+        if lost:
+            self._say('error', 'failing safe', lost, rows, decisions, '{}', reason=True)
+        if back:
+            self._say('info', 'inputs valid again', back, rows, decisions, 'filtering ({})')
+        if silent:
+            timeout = filters[silent[0]].config.cmd_timeout
+            self._say('info', f'planner silent for more than cmd_timeout ({timeout:g} s)', silent, rows, None,
+                      'sending zero twists until it speaks')
+        if speaking:
+            self._say('info', 'planner speaking again', speaking, rows, None, '')
+
+    def _say(self, level, what, ks, rows, decisions, detail, reason=False):
+        first = decisions[ks[0]] if decisions is not None else None
+        if first is not None:
+            detail = detail.format(first.reason if reason else f'{first.action}: {first.reason}')
+            if len(self.names) > 1:
+                detail = f'the first: {detail}'
+        text = f'{what}{self.who([rows[k] for k in ks])}' + (f': {detail}' if detail else '')
+        # rclpy ties a severity to each call site: one call per level
+        if level == 'error':
+            self.log.error(text)
+        else:
+            self.log.info(text)

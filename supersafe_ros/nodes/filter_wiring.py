@@ -1,8 +1,8 @@
-"""What safety_filter_node and fleet_safety_filter_node share, put together (no node here).
+"""The filter node's shared parts, put together (no node here).
 
-``FilterWiring(node, names)`` gives a node:
+``FilterWiring(node, params, names)`` gives a node, from its parameters (``filter_parameters``):
 
-* every shared filter parameter (``filter_parameters``), the live ones in force when set;
+* the live parameters in force when set;
 * one ``RobotFilter`` per robot name, all sharing the live ``FilterConfig``;
 * the standard set (true dynamics, from the cache or solved at start);
 * the set in force (``runtime.set_selector``): ``/safe_set/value_function`` is taken as
@@ -34,7 +34,6 @@ from ..learning.levels import learned_alpha
 from ..ros_io import rosmsg
 from ..ros_io.direct_take import DirectTake
 from ..ros_io.cdr import serialized_to_value_function
-from .filter_parameters import FilterParameters
 from .filter_state import Complaints, StateReporter
 
 VALUE_FUNCTION_TOPIC = '/safe_set/value_function'
@@ -72,10 +71,10 @@ class FilterWiring:
     """A filter node's parts put together: parameters, filters, the set in force (selector),
     time base and state messages (see the module)."""
 
-    def __init__(self, node, names, on_rate=None, lock=None):
+    def __init__(self, node, params, names, on_rate=None, lock=None):
         self.node = node
         self.log = node.get_logger()
-        self.params = p = FilterParameters(node)
+        self.params = p = params
         self.frame = p.frame
         self.names = list(names)
         self.filters = [RobotFilter(p.config, name) for name in self.names]

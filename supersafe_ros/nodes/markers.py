@@ -129,29 +129,29 @@ def level_set_lines(msg: MarkerArray) -> list[np.ndarray]:
 
 
 class LevelSetMarkerPublisher:
-    """On a filter node: ``safety_filter/level_set`` (MarkerArray, relative to the node's
-    namespace) at ``rate`` Hz on the steady clock, the level set in force at the robot's
-    heading around each detected obstacle (the LEVEL_SET_OBSTACLES nearest). ``snapshot()``
-    returns (SafeSet, pose (x, y, theta) or None, detections (N, 2) or None). Nothing is
-    computed while no one subscribes, so the control path pays only when an operator watches."""
+    """On a filter node: each robot's ``safety_filter/level_set`` (MarkerArray) at ``rate`` Hz on the
+    steady clock, the level set in force at the robot's heading around each detected obstacle (the
+    LEVEL_SET_OBSTACLES nearest). ``robots``: [(its publisher, ``snapshot()`` -> (SafeSet, pose
+    (x, y, theta) or None, detections (N, 2) or None))]. Nothing is computed for a robot no one
+    watches, so the control path pays only when an operator watches."""
 
-    TOPIC = 'safety_filter/level_set'
-
-    def __init__(self, node, snapshot, rate: float = 2.0, refine: int = 2):
+    def __init__(self, node, robots, rate: float = 2.0, refine: int = 2):
         from rclpy.clock import Clock, ClockType
         self.node = node
-        self.snapshot = snapshot
+        self.robots = list(robots)
         self.refine = refine
-        self.pub = node.create_publisher(MarkerArray, self.TOPIC, rosmsg.QOS_STREAM)
         self.timer = node.create_timer(1.0 / rate, self.publish,
                                        clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.published = 0
 
     def publish(self):
-        if self.pub.get_subscription_count() == 0:
-            return
+        for pub, snapshot in self.robots:
+            if pub.get_subscription_count() > 0:
+                self._publish(pub, snapshot)
+
+    def _publish(self, pub, snapshot):
         from ..runtime.contours import level_sets_around
-        safe_set, pose, detections = self.snapshot()
+        safe_set, pose, detections = snapshot()
         contours = []
         if safe_set is not None and pose is not None and detections is not None:
             try:
@@ -160,6 +160,6 @@ class LevelSetMarkerPublisher:
             except ValueError as exc:
                 self.node.get_logger().error(f'level set markers: {exc}', throttle_duration_sec=5.0)
                 return
-        self.pub.publish(level_set_markers(contours, self.node.get_clock().now().to_msg(),
-                                           source=safe_set.source if safe_set is not None else ''))
+        pub.publish(level_set_markers(contours, self.node.get_clock().now().to_msg(),
+                                      source=safe_set.source if safe_set is not None else ''))
         self.published += 1

@@ -24,7 +24,7 @@ import math
 from geometry_msgs.msg import PoseStamped, Twist, TwistStamped
 from nav_msgs.msg import Odometry
 
-from ..ros_io import rosmsg, sensors
+from ..ros_io import rosmsg
 from ..sim.planner import approach_speed, goal_seeking_turn_rate
 from .common import LiveParameters, declare, run_node
 
@@ -75,7 +75,7 @@ class PlannerNode(Node):
             self.get_logger().warn('no goal yet; not commanding', throttle_duration_sec=5.0)
             return
         try:
-            state = (sensors.header_pose_to_state(msg.header, msg.pose.pose, rosmsg.MAP_FRAME)
+            state = (rosmsg.header_pose_to_state(msg.header, msg.pose.pose, rosmsg.MAP_FRAME)
                      if isinstance(msg, Odometry) else rosmsg.pose_to_state(msg))
         except rosmsg.MessageError as exc:
             self.get_logger().error(f'pose rejected: {exc}', throttle_duration_sec=1.0)

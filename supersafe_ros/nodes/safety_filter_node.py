@@ -1,73 +1,51 @@
-"""safety_filter_node: the minimally invasive safety filter of one robot.
+"""safety_filter_node: the minimally invasive safety filter of one robot, or of a fleet: one node.
 
-Topics (relative; run it in the robot's namespace such as /robot_0):
-  sub  pose                     geometry_msgs/PoseStamped   frame map
-  sub  detections               geometry_msgs/PoseArray     frame map, obstacle centres
-  sub  cmd_vel_nav              geometry_msgs/Twist         the planner's command (angular.z)
-  sub  /safe_set/value_function std_msgs/Float32MultiArray  latched, from the learner (supersafe_ros.ros_io.vfmsg)
-  pub  cmd_vel                  geometry_msgs/Twist         the filtered command
-  pub  safety_filter/state      diagnostic_msgs/DiagnosticStatus  OK pass / WARN override /
-                                                            ERROR fail_safe; values: action, reason,
-                                                            obstacle_index/x/y, value, alpha,
-                                                            omega_max, source, cmd_*, set_update,
-                                                            set_update_reason, time_base, cmd_clipped,
-                                                            detections_dropped(_reason)
-  pub  safety_filter/level_set  visualization_msgs/MarkerArray  the set in force at the robot's
-                                                            heading around each detection (RViz;
-                                                            level_set_markers, level_set_rate)
-  pub  safety_filter/ready      std_msgs/Empty              latched; the publisher appears once the
-                                                            filter has valid detections (at once with
-                                                            require_detections false)
-  pub  /diagnostics             diagnostic_msgs/DiagnosticArray  1 Hz, this robot's status (filter_diagnostics)
+Its robots are ``robots`` (default ``['']``: one robot, in the node's own namespace; a fleet lists
+its robots' namespaces, resolved as topic names are). Each robot's own topics (``per_robot_topics``;
+types as ``pose_type``, ``detections_type``, ``cmd_vel_stamped`` say, docs/topics.md): in
+``pose``, ``detections`` (none with ``require_detections`` false), ``cmd_vel_nav``; out
+``cmd_vel``, ``safety_filter/state`` (what was decided and why, named by the robot's namespace),
+``safety_filter/ready`` (latched, once the robot's filter can judge), ``safety_filter/level_set``;
+their endpoints belong to the helper node ``<name>_io`` (``filter_topics``). The batched topics of
+every robot at once (``batched_topics``, ``filter_batched``): fleet/poses, fleet/detections,
+fleet/cmd_vel_nav -> fleet/cmd_vel, fleet/safety_filter/state. And /safe_set/value_function in
+(``filter_wiring``), /diagnostics out (a status per robot, 1 Hz). fleet_safety_filter_node is this
+node named fleet_safety_filter; ``ManagedSafetyFilterNode`` the managed one (``managed``).
 
-The message types above are the defaults: ``pose_type`` (Odometry, PoseWithCovarianceStamped),
-``detections_type`` (MarkerArray, LaserScan, PointCloud2: sensor-data QoS) and
-``cmd_vel_stamped`` (TwistStamped both ways) choose others (``filter_inputs``). A pose or scan
-stamped farther than ``stamp_tolerance`` from the node's clock is refused (failing safe). As
-a managed node (``ManagedSafetyFilterNode``, executable managed_safety_filter; ``managed``)
-it publishes no cmd_vel unless active.
+Each input is read by its Source (``filter_sources``: checked, or refused with the fault named: the
+robot then fails safe and the node complains) and taken into the robot's filter
+(``filter.inputs.RobotFilter``); a decision (``filter.decide.decide_many``, nothing written) goes
+out one way: the lockstep policy (``runtime.lockstep``) says whether it goes out now; then the
+robots' cmd_vel (they wait for it), the record of what was sent (``filter.sent.record_decisions``,
+the one writer), the story in the log and the states that are due (docs/filter_learner.md, "How a
+decision is made").
 
-Before its first valid detections, and whenever they are stale, the filter fails safe: a
-detections message means "the sensor has looked", and none (or an old one) means nothing
-is known about the obstacles. A robot without an obstacle sensor opts out with
-``require_detections`` false: the filter then takes "no obstacle" with every pose and does
-not subscribe to ``detections``. ``safety_filter/ready`` lets a lockstep clock start only
-once every filter can judge (``supersafe_ros.team``); the pose is not part of it, since a
-lockstepped robot publishes its first pose at the first step, parked until the filter
-answers it.
+When robots are decided (``decide_on``, ``filter_parameters.decision_mode``):
 
-The decision is ``supersafe_ros.filter`` (law, hysteresis, fail safe, delay
-compensation; see there). When it is made: on every planner command (and, with
-``publish_on_pose``, on every pose), plus a watchdog on the steady clock that
-publishes when nothing went out for 1/rate s, so the robot never starves, even with
-the planner dead.
+* input (one robot on its own topics, by default): at once on each planner command and range
+  sensor's message (each pose with ``publish_on_pose``), that robot alone, plus a watchdog on the
+  steady clock deciding a robot nothing went out to for half of 1/rate, so a robot never starves,
+  even with its planner dead. Inputs and watchdog are served by a thread of their own
+  (``direct_take``, ``ros_io.direct_take``), or by the executor;
+* tick (a fleet, or with batched topics): every robot at once, ``rate`` times a second, on the
+  newest message of each input (taken then, ``ros_io.take``: no callback per message), and on each
+  fleet/poses message; the timer stands in once the batched poses pause (1.5 periods).
 
-``lockstep`` (a simulated robot under sim_clock_node, set by ``supersafe team``): the
-robot acknowledges its step on the first command that arrives after its pose, and the
-clock then advances. So every command that goes out must be the answer to the newest
-pose: the filter decides and publishes on each pose only. A planner command only
-updates the command judged at the next pose (one step later, which the filter judges
-like any other), and the watchdog speaks only after ``lockstep_silence`` steady seconds
-without a pose. Otherwise the watchdog (timers run before subscriptions in rclpy's
-executor) answered a step on the pose before, the clock advanced on that answer, and
-under load the filter fell steps behind: decisions on poses 0.8 s old let a robot
-into a disc (docs/graph_safety.md). With ``cluster_hold_timeout`` > 0 the answer to a
-pose near a cluster whose union value is still being solved is held (the lockstep
-clock waits, sim time stands still) until the value is in force, at most that many
-steady seconds; the clock's ``ack_timeout`` must be longer.
+``lockstep`` (simulated robots under sim_clock_node, ``supersafe team``): a robot acknowledges its
+step on the first command after its pose, and the clock then advances. So the filter answers each
+pose once, on that pose; a planner command only updates what the next pose's answer judges; the
+watchdog speaks only after ``lockstep_silence`` steady seconds without a pose; a pose the clock has
+passed is skipped, and with ``cluster_hold_timeout`` > 0 the answer to a pose near a cluster whose
+union value is being solved is held (docs/graph_safety.md).
 
-Ages of inputs: on the filter's time base (``runtime.timebase``): sim time while
-/clock advances, the steady clock with ``use_sim_time`` false or when ROS time
-stands still longer than ``clock_stall_timeout``. A stale input is detected whatever
-``use_sim_time`` says.
-
-When a lockstepped pose is answered (skipped, held, given up): ``runtime.lockstep``.
-Safe set, parameters at run time, value-function decoding and the admissibility
-check of learned sets (on a worker thread, off the control path): ``filter_wiring``.
+A robot fails safe before its first valid detections and whenever they are stale (a detections
+message means "the sensor has looked"); one without an obstacle sensor opts out with
+``require_detections`` false. Ages are on the filter's time base (``runtime.timebase``): sim time
+while /clock advances, the steady clock otherwise.
 """
 from __future__ import annotations
 
-import re
+from functools import partial
 import threading
 import time
 
@@ -75,186 +53,151 @@ from rclpy.lifecycle import LifecycleNode
 from rclpy.node import Node
 
 from diagnostic_msgs.msg import DiagnosticStatus
-from std_msgs.msg import Empty
 
 from ..filter import FAIL_SAFE
-from ..filter.commands import command_fresh
 from ..filter.decide import decide_many
 from ..filter.sent import record_decisions
 from ..runtime.lockstep import GIVE_UP, LockstepAnswers
-from ..ros_io import cdr, rosmsg
-from ..ros_io.direct_take import DirectTake
-from .common import ParameterSpec, declare_all, run_node
+from ..ros_io import rosmsg
+from ..ros_io.direct_take import DirectTake, helper_node
+from ..ros_io.take import take, take_all
+from .common import run_node
 from .filter_diagnostics import FilterDiagnostics, status_copy
-from .filter_inputs import INPUT_PARAMETERS, MAP_SENSORS, PoseHistory, SensorMap, check_types
-from .filter_sources import NO_DETECTIONS, CommandSink, CommandSource, DiscSource, PoseSource
-from .filter_state import HoldSummary, StateThrottle, Status
-from .managed import ManagedFilter
+from .filter_parameters import INPUT, MAP_SENSORS, FilterParameters
+from .filter_sources import NO_DETECTIONS, CommandSource, DiscSource, PoseHistory, PoseSource, SensorMap
+from .filter_state import HoldSummary, StateThrottle, Status, Story
+from .filter_batched import FleetTopics
+from .filter_topics import RobotTopics, robot_topic
 from .filter_wiring import VALUE_FUNCTION_TOPIC, FilterWiring  # noqa: F401  (the topic, re-exported for tests)
+from .managed import ManagedFilter
 from .markers import LevelSetMarkerPublisher
-
-# this node's own parameters (the filter's are in filter_parameters), in the order declared
-PARAMETERS = (
-    ParameterSpec('publish_on_pose', False, 'also decide and publish on every pose (not in a lockstep graph)',
-                  live=True),
-    ParameterSpec('lockstep', False, 'the robot is lockstepped (sim_clock_node): answer each pose once, on '
-                  'that pose; planner commands and the watchdog do not publish'),
-    ParameterSpec('lockstep_silence', 2.0, 'lockstep: the watchdog publishes only after this long without '
-                  'a pose [steady s]', 0.01, 3600.0),
-    ParameterSpec('cluster_hold_timeout', 0.0, 'lockstep: hold the answer to a pose while a cluster\'s union '
-                  'value is being solved, at most this long [steady s]; 0 = never hold (the fallback acts)',
-                  0.0, 600.0),
-    ParameterSpec('direct_take', True, 'pose, detections and cmd_vel_nav are taken by a thread of their own '
-                  'that waits on them alone (helper node <name>_io), off the executor\'s wake-up over every '
-                  'entity: about 0.3 ms less from pose to cmd_vel; false = the executor takes them. Not with '
-                  'lockstep (there a pose must be read after the /clock before it)'),
-    ParameterSpec('level_set_rate', 2.0, 'rate of safety_filter/level_set markers [Hz, steady clock]', 0.1, 50.0),
-    ParameterSpec('level_set_markers', True, 'publish the level set in force at the robot\'s heading around '
-                  'each detected obstacle on safety_filter/level_set (LINE_STRIPs, for RViz)'),
-    *INPUT_PARAMETERS,
-)
 
 
 class SafetyFilter:
-    """The filter of one robot on a node (``self``: a Node or a LifecycleNode); ``build()``
-    makes it (the plain node in its constructor, the managed one on configure). It decides
-    only while ``active``."""
+    """The filter of a node's robots (``self``: a Node or a LifecycleNode); ``build()`` makes it
+    (the plain node in its constructor, the managed one on configure). It decides only while
+    ``active``."""
 
     active = True
 
     def build(self):
-        # every callback that reads or changes the filter holds this lock (the inputs may be
-        # taken by a thread of their own, below; parameters change under it too)
+        # every callback that reads or changes the filters holds this lock (the inputs may be
+        # taken by a thread of their own; parameters change under it too)
         self.lock = threading.RLock()
-        self.wiring = w = FilterWiring(self, [self.get_namespace()], on_rate=self._set_rate, lock=self.lock)
-        self.filter = w.filters[0]
-        p = declare_all(self, PARAMETERS)
-        check_types(p)
-        self.poses = PoseHistory()
-        c = w.params.config
-        self.sensor = None
-        if p['detections_type'] in MAP_SENSORS:
-            self.sensor = SensorMap(p, self.poses, c, w.params.standard_horizon, w.frame, inline=p['lockstep'])
-            s = self.sensor.value_settings
-            self.get_logger().info(
-                f"{self.sensor.view.sensor}: a local map of {p['map_size']:g} m at {p['map_cell']:g} m cells, judged "
-                f"by "
-                f'its avoid value (speed {c.speed:g}, w_max {c.omega_max:g}, clearance {p["robot_radius"]:g} m, '
-                f'horizon {s.horizon:g} s, {s.cell:g} m x {s.headings} headings), solved again in the background at '
-                f'most every {p["value_period"]:g} s while the map changes')
-        if self.sensor is not None and c.time_before_collision <= 0.0 and not c.constant_speed:
-            # the map's value is that of the map at its solve time; what the map learns between
-            # solves is judged only by the speed cut, for a robot that can stop
-            self.get_logger().warning(
-                f"detections_type {p['detections_type']}: time_before_collision is 0, so nothing stops this "
-                'robot before an obstacle the map learned since its value was last solved; set it > 0 '
-                '(config/nav2_safety_filter.yaml: 0.5; docs/filter_node.md, "Stop before collision")')
-        self._first_value = None        # the map's first value, told once
-        self.sink = CommandSink(p['cmd_vel_stamped'])     # cmd_vel (with the planner's last header)
-        self.publish_on_pose = p['publish_on_pose']
-        w.live.add('publish_on_pose', lambda v: setattr(self, 'publish_on_pose', bool(v)))
-        self.lockstep = p['lockstep']
-        self.answers = LockstepAnswers(p['cluster_hold_timeout'], p['lockstep_silence'], time.monotonic())
-        self._last_out = None              # the last decision published
-        self.name = self.get_fully_qualified_name()
-        self._last_publish = -1e18     # steady seconds
-        self._throttle = StateThrottle()
-        self._holds = HoldSummary(self.get_logger())
-        self._failing = None           # the fail-safe story: None (start), True, False
-        self._silence_told = False     # the planner's silence said (once per silence)
-        self._decided_at = 0.0
-        self._waiting_told = False     # said once why it fails safe while starting
-        self.decisions = 0
-        self.require_detections = p['require_detections']
-        self.ready_pub = None          # safety_filter/ready: made once the filter can judge
-        self._inputs_ready = not self.require_detections
-
-        self.cmd_pub = self.create_publisher(self.sink.msg_type, 'cmd_vel', rosmsg.QOS_STREAM)
-        self.state_pub = self.create_publisher(DiagnosticStatus, 'safety_filter/state', rosmsg.QOS_STREAM)
-        self.timer = None
-        self.direct = None
-        # RViz: the level set in force around each detected obstacle (computed only while watched)
-        if p['level_set_markers']:
+        self.params = p = FilterParameters(self)
+        v = p.values
+        self.namespaces = p.robots
+        self.n = len(self.namespaces)
+        self.wiring = w = FilterWiring(self, p, self.namespaces, on_rate=self._set_rate, lock=self.lock)
+        self.filters = w.filters
+        self.mode, self.lockstep = p.mode, p.lockstep
+        self.publish_on_pose = v['publish_on_pose']
+        w.live.add('publish_on_pose', lambda value: setattr(self, 'publish_on_pose', bool(value)))
+        self.require_detections = v['require_detections']
+        self.pose_source = PoseSource(v['pose_type'], w.frame)
+        self.command_source = CommandSource(v['cmd_vel_stamped'])
+        self.disc_source = self.sensors = None
+        self.io = helper_node(self)     # the robots' endpoints (filter_topics), off the executor
+        self.direct = self.timer = None
+        if self.require_detections and v['detections_type'] in MAP_SENSORS:
+            # a range sensor or a costmap: each robot's local map and its value
+            self.sensors = [SensorMap(v, PoseHistory(), w.config, p.standard_horizon, w.frame, inline=self.lockstep)
+                            for _ in range(self.n)]
+            self.sensors[0].say_settings(v, w.config, self.get_logger())
+        elif self.require_detections:
+            self.disc_source = DiscSource(v['detections_type'], w.frame)
+        self.topics = []
+        if p.per_robot_topics:
+            self.topics = [RobotTopics(self, self.io, ns, v['cmd_vel_stamped'], v['level_set_markers'])
+                           for ns in self.namespaces]
+        self.fleet = (FleetTopics(self, self.io, self.n, self.on_fleet_poses, self.require_detections)
+                      if p.batched_topics else None)
+        if self.topics and v['level_set_markers']:
             self.level_set = LevelSetMarkerPublisher(
-                self, lambda: (w.safe_set, self.filter.pose.value, self.filter.detections.value),
-                p['level_set_rate'])
-        inputs = self._inputs(p)
-        if p['direct_take'] and not self.lockstep:
-            # the inputs and the watchdog on a thread of their own (the executor keeps parameters, lifecycle
-            # and /diagnostics)
-            self.direct = DirectTake(self, self.lock, path=w.params.take_path)
-            try:
-                for msg_type, topic, callback, raw, qos in inputs:
-                    self.direct.add(msg_type, topic, callback, qos, raw=raw)
-                self._set_rate(w.rate)
-            except BaseException:
+                self, [(topics.level_set_pub, partial(self._level_set_snapshot, i))
+                       for i, topics in enumerate(self.topics)], v['level_set_rate'])
+        # each robot's run time: what went out, the lockstep's answers, the story
+        now = time.monotonic()
+        self.last = [None] * self.n               # (Decisions, row) of each robot's last decision sent
+        self.last_state = [None] * self.n         # its last state message
+        self.last_publish = [-1e18] * self.n      # steady s
+        self.answers = [LockstepAnswers(v['cluster_hold_timeout'], v['lockstep_silence'], now)
+                        for _ in range(self.n)]
+        self.throttle = StateThrottle(self.n, now, w.state_period)
+        self.story = Story(self.get_logger(), self.namespaces)
+        self.holds = HoldSummary(self.get_logger())
+        self.ready_due = set() if self.require_detections else set(range(self.n))    # say safety_filter/ready
+        self.clipped, self.dropped = [], []       # robots whose command was clipped, detections cut
+        self.decisions = self.ticks = self.failing_safe = 0    # (counts: tests, benches)
+        self.decided = [0] * self.n               # decisions sent, per robot
+        inputs = self._subscribe(v)
+        self._set_rate(w.rate)
+        if self.direct is not None:
+            self.direct.start()         # (its wait set sized, the watchdog's period set)
+        self.diagnostics = FilterDiagnostics(self, self._statuses, inputs, w.complain)
+        self._say_ready()
+        self._say_start()
+
+    # -- making it ---------------------------------------------------------------------------------
+    def _sources(self):
+        """(Source, what takes it, what an input-mode callback does) of each robot input, in the order
+        taken: pose, detections, command (ready together, a command is judged on the detections that
+        came with it)."""
+        out = [(self.pose_source, self.take_pose, self.on_pose)]
+        if self.sensors is not None:
+            out.append((self.sensors[0], self.take_sensor, self.on_sensor))
+        elif self.disc_source is not None:
+            out.append((self.disc_source, self.take_detections, self.on_detections))
+        out.append((self.command_source, self.take_command, self.on_command))
+        return out
+
+    def _subscribe(self, v) -> list:
+        """Each robot's inputs subscribed as ``mode`` takes them; [(topic, message class)] of every input
+        (the graph watch's)."""
+        inputs, noop = [], lambda msg: None
+        if self.mode == INPUT and v['direct_take'] and not self.lockstep:
+            self.direct = DirectTake(self, self.lock, path=self.params.take_path, io=self.io)
+        self.subs = [[] for _ in self.namespaces]     # (tick) each robot's (subscription, taker, every message)
+        try:
+            for i, ns in enumerate(self.namespaces if self.topics else ()):
+                for source, taker, on_message in self._sources():
+                    topic = robot_topic(self, ns, source.topic)
+                    inputs.append((topic, source.msg_type))
+                    if self.direct is not None:     # a thread of their own (the executor keeps the rest)
+                        self.direct.add(source.msg_type, topic, partial(on_message, i), source.qos, raw=source.raw)
+                    elif self.mode == INPUT:
+                        # the executor's (lockstep: it reads /clock before a pose that waits with it, so a pose
+                        # the clock has passed is known as such, _clock_passed; a thread of its own would not)
+                        self.create_subscription(source.msg_type, topic, self._locked(partial(on_message, i)),
+                                                 source.qos, raw=source.raw)
+                    else:       # taken by the tick, never an executor: each scan (it adds to the map), else the newest
+                        every = taker == self.take_sensor
+                        self.subs[i].append((self.io.create_subscription(
+                            source.msg_type, topic, noop, source.qos if every else rosmsg.QOS_NEWEST, raw=source.raw),
+                            taker, every))
+        except BaseException:
+            if self.direct is not None:
                 self.direct.close()
-                raise
-            self.direct.start()
+            raise
+        if self.fleet is not None:
+            inputs += self.fleet.inputs()
+        return inputs
+
+    def _say_start(self):
+        w = self.wiring
+        if self.mode == INPUT and self.n == 1:
+            what = 'filtering cmd_vel_nav -> cmd_vel'
         else:
-            self._set_rate(w.rate)
-            # lockstep: the executor reads /clock before a pose that waits with it, so a pose the
-            # clock has passed is known as such (_clock_passed); a thread of its own would not be
-            for msg_type, topic, callback, raw, qos in inputs:
-                self.create_subscription(msg_type, topic, self._locked(callback), qos, raw=raw)
-        self.diagnostics = FilterDiagnostics(self, self._statuses, [(i[1], i[0]) for i in inputs], w.complain)
+            shown = ', '.join(self.namespaces[:5]) + (', ...' if self.n > 5 else '')
+            what = (f'filtering {self.n} robot(s) ({shown}), '
+                    + ('each on its own inputs' if self.mode == INPUT else f'all at once {w.rate:g} times a second')
+                    + f'; per-robot topics {"on" if self.topics else "off"}, batched topics '
+                    + ('on' if self.fleet is not None else 'off'))
         if self.require_detections:
-            self.get_logger().info('filtering cmd_vel_nav -> cmd_vel; waiting for the first pose and detections '
-                                   '(failing safe until then)')
+            self.get_logger().info(f'{what}; waiting for the first pose and detections (failing safe until then)')
         else:
-            self._say_ready()
-            self.get_logger().info('filtering cmd_vel_nav -> cmd_vel; require_detections false: no obstacle '
-                                   'sensor, every pose is judged with no obstacle; waiting for the first pose')
-
-    def _inputs(self, p) -> tuple:
-        """(type, topic, callback, raw, qos) of each input, as ``p`` (the parameters) say, read by
-        its Source (``filter_sources``). Poses, commands and PoseArrays are read raw, straight from
-        their CDR bytes (ros_io.cdr), no message objects built (on the path from pose to cmd_vel;
-        for detections of any size); the others are decoded by rclpy. Ready together, they are
-        taken in this order (the executor's: the order made), so a command is judged on the
-        detections that came with it."""
-        self.pose_source = PoseSource(p['pose_type'], self.wiring.frame)
-        self.command_source = CommandSource(p['cmd_vel_stamped'])
-        sources = [(self.pose_source, self.on_pose)]
-        if self.require_detections:
-            kind = p['detections_type']
-            if kind in MAP_SENSORS:
-                sources.append((self.sensor, self.on_range_sensor))
-            else:
-                self.disc_source = DiscSource(kind, self.wiring.frame)
-                sources.append((self.disc_source, self.on_detections))
-        sources.append((self.command_source, self.on_command))
-        return tuple((s.msg_type, s.topic, callback, s.raw, s.qos) for s, callback in sources)
-
-    def _statuses(self) -> list:
-        """This robot's status on /diagnostics: its last state (see filter_diagnostics)."""
-        ns = self.get_namespace()
-        name = f'{self.name}: {ns}'
-        with self.lock:     # (the state message is refilled by decide, on the inputs' thread too)
-            out = self._last_out
-            if out is not None:
-                state = self.wiring.state_message(self.name, out)
-                status = status_copy(state, name, ns, None if self.active else
-                                     f'inactive (lifecycle): no cmd_vel; last: {state.message}')
-                note = self.sensor.problem(self.filter.detections) if self.sensor is not None else ''
-                if note:        # what the sensor's last message says of itself (every beam NaN, ...)
-                    status.level = max(status.level, DiagnosticStatus.WARN[0])
-                    status.message = f'{status.message}; {note}'
-                return [status]
-        return [Status(DiagnosticStatus.ERROR[0], name, 'no decision yet' if self.active else 'inactive: no cmd_vel',
-                       ns)]
-
-    def _say_ready(self):
-        """Make the latched safety_filter/ready publisher (once; from the watchdog's thread)."""
-        if self.ready_pub is None:
-            self.ready_pub = self.create_publisher(Empty, 'safety_filter/ready', rosmsg.QOS_LATCHED)
-            self.ready_pub.publish(Empty())
-
-    def _locked(self, callback):
-        def locked(*args):
-            with self.lock:
-                return callback(*args)
-        return locked
+            self.get_logger().info(f'{what}; require_detections false: no obstacle sensor, every pose is judged '
+                                   'with no obstacle; waiting for the first pose')
 
     def _set_rate(self, rate):
         self.period = 1.0 / rate
@@ -263,257 +206,360 @@ class SafetyFilter:
             return
         if self.timer is not None:
             self.destroy_timer(self.timer)
-        self.timer = self.create_timer(self.period, self._locked(self.on_watchdog), clock=self.wiring.steady)
+        on_timer = self.on_watchdog if self.mode == INPUT else self.on_tick
+        self.timer = self.create_timer(self.period, self._locked(on_timer), clock=self.wiring.steady)
 
-    # -- inputs -----------------------------------------------------------------------------
-    def on_pose(self, data):
-        """A serialized PoseStamped, Odometry or PoseWithCovarianceStamped (``pose_type``; raw: its pose
-        read from the CDR bytes, with the frame and checks of a message's: ``PoseSource``)."""
-        w = self.wiring
-        t = w.now()
+    def _locked(self, callback):
+        def locked(*args):
+            with self.lock:
+                return callback(*args)
+        return locked
+
+    # -- inputs: read by their Sources, taken into a robot's filter ---------------------------------------
+    def take_pose(self, i, data, t):
+        """A serialized pose (``pose_type``; ``PoseSource``) as robot i's; the header's stamp (None if
+        unreadable). A pose refused fails the robot safe and is said."""
+        w, f = self.wiring, self.filters[i]
         stamp = None
         try:
             state, stamp = self.pose_source.read(data)
-            self._take_pose(state, t, w.stamp(stamp, t))
-            if not self.require_detections:
-                self.filter.update_detections(NO_DETECTIONS, t)
+            tau = w.stamp(stamp, t)
+            f.update_pose(state, t, stamp=tau)
         except ValueError as exc:   # MessageError is a ValueError
-            self.filter.reject_pose(str(exc), t)
-            w.complain('pose', f'pose rejected: {exc}; failing safe', level='error')
-        self._answer_pose(t, stamp)
+            f.reject_pose(str(exc), t)
+            self._complain(i, 'pose', f'pose rejected: {exc}; failing safe', level='error')
+            return stamp
+        if self.sensors is not None:     # (the poses a local map places its returns with)
+            self.sensors[i].history.add(t if tau is None else tau, state)
+        if not self.require_detections:
+            f.update_detections(NO_DETECTIONS, t)
+        return stamp
 
-    def _answer_pose(self, t, stamp):
-        """After a pose (``stamp``: its header's, None if unreadable): lockstep answers it,
-        else with ``publish_on_pose`` decide."""
+    def take_detections(self, i, data, t):
+        """A serialized PoseArray or a MarkerArray (``DiscSource``): robot i's detections, at most
+        ``max_detections`` of them (the nearest; the state and a log line say which were dropped)."""
+        f = self.filters[i]
+        try:
+            f.update_detections(self.disc_source.read(data), t, self.wiring.safe_set)
+        except ValueError as exc:
+            f.reject_detections(str(exc), t)
+            self._complain(i, 'detections', f'detections rejected: {exc}; failing safe', level='error')
+            return
+        self.ready_due.add(i)
+        if f.detections.dropped:
+            self.dropped.append(i)
+
+    def take_sensor(self, i, msg, t) -> bool:
+        """A LaserScan, PointCloud2 or OccupancyGrid into robot i's local map (``SensorMap.take_into``),
+        the map's value asked for again; False if it could not be placed yet (no pose: starting)."""
+        sensor = self.sensors[i]
+        placed, learned = sensor.take_into(self.filters[i], msg, t, self.wiring, partial(self._complain, i))
+        if learned:
+            self.ready_due.add(i)
+        if placed and self.active:     # (inactive: no decision reads the value; solved again once active)
+            sensor.ask_value(self.wiring, partial(self._complain, i))
+        return placed
+
+    def take_command(self, i, data, t):
+        """A serialized Twist or TwistStamped (``CommandSource``) as robot i's planner command; its
+        header is that of the cmd_vel judged from it. A command not finite or unreadable stops a robot
+        that can stop until a valid one comes."""
+        f = self.filters[i]
+        if not self.command_source.take(f, data, t, self.topics[i].sink):
+            self._complain(i, 'cmd', f'cmd_vel_nav rejected: {f.command.note}')
+        elif f.command.note:
+            self.clipped.append(i)
+
+    def _complain(self, i, kind, text, level='warn'):
+        """A throttled log line about robot i (named in a fleet)."""
+        if self.n == 1:
+            self.wiring.complain(kind, text, level=level)
+        else:
+            self.wiring.complain(f'{kind} {self.namespaces[i]}', f'{self.namespaces[i]}: {text}', level=level)
+
+    # -- decide_on input: each message decides its robot -----------------------------------------------
+    def on_pose(self, i, data):
+        t = self.wiring.now()
+        stamp = self.take_pose(i, data, t)
         if self.lockstep:
-            self.answers.new_pose(time.monotonic())
-            if stamp is not None and self._clock_passed(stamp):
+            self.answers[i].new_pose(time.monotonic())
+            if stamp is not None and self._clock_passed(i, stamp):
                 return
-            self.decide(t, answers_pose=True)
+            self.decide((i,), t, answers_pose=True)
         elif self.publish_on_pose:
-            self.decide(t)
+            self.decide((i,), t)
 
-    def _take_pose(self, state, t, stamp):
-        self.filter.update_pose(state, t, stamp=stamp)
-        if self.sensor is not None:     # (the poses a local map places its returns with)
-            self.poses.add(t if stamp is None else stamp, state)
+    def on_detections(self, i, data):
+        self.take_detections(i, data, self.wiring.now())
 
-    def _clock_passed(self, stamp) -> bool:
-        """Lockstep with sim time: True (and said) if /clock is already past this pose, which
-        the robot has acknowledged without this answer (``LockstepAnswers.clock_passed``).
-        Answering it would acknowledge the newer step with a decision on the older pose, and
-        the filter would stay a step behind from then on (seen at start-up: up to 5 steps,
-        1 s, for seconds). Skipping it lets the next, current pose be answered."""
+    def on_sensor(self, i, msg):
+        t = self.wiring.now()
+        if self.take_sensor(i, msg, t) and not self.lockstep:
+            self.decide((i,), t)
+
+    def on_command(self, i, data):
+        t = self.wiring.now()
+        self.take_command(i, data, t)
+        if not self.lockstep:       # in lockstep the next pose's answer judges it
+            self.decide((i,), t)
+
+    def _clock_passed(self, i, stamp) -> bool:
+        """Lockstep with sim time: True (and said) if /clock is already past this pose, which the robot
+        has acknowledged without this answer (``LockstepAnswers.clock_passed``). Answering it would
+        acknowledge the newer step with a decision on the older pose, and the filter would stay a step
+        behind from then on (seen at start-up: up to 5 steps, 1 s, for seconds). Skipping it lets the
+        next, current pose be answered."""
+        answers = self.answers[i]
         clock_ns = self.get_clock().now().nanoseconds if self.wiring.time.sim else None
-        if not self.answers.clock_passed(stamp.sec * 1_000_000_000 + stamp.nanosec, clock_ns):
+        if not answers.clock_passed(stamp.sec * 1_000_000_000 + stamp.nanosec, clock_ns):
             return False
-        self.wiring.complain('lockstep', f'skipped a pose the clock has already passed ({self.answers.poses_skipped} '
-                             'so far): its step went on without this answer; answering the current pose',
-                             level='info')
+        self._complain(i, 'lockstep', f'skipped a pose the clock has already passed ({answers.poses_skipped} so '
+                       'far): its step went on without this answer; answering the current pose', level='info')
         return True
 
-    def on_detections(self, data):
-        """A serialized PoseArray (raw subscription: its positions read as one array) or a MarkerArray
-        (the full current set of discs, each of its own radius): ``DiscSource``. At most
-        ``max_detections`` of them kept (the nearest; the state and a log line say which were dropped)."""
-        t = self.wiring.now()
-        try:
-            rows = self.disc_source.read(data)
-        except ValueError as exc:
-            self._refuse_detections(exc, t)
-            return
-        self._take_detections(rows, t)
-
-    def on_range_sensor(self, msg):
-        """A LaserScan, PointCloud2 or OccupancyGrid (detections_type): checked, placed with the robot's pose
-        at its stamp and put into the local map (filter_inputs.SensorMap); the map's value asked for again;
-        then a decision (every sensor message triggers one, but in lockstep). A message refused leaves the
-        map as it was: the filter fails safe once its last valid view is ``detections_timeout`` old."""
-        w = self.wiring
-        t = w.now()
-        sensor = self.sensor.view.sensor
-        if not self.poses.stamps and self.sensor.kind != 'occupancy_grid':
-            # starting: the scan came before the first pose (said once, not an error)
-            w.complain('detections before pose', f'a {sensor} before the first pose: waiting for a pose to place its '
-                       'returns with (failing safe until then)', level='info')
-            return
-        try:
-            stamp = w.stamp(msg.header.stamp, t)
-            summary, learned = self.sensor.take(msg, t if stamp is None else stamp, w.config, w.config.pose_timeout)
-        except ValueError as exc:     # MessageError: the fault named; the view stays as it was
-            why = str(exc) if str(exc).startswith(f'{sensor} refused') else f'{sensor} refused: {exc}'
-            self.filter.refuse_view(why, t)
-            # each kind of fault logged (throttled per kind: its words with the numbers masked)
-            w.complain(re.sub(r'[-+0-9.eE]+', '#', why), f'{why}; the map stays as it was (failing safe once its last '
-                       f'valid view is detections_timeout {w.config.detections_timeout:g} s old)', level='error')
-        else:
-            if learned:
-                self.filter.update_view(self.sensor.view, t)
-                self._inputs_ready = True      # the watchdog (executor thread) says so
-                if summary.problem:
-                    w.complain(f'{sensor} note', f'{sensor}: {summary.problem}', level='warn')
-            else:           # it did not look: blind, not "looked, nothing seen" (the map keeps what was seen)
-                self.filter.refuse_view(f'{sensor} did not look: {self.sensor.note}', t)    # (blind)
-                w.complain(f'{sensor} note', f'{sensor}: {self.sensor.note}; the map keeps what was seen (failing '
-                           f'safe once its last view is detections_timeout {w.config.detections_timeout:g} s old)',
-                           level='warn')
-            self._ask_value()
-        if not self.lockstep:
-            self.decide(t)
-
-    def _ask_value(self):
-        """The map's value solved again around the robot (at most every value_period), for the set in force:
-        the learned w_max where a learned set is, the robot's own otherwise."""
-        newest = self.poses.newest
-        if newest is None or not self.active:     # (inactive: no decision reads it; solved again once active)
-            return
-        safe = self.wiring.safe_set
-        learned = safe.source == 'learned' and safe.omega_max is not None
-        omega = safe.omega_max if learned else self.wiring.config.omega_max
-        self.sensor.solve(float(omega), self.wiring.now(), float(newest[0]), float(newest[1]))
-        value = self.sensor.worker.latest()
-        if value is not None and self._first_value is None:
-            self._first_value = value
-            g = value.vf.grid
-            self.get_logger().info(f'{self.sensor.view.sensor} map: its first value solved in {value.solve_s:.3g} s '
-                                   f'(a window of {g.hi[0] - g.lo[0]:.3g} m, grid {g.shape})')
-
-    def _refuse_detections(self, exc, t):
-        self.filter.reject_detections(str(exc), t)
-        self.wiring.complain('detections', f'detections rejected: {exc}; failing safe', level='error')
-
-    def _take_detections(self, rows, t, solve_clusters=True):
-        w = self.wiring
-        try:
-            self.filter.update_detections(rows, t, w.safe_set, solve_clusters=solve_clusters)
-        except ValueError as exc:
-            self._refuse_detections(exc, t)
-            return
-        self._inputs_ready = True      # the watchdog (executor thread) says so
-        d = self.filter.detections
-        if d.dropped:
-            w.complain('detections dropped', d.note, level='warn' if d.dropped_safely else 'error')
-
-    def on_command(self, data):
-        """A serialized Twist or TwistStamped (``cmd_vel_stamped``; raw subscription), or a Twist:
-        ``CommandSource``. A TwistStamped's header is that of the cmd_vel judged from it."""
-        w = self.wiring
-        t = w.now()
-        if not self.command_source.take(self.filter, data, t, self.sink):
-            w.complain('cmd', f'cmd_vel_nav rejected: {self.filter.command.note}')
-        elif self.filter.command.note:
-            w.complain('cmd clipped', f'cmd_vel_nav beyond the robot\'s limits: {self.filter.command.note}')
-        if not self.lockstep:       # in lockstep the next pose's answer judges it
-            self.decide(t)
-
     def on_watchdog(self):
-        if self._inputs_ready and self.ready_pub is None:
-            self._say_ready()
+        """Every period: each robot whose last command went out half a period ago or more is decided
+        again (not starved: its planner may be dead); in lockstep, a held answer once the cluster value
+        is in force (or timed out), and nothing while poses come (a pose's answer is the robot's step)."""
+        self._say_ready()
         now = time.monotonic()
-        held = self.answers.held_pose_time
-        if held is not None:
-            self.decide(held)       # a held answer: out once the cluster value is in force, or timed out
-        elif self.lockstep and self.answers.quiet(now):
-            # the pose's answer is the robot's command (and its step's ack); the state topic
-            # still reports the set in force (a new learned set) while no pose comes
-            out = self._last_out
-            if out is not None and self._throttle.due(now, out.action, self.wiring.set_update,
-                                                      self.wiring.state_period):
-                self.state_pub.publish(cdr.diagnostic_status_bytes(self.wiring.state_message(self.name, out)))
-        elif now - self._last_publish >= self.period * 0.5:
-            # half a period, not a whole one: the last output went out a little after the
-            # previous tick, so a whole period would skip every other tick (rate / 2)
-            self.decide()
+        if not self.lockstep:
+            # half a period, not a whole one: the last output went out a little after the previous
+            # tick, so a whole period would skip every other tick (rate / 2)
+            due = [i for i, last in enumerate(self.last_publish) if now - last >= self.period * 0.5]
+            if due:
+                self.decide(due)
+            return
+        for i, answers in enumerate(self.answers):
+            held = answers.held_pose_time
+            if held is not None:
+                self.decide((i,), held)       # a held answer: out once the cluster value is in force
+            elif answers.quiet(now):
+                # the pose's answer is the robot's command (and its step's ack); the state topic still
+                # reports the set in force (a new learned set) while no pose comes
+                last = self.last[i]
+                if last is not None and self.throttle.due(now, (i,), (last[0].action[last[1]],),
+                                                          self.wiring.set_update, self.wiring.state_period):
+                    self._say_states([i], [last[0][last[1]]])
+            elif now - self.last_publish[i] >= self.period * 0.5:
+                self.decide((i,))
 
-    # -- output --------------------------------------------------------------------------------
-    def decide(self, t=None, answers_pose=False):
-        """Decide at ``t`` and publish, unless the lockstep rules hold the answer (a cluster
-        near the robot is being solved): then the watchdog decides again, and None is
-        returned. ``answers_pose``: this is the answer to a lockstepped pose."""
+    # -- decide_on tick: every robot at once ------------------------------------------------------------
+    def on_tick(self):
+        if not self.topics and self.fleet.flowing(time.monotonic(), self.period):
+            return      # the batched poses are ticking (each decides)
+        self.decide_all()
+
+    def decide_all(self, t=None):
+        """Every robot's inputs that wait taken (the batched ones first, unless a fleet/poses message has
+        just done so, ``t``), then every robot decided."""
+        w = self.wiring
+        if t is None:
+            self._take_batched()
+            t = w.now()
+        if self.topics:
+            for i, subs in enumerate(self.subs):
+                for sub, taker, every in subs:
+                    if every:
+                        for msg in take_all(sub):
+                            taker(i, msg, t)
+                    else:
+                        data = take(sub)
+                        if data is not None:
+                            taker(i, data, t)
+        self.ticks += 1
+        self._say_ready()
+        return self.decide(None, t)
+
+    # -- batched topics ----------------------------------------------------------------------------------
+    def on_fleet_poses(self, data):
+        """A serialized fleet/poses (``FleetTopics``): every robot's pose, then a tick of every robot. Poses
+        that came while the filter was deciding are superseded by the newest: it decides once, on the
+        newest (deciding on each in turn would answer ever older poses)."""
+        with self.lock:
+            fleet = self.fleet
+            data = fleet.newest_poses(data, self.wiring.complain)
+            self._take_batched()       # the detections and commands sent before these poses
+            t = self.wiring.now()
+            fleet.take_poses(data, self.filters, self.wiring, t, self._complain)
+            self.decide_all(t)
+            fleet.last_poses = time.monotonic()
+            self.timer.reset()      # the timer decides only when the poses pause (on_tick)
+
+    def _take_batched(self):
+        """Every fleet/detections and fleet/cmd_vel_nav message waiting (``FleetTopics.take_waiting``)."""
+        if self.fleet is not None:
+            beyond, ready = self.fleet.take_waiting(self.filters, self.wiring, self._complain)
+            if ready:
+                self.ready_due.update(range(self.n))
+            self._tell_excess(beyond, [], 'fleet/cmd_vel_nav')
+
+    # -- the decision, one direction -------------------------------------------------------------------
+    def decide(self, rows=None, t=None, answers_pose=False):
+        """Decide robots ``rows`` (None: every robot) at filter time ``t`` and send what the lockstep
+        policy lets go out: their commands first (the robots wait for them), then the record of what was
+        sent, the story and the states due. ``answers_pose``: the answer to robot rows[0]'s lockstepped
+        pose, which may be held (then the watchdog decides again, and None is returned)."""
         if not self.active:
             return None            # a managed node, inactive: no cmd_vel (managed.py)
         w = self.wiring
         t = w.now() if t is None else t
-        decisions = decide_many([self.filter], w.safe_set, t)
-        self._decided_at = t
-        verdict = self.answers.judge(t, time.monotonic(), decisions.clusters_solving(0), answers_pose)
-        if not verdict.publish:
-            return None         # held: not sent, so not recorded as sent
-        # the command first (the robot waits for it; its explanation is built after)
-        self._publish_command(decisions.action[0], decisions.linear[0], decisions.omega[0], t)
-        record_decisions([self.filter], decisions)
-        out = decisions[0]
-        if verdict.action == GIVE_UP:
-            w.complain('cluster_hold', f'{verdict.why}: answering with the fallback until it lands', level='warn')
-        elif verdict.held_for is not None:
-            self._holds.held(verdict.held_for)
+        filters = self.filters if rows is None else [self.filters[i] for i in rows]
+        rows = range(self.n) if rows is None else rows
+        decisions = decide_many(filters, w.safe_set, t)
+        verdict = None
+        if self.lockstep:       # (one robot at a time)
+            verdict = self.answers[rows[0]].judge(t, time.monotonic(), decisions.clusters_solving(0), answers_pose)
+            if not verdict.publish:
+                return None     # held: not sent, so not recorded as sent
+        self._send(rows, filters, decisions, t)
+        record_decisions(filters, decisions)
+        if verdict is not None and verdict.action == GIVE_UP:
+            self._complain(rows[0], 'cluster_hold', f'{verdict.why}: answering with the fallback until it lands',
+                           level='warn')
+        elif verdict is not None and verdict.held_for is not None:
+            self.holds.held(verdict.held_for)
+        self._after(rows, filters, decisions, t)
+        return decisions
+
+    def _send(self, rows, filters, decisions, t):
+        """The commands out: each robot's cmd_vel (serialized, ``CommandSink``), and fleet/cmd_vel when
+        every robot was decided."""
+        if self.topics:
+            topics, clock = self.topics, self._clock_ns
+            for i, f, action, linear, omega in zip(rows, filters, decisions.action, decisions.linear,
+                                                   decisions.omega):
+                topics[i].send(f, t, action, linear, omega, clock)
+        if self.fleet is not None and len(rows) == self.n:
+            self.fleet.send(decisions)
+
+    def _after(self, rows, filters, decisions, t):
+        """What follows the commands: each robot's last decision kept, the story told, what was
+        clipped or cut said, the states that are due sent."""
         now = time.monotonic()
-        self._last_publish = now
+        last, last_publish, decided = self.last, self.last_publish, self.decided
+        for k, i in enumerate(rows):
+            last[i] = (decisions, k)
+            last_publish[i] = now
+            decided[i] += 1
         self.decisions += 1
-        self._last_out = out
-        self._tell_story(out)
-        if self._throttle.due(now, out.action, w.set_update, w.state_period):
-            extra = None if self.sensor is None else self.sensor.state_values(self.filter.detections)
-            self.state_pub.publish(cdr.diagnostic_status_bytes(w.state_message(self.name, out, extra)))
-        return out
+        if len(rows) == self.n:
+            self.failing_safe = decisions.action.count(FAIL_SAFE)
+        self.story.tell(rows, decisions, filters, t)
+        if self.clipped or self.dropped:
+            self._tell_excess(self.clipped, self.dropped, 'cmd_vel_nav')
+            self.clipped, self.dropped = [], []
+        w = self.wiring
+        due = self.throttle.due(now, rows, decisions.action, w.set_update, w.state_period)
+        if due:
+            self._say_states([rows[k] for k in due], [decisions[k] for k in due], every=len(rows) == self.n)
+
+    def _say_states(self, robots, outs, every=False):
+        """The state messages of ``robots`` (their outputs ``outs``), each built once, on their own topics
+        and, for a tick of ``every`` robot, fleet/safety_filter/state."""
+        w = self.wiring
+        shared = w.shared_state_values()
+        sensors = self.sensors
+        states = []
+        for i, out in zip(robots, outs):
+            extra = None if sensors is None else sensors[i].state_values(self.filters[i].detections)
+            state = w.state_message(self.namespaces[i], out, extra, shared)
+            self.last_state[i] = state
+            states.append(state)
+        if self.topics:
+            for i, state in zip(robots, states):
+                self.topics[i].say_state(state)
+        if every and self.fleet is not None:
+            self.fleet.say_states(states)
+
+    def _tell_excess(self, clipped, dropped, commands):
+        """One throttled line for the robots whose new commands were beyond their limits (the first one's
+        raw values), one for those whose detections were cut to max_detections."""
+        if clipped:         # (a kind per topic: one does not silence the other)
+            f = self.filters[clipped[0]]
+            self.wiring.complain(f'{commands} clipped', f'{commands} beyond the robot\'s limits'
+                                 f'{self.story.who(clipped)}: {self._named(clipped[0])}{f.command.note}')
+        if dropped:
+            shown = next((i for i in dropped if not self.filters[i].detections.dropped_safely), dropped[0])
+            d = self.filters[shown].detections
+            self.wiring.complain('detections dropped', f'detections cut{self.story.who(dropped)}: '
+                                 f'{self._named(shown)}{d.note}', level='warn' if d.dropped_safely else 'error')
+
+    def _named(self, i) -> str:
+        return '' if self.n == 1 else f'{self.namespaces[i]}: '
+
+    def _say_ready(self):
+        """Each robot's latched safety_filter/ready once its filter can judge (from the watchdog's or the
+        tick's thread: a publisher made off the control path)."""
+        if self.ready_due and self.topics:
+            for i in sorted(self.ready_due):
+                self.topics[i].say_ready()
+        self.ready_due.clear()
 
     def _clock_ns(self) -> int:
         return self.get_clock().now().nanoseconds
 
-    def _publish_command(self, action, linear, omega, t):
-        self.cmd_pub.publish(self.sink.cmd_vel(self.filter, t, action, linear, omega, self._clock_ns))
+    # -- what it says ----------------------------------------------------------------------------------
+    def _level_set_snapshot(self, i):
+        f = self.filters[i]
+        with self.lock:
+            return self.wiring.safe_set, f.pose.value, f.detections.value
 
-    def _tell_story(self, out):
-        """One log line per change of the fail-safe state (not one per decision): nothing while
-        starting up (said once in __init__), ERROR when valid input is lost, INFO when it is back."""
-        failing = out.action == FAIL_SAFE
-        if self._failing is None:          # starting: wait quietly for the first valid inputs
-            if not failing:
-                self._failing = False
-                self.get_logger().info(f'inputs valid: filtering ({out.action}: {out.reason})')
-            elif not self._waiting_told and self.filter.pose.value is not None:
-                # a pose to answer, but not yet what it takes: say why once (the state says it always)
-                self._waiting_told = True
-                self.get_logger().info(f'failing safe until the inputs are valid: {out.reason}')
-        elif failing and not self._failing:
-            self._failing = True
-            self.get_logger().error(f'failing safe: {out.reason}')
-        elif not failing and self._failing:
-            self._failing = False
-            self.get_logger().info(f'inputs valid again: filtering ({out.action}: {out.reason})')
-        # a planner gone silent (a robot that can stop is sent zero twists), once per silence
-        command = self.filter.command
-        silent = (command.value is not None and not command.rejected and not self.filter.config.constant_speed
-                  and not command_fresh(self.filter, self._decided_at))
-        if silent and not self._silence_told:
-            self._silence_told = True
-            self.get_logger().info(f'planner silent for more than cmd_timeout '
-                                   f'({self.filter.config.cmd_timeout:g} s): sending zero twists until it speaks')
-        elif not silent and self._silence_told and command_fresh(self.filter, self._decided_at):
-            self._silence_told = False
-            self.get_logger().info('planner speaking again')
+    def _statuses(self) -> list:
+        """Each robot's status on /diagnostics: its last state message (at most 1/state_rate old, and
+        every change of action at once: not built again for /diagnostics, which a fleet of thousands
+        would pay for each second), with what its sensor's last message says of itself."""
+        w, node = self.wiring, self.get_fully_qualified_name()
+        out, shared = [], None
+        with self.lock:     # (the states are refilled by decide, on the inputs' thread too)
+            for i, ns in enumerate(self.namespaces):
+                name, last = f'{node}: {ns}', self.last[i]
+                if last is None:
+                    out.append(Status(DiagnosticStatus.ERROR[0], name, 'no decision yet' if self.active else
+                                      'inactive: no cmd_vel', ns))
+                    continue
+                state = self.last_state[i]
+                if state is None:       # (none published yet)
+                    shared = shared or w.shared_state_values()
+                    state = w.state_message(ns, last[0][last[1]], shared=shared)
+                status = status_copy(state, name, ns, None if self.active else
+                                     f'inactive (lifecycle): no cmd_vel; last: {state.message}')
+                note = self.sensors[i].problem(self.filters[i].detections) if self.sensors is not None else ''
+                if note:        # what the sensor's last message says of itself (every beam NaN, ...)
+                    status.level = max(status.level, DiagnosticStatus.WARN[0])
+                    status.message = f'{status.message}; {note}'
+                out.append(status)
+        return out
 
     def send_zero_twist(self) -> list:
-        """One zero twist on cmd_vel (a managed node going quiet, managed.py: the base must not
-        keep the last command), stamped as the decisions are; the publisher it went out on. Under
+        """One zero twist on every robot's cmd_vel (and fleet/cmd_vel): a managed node going quiet
+        (managed.py), the bases must not keep the last commands; the publishers it went out on. Under
         the lock: after a decision under way on the inputs' thread, never before it."""
         with self.lock:
-            self.cmd_pub.publish(self.sink.bytes(0.0, 0.0, False, self._clock_ns))
-        return [self.cmd_pub]
+            for topics in self.topics:
+                topics.send_zero(self._clock_ns)
+            if self.fleet is not None:
+                self.fleet.send_zero()
+        return [topics.cmd_pub for topics in self.topics] + ([self.fleet.cmd_pub] if self.fleet is not None else [])
 
     def close(self):
         """Close what build() made, also when it failed half way (a managed node's failed configure)."""
-        for part in ('direct', 'sensor'):
-            made = getattr(self, part, None)
-            if made is not None:
-                made.close()
-        holds = getattr(self, '_holds', None)
+        direct = getattr(self, 'direct', None)
+        if direct is not None:
+            direct.close()
+        for sensor in getattr(self, 'sensors', None) or ():
+            sensor.close()
+        holds = getattr(self, 'holds', None)
         if holds is not None:
             holds.flush()
         wiring = getattr(self, 'wiring', None)
         if wiring is not None:
             wiring.close()
             wiring.live.close()
+        io = getattr(self, 'io', None)
+        if io is not None:
+            self.io = None
+            io.destroy_node()
 
     def destroy_node(self):
         if getattr(self, 'direct', None) is not None:

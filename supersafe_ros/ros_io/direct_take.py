@@ -65,14 +65,15 @@ class DirectTake:
     on; if the waiting itself fails the thread says so and ends (the owner's inputs then go
     stale: its watchdog fails safe)."""
 
-    def __init__(self, node: Node, lock, suffix: str = '_io', path: str = 'private'):
+    def __init__(self, node: Node, lock, suffix: str = '_io', path: str = 'private', io: Node | None = None):
         if path not in TAKE_PATHS:
             raise ValueError(f'take path must be one of {", ".join(TAKE_PATHS)}, got {path!r}')
         self.node = node
         self.lock = lock
         self.path = path
-        self.io = Node(f'{node.get_name()}{suffix}', namespace=node.get_namespace(), context=node.context,
-                       start_parameter_services=False, use_global_arguments=False)
+        # the helper node: ``io`` if given (its owner destroys it), else one of its own
+        self._owns_io = io is None
+        self.io = io if io is not None else helper_node(node, suffix)
         self._subs = []                      # (subscription, callback)
         self._gil_free = {}                  # subscription -> GilFreeTaker (private path)
         self._stop = self.io.create_guard_condition(lambda: None)
@@ -234,7 +235,8 @@ class DirectTake:
             pass
 
     def close(self):
-        """Stop the thread (it finishes the callback it is in) and destroy the helper node."""
+        """Stop the thread (it finishes the callback it is in) and destroy the helper node (its own), or
+        what it made on the one it was given."""
         if self._closed:
             return
         self._closed = self._closing = True
@@ -251,4 +253,19 @@ class DirectTake:
                 self._executor.shutdown(timeout_sec=1.0)
             except Exception:   # noqa: BLE001  the context is gone already: nothing left to stop
                 pass
-        self.io.destroy_node()
+        if self._owns_io:
+            self.io.destroy_node()
+        else:
+            for sub, _ in self._subs:
+                self.io.destroy_subscription(sub)
+            self.io.destroy_guard_condition(self._stop)
+            if self._tick_timer is not None:
+                self.io.destroy_timer(self._tick_timer)
+
+
+def helper_node(node: Node, suffix: str = '_io') -> Node:
+    """A helper node beside ``node`` (``<name><suffix>``, its namespace, no parameter services) that
+    ignores the process's global ROS arguments (a ``__node:=`` remap would give it the owner's name;
+    ``use_sim_time`` a /clock subscription it never reads): it takes the names the owner resolves."""
+    return Node(f'{node.get_name()}{suffix}', namespace=node.get_namespace(), context=node.context,
+                start_parameter_services=False, use_global_arguments=False)

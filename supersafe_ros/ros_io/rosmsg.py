@@ -24,6 +24,10 @@ OBSTACLE_FRAME_PREFIX = 'obstacle_'
 QOS_STREAM = QoSProfile(depth=5, history=HistoryPolicy.KEEP_LAST,
                         reliability=ReliabilityPolicy.RELIABLE,
                         durability=DurabilityPolicy.VOLATILE)
+# A reader that takes only the newest sample now and then (a filter's tick): one take, nothing
+# queued behind it.
+QOS_NEWEST = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.VOLATILE)
 # Consumers that must see every sample of a stream (the world counting crashes, the
 # supervisor judging every pose) keep a deep queue so a busy moment loses nothing.
 QOS_EVERY_SAMPLE = QoSProfile(depth=200, history=HistoryPolicy.KEEP_LAST,
@@ -95,12 +99,19 @@ def pose_to_state(msg: PoseStamped, frame: str | None = MAP_FRAME) -> tuple:
 
     ``frame=None`` skips the frame check (e.g. intervention poses in obstacle frames).
     """
-    if frame is not None and msg.header.frame_id != frame:
-        raise MessageError(f"pose frame is '{msg.header.frame_id}', expected '{frame}'")
-    p = msg.pose.position
+    return header_pose_to_state(msg.header, msg.pose, frame)
+
+
+def header_pose_to_state(header, pose, frame: str | None = MAP_FRAME) -> tuple:
+    """(x, y, theta) of ``pose`` (geometry_msgs/Pose) stamped with ``header`` (nav_msgs/Odometry:
+    ``msg.header``, ``msg.pose.pose``; PoseWithCovarianceStamped the same); MessageError for a
+    frame other than ``frame`` (None: not checked) or non-finite values."""
+    if frame is not None and header.frame_id != frame:
+        raise MessageError(f"pose frame is '{header.frame_id}', expected '{frame}'")
+    p = pose.position
     if not (math.isfinite(p.x) and math.isfinite(p.y)):
         raise MessageError(f'pose position is not finite ({p.x}, {p.y})')
-    return (float(p.x), float(p.y), quaternion_to_yaw(msg.pose.orientation))
+    return (float(p.x), float(p.y), quaternion_to_yaw(pose.orientation))
 
 
 def state_to_pose(state, stamp=None, frame: str = MAP_FRAME) -> PoseStamped:

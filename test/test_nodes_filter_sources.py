@@ -1,5 +1,5 @@
-"""ros_io.sensors and filter_inputs.SensorMap: robot-stack messages as the filter's arrays and its
-local map (message objects only, no node)."""
+"""nodes/filter_sources.py: robot-stack messages as the filter's arrays (MarkerArray discs, a pose with
+a header) and a range sensor's local map (SensorMap); message objects only, no node."""
 import math
 
 import numpy as np
@@ -11,8 +11,9 @@ from sensor_msgs.msg import LaserScan
 from visualization_msgs.msg import Marker, MarkerArray
 
 from supersafe_ros.filter import FilterConfig
-from supersafe_ros.nodes.filter_inputs import INPUT_PARAMETERS, PoseHistory, SensorMap, message_type
-from supersafe_ros.ros_io import rosmsg, sensors
+from supersafe_ros.nodes.filter_parameters import MAP_PARAMETERS, TYPE_PARAMETERS
+from supersafe_ros.nodes.filter_sources import PoseHistory, SensorMap, marker_discs, message_type
+from supersafe_ros.ros_io import rosmsg
 
 
 def marker(kind, x, y, sx, sy, frame='map', action=Marker.ADD):
@@ -28,7 +29,7 @@ def test_markers_become_discs_of_their_own_radius_and_the_rest_is_counted():
         marker(0, 0, 0, 0, 0, action=Marker.DELETEALL), marker(Marker.CYLINDER, 1, 2, 1.6, 1.0),
         marker(Marker.SPHERE, 3, 4, 2.0, 2.0), marker(Marker.CUBE, 5, 6, 3.0, 4.0), marker(Marker.ARROW, 0, 0, 1, 1),
         marker(Marker.CYLINDER, 9, 9, 1, 1, action=Marker.DELETE)])
-    discs, ignored = sensors.marker_discs(msg, 'map')
+    discs, ignored = marker_discs(msg, 'map')
     assert discs.tolist() == [[1, 2, 0.8], [3, 4, 1.0], [5, 6, 2.5]]
     assert ignored == 3
 
@@ -39,16 +40,16 @@ def test_markers_become_discs_of_their_own_radius_and_the_rest_is_counted():
     (marker(Marker.CYLINDER, 1, 2, 0.0, 1), 'must be > 0')])
 def test_a_bad_marker_refuses_the_whole_message(bad, why):
     with pytest.raises(rosmsg.MessageError, match=why):
-        sensors.marker_discs(MarkerArray(markers=[marker(Marker.CYLINDER, 0, 0, 1, 1), bad]), 'map')
+        marker_discs(MarkerArray(markers=[marker(Marker.CYLINDER, 0, 0, 1, 1), bad]), 'map')
 
 
 def test_amcl_pose_is_read_in_its_frame():
     m = PoseWithCovarianceStamped()
     m.header.frame_id = 'map'
     m.pose.pose = rosmsg.state_to_pose((1.0, 2.0, 0.5)).pose
-    assert sensors.header_pose_to_state(m.header, m.pose.pose, 'map') == pytest.approx((1.0, 2.0, 0.5))
+    assert rosmsg.header_pose_to_state(m.header, m.pose.pose, 'map') == pytest.approx((1.0, 2.0, 0.5))
     with pytest.raises(rosmsg.MessageError, match='frame'):
-        sensors.header_pose_to_state(m.header, m.pose.pose, 'odom')
+        rosmsg.header_pose_to_state(m.header, m.pose.pose, 'odom')
     assert message_type('pose_with_covariance') is PoseWithCovarianceStamped
 
 
@@ -60,7 +61,7 @@ def scan(ranges):
 
 
 def sensor(**over):
-    p = {s.name: s.default for s in INPUT_PARAMETERS}
+    p = {s.name: s.default for s in TYPE_PARAMETERS + MAP_PARAMETERS}
     p.update({'detections_type': 'laser_scan', **over})
     return SensorMap(p, PoseHistory(), FilterConfig(), 3.0, 'map')
 
