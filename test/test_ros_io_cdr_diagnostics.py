@@ -53,3 +53,24 @@ def test_the_strings_kept_stay_bounded_and_every_status_reads_back():
         assert len(cdr._ENCODED) <= cdr._ENCODED_KEPT
     same(deserialize_message(diagnostic_status_bytes(made), DiagnosticStatus), made)
     assert diagnostic_status_bytes(status) == first
+
+
+def test_a_states_values_written_once_read_back_under_every_name_and_place():
+    """A state's values are serialized once per alignment and kept: copies of it under other names
+    (the /diagnostics status of a robot, longer or shorter than its state's) and at other places of an
+    array are the bytes of statuses made anew, and read back as made."""
+    from supersafe_ros.nodes.filter_diagnostics import status_copy
+    state = statuses()[3]
+    first = diagnostic_status_bytes(state)
+    assert state.encoded, 'its values kept'
+    copies = [status_copy(state, 'n' * k, 'h' * (k % 3), 'm' * (2 * k)) for k in range(8)]
+    assert all(c.values is state.values and c.encoded is state.encoded for c in copies)
+    for made in ([state] + copies, copies[::-1], statuses() + copies):
+        kept = diagnostic_array_bytes(3, 4, made)
+        assert kept == diagnostic_array_bytes(3, 4, [Status(s.level, s.name, s.message, s.hardware_id,
+                                                            dict(s.values)) for s in made])
+        msg = deserialize_message(kept, DiagnosticArray)
+        for got, status in zip(msg.status, made):
+            same(got, status)
+    assert len(state.encoded) >= 3, 'several alignments met'
+    assert diagnostic_status_bytes(state) == first

@@ -53,7 +53,8 @@ def _qualified(namespace: str, name: str) -> str:
 def status_copy(state: Status, name: str, hardware_id: str, message: str | None = None) -> Status:
     """A robot's /diagnostics status from its state message: the state's level and values (shared,
     not copied: a state is never changed once made), named for the aggregator."""
-    return Status(state.level, name, state.message if message is None else message, hardware_id, state.values)
+    return Status(state.level, name, state.message if message is None else message, hardware_id, state.values,
+                  state.encoded)
 
 
 def array_bytes(node, statuses) -> bytes:

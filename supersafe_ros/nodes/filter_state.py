@@ -80,13 +80,15 @@ class HoldSummary:
 @dataclass(slots=True)
 class Status:
     """A diagnostic_msgs/DiagnosticStatus as plain data: ``level`` an int (0 OK, 1 WARN, 2 ERROR),
-    ``values`` a dict of strings."""
+    ``values`` a dict of strings, never changed once made; ``encoded`` their serialized bytes
+    (``ros_io.cdr``), kept for every status that shares them."""
 
     level: int
     name: str
     message: str = ''
     hardware_id: str = ''
     values: dict = field(default_factory=dict)
+    encoded: dict = field(default_factory=dict)
 
 
 class StateReporter:

@@ -352,14 +352,24 @@ def _strings_into(parts: list, offset: int, strings) -> int:
 
 def _status_into(parts: list, offset: int, status) -> int:
     """A diagnostic_msgs/DiagnosticStatus (``status``: ``level`` an int, ``name``, ``message``,
-    ``hardware_id``, ``values`` a dict of str) appended from ``offset``; the offset after it."""
+    ``hardware_id``, ``values`` a dict of str; ``encoded``, if it has one, a dict that keeps its
+    values' bytes) appended from ``offset``; the offset after it. A status's values are written
+    once for each of the four alignments they can start at: a robot's state goes out on its topic,
+    in the batched array and on /diagnostics, the same values each time."""
     parts.append(bytes((status.level,)))
     offset = _strings_into(parts, offset + 1, (status.name, status.message, status.hardware_id))
-    values = status.values
-    pad = -offset & 3
-    parts += (_PAD[pad], _COUNT.pack(len(values)))
-    strings = [s for kv in values.items() for s in kv]
-    return _strings_into(parts, offset + pad + 4, strings)
+    kept = getattr(status, 'encoded', None)
+    got = None if kept is None else kept.get(offset & 3)
+    if got is None:
+        values, written = status.values, []
+        pad = -offset & 3
+        written += (_PAD[pad], _COUNT.pack(len(values)))
+        _strings_into(written, offset + pad + 4, [s for kv in values.items() for s in kv])
+        got = b''.join(written)
+        if kept is not None:
+            kept[offset & 3] = got
+    parts.append(got)
+    return offset + len(got)
 
 
 def diagnostic_status_bytes(status) -> bytes:
