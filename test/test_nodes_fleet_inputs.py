@@ -204,3 +204,35 @@ def test_a_fleet_of_one_shows_the_graph_of_a_single_filter(ros_context, types):
     assert strip(named['topics']) == strip(single['topics'])
     assert set(named['params']) == set(single['params'])
     assert {k for k, v in named['params'].items() if v != single['params'][k]} == {'robots'}
+
+
+@pytest.mark.ros
+def test_a_fleet_decided_on_each_input_answers_each_robots_command_at_once(ros_context):
+    """decide_on input for a fleet: each command of a robot is answered at once, for that robot alone
+    (its answer carries the command's stamp), on the thread of its own (direct_take); a robot whose
+    planner is silent still gets the watchdog's commands."""
+    rigs, b = FilterRigs(ros_context), None
+    try:
+        f = FleetSafetyFilterNode(context=ros_context, node_name='fleet_on_input', parameter_overrides=params(
+            robots=['on_input_a', 'on_input_b'], decide_on='input', cmd_vel_stamped=True, pose_type='odometry',
+            detections_type='marker_array', level_set_markers=False, **QUIET))
+        a, b = Stack(ros_context, '/on_input_a'), Stack(ros_context, '/on_input_b')
+        spin = rigs.add(f, a.node)
+        spin.add(b.node)
+        spin.until(lambda: matched(*a.endpoints(), *b.endpoints()), 15.0, 'both robots\' topics to match')
+        assert f.mode == 'input' and f.direct is not None
+        a.det.publish(obstacle_markers([DISC]))
+        a.send_pose(FAR)
+        for sec in range(20, 26):
+            n = len(a.out)
+            a.send_cmd(0.25, sec=sec)
+            spin.until(lambda: any(m.header.stamp.sec == sec for m in a.out[n:]), 10.0, f'the answer to command {sec}')
+        answered = [m for m in a.out if m.header.stamp.sec >= 20]
+        assert {m.header.stamp.sec for m in answered} == set(range(20, 26))
+        assert all(m.twist.angular.z == pytest.approx(0.25) for m in answered)
+        spin.until(lambda: len(b.out) >= 3, 10.0, 'the silent robot\'s watchdog')
+        assert all((m.twist.linear.x, m.twist.angular.z) == (0.0, 0.0) for m in b.out)   # no input: it stops
+    finally:
+        rigs.close()
+        if b is not None:
+            b.node.destroy_node()
