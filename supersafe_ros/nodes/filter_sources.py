@@ -50,7 +50,7 @@ from ..ros_io import cdr, rosmsg
 from ..ros_io.rosmsg import QOS_STREAM, MessageError
 from .filter_parameters import RANGE_SENSORS
 
-# each pose_type's raw reader: a PoseStamped view of the bytes (ros_io.cdr)
+# each pose_type's raw reader: (frame_id, stamp, pose values) of the bytes (ros_io.cdr.stamped_pose)
 POSE_READERS = {'pose_stamped': cdr.pose_stamped, 'odometry': cdr.odometry,
                 'pose_with_covariance': cdr.pose_with_covariance}
 DISC_TYPES = ('pose_array', 'marker_array')
@@ -117,8 +117,8 @@ class PoseSource:
 
     def read(self, data):
         """((x, y, theta), the header's stamp) of a serialized pose message."""
-        msg = self._read(data)
-        return rosmsg.pose_to_state(msg, self.frame), msg.header.stamp
+        frame_id, stamp, v = self._read(data)
+        return rosmsg.planar_state(frame_id, v[0], v[1], v[3], v[4], v[5], v[6], self.frame), stamp
 
 
 class CommandSource:

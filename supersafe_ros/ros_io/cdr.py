@@ -87,13 +87,6 @@ class Pose:
         self.orientation = Quaternion(v[3], v[4], v[5], v[6])
 
 
-class PoseStamped:
-    __slots__ = ('header', 'pose')
-
-    def __init__(self, header, pose):
-        self.header, self.pose = header, pose
-
-
 class PoseArray:
     __slots__ = ('header', 'poses')
 
@@ -130,13 +123,18 @@ def _align(offset, size):
     return (offset + size - 1) & ~(size - 1)
 
 
-def _header_pose(data, type_name: str, skip_strings: int, fallback):
-    """A PoseStamped view of serialized bytes whose Header is followed by ``skip_strings`` strings
-    and then a Pose (7 float64); ``fallback(bytes)`` reads another encoding; MessageError naming
-    ``type_name`` if the bytes are not one."""
+def stamped_pose(data, type_name: str, skip_strings: int, message_type):
+    """(frame_id, Stamp, (x, y, z, qx, qy, qz, qw)) of the serialized bytes of a ``type_name`` whose
+    Header is followed by ``skip_strings`` strings and then a Pose (no object per field: a fleet
+    reads one per robot and tick; ``rosmsg.planar_state`` checks it as every pose reader does);
+    another encoding is deserialized by rclpy as ``message_type`` (its pose: ``pose``, or
+    ``pose.pose``); MessageError naming ``type_name`` if the bytes are not one."""
     b = body(data)
     if b is None:
-        return fallback(bytes(data))
+        msg = deserialize_message(bytes(data), message_type)
+        pose = msg.pose.pose if hasattr(msg.pose, 'pose') else msg.pose
+        p, q = pose.position, pose.orientation
+        return msg.header.frame_id, msg.header.stamp, (p.x, p.y, p.z, q.x, q.y, q.z, q.w)
     try:
         header, off = _header(b)
         for _ in range(skip_strings):
@@ -144,35 +142,27 @@ def _header_pose(data, type_name: str, skip_strings: int, fallback):
         values = _POSE.unpack_from(b, _align(off, 8))
     except (struct.error, ValueError) as exc:
         raise MessageError(f'pose is not a serialized {type_name} ({exc})') from None
-    return PoseStamped(header, Pose(values))
+    return header.frame_id, header.stamp, values
 
 
 def pose_stamped(data):
-    """A PoseStamped view of serialized bytes (MessageError if they are not one)."""
-    def fallback(raw):
-        from geometry_msgs.msg import PoseStamped as Msg
-        return deserialize_message(raw, Msg)
-    return _header_pose(data, 'PoseStamped', 0, fallback)
+    """``stamped_pose`` of a serialized geometry_msgs/PoseStamped."""
+    from geometry_msgs.msg import PoseStamped as Msg
+    return stamped_pose(data, 'PoseStamped', 0, Msg)
 
 
 def odometry(data):
-    """A PoseStamped view (its header, ``pose`` the odometry's ``pose.pose``) of a serialized
-    nav_msgs/Odometry (MessageError if the bytes are not one): Header, string child_frame_id,
-    PoseWithCovariance (Pose, 36 float64), TwistWithCovariance; the covariances are not read."""
-    def fallback(raw):
-        from nav_msgs.msg import Odometry as Msg
-        msg = deserialize_message(raw, Msg)
-        return PoseStamped(msg.header, msg.pose.pose)
-    return _header_pose(data, 'Odometry', 1, fallback)
+    """``stamped_pose`` of a serialized nav_msgs/Odometry (its ``pose.pose``): Header, string
+    child_frame_id, PoseWithCovariance (Pose, 36 float64), TwistWithCovariance; the covariances
+    are not read."""
+    from nav_msgs.msg import Odometry as Msg
+    return stamped_pose(data, 'Odometry', 1, Msg)
 
 
 def pose_with_covariance(data):
-    """A PoseStamped view (``pose`` its ``pose.pose``) of a serialized PoseWithCovarianceStamped (AMCL's)."""
-    def fallback(raw):
-        from geometry_msgs.msg import PoseWithCovarianceStamped as Msg
-        msg = deserialize_message(raw, Msg)
-        return PoseStamped(msg.header, msg.pose.pose)
-    return _header_pose(data, 'PoseWithCovarianceStamped', 0, fallback)
+    """``stamped_pose`` of a serialized geometry_msgs/PoseWithCovarianceStamped (AMCL's; its ``pose.pose``)."""
+    from geometry_msgs.msg import PoseWithCovarianceStamped as Msg
+    return stamped_pose(data, 'PoseWithCovarianceStamped', 0, Msg)
 
 
 def pose_array_layout(b, what: str):

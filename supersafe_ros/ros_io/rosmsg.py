@@ -84,7 +84,11 @@ def quaternion_to_yaw(q: Quaternion) -> float:
 
     Non-unit quaternions are normalised; the roll/pitch part is ignored (planar robot).
     """
-    x, y, z, w = q.x, q.y, q.z, q.w
+    return yaw_of(q.x, q.y, q.z, q.w)
+
+
+def yaw_of(x: float, y: float, z: float, w: float) -> float:
+    """``quaternion_to_yaw`` of the quaternion (x, y, z, w)."""
     isfinite = math.isfinite      # (four calls and no generator: a fleet reads thousands a second)
     if not (isfinite(x) and isfinite(y) and isfinite(z) and isfinite(w)):
         raise MessageError(f'orientation has non-finite components {(x, y, z, w)}')
@@ -107,12 +111,20 @@ def header_pose_to_state(header, pose, frame: str | None = MAP_FRAME) -> tuple:
     """(x, y, theta) of ``pose`` (geometry_msgs/Pose) stamped with ``header`` (nav_msgs/Odometry:
     ``msg.header``, ``msg.pose.pose``; PoseWithCovarianceStamped the same); MessageError for a
     frame other than ``frame`` (None: not checked) or non-finite values."""
-    if frame is not None and header.frame_id != frame:
-        raise MessageError(f"pose frame is '{header.frame_id}', expected '{frame}'")
-    p = pose.position
-    if not (math.isfinite(p.x) and math.isfinite(p.y)):
-        raise MessageError(f'pose position is not finite ({p.x}, {p.y})')
-    return (float(p.x), float(p.y), quaternion_to_yaw(pose.orientation))
+    p, q = pose.position, pose.orientation
+    return planar_state(header.frame_id, p.x, p.y, q.x, q.y, q.z, q.w, frame)
+
+
+def planar_state(frame_id: str, x: float, y: float, qx: float, qy: float, qz: float, qw: float,
+                 frame: str | None = MAP_FRAME) -> tuple:
+    """(x, y, theta) of a pose at (x, y) oriented (qx, qy, qz, qw) in ``frame_id``: the checks of
+    ``header_pose_to_state`` (every pose reader's), on the numbers (``cdr.stamped_pose`` reads them
+    from a message's bytes without a message object)."""
+    if frame is not None and frame_id != frame:
+        raise MessageError(f"pose frame is '{frame_id}', expected '{frame}'")
+    if not (math.isfinite(x) and math.isfinite(y)):
+        raise MessageError(f'pose position is not finite ({x}, {y})')
+    return (float(x), float(y), yaw_of(qx, qy, qz, qw))
 
 
 def state_to_pose(state, stamp=None, frame: str = MAP_FRAME) -> PoseStamped:
