@@ -175,50 +175,39 @@ def print_figures(section, tag, m, reports, t0, t1, cpu):
 
 
 def bench_fleet(args, checkouts):
-    from diagnostic_msgs.msg import DiagnosticStatus
-    from geometry_msgs.msg import PoseArray, PoseStamped, Twist
-    from supersafe_ros.ros_io import rosmsg
     print(f'== fleet: per-robot topics, fed pose + command at 50 Hz, detections at 10 Hz, {args.window:g} s a row; '
           f'the node pinned to core {bench_nodes.node_core()}, the driver off it', flush=True)
     for m in args.fleet_sizes:
         for checkout, tag in checkouts:
-            child = start_child(args, checkout, m, batched=False)
-            d = bench_nodes.Driver('bench_headroom_fleet')
-            try:
-                reports = []
-                d.node.create_subscription(DiagnosticStatus, '/bench/decisions',
-                                           lambda msg: reports.append(rosmsg.diagnostic_values(msg)),
-                                           rosmsg.QOS_EVENTS)
-                pubs = [(d.node.create_publisher(PoseStamped, f'/bench_{i}/pose', rosmsg.QOS_STREAM),
-                         d.node.create_publisher(PoseArray, f'/bench_{i}/detections', rosmsg.QOS_STREAM),
-                         d.node.create_publisher(Twist, f'/bench_{i}/cmd_vel_nav', rosmsg.QOS_STREAM))
-                        for i in range(m)]
-                d.spin_until(lambda: all(p.get_subscription_count() for trio in pubs for p in trio) and reports,
-                             180.0, f'the fleet node of {m} robots to match')
-                rng = np.random.default_rng(1)
-                poses = [rosmsg.state_to_pose((OBSTACLE[0] + rng.uniform(-6, 6), OBSTACLE[1] + rng.uniform(-6, 6),
-                                               rng.uniform(-3, 3))) for _ in range(m)]
-                dets = rosmsg.xy_to_posearray([OBSTACLE, (OBSTACLE[0] + 6, OBSTACLE[1])])
-                cmd = rosmsg.turn_rate_to_twist(0.1, 3.0)
+            row(args, 'fleet', checkout, tag, m)
 
-                def feed(seconds):
-                    ticks, start = 0, time.monotonic()
-                    next_tick = start
-                    while time.monotonic() - start < seconds:
-                        stamp = d.node.get_clock().now().to_msg()
-                        for i, (pose_pub, det_pub, cmd_pub) in enumerate(pubs):
-                            poses[i].header.stamp = stamp
-                            pose_pub.publish(poses[i])
-                            if ticks % 5 == 0:
-                                det_pub.publish(dets)
-                            cmd_pub.publish(cmd)
-                        ticks += 1
-                        next_tick += 0.02
-                        d.spin_for(max(0.0, next_tick - time.monotonic()))
-                measure('fleet', tag, m, feed, child, d, reports, args.window)
-            finally:
-                d.close()
-                bench_nodes.stop([child])
+
+def bench_batched(args, checkouts):
+    print(f'== batched: fleet/poses + fleet/cmd_vel_nav at 50 Hz, fleet/detections at 10 Hz, {args.window:g} s a '
+          f'row; the node pinned to core {bench_nodes.node_core()}, the driver off it', flush=True)
+    for n in args.batched_sizes:
+        for checkout, tag in checkouts:
+            row(args, 'batched', checkout, tag, n)
+
+
+def row(args, section, checkout, tag, size):
+    """One row: the fleet node of ``checkout`` (per-robot topics, or ``batched`` ones) of ``size``
+    robots, fed (``bench_nodes.RobotFeed`` or ``BatchedFeed``), measured (``measure``)."""
+    from diagnostic_msgs.msg import DiagnosticStatus
+    from supersafe_ros.ros_io import rosmsg
+    batched = section == 'batched'
+    child = start_child(args, checkout, size, batched=batched)
+    d = bench_nodes.Driver(f'bench_headroom_{section}')
+    try:
+        reports = []
+        d.node.create_subscription(DiagnosticStatus, '/bench/decisions',
+                                   lambda msg: reports.append(rosmsg.diagnostic_values(msg)), rosmsg.QOS_EVENTS)
+        feed = (bench_nodes.BatchedFeed if batched else bench_nodes.RobotFeed)(d, size)
+        d.spin_until(lambda: feed.matched() and reports, 180.0, f'the fleet node of {size} robots to match')
+        measure(section, tag, size, feed.run, child, d, reports, args.window)
+    finally:
+        d.close()
+        bench_nodes.stop([child])
 
 
 def measure(section, tag, size, feed, child, d, reports, window):
@@ -231,54 +220,6 @@ def measure(section, tag, size, feed, child, d, reports, window):
     feed(0.5)
     d.spin_until(lambda: reports and int(reports[-1]['t']) >= int(t1 * 1e9), 30.0, 'a report after')
     print_figures(section, tag, size, reports, t0, t1, cpu)
-
-
-def bench_batched(args, checkouts):
-    from diagnostic_msgs.msg import DiagnosticStatus
-    from geometry_msgs.msg import PoseArray
-    from std_msgs.msg import Float64MultiArray
-    from supersafe_ros.ros_io import fleetmsg, rosmsg
-    print(f'== batched: fleet/poses + fleet/cmd_vel_nav at 50 Hz, fleet/detections at 10 Hz, {args.window:g} s a '
-          f'row; the node pinned to core {bench_nodes.node_core()}, the driver off it', flush=True)
-    for n in args.batched_sizes:
-        for checkout, tag in checkouts:
-            child = start_child(args, checkout, n, batched=True)
-            d = bench_nodes.Driver('bench_headroom_batched')
-            try:
-                reports = []
-                d.node.create_subscription(DiagnosticStatus, '/bench/decisions',
-                                           lambda msg: reports.append(rosmsg.diagnostic_values(msg)),
-                                           rosmsg.QOS_EVENTS)
-                pose_pub = d.node.create_publisher(PoseArray, '/fleet/poses', rosmsg.QOS_STREAM)
-                det_pub = d.node.create_publisher(PoseArray, '/fleet/detections', rosmsg.QOS_STREAM)
-                cmd_pub = d.node.create_publisher(Float64MultiArray, '/fleet/cmd_vel_nav', rosmsg.QOS_STREAM)
-                d.spin_until(lambda: all(p.get_subscription_count() for p in (pose_pub, det_pub, cmd_pub))
-                             and reports, 180.0, f'the fleet node of {n} robots to match')
-                rng = np.random.default_rng(2)
-                field = np.stack([rng.uniform(-40, 40, 30), rng.uniform(-40, 40, 30)], axis=1)
-                states = np.stack([rng.uniform(-40, 40, n), rng.uniform(-40, 40, n), rng.uniform(-3, 3, n)], axis=1)
-                poses = rosmsg.xy_to_posearray(states[:, :2])
-                for p, th in zip(poses.poses, states[:, 2]):
-                    p.orientation = rosmsg.yaw_to_quaternion(float(th))
-                dets = rosmsg.xy_to_posearray(field)
-                cmds = fleetmsg.commands_to_msg(np.tile([3.0, 0.1], (n, 1)))
-
-                def feed(seconds):
-                    ticks, start = 0, time.monotonic()
-                    next_tick = start
-                    while time.monotonic() - start < seconds:
-                        if ticks % 5 == 0:
-                            det_pub.publish(dets)
-                        cmd_pub.publish(cmds)
-                        poses.header.stamp = d.node.get_clock().now().to_msg()
-                        pose_pub.publish(poses)
-                        ticks += 1
-                        next_tick += 0.02
-                        d.spin_for(max(0.0, next_tick - time.monotonic()))
-                measure('batched', tag, n, feed, child, d, reports, args.window)
-            finally:
-                d.close()
-                bench_nodes.stop([child])
 
 
 def bench_latency(args, checkouts):

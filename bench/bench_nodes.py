@@ -555,6 +555,90 @@ def _capacity(tag, m, cpu, ticks):
           f'serve ~{m * 0.02 / per_tick:.0f} robots at 50 Hz (load {os.getloadavg()[0]:.1f})')
 
 
+class RobotFeed:
+    """Every robot's own topics fed as a stack would (``/bench_<i>``): a pose (about the obstacles) and a
+    command at 50 Hz, detections (two obstacles 6 m apart) at 10 Hz. ``pubs``: each robot's three
+    publishers (to wait for matches); ``run(seconds)``: feed for that long, on a 50 Hz schedule; the
+    ticks fed so far in ``ticks``."""
+
+    def __init__(self, d, m):
+        from geometry_msgs.msg import PoseArray, PoseStamped, Twist
+        from supersafe_ros.ros_io import rosmsg
+        self.d = d
+        self.pubs = [(d.node.create_publisher(PoseStamped, f'/bench_{i}/pose', rosmsg.QOS_STREAM),
+                      d.node.create_publisher(PoseArray, f'/bench_{i}/detections', rosmsg.QOS_STREAM),
+                      d.node.create_publisher(Twist, f'/bench_{i}/cmd_vel_nav', rosmsg.QOS_STREAM)) for i in range(m)]
+        rng = np.random.default_rng(1)
+        self.poses = [rosmsg.state_to_pose((OBSTACLE[0] + rng.uniform(-6, 6), OBSTACLE[1] + rng.uniform(-6, 6),
+                                            rng.uniform(-3, 3))) for _ in range(m)]
+        self.dets = rosmsg.xy_to_posearray([OBSTACLE, (OBSTACLE[0] + 6, OBSTACLE[1])])
+        self.cmd = rosmsg.turn_rate_to_twist(0.1, 3.0)
+        self.ticks = 0
+
+    def matched(self) -> bool:
+        return all(p.get_subscription_count() for trio in self.pubs for p in trio)
+
+    def run(self, seconds):
+        d, start = self.d, time.monotonic()
+        next_tick = start
+        while time.monotonic() - start < seconds:
+            stamp = d.node.get_clock().now().to_msg()
+            for pose, (pose_pub, det_pub, cmd_pub) in zip(self.poses, self.pubs):
+                pose.header.stamp = stamp
+                pose_pub.publish(pose)
+                if self.ticks % 5 == 0:
+                    det_pub.publish(self.dets)
+                cmd_pub.publish(self.cmd)
+            self.ticks += 1
+            next_tick += 0.02
+            d.spin_for(max(0.0, next_tick - time.monotonic()))
+
+
+class BatchedFeed:
+    """The batched topics fed as a fleet manager would: ``send()`` one tick's fleet/cmd_vel_nav and
+    fleet/poses (n robots scattered over 80 m; every fifth tick fleet/detections first, 30 obstacles);
+    ``run(seconds)`` one tick every 20 ms for that long."""
+
+    def __init__(self, d, n):
+        from geometry_msgs.msg import PoseArray
+        from std_msgs.msg import Float64MultiArray
+        from supersafe_ros.ros_io import fleetmsg, rosmsg
+        self.d = d
+        self.pose_pub = d.node.create_publisher(PoseArray, '/fleet/poses', rosmsg.QOS_STREAM)
+        self.det_pub = d.node.create_publisher(PoseArray, '/fleet/detections', rosmsg.QOS_STREAM)
+        self.cmd_pub = d.node.create_publisher(Float64MultiArray, '/fleet/cmd_vel_nav', rosmsg.QOS_STREAM)
+        rng = np.random.default_rng(2)
+        field = np.stack([rng.uniform(-40, 40, 30), rng.uniform(-40, 40, 30)], axis=1)
+        states = np.stack([rng.uniform(-40, 40, n), rng.uniform(-40, 40, n), rng.uniform(-3, 3, n)], axis=1)
+        self.poses = rosmsg.xy_to_posearray(states[:, :2])
+        for pose, th in zip(self.poses.poses, states[:, 2]):
+            pose.orientation = rosmsg.yaw_to_quaternion(float(th))
+        self.dets = rosmsg.xy_to_posearray(field)
+        self.cmds = fleetmsg.commands_to_msg(np.tile([3.0, 0.1], (n, 1)))
+        self.ticks = 0
+
+    def matched(self) -> bool:
+        return all(p.get_subscription_count() for p in (self.pose_pub, self.det_pub, self.cmd_pub))
+
+    def send(self) -> int:
+        """One tick's messages; the monotonic ns just before the poses went out."""
+        if self.ticks % 5 == 0:
+            self.det_pub.publish(self.dets)
+        self.cmd_pub.publish(self.cmds)
+        self.poses.header.stamp = self.d.node.get_clock().now().to_msg()
+        sent = time.monotonic_ns()
+        self.pose_pub.publish(self.poses)
+        self.ticks += 1
+        return sent
+
+    def run(self, seconds):
+        next_tick = start = time.monotonic()
+        while time.monotonic() - start < seconds:
+            self.send()
+            next_tick += 0.02
+            self.d.spin_for(max(0.0, next_tick - time.monotonic()))
+
+
 def bench_fleet(args):
     with driver_off_node_core(args) as where:
         _bench_fleet(args, where)
@@ -562,7 +646,6 @@ def bench_fleet(args):
 
 def _bench_fleet(args, where):
     from diagnostic_msgs.msg import DiagnosticStatus
-    from geometry_msgs.msg import PoseArray, PoseStamped, Twist
     from supersafe_ros.ros_io import rosmsg
     print('[fleet] fleet_safety_filter_node, per-robot topics, one process pinned to one core; the bench '
           f'feeds each robot pose + command at 50 Hz and detections at 10 Hz for {args.window:.0f} s; '
@@ -574,30 +657,12 @@ def _bench_fleet(args, where):
             reports = []
             d.node.create_subscription(DiagnosticStatus, '/bench/decisions',
                                        lambda msg: reports.append(rosmsg.diagnostic_values(msg)), rosmsg.QOS_EVENTS)
-            pubs = [(d.node.create_publisher(PoseStamped, f'/bench_{i}/pose', rosmsg.QOS_STREAM),
-                     d.node.create_publisher(PoseArray, f'/bench_{i}/detections', rosmsg.QOS_STREAM),
-                     d.node.create_publisher(Twist, f'/bench_{i}/cmd_vel_nav', rosmsg.QOS_STREAM)) for i in range(m)]
-            d.spin_until(lambda: all(p.get_subscription_count() for trio in pubs for p in trio) and reports,
-                         180.0, f'the fleet node of {m} robots to match')
-            rng = np.random.default_rng(1)
-            poses = [rosmsg.state_to_pose((OBSTACLE[0] + rng.uniform(-6, 6), OBSTACLE[1] + rng.uniform(-6, 6),
-                                           rng.uniform(-3, 3))) for _ in range(m)]
-            dets = rosmsg.xy_to_posearray([OBSTACLE, (OBSTACLE[0] + 6, OBSTACLE[1])])
-            cmd = rosmsg.turn_rate_to_twist(0.1, 3.0)
-            ticks, t0 = 0, time.monotonic()
+            feed = RobotFeed(d, m)
+            d.spin_until(lambda: feed.matched() and reports, 180.0, f'the fleet node of {m} robots to match')
+            t0 = time.monotonic()
             cpu0, me0 = cpu_seconds(child.pid), time.process_time()
-            next_tick = t0
-            while time.monotonic() - t0 < args.window:
-                stamp = d.node.get_clock().now().to_msg()
-                for i, (pose_pub, det_pub, cmd_pub) in enumerate(pubs):
-                    poses[i].header.stamp = stamp
-                    pose_pub.publish(poses[i])
-                    if ticks % 5 == 0:
-                        det_pub.publish(dets)
-                    cmd_pub.publish(cmd)
-                ticks += 1
-                next_tick += 0.02
-                d.spin_for(max(0.0, next_tick - time.monotonic()))
+            feed.run(args.window)
+            ticks = feed.ticks
             t1 = time.monotonic()
             cpu, feeder = cpu_seconds(child.pid) - cpu0, time.process_time() - me0
             d.spin_until(lambda: reports and int(reports[-1]['t']) >= int(t1 * 1e9), 30.0, 'a report after the window')
@@ -620,9 +685,8 @@ def bench_batched(args):
 
 def _bench_batched(args, where):
     from diagnostic_msgs.msg import DiagnosticStatus
-    from geometry_msgs.msg import PoseArray
     from std_msgs.msg import Float64MultiArray
-    from supersafe_ros.ros_io import fleetmsg, rosmsg
+    from supersafe_ros.ros_io import rosmsg
     print('[batched] fleet_safety_filter_node, batched topics only, pinned to one core; the bench sends '
           f'fleet/poses + fleet/cmd_vel_nav at 50 Hz (fleet/detections at 10 Hz) for {args.window:.0f} s; '
           f'{where}')
@@ -635,19 +699,8 @@ def _bench_batched(args, where):
                                        lambda msg: reports.append(rosmsg.diagnostic_values(msg)), rosmsg.QOS_EVENTS)
             d.node.create_subscription(Float64MultiArray, '/fleet/cmd_vel',
                                        lambda msg: replies.append(time.monotonic_ns()), rosmsg.QOS_STREAM)
-            pose_pub = d.node.create_publisher(PoseArray, '/fleet/poses', rosmsg.QOS_STREAM)
-            det_pub = d.node.create_publisher(PoseArray, '/fleet/detections', rosmsg.QOS_STREAM)
-            cmd_pub = d.node.create_publisher(Float64MultiArray, '/fleet/cmd_vel_nav', rosmsg.QOS_STREAM)
-            d.spin_until(lambda: all(p.get_subscription_count() for p in (pose_pub, det_pub, cmd_pub)) and reports,
-                         180.0, f'the fleet node of {n} robots to match')
-            rng = np.random.default_rng(2)
-            field = np.stack([rng.uniform(-40, 40, 30), rng.uniform(-40, 40, 30)], axis=1)
-            states = np.stack([rng.uniform(-40, 40, n), rng.uniform(-40, 40, n), rng.uniform(-3, 3, n)], axis=1)
-            poses = rosmsg.xy_to_posearray(states[:, :2])
-            for p, th in zip(poses.poses, states[:, 2]):
-                p.orientation = rosmsg.yaw_to_quaternion(float(th))
-            dets = rosmsg.xy_to_posearray(field)
-            cmds = fleetmsg.commands_to_msg(np.tile([3.0, 0.1], (n, 1)))
+            batched = BatchedFeed(d, n)
+            d.spin_until(lambda: batched.matched() and reports, 180.0, f'the fleet node of {n} robots to match')
 
             def feed(seconds):
                 """Poses and commands at 50 Hz (detections at 10 Hz) for ``seconds``: (ticks, the
@@ -655,13 +708,8 @@ def _bench_batched(args, where):
                 latency, sends, ticks = [], [], 0
                 next_tick = start = time.monotonic()
                 while time.monotonic() - start < seconds:
-                    if ticks % 5 == 0:
-                        det_pub.publish(dets)
-                    cmd_pub.publish(cmds)
-                    poses.header.stamp = d.node.get_clock().now().to_msg()
                     replies.clear()
-                    sent = time.monotonic_ns()
-                    pose_pub.publish(poses)
+                    sent = batched.send()
                     sends.append(sent)
                     ticks += 1
                     next_tick += 0.02

@@ -345,17 +345,6 @@ def test_a_robots_state_is_due_on_its_phase_on_a_change_and_alike_decided_alone_
     assert kinds == {True, False}       # some ticks with a few robots due, some with all or none
 
 
-class _Log:
-    def __init__(self):
-        self.lines = []
-
-    def info(self, text):
-        self.lines.append(('info', text))
-
-    def error(self, text):
-        self.lines.append(('error', text))
-
-
 class _Decisions(list):
     """What Story reads of a decision: the actions, and each robot's output (action, reason)."""
 
@@ -377,7 +366,7 @@ def test_a_fleets_story_tells_each_kind_of_change_once_per_decision():
     valid, one for those that failed safe (with the first one's reason), one for those back;
     nothing when nothing changed; robots decided alone are told alone."""
     from supersafe_ros.nodes.filter_state import Story
-    log, filters = _Log(), _filters(4)
+    log, filters = Log(), _filters(4)
     story = Story(log, ['/a', '/b', '/c', '/d'])
 
     def tell(*actions, rows=range(4)):
@@ -401,7 +390,7 @@ def test_a_fleets_story_tells_each_kind_of_change_once_per_decision():
 
 def test_a_lone_robots_story_says_its_reason_and_its_planners_silence_once():
     from supersafe_ros.nodes.filter_state import Story
-    log, (f,) = _Log(), _filters(1)
+    log, (f,) = Log(), _filters(1)
     story = Story(log, ['/robot_0'])
     story.tell([0], _Decisions(['fail_safe']), [f], 0.0)
     assert log.lines == [('info', 'failing safe until the inputs are valid: why 0')]     # once, while starting
