@@ -13,9 +13,10 @@ entity of the node, about 0.1-1 ms on this class of machine, docs/fleet.md):
 
 * ``ros_io.direct_take``: a filter's pose, detections and command on a thread of their own
   (bench/results/take.md: the filter's CPU per decision 1.25-1.88 against 1.67-2.30 ms);
-* fleet_safety_filter_node: each tick takes the newest sample of every robot's topics and every
-  batched message waiting, from subscriptions of a node that is never spun (60 robots x 3 topics
-  at 50 Hz would be 9,000 callbacks a second; bench/bench_headroom.py prints the tick's figures);
+* the filter node deciding on ticks (a fleet): each tick takes the newest sample of every robot's
+  pose, detections and command, every range-sensor message and every batched message waiting,
+  from subscriptions of a node that is never spun (60 robots x 3 topics at 50 Hz would be 9,000
+  callbacks a second; bench/bench_headroom.py prints the tick's figures);
 * learner_node: the interventions and markers that wait, taken together before it fits
   (a fit answers every intervention that came with it).
 """
