@@ -211,10 +211,10 @@ def test_value_exactly_at_alpha_plus_margin_keeps_overriding(standard):
 
 # -- which constraint governs (govern on a hand-made table) ---------------------------------------
 def table(rows):
-    """A constraint table for govern: rows of (robot, position, value, level, value_next, sound,
-    group)."""
-    from supersafe_ros.filter.law import ConstraintTable
-    tab = ConstraintTable()
+    """A constraint table's columns that govern reads: rows of (robot, position, value, level,
+    value_next, sound, group)."""
+    from types import SimpleNamespace
+    tab = SimpleNamespace()
     cols = list(zip(*rows))
     tab.robot, tab.position = np.array(cols[0], np.intp), np.array(cols[1], np.intp)
     tab.value, tab.level, tab.value_next = (np.array(c, float) for c in cols[2:5])

@@ -508,6 +508,60 @@ def test_a_robots_propagated_state_does_not_depend_on_the_other_robots_plans(sta
     assert {o.action for o in outs} == {'pass', 'override'}
 
 
+def same_bits(a, b) -> bool:
+    """``a`` and ``b`` hold the same values bit for bit (arrays: dtype, shape and bytes; lists and
+    tuples: item by item; anything else: the same object or equal reprs)."""
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        a, b = np.asarray(a), np.asarray(b)
+        return a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
+    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
+        return len(a) == len(b) and all(same_bits(x, y) for x, y in zip(a, b))
+    return a is b or repr(a) == repr(b)
+
+
+def test_one_robots_columns_in_python_floats_are_gathers():
+    """gather_one_fast (one robot, Python floats) gives the columns gather gives for that robot
+    alone, field by field, bit for bit (its ``lone_state`` is its state in floats, which gather
+    leaves None), and None exactly where gather finds no state to judge: robots fresh, delayed,
+    failing safe from a last valid state, lost, with commands sent since their poses, silent
+    planners, commands beyond the bound, discs of their own radius and rings of larger ones."""
+    import dataclasses
+    from supersafe_ros.filter.gather import RobotColumns, gather, gather_one_fast
+    filters, t = build_fleet(21, 300)
+    rng = np.random.default_rng(22)
+    for f in filters[::7]:          # discs of their own radius, some larger than the set's (rings)
+        if f.detections.value is not None and len(f.detections.value):
+            rows = np.column_stack([f.detections.value, rng.choice([0.5, 1.8, 4.0], len(f.detections.value))])
+            f.update_detections(rows, f.detections.t)
+    safe = SafeSet(solve_avoid(Grid((-8, -8), (8, 8), (21, 21, 12)), DubinsCar(3.0, 1.0), Disc(0, 0, 1.8),
+                               horizon=1.0), 0.0)
+    seen = {'fast': 0, 'none': 0, 'failing': 0, 'arcs': 0, 'radii': 0, 'kept': 0}
+    for tick in range(3):
+        for f in filters:
+            fast, full = gather_one_fast(f, t), gather([f], t)
+            if fast is None:
+                assert len(full.robot_index) == 0
+                seen['none'] += 1
+                continue
+            for field in dataclasses.fields(RobotColumns):
+                a, b = getattr(fast, field.name), getattr(full, field.name)
+                if field.name == 'lone_state':
+                    assert b is None and same_bits(np.array(a), fast.states[0]), field.name
+                else:
+                    assert same_bits(a, b), (field.name, a, b)
+            seen['fast'] += 1
+            seen['failing'] += bool(fast.failing[0])
+            seen['arcs'] += bool(fast.pose_age[0] > 0.0)
+            seen['radii'] += fast.detection_radii[0] is not None
+            seen['kept'] += fast.detections_kept[0] is not None
+        step_many(filters, safe, t)       # commands sent: the next tick's poses are propagated along them
+        t += 0.02
+        for f in filters:
+            if f.pose.value is not None and rng.random() < 0.7:
+                f.update_pose(f.pose.value, t, stamp=t - float(rng.choice([0.0, 0.01, 0.03])))
+    assert min(seen.values()) > 5, seen
+
+
 @pytest.mark.parametrize('kind', ['standard', 'lopsided, not symmetric'])
 def test_one_robots_pair_values_in_python_floats_equal_numpys(standard, kind):
     """pair_values_fast (one robot, Python floats) equals pair_values (numpy) bit for bit:
@@ -559,13 +613,14 @@ def test_the_governing_rule_is_the_per_robot_oracles():
     that differ (pairs at alpha, clusters at their own level), sound cluster rows and their
     members, values off the grid, exact ties, overriding or not."""
     from filter_oracle import govern_one as _govern_one
-    from supersafe_ros.filter.law import ConstraintTable, first_min, govern
+    from types import SimpleNamespace as Columns        # the table's columns govern reads
+    from supersafe_ros.filter.law import first_min, govern
     rng = np.random.default_rng(8)
     kinds = set()
     for trial in range(3000):
         n_pairs, n_cl = int(rng.integers(0, 5)), int(rng.integers(0, 3))
         k = n_pairs + n_cl
-        lists, arrays = ConstraintTable(), ConstraintTable()
+        lists, arrays = Columns(), Columns()
         value = rng.choice([-0.5, 0.0, 0.1, 0.3, 0.8, math.inf], k) + rng.choice([0.0, 1e-3], k) * rng.random(k)
         value_next = np.where(rng.random(k) < 0.2, math.inf, value + rng.normal(0.0, 0.3, k))
         level = np.concatenate([np.full(n_pairs, rng.choice([0.0, 0.3, -0.2])), rng.choice([0.0, 0.2, 0.6], n_cl)])

@@ -84,8 +84,8 @@ def nearest_cell(view, x, y, reach):
 def map_rows(views, values, rows, states, planned, horizon, speed, bang, safe_set, configs) -> dict:
     """The map rows of the robot rows ``rows`` (each with a view and its solved value, as gathered:
     ``values[i]``): per row its robot, V, V_next, level, the nearest occupied cell and the gap to
-    it, and ``turns_of(k)`` the unit avoid turns of map rows ``k`` (read only for the robots that
-    avoid by them). Each row's reads are one robot's few, in Python floats (``pairs.pair_values_fast``
+    it, and ``turns`` the unit avoid turns of the map rows (read with their values: one robot's
+    reads, in Python floats). Each row's reads are one robot's few, in Python floats (``pairs.pair_values_fast``
     of the one "obstacle" at the origin: the same values as ``pair_reads`` and ``pair_turns``, bit for
     bit, at a fifth of their numpy cost here)."""
     k = len(rows)
@@ -106,7 +106,7 @@ def map_rows(views, values, rows, states, planned, horizon, speed, bang, safe_se
         out['level'][j] = map_value_level(mv, safe_set, configs[i])
         reach = 2.0 * float(speed[i]) * float(horizon[i]) + 2.0 + view.clearance
         out['xy'][j], out['gap'][j] = nearest_cell(view, x, y, reach)
-    out['turns_of'] = lambda picked: turns[np.asarray(picked, dtype=np.intp)]
+    out['turns'] = turns
     return out
 
 

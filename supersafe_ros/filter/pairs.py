@@ -16,11 +16,12 @@ the robot's speed and turn bound w_max (a silent planner counts as a zero comman
 
 ``pair_reads`` reads V and V_next of many pairs in one call (skipping the hold reads of
 pairs whose radial bound keeps V_next above the level), ``pair_turns`` the turns (read only
-for the rows robots avoid by); ``pair_values_fast`` is the same for one robot's few pairs,
-in Python floats (the same bits).
+for the rows robots avoid by, from ``PairTurns``: ``pair_turns_of``); ``pair_values_fast`` is
+the same for one robot's few pairs, in Python floats (the same bits).
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 import math
 
 import numpy as np
@@ -97,6 +98,31 @@ def pair_turns(vf: ValueFunction, rel, value, horizon, speed, bang):
         use = np.isfinite(left) | np.isfinite(right)
         turn[held] = np.where(use, better_bang(left, right, tie_tolerance(vf)), turn[held])
     return turn
+
+
+@dataclass(frozen=True, slots=True)
+class PairTurns:
+    """What the unit avoid turns of pair rows are read from (``pair_turns_of``): the safe set's ``vf``;
+    per pair row its relative state ``rel`` (P, 3), V (``value``) and robot row (``robot``); per robot
+    row its lookahead, speed and turn bound; ``known``: the turns already read (a lone robot's,
+    ``pair_values_fast``; then the rest may be None), else None."""
+
+    vf: ValueFunction
+    rel: np.ndarray | None
+    value: np.ndarray | None
+    robot: np.ndarray | None
+    lookahead: np.ndarray | None
+    speed: np.ndarray | None
+    omega_max: np.ndarray | None
+    known: np.ndarray | None = None
+
+
+def pair_turns_of(p: PairTurns, rows) -> np.ndarray:
+    """``pair_turns`` of pair rows ``rows`` (or their known turns)."""
+    if p.known is not None:
+        return p.known[rows]
+    r = p.robot[rows]
+    return pair_turns(p.vf, p.rel[rows], p.value[rows], p.lookahead[r], p.speed[r], p.omega_max[r])
 
 
 FEW_PAIRS = 3     # a robot decided alone reads V in Python floats up to this many pairs near the grid
