@@ -61,7 +61,8 @@ def constraint_rows(cols, safe_set, clusters, derived):
     horizon, planned, speed, bang = cols.lookahead, cols.planned_turn, cols.drive_speed, cols.omega_max
     fast = None
     if lone is not None:       # a robot's own filter: its few pairs in Python floats
-        fast = pair_values_fast(vf, *lone, dets[0].tolist(), float(planned[0]), float(horizon[0]), float(speed[0]),
+        centres_list = dets[0].tolist()
+        fast = pair_values_fast(vf, *lone, centres_list, float(planned[0]), float(horizon[0]), float(speed[0]),
                                 float(bang[0]), FEW_PAIRS)
     if counts is None:
         counts = np.array([len(dets[0])])
@@ -69,13 +70,13 @@ def constraint_rows(cols, safe_set, clusters, derived):
         n_pairs = int(counts[0])
         start, pair_robot, centres = _ONE_ROBOT, np.zeros(n_pairs, np.intp), dets[0]
         position = np.arange(n_pairs)
-        value, turn, value_next = (np.array(a, dtype=float) for a in fast)
+        value, value_next = np.array(fast[0], dtype=float), np.array(fast[1], dtype=float)
         shift = pair_shifts(cols.detection_radii, cols.configs, [n_pairs],
                             narrowed.position if narrowed is not None else None)
         if shift is not None:        # discs of their own radius (filter.discs): V_r = V_R + (R - r)
             value += shift
             value_next += shift
-        pair_turns = PairTurns(vf, None, None, None, None, None, None, turn)
+        pair_turns = PairTurns(vf, None, fast[0], None, horizon, speed, bang, lone + (centres_list,))
     else:
         n_pairs = int(counts.sum())
         start = np.concatenate(([0], np.cumsum(counts)[:-1])).astype(np.intp) if m else np.zeros(0, np.intp)

@@ -227,10 +227,11 @@ def gather_one_fast(f, t):
     """``gather`` of one robot, in Python floats (numpy's cost per call would be most of a lone
     robot's decision), its state now propagated as ``propagation.follow`` does (the same
     bits); None if its state does not enter the law (then ``gather`` gives its fail safe).
-    Kept for: 7-10 us against 102-115 us for ``gather([f])`` (12-14x; timeit, 2026-12-04, the
-    2-core development machine); test_filter_vectorised compares both paths' columns, field by
-    field, and the filter tests that take the ``decision_path`` fixture (test/conftest.py) run
-    each case alone and beside an idle robot: both paths."""
+    Kept for: 15 us against 120-139 us for ``gather([f])`` (8-9x; timeit, 2026-12-06, the
+    2-core development machine, load 1.5; 4 us of the 15 are the frozen columns' ``__init__``);
+    test_filter_vectorised compares both paths' columns, field by field, and the filter tests
+    that take the ``decision_path`` fixture (test/conftest.py) run each case alone and beside an
+    idle robot: both paths."""
     why, usable = problem(f, t)
     if not usable:
         return None

@@ -16,8 +16,8 @@ the robot's speed and turn bound w_max (a silent planner counts as a zero comman
 
 ``pair_reads`` reads V and V_next of many pairs in one call (skipping the hold reads of
 pairs whose radial bound keeps V_next above the level), ``pair_turns`` the turns (read only
-for the rows robots avoid by, from ``PairTurns``: ``pair_turns_of``); ``pair_values_fast`` is
-the same for one robot's few pairs, in Python floats (the same bits).
+for the rows robots avoid by, from ``PairTurns``: ``pair_turns_of``); ``pair_values_fast`` and
+``pair_turn_fast`` are the same for one robot's few pairs, in Python floats (the same bits).
 """
 from __future__ import annotations
 
@@ -104,23 +104,27 @@ def pair_turns(vf: ValueFunction, rel, value, horizon, speed, bang):
 class PairTurns:
     """What the unit avoid turns of pair rows are read from (``pair_turns_of``): the safe set's ``vf``;
     per pair row its relative state ``rel`` (P, 3), V (``value``) and robot row (``robot``); per robot
-    row its lookahead, speed and turn bound; ``known``: the turns already read (a lone robot's,
-    ``pair_values_fast``; then the rest may be None), else None."""
+    row its lookahead, speed and turn bound. A lone robot's few pairs read in Python floats
+    (``pair_values_fast``): ``lone`` its state (x, y, theta) and the pairs' centres [(cx, cy)], ``value``
+    a list, ``rel`` and ``robot`` None (its turns are read as its values were: ``pair_turn_fast``)."""
 
     vf: ValueFunction
     rel: np.ndarray | None
-    value: np.ndarray | None
+    value: object
     robot: np.ndarray | None
-    lookahead: np.ndarray | None
-    speed: np.ndarray | None
-    omega_max: np.ndarray | None
-    known: np.ndarray | None = None
+    lookahead: np.ndarray
+    speed: np.ndarray
+    omega_max: np.ndarray
+    lone: tuple | None = None
 
 
 def pair_turns_of(p: PairTurns, rows) -> np.ndarray:
-    """``pair_turns`` of pair rows ``rows`` (or their known turns)."""
-    if p.known is not None:
-        return p.known[rows]
+    """``pair_turns`` of pair rows ``rows`` (a lone robot's: ``pair_turn_fast``, the same bits)."""
+    if p.lone is not None:
+        x, y, th, centres = p.lone
+        horizon, speed, bang = float(p.lookahead[0]), float(p.speed[0]), float(p.omega_max[0])
+        return np.array([pair_turn_fast(p.vf, x - centres[j][0], y - centres[j][1], th, p.value[j], horizon, speed,
+                                        bang) for j in rows.tolist()], dtype=float)
     r = p.robot[rows]
     return pair_turns(p.vf, p.rel[rows], p.value[rows], p.lookahead[r], p.speed[r], p.omega_max[r])
 
@@ -129,17 +133,18 @@ FEW_PAIRS = 3     # a robot decided alone reads V in Python floats up to this ma
 
 
 def pair_values_fast(vf: ValueFunction, x, y, th, centres, planned, horizon, speed, bang, few):
-    """(V, unit turn, V next) of ``pair_reads`` (every hold read: level +inf) and ``pair_turns``
-    for one robot's pairs (its state x, y, th; ``centres`` a list of (cx, cy); its command,
-    hold, speed and bound), as lists; None if more than ``few``
-    pairs are near the grid (then numpy's evaluation is the cheaper).
+    """(V, V next) of ``pair_reads`` (every hold read: level +inf) for one robot's pairs (its state
+    x, y, th; ``centres`` a list of (cx, cy); its command, hold, speed and bound), as lists; None if
+    more than ``few`` pairs are near the grid (then numpy's evaluation is the cheaper). Their
+    turns: ``pair_turn_fast``, read only for the rows the robot avoids by (as ``pair_turns``).
 
     V is read state by state in Python floats (``ValueFunction.value_at``): a robot's own
     filter has one or two obstacles near, and numpy's cost per call (some 150 calls) is
     most of its decision. The same operations in the same order, so the same values bit
     for bit (test_filter_vectorised: each robot decided alone decides as in a fleet).
-    Kept for: 87-90 us against 300-306 us for ``pair_reads`` and ``pair_turns`` of the same
-    three pairs (3.4-3.5x; timeit, 2026-12-04, the 2-core development machine).
+    Kept for: 66-68 us against 156 us for ``pair_reads`` of the same three pairs near the grid
+    (2.4x; timeit, 2026-12-06, the 2-core development machine, load 1.5); and a turn
+    (``pair_turn_fast``) 15 us against 141-155 us for ``pair_turns`` of one pair.
     """
     g = vf.grid
     inf = math.inf
@@ -150,24 +155,31 @@ def pair_values_fast(vf: ValueFunction, x, y, th, centres, planned, horizon, spe
     if len(near) > few:
         return None
     n = len(rel)
-    value, turn, value_next = [inf] * n, [0.0] * n, [inf] * n
-    if not near:
-        return value, turn, value_next
-    tol = tie_tolerance(vf)
+    value, value_next = [inf] * n, [inf] * n
     for j in near:
         rx, ry = rel[j]
-        v0 = value[j] = vf.value_at(rx, ry, th, outside=inf)
-        if v0 != inf:       # on the grid: the law's turn
-            turn[j] = avoid_turn_at(vf, rx, ry, th)
-        if horizon > 0:     # (without a hold: V_next = +inf and the law's turn)
-            left = vf.value_at(*arc(rx, ry, th, speed, bang, horizon), outside=inf)
-            right = vf.value_at(*arc(rx, ry, th, speed, -bang, horizon), outside=inf)
+        value[j] = vf.value_at(rx, ry, th, outside=inf)
+        if horizon > 0:     # (without a hold: V_next = +inf)
             ax, ay, ath = arc(rx, ry, th, speed, planned, horizon)
             end_left = vf.value_at(*arc(ax, ay, ath, speed, bang, horizon), outside=inf)
             end_right = vf.value_at(*arc(ax, ay, ath, speed, -bang, horizon), outside=inf)
             v_ahead = vf.value_at(ax, ay, ath, outside=inf)
             better = end_left if end_left > end_right else end_right       # np.maximum
             value_next[j] = v_ahead if v_ahead < better else better          # np.minimum
-            if left != inf or right != inf:
-                turn[j] = 1.0 if left >= right - tol else -1.0
-    return value, turn, value_next
+    return value, value_next
+
+
+def pair_turn_fast(vf: ValueFunction, rx, ry, th, value, horizon, speed, bang) -> float:
+    """``pair_turns`` of one pair in Python floats (its relative state rx, ry, th, its V ``value``;
+    the robot's hold, speed and bound): with a hold, the bang whose hold ends at the larger V (ties
+    left) wherever either end is on the grid, else the law's sign(dV/dtheta) where V is finite, else
+    0 (the same operations as ``pair_turns``, so the same bits; test_filter_vectorised compares
+    them). Kept for: 15 us against 141-155 us for ``pair_turns`` of one pair (``pair_values_fast``'
+    figures)."""
+    inf = math.inf
+    if horizon > 0:
+        left = vf.value_at(*arc(rx, ry, th, speed, bang, horizon), outside=inf)
+        right = vf.value_at(*arc(rx, ry, th, speed, -bang, horizon), outside=inf)
+        if left != inf or right != inf:
+            return 1.0 if left >= right - tie_tolerance(vf) else -1.0
+    return avoid_turn_at(vf, rx, ry, th) if value != inf else 0.0
