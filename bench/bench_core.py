@@ -19,9 +19,10 @@ Scenarios (``--only``):
   record): three obstacles, one near; ``lone-cluster``: two close obstacles near, their union
   value in force (solved inline, disk-cached);
 * ``fleet-N-V``: the batched fleet of bench_headroom.py's ``batched`` section, N robots (1,000 or
-  2,000) over 80 x 80 m among 30 obstacles, one detections array for all, every planner asking
-  (3 m/s, 0.1 rad/s); V the clusters: ``off``, ``fallback`` (loiter circles: no union value in force,
-  as before the solves end or for sensor discs) or ``union`` (in force: solved inline, disk-cached).
+  2,000) over 80 x 80 m among 30 obstacles, one configuration and one detections array for all,
+  every planner asking (3 m/s, 0.1 rad/s); V the clusters: ``off``, ``fallback`` (loiter circles:
+  no union value in force, as before the solves end or for sensor discs) or ``union`` (in force:
+  solved inline, disk-cached).
 
 ``--callgrind SCENARIO --ticks K``: this checkout only, K ticks of one scenario in this process
 (run it under ``valgrind --tool=callgrind`` twice, with K and 2K: the difference is K ticks'
@@ -67,7 +68,8 @@ def build(name):
     rng = np.random.default_rng(2)
     field = np.stack([rng.uniform(-40, 40, 30), rng.uniform(-40, 40, 30)], axis=1)
     states = np.stack([rng.uniform(-40, 40, n), rng.uniform(-40, 40, n), rng.uniform(-3, 3, n)], axis=1)
-    filters = [RobotFilter(FilterConfig(clusters=variant != 'off'), name=f'r{i}') for i in range(n)]
+    config = FilterConfig(clusters=variant != 'off')     # one for all, as the fleet node's robots share
+    filters = [RobotFilter(config, name=f'r{i}') for i in range(n)]
     store = {'off': None, 'fallback': ClusterStore(ClusterSettings(), fallback_only=True),
              'union': ClusterStore(ClusterSettings(), background=False)}[variant]
     omegas, linears = np.full(n, 0.1), np.full(n, 3.0)
