@@ -5,7 +5,8 @@ its command, hold, speed and turn bound), per robot:
 
 * the detections within its reach when it has many (``nearby.narrow``: the others cannot
   constrain it);
-* one row per detected obstacle (``pairs``: V now and after the planner's hold; a disc of its
+* one row per detected obstacle near enough to read a value (``pairs``: V now and after the
+  planner's hold, +inf for the others, which are no row (``pairs.near_pairs``); a disc of its
   own radius shifted, ``discs.pair_shifts``);
 * one row per cluster of close obstacles (``cluster_rows``), its members' rows in its group;
 * for a robot judged by its local map, one row for everything the map holds (``map_rows``).
@@ -32,7 +33,7 @@ from .discs import pair_shifts
 from .law import ConstraintTable
 from .map_rows import map_rows
 from .nearby import NEAR_QUERY_MIN, narrow
-from .pairs import FEW_PAIRS, PairTurns, pair_reads, pair_turns_of, pair_values_fast
+from .pairs import FEW_PAIRS, PairTurns, near_pairs, pair_reads, pair_turns_of, pair_values_fast
 
 _ONE_ROBOT = np.zeros(1, np.intp)
 _ONE_ROBOT.flags.writeable = False
@@ -66,32 +67,23 @@ def constraint_rows(cols, safe_set, clusters, derived):
                                 float(bang[0]), FEW_PAIRS)
     if counts is None:
         counts = np.array([len(dets[0])])
-    if fast is not None:
+    if fast is not None:       # every pair a row
         n_pairs = int(counts[0])
         start, pair_robot, centres = _ONE_ROBOT, np.zeros(n_pairs, np.intp), dets[0]
-        position = np.arange(n_pairs)
+        pair_index = np.arange(n_pairs)
+        position = pair_index if narrowed is None else narrowed.position
         value, value_next = np.array(fast[0], dtype=float), np.array(fast[1], dtype=float)
-        shift = pair_shifts(cols.detection_radii, cols.configs, [n_pairs],
-                            narrowed.position if narrowed is not None else None)
+        shift = pair_shifts(cols.detection_radii, cols.configs, pair_robot, position)
         if shift is not None:        # discs of their own radius (filter.discs): V_r = V_R + (R - r)
             value += shift
             value_next += shift
         pair_turns = PairTurns(vf, None, fast[0], None, horizon, speed, bang, lone + (centres_list,))
-    else:
-        n_pairs = int(counts.sum())
+    else:       # the pairs near the grid (near_pairs: the others read +inf, no row)
         start = np.concatenate(([0], np.cumsum(counts)[:-1])).astype(np.intp) if m else np.zeros(0, np.intp)
-        pair_robot = np.repeat(np.arange(m), counts)
-        position = np.arange(n_pairs) - start[pair_robot]
-        if n_pairs:
-            centres = np.concatenate([d for d in dets if len(d)])
-            rel = np.empty((n_pairs, 3))
-            rel[:, 0] = states[pair_robot, 0] - centres[:, 0]
-            rel[:, 1] = states[pair_robot, 1] - centres[:, 1]
-            rel[:, 2] = states[pair_robot, 2]
-        else:
-            centres, rel = np.zeros((0, 2)), np.zeros((0, 3))
-        shift = pair_shifts(cols.detection_radii, cols.configs, counts,
-                            narrowed.position if narrowed is not None else None)
+        pair_robot, local, rel, centres = near_pairs(vf.grid, dets, states, horizon, speed)
+        pair_index = start[pair_robot] + local
+        position = local if narrowed is None else narrowed.position[pair_index]
+        shift = pair_shifts(cols.detection_radii, cols.configs, pair_robot, position)
         value, value_next = pair_reads(vf, rel, planned[pair_robot], horizon[pair_robot], speed[pair_robot],
                                        bang[pair_robot], alpha if shift is None else alpha - shift)
         if shift is not None:        # discs of their own radius (filter.discs): V_r = V_R + (R - r)
@@ -103,12 +95,11 @@ def constraint_rows(cols, safe_set, clusters, derived):
     if narrowed is None:
         obstacle = by_message(np.concatenate([position, found['obstacle']]) if len(found['robot']) else position,
                               pair_robot, found['robot'], cols.detections_kept)
-        position_now, counts_now = position, counts
     else:       # (nearby names those it narrowed)
         names = narrowed.names
-        obstacle = (np.concatenate([names, names[start[found['robot']] + found['obstacle']]])
-                    if len(found['robot']) else names.copy())
-        position_now, counts_now = narrowed.position, narrowed.counts
+        obstacle = (np.concatenate([names[pair_index], names[start[found['robot']] + found['obstacle']]])
+                    if len(found['robot']) else names[pair_index])
+        counts = narrowed.counts
     maps = None
     if cols.map_views is not None:     # robots judged by their local maps' values: one row each
         mapped = [i for i, (v, mv) in enumerate(zip(cols.map_views, cols.map_values))
@@ -116,8 +107,8 @@ def constraint_rows(cols, safe_set, clusters, derived):
         if mapped:
             maps = map_rows(cols.map_views, cols.map_values, mapped, states, planned, horizon, speed, bang, safe_set,
                             cols.configs)
-    table = constraint_table(pair_robot, position_now, counts_now, value, value_next, centres, alpha, obstacle, found,
-                             maps, pair_turns)
+    table = constraint_table(pair_robot, pair_index, position, counts, value, value_next, centres, alpha, obstacle,
+                             found, maps, pair_turns)
     return table, found['solving']
 
 
@@ -160,18 +151,22 @@ def avoid_turns(table, rows) -> np.ndarray:
     return out
 
 
-def constraint_table(pair_robot, position, counts, value, value_next, centres, alpha, obstacle, found, maps,
-                     pair_turns) -> ConstraintTable:
+def constraint_table(pair_robot, pair_index, position, counts, value, value_next, centres, alpha, obstacle, found,
+                     maps, pair_turns) -> ConstraintTable:
     """The ``law.ConstraintTable`` of every robot's constraints: the pair rows first (robot
-    ``pair_robot``, ``position`` in the robot's detections, of which it has ``counts``), then the
-    cluster rows ``found`` (``cluster_rows``; a cluster's members' pair rows join its group), then
+    ``pair_robot``, ``position`` in the robot's detections, of which it has ``counts``; ``pair_index``
+    ascending, its index among all robots' pairs, as ``cluster_rows`` names a cluster's members),
+    then the cluster rows ``found`` (``cluster_rows``; a cluster's members' pair rows join its group), then
     the map rows ``maps`` (``map_rows``, None: none; each sound, a group of its own, naming no
     detection (obstacle -1) but the nearest occupied cell: ``xy``, ``gap``); ``obstacle``: what the
     pair and cluster rows name (``by_message``)."""
     n_pairs = len(pair_robot)
     group = np.arange(n_pairs)          # each obstacle its own group until clustered
-    if len(found['member_pairs']):
-        group[found['member_pairs']] = n_pairs + found['member_groups']
+    members = found['member_pairs']
+    if len(members) and n_pairs:        # (a member's pair that is no row: far from its robot)
+        row = np.minimum(np.searchsorted(pair_index, members), n_pairs - 1)
+        hit = pair_index[row] == members
+        group[row[hit]] = n_pairs + found['member_groups'][hit]
     k = len(found['robot'])
     n_groups = n_pairs + found['n_groups']
     no = np.zeros(n_pairs, bool)        # (not sound, no fallback, not mapped: one array, read only)

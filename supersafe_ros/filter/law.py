@@ -1,7 +1,7 @@
 """The filter law: the rule every robot obeys, written once, vectorised over robots.
 
-Per constraint (a row of ``ConstraintTable``: one per robot and detected obstacle, one per
-robot and cluster of close obstacles), with V its value at the robot's state now, V_next
+Per constraint (a row of ``ConstraintTable``: one per robot and detected obstacle near it, one
+per robot and cluster of close obstacles), with V its value at the robot's state now, V_next
 its value after the planner's command held for the lookahead H and then the better bang
 held once more (``filter.pairs``), and alpha its level:
 
