@@ -643,6 +643,39 @@ def test_the_governing_rule_is_the_per_robot_oracles():
     assert kinds == {0, 1, 2, 3}
 
 
+def test_first_min_over_many_rows_picks_what_a_sort_of_all_of_them_picks():
+    """first_min over a fleet's many rows (each segment's smallest rank and score found first, the
+    ties alone sorted) picks the row a sort of all rows by (segment, rank, score, position) puts
+    first in each segment: many exact ties, -0.0 and 0.0, infinities, segments without rows, and
+    NaN scores (then every row is sorted)."""
+    from supersafe_ros.filter.law import FEW_ROWS, first_min
+
+    def by_sort(segment, position, score, mask, n, rank=None):
+        out = np.full(n, -1, dtype=np.intp)
+        idx = np.flatnonzero(mask)
+        keys = (position[idx], score[idx], segment[idx]) if rank is None else \
+            (position[idx], score[idx], rank[idx], segment[idx])
+        order = idx[np.lexsort(keys)]
+        for i in order[::-1]:       # the first of each segment, last written
+            out[segment[i]] = i
+        return out
+    rng = np.random.default_rng(31)
+    ties = 0
+    for trial in range(300):
+        k, n = int(rng.integers(FEW_ROWS + 1, 3000)), int(rng.integers(1, 300))
+        segment = rng.integers(0, n, k)
+        position = rng.permutation(k)
+        score = rng.choice([-1.0, -0.0, 0.0, 0.5, 0.5 + 1e-12, 2.0, np.inf, -np.inf], k)
+        if trial % 10 == 0:
+            score[rng.integers(0, k, 3)] = np.nan
+        mask = rng.random(k) < rng.choice([0.05, 0.5, 1.0])
+        rank = rng.integers(1, 4, k).astype(np.int8) if trial % 2 else None
+        got, want = first_min(segment, position, score, mask, n, rank), by_sort(segment, position, score, mask, n, rank)
+        assert np.array_equal(got, want), trial
+        ties += int(np.sum(np.bincount(segment[mask], minlength=n) > 1))
+    assert ties > 1000
+
+
 def test_the_first_minimum_of_each_run_is_first_min_s():
     """first_min_of_runs (the nearest member of each cluster instance: runs of member rows, in
     their cluster's order) picks what first_min picks by position: the smallest score, the

@@ -137,9 +137,15 @@ class ConstraintTable:
 def first_min(segment, position, score, mask, n, rank=None) -> np.ndarray:
     """Per segment 0..n-1: the row with the smallest ``score`` among ``mask``, the first
     by ``position`` on ties (Python's ``min`` over a list in that order); -1 if none.
-    ``rank``: a key before the score (the smallest rank first, then the smallest score)."""
+    ``rank``: a key before the score (the smallest rank first, then the smallest score).
+
+    Many rows (a fleet's): first each segment's rows of its smallest rank, then of its smallest
+    score, found in one pass each (``np.minimum.at``); only those (ties) are sorted (a sort of
+    a fleet's thousands of rows would cost more than the rest of the rule)."""
     out = np.full(n, -1, dtype=np.intp)
     idx = np.flatnonzero(mask)
+    if len(idx) > FEW_ROWS:
+        idx = _smallest_of_segments(idx, segment, score, n, rank)
     if len(idx):
         keys = (position[idx], score[idx], segment[idx]) if rank is None else \
             (position[idx], score[idx], rank[idx], segment[idx])
@@ -151,6 +157,26 @@ def first_min(segment, position, score, mask, n, rank=None) -> np.ndarray:
             first = np.flatnonzero(np.concatenate(([True], seg[1:] != seg[:-1])))
             out[seg[first]] = order[first]
     return out
+
+
+FEW_ROWS = 32       # up to this many rows first_min sorts them all
+
+
+def _smallest_of_segments(idx, segment, score, n, rank=None) -> np.ndarray:
+    """The rows ``idx`` that have their segment's smallest ``rank`` (if given) and, among those, its
+    smallest ``score``; all of ``idx`` if a score is NaN (the sort orders those)."""
+    seg, s = segment[idx], score[idx]
+    if np.isnan(s).any():
+        return idx
+    keep = np.ones(len(idx), bool)
+    if rank is not None:
+        r = rank[idx]
+        low = np.full(n, r.max(), dtype=r.dtype)
+        np.minimum.at(low, seg, r)
+        keep = r == low[seg]
+    best = np.full(n, np.inf)
+    np.minimum.at(best, seg[keep], s[keep])
+    return idx[keep & (s == best[seg])]
 
 
 def first_min_of_runs(score, run, starts) -> np.ndarray:
