@@ -377,6 +377,77 @@ def test_long_holds_around_solved_clusters_decide_as_the_reference(standard, sol
     assert sum("the planner's command would bring a cluster" in o.reason for o in outs) > 20
 
 
+def test_far_robots_on_the_loiter_fallback_decide_as_the_reference(standard):
+    """Robots 1-40 m from clusters judged by the loiter fallback alone (a store that never solves):
+    the fallback rows left out as unable to act and above their robot's smallest row
+    (``cluster_rows._fallback_bound``) change no decision: the same command, reason, named row
+    and value as the reference, for robots whose smallest row is a far cluster's (no obstacle
+    near), near and far ones, overriding ones with wide margins, long holds, and constant-speed
+    robots failing safe from their last valid state (they turn by their smallest row)."""
+    configs = [FilterConfig(), FilterConfig(lookahead=1.0, clear_margin=3.0),
+               FilterConfig(fail_safe_command='stop_turn', detections_timeout=0.2, hold_timeout=1.0)]
+    centroids = [LAYOUT[[0, 1, 2]].mean(axis=0), LAYOUT[[3, 4, 5]].mean(axis=0)]
+
+    def fleet():
+        r = np.random.default_rng(41)
+        out = []
+        for i in range(600):
+            c = centroids[i % 2]
+            d, a = r.uniform(1.0, 40.0), r.uniform(-np.pi, np.pi)
+            pose = (c[0] + d * np.cos(a), c[1] + d * np.sin(a), a + np.pi + r.uniform(-1.0, 1.0))
+            f = robot_at(configs[i % 3], pose, LAYOUT.copy(), float(r.uniform(-1, 1)))
+            if i % 3 == 2:          # its detections stale: failing safe from the last valid state
+                f.update_detections(LAYOUT.copy(), 9.5)
+            f.overriding = bool(r.random() < 0.5)
+            out.append(f)
+        return out
+    stores = [ClusterStore(SETTINGS, fallback_only=True) for _ in range(2)]
+    new = step_many(fleet(), standard, 10.0, stores[0])
+    ref = step_many_reference(fleet(), standard, 10.0, stores[1])
+    kinds = {'named far': 0, 'fallback acts': 0, 'fails safe by it': 0}
+    for i, (a, b) in enumerate(zip(new, ref)):
+        assert repr((a.omega, a.linear, a.action, a.reason, a.obstacle_index, a.value, a.source)) == repr(
+            (b.omega, b.linear, b.action, b.reason, b.obstacle_index, b.value, b.source)), i
+        kinds['named far'] += a.action == 'pass' and a.source == 'cluster-fallback' and a.value > 5.0
+        kinds['fallback acts'] += a.action == 'override' and a.source == 'cluster-fallback'
+        kinds['fails safe by it'] += a.action == 'fail_safe' and a.source == 'cluster-fallback'
+    assert min(kinds.values()) > 10, kinds
+
+
+def test_the_fallback_bound_is_below_the_loiter_clearance_now_and_after_the_hold():
+    """cluster_rows._fallback_bound is a lower bound of the loiter fallback's clearance
+    (cluster.orbit_value) at the robot's state now and where the planner's hold ends, and tight
+    where it can be (a robot midway between two members, heading across them): random clusters,
+    states, speeds, turns and holds."""
+    from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore, orbit_value
+    from supersafe_ros.filter.cluster_rows import _fallback_bound
+    from supersafe_ros.filter.propagation import arc_flow
+    st = ClusterSettings()
+    store = ClusterStore(st, fallback_only=True)
+    r, radius = st.turning_radius, st.radius + st.margin
+    rng = np.random.default_rng(43)
+    tight = 0
+    for trial in range(3000):
+        members = rng.uniform(-6.0, 6.0, (int(rng.integers(2, 5)), 2))
+        if trial % 4 == 0:      # midway between two members, heading across them
+            a = rng.uniform(-np.pi, np.pi)
+            d = rng.uniform(2 * r + radius, 30.0)
+            p = rng.uniform(-20.0, 20.0, 2)
+            members = np.array([p + d * np.array([np.cos(a), np.sin(a)]), p - d * np.array([np.cos(a), np.sin(a)])])
+            state = np.array([[p[0], p[1], a + np.pi / 2]])
+        else:
+            state = np.array([[rng.uniform(-40, 40), rng.uniform(-40, 40), rng.uniform(-np.pi, np.pi)]])
+        speed, horizon, turn = rng.choice([0.0, 1.5, 3.0]), rng.choice([0.0, 0.1, 1.0, 2.0]), rng.uniform(-1, 1)
+        ahead = arc_flow(state, np.array([speed]), np.array([turn]), np.array([horizon]))
+        nearest = np.hypot(*(members - state[0, :2]).T).min()
+        bound = _fallback_bound(np.array([nearest]), np.zeros(1, np.intp), [store], np.array([speed * horizon]))
+        now = orbit_value(state, members, radius, r)[0][0]
+        later = orbit_value(ahead, members, radius, r)[0][0]
+        assert bound[0, 0] <= now and bound[1, 0] <= later, trial
+        tight += bool(now - bound[0, 0] < 1e-6)
+    assert tight > 300, tight
+
+
 def test_robots_just_inside_a_union_grids_corners_decide_as_the_reference(standard, solved_values):
     """Robots 0.2 m inside each corner of a solved cluster's grid (where the grid reaches
     farthest from the frame's origin, so a reach bound that is short by a metre leaves their

@@ -91,7 +91,8 @@ def constraint_rows(cols, safe_set, clusters, derived):
             value_next += shift
         pair_turns = PairTurns(vf, rel, value, pair_robot, horizon, speed, bang)
     found = cluster_rows(cols.configs, cols.solve_clusters, states, planned, horizon, speed, bang, cols.cluster_alpha,
-                         dets, start, clusters, narrowed.frames if narrowed is not None else None, derived)
+                         cols.clear_margin, dets, start, (pair_robot, value - alpha), clusters,
+                         narrowed.frames if narrowed is not None else None, derived)
     if narrowed is None:
         obstacle = by_message(np.concatenate([position, found['obstacle']]) if len(found['robot']) else position,
                               pair_robot, found['robot'], cols.detections_kept)
