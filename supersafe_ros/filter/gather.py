@@ -80,6 +80,24 @@ _VALUE, _T, _STAMP, _REJECTED, _RADII, _LINEAR, _VIEW, _KEPT, _SOLVE, _DERIVED, 
     attrgetter(a) for a in ('value', 't', 'stamp', 'rejected', 'radii', 'linear', 'view', 'kept', 'solve_clusters',
                             'derived', 'note', 'dropped'))
 _DETECTIONS, _COMMAND, _POSE = attrgetter('detections'), attrgetter('command'), attrgetter('pose')
+_OVERRIDING, _POSE_WINDOW, _COMMAND_WINDOW = attrgetter('overriding'), attrgetter('pose_intervals'), \
+    attrgetter('command_intervals')
+
+
+def _given(values) -> np.ndarray:
+    """Per value, whether it is not None (bool array)."""
+    if not any(map(is_, values, itertools.repeat(None))):      # (most ticks: found in C)
+        return np.ones(len(values), bool)
+    return np.fromiter(map(is_not, values, itertools.repeat(None)), dtype=bool, count=len(values))
+
+
+def _medians(windows) -> np.ndarray:
+    """Per window of intervals (``inputs._Intervals``), its median, 0 if empty: one read per window
+    when robots share one (fed by one message)."""
+    w0 = windows[0] if windows else None
+    if w0 is not None and all(map(is_, windows, itertools.repeat(w0))):
+        return np.full(len(windows), 0.0 if w0.middle is None else w0.middle)
+    return np.array([0.0 if w.middle is None else w.middle for w in windows], dtype=float)
 
 
 def problem(f, t):
@@ -142,8 +160,7 @@ def gather(filters, t) -> RobotColumns:
     pose_t = np.fromiter(map(_T, poses), dtype=float, count=n)
     det_t = np.fromiter(map(_T, dets), dtype=float, count=n)
     pose_values, det_values = list(map(_VALUE, poses)), list(map(_VALUE, dets))
-    has = (np.fromiter(map(is_not, pose_values, itertools.repeat(None)), dtype=bool, count=n)
-           & np.fromiter(map(is_not, det_values, itertools.repeat(None)), dtype=bool, count=n))
+    has = _given(pose_values) & _given(det_values)
     clean = np.ones(n, bool)
     for inputs in (poses, dets):
         if any(map(_REJECTED, inputs)):
@@ -173,8 +190,8 @@ def gather(filters, t) -> RobotColumns:
                              constant_all))
     else:
         configs, omega_max, constant = all_configs, omega_max_all, constant_all
-    poses_now = np.array(pose_values, dtype=float).reshape(m, 3)
-    overriding = np.fromiter((f.overriding for f in filters), dtype=bool, count=m)
+    poses_now = np.concatenate(pose_values).reshape(m, 3) if m else np.zeros((0, 3))
+    overriding = np.fromiter(map(_OVERRIDING, filters), dtype=bool, count=m)
     compensate = compensate != 0.0
 
     # propagation.plan: the pose's age, and the arcs held since its stamp
@@ -185,8 +202,7 @@ def gather(filters, t) -> RobotColumns:
     # command_fresh, planned_turn (clipped as clip) and the lookahead
     value = list(map(_VALUE, commands))
     command_t = np.fromiter(map(_T, commands), dtype=float, count=m)
-    fresh = (np.fromiter(map(is_not, value, itertools.repeat(None)), dtype=bool, count=m)
-             & (t - command_t <= cmd_timeout))
+    fresh = _given(value) & (t - command_t <= cmd_timeout)
     value = np.array([0.0 if v is None else v for v in value] if None in value else value, dtype=float)
     planned = planned_turns(value, fresh, omega_max)
     # the speeds: the planner's clipped to [0, speed] (planned_speed), driven (drive_speed), last sent
@@ -200,9 +216,7 @@ def gather(filters, t) -> RobotColumns:
     failing = ~judged[use]
     held = np.where(constant, speed, last[:, 2])
     # measured period: the larger median of the pose and command intervals (each > 0; none: 0)
-    windows = ([f.pose_intervals for f in filters], [f.command_intervals for f in filters])
-    measured = py_max(*(np.array([0.0 if w.middle is None else w.middle for w in ws], dtype=float)
-                        for ws in windows))
+    measured = py_max(_medians(list(map(_POSE_WINDOW, filters))), _medians(list(map(_COMMAND_WINDOW, filters))))
     period = np.where(period > 0.0, period, measured)
     return RobotColumns(
         t=t, problems=problems, all_configs=all_configs, all_omega_max=omega_max_all, all_sent_kept=sent_kept_all,
