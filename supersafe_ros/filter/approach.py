@@ -64,7 +64,9 @@ at once when no robot has it on.
 """
 from __future__ import annotations
 
+from itertools import repeat
 import math
+from operator import is_
 
 import numpy as np
 
@@ -204,7 +206,7 @@ def limit(cols, omega, linear, action_code):
     if not configs:
         return None
     c0 = configs[0]
-    if all(c is c0 for c in configs):
+    if all(map(is_, configs, repeat(c0))):     # (checked in C)
         if c0.time_before_collision <= 0.0:
             return None
         on = np.ones(len(configs), bool)

@@ -25,7 +25,9 @@ floats (the same bits).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from itertools import repeat
 import math
+from operator import is_
 
 import numpy as np
 
@@ -98,7 +100,7 @@ def near_pairs(grid, dets, states, horizon, speed):
     reach = 2.0 * speed * horizon + 1.0
     lo0, hi0, lo1, hi1 = grid.lo[0] - reach, grid.hi[0] + reach, grid.lo[1] - reach, grid.hi[1] + reach
     det = dets[0] if m else None
-    if m > 1 and all(d is det for d in dets):       # one array for all
+    if m > 1 and all(map(is_, dets, repeat(det))):       # one array for all (checked in C)
         dx = states[:, 0:1] - det[:, 0]
         dy = states[:, 1:2] - det[:, 1]
         near = ((dx >= lo0[:, None]) & (dx <= hi0[:, None]) & (dy >= lo1[:, None]) & (dy <= hi1[:, None]))
