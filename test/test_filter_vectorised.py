@@ -596,7 +596,6 @@ def test_one_robots_columns_in_python_floats_are_gathers():
     leaves None), and None exactly where gather finds no state to judge: robots fresh, delayed,
     failing safe from a last valid state, lost, with commands sent since their poses, silent
     planners, commands beyond the bound, discs of their own radius and rings of larger ones."""
-    import dataclasses
     from supersafe_ros.filter.gather import RobotColumns, gather, gather_one_fast
     filters, t = build_fleet(21, 300)
     rng = np.random.default_rng(22)
@@ -614,12 +613,12 @@ def test_one_robots_columns_in_python_floats_are_gathers():
                 assert len(full.robot_index) == 0
                 seen['none'] += 1
                 continue
-            for field in dataclasses.fields(RobotColumns):
-                a, b = getattr(fast, field.name), getattr(full, field.name)
-                if field.name == 'lone_state':
-                    assert b is None and same_bits(np.array(a), fast.states[0]), field.name
+            for name in RobotColumns._fields:
+                a, b = getattr(fast, name), getattr(full, name)
+                if name == 'lone_state':
+                    assert b is None and same_bits(np.array(a), fast.states[0]), name
                 else:
-                    assert same_bits(a, b), (field.name, a, b)
+                    assert same_bits(a, b), (name, a, b)
             seen['fast'] += 1
             seen['failing'] += bool(fast.failing[0])
             seen['arcs'] += bool(fast.pose_age[0] > 0.0)

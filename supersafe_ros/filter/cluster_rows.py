@@ -21,9 +21,9 @@ frame, larger ones none).
 from __future__ import annotations
 
 from collections import OrderedDict
-from dataclasses import dataclass
 import itertools
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -103,6 +103,8 @@ def cluster_frames(det, store) -> ClusterFrames:
     return got
 
 
+FEW_FALLBACKS = 64     # up to this many instances on the loiter fallback, all are read (no bound)
+
 _NONE_I, _NONE_F, _NONE_B = np.zeros(0, np.intp), np.zeros(0), np.zeros(0, bool)
 _NONE_I.flags.writeable = _NONE_F.flags.writeable = _NONE_B.flags.writeable = False
 _NO_CLUSTERS = dict(robot=_NONE_I, index=_NONE_I, value=_NONE_F, level=_NONE_F, turns=None, value_next=_NONE_F,
@@ -135,7 +137,7 @@ def cluster_rows(configs, solve_clusters, states, planned, horizon, speed, bang,
     are read on demand from ``turns`` (``UnionTurns``: ``union_turns``, for the rows robots
     avoid by). Per robot row: ``configs``, ``solve_clusters``, ``states`` and the rest
     (``gather.RobotColumns``'); ``start``: its first pair's index among all robots' pairs; ``pairs``:
-    (robot row, V - level) of the pair rows. A fallback row that can neither act nor be its
+    (robot row, V, level) of the pair rows. A fallback row that can neither act nor be its
     robot's smallest V - level is left out (``_fallback_bound``). ``frames``: per robot row, its
     ``ClusterFrames`` when given (a robot's detections within reach, ``filter.nearby``; None: those
     of its detections array). ``derived``: the decision's ``filter.derived.Derived``, through which
@@ -182,19 +184,22 @@ def cluster_rows(configs, solve_clusters, states, planned, horizon, speed, bang,
         v4[:, idx] = union.read(idx, np.stack([state[idx], pts[w_], pts[nr + w_], ahead[idx]]))[0]
     u_next = py_min(v4[3], py_max(v4[1], v4[2]))
 
-    # the loiter fallback where no union value is in force, read where it can act or be its robot's
-    # smallest row (a fallback row's level is 0; _fallback_bound): first the rows that could act and
-    # each robot's row of the smallest bound not above its smallest row read so far, then the rows
-    # whose bound is not above the smallest row read then; the others are no row
+    # the loiter fallback where no union value is in force; of many instances (a fleet's), read only
+    # where it can act or be its robot's smallest row (a fallback row's level is 0; _fallback_bound):
+    # first the rows that could act and each robot's row of the smallest bound not above its
+    # smallest row read so far, then the rows whose bound is not above the smallest row read then;
+    # the others are no row
     f_value = np.full((2, n_inst), -np.inf)
     f_turn = np.zeros(n_inst)
     inst_store = fc.store[frame]
     level = cluster_alpha[inst_row]
     fallback = ~ok
-    if fallback.any():
+    if np.count_nonzero(fallback) <= FEW_FALLBACKS:      # (a lone robot's few: all read, at once)
+        _read_fallback(fallback, f_value, f_turn, state, ahead, member_xy, member_inst, inst_store, fc.stores)
+    else:
         bound = _fallback_bound(d[nearest_m], inst_store, fc.stores, speed[inst_row] * horizon[inst_row])
         low = np.full(m, np.inf)        # per robot row, the smallest V - level read so far
-        np.minimum.at(low, pairs[0], pairs[1])
+        np.minimum.at(low, pairs[0], pairs[1] - pairs[2])
         np.minimum.at(low, inst_row[ok], v4[0][ok] - level[ok])
         first = fallback & ~((bound[0] > margin[inst_row]) & (bound[1] > 0.0))    # could enter, stay or look ahead
         least = first_min(inst_row, inst_gi, bound[0], fallback & (bound[0] <= low[inst_row]), m)
@@ -373,8 +378,7 @@ def _instances(entries, fc: _FrameColumns, states, speed, horizon):
     return inst_row, inst_gi, frame, val, busy
 
 
-@dataclass(frozen=True, slots=True)
-class UnionFrames:
+class UnionFrames(NamedTuple):
     """The union values in force at cluster instances: ``values`` (the distinct ``ClusterValue``s),
     per instance ``val`` (its index in ``values``, -1: none in force) and its canonical frame
     (``origin`` (k, 2), ``angle``, ``cos``, ``sin``)."""
@@ -403,8 +407,7 @@ class UnionFrames:
         return v, tie
 
 
-@dataclass(frozen=True, slots=True)
-class UnionTurns:
+class UnionTurns(NamedTuple):
     """What the unit avoid turns of cluster rows are read from (``union_turns``): per cluster row its
     instance (``instance``); per instance whether a union value is in force (``in_force``), the
     loiter fallback's turn (``fallback_turn``), its robot row, that robot's state now (``state``,

@@ -22,9 +22,9 @@ rest of the table).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
 from itertools import repeat
 from operator import is_
+from typing import NamedTuple
 
 import numpy as np
 
@@ -91,7 +91,7 @@ def constraint_rows(cols, safe_set, clusters, derived):
             value_next += shift
         pair_turns = PairTurns(vf, rel, value, pair_robot, horizon, speed, bang)
     found = cluster_rows(cols.configs, cols.solve_clusters, states, planned, horizon, speed, bang, cols.cluster_alpha,
-                         cols.clear_margin, dets, start, (pair_robot, value - alpha), clusters,
+                         cols.clear_margin, dets, start, (pair_robot, value, alpha), clusters,
                          narrowed.frames if narrowed is not None else None, derived)
     if narrowed is None:
         obstacle = by_message(np.concatenate([position, found['obstacle']]) if len(found['robot']) else position,
@@ -109,15 +109,14 @@ def constraint_rows(cols, safe_set, clusters, derived):
             maps = map_rows(cols.map_views, cols.map_values, mapped, states, planned, horizon, speed, bang, safe_set,
                             cols.configs)
     table = constraint_table(pair_robot, pair_index, position, counts, value, value_next, centres, alpha, obstacle,
-                             found, maps, pair_turns)
+                             found, maps, pair_turns, every_pair=fast is not None)
     return table, found['solving']
 
 
 MAP_POSITION = 2 ** 30      # a map row's place in its robot's list: after its pairs and clusters (ties)
 
 
-@dataclass(frozen=True, slots=True)
-class TurnSources:
+class TurnSources(NamedTuple):
     """What the unit avoid turns of a table's rows are read from (``avoid_turns``): rows 0 ..
     ``n_pairs`` - 1 the pairs' (``pairs.PairTurns``), then ``n_clusters`` cluster rows'
     (``cluster_rows.UnionTurns``, None if none), then the map rows' turns (``mapped``, read
@@ -136,13 +135,15 @@ def avoid_turns(table, rows) -> np.ndarray:
     (``cluster_rows.union_turns``: the union's better bang, or the loiter circle's), each map
     row's; computed here, for these rows only."""
     src = table.turns
+    if not len(rows):       # (no robot avoids: most decisions)
+        return _NO_TURNS
     rows = np.asarray(rows, dtype=np.intp)
     out = np.zeros(len(rows))
     n_pairs, after = src.n_pairs, src.n_pairs + src.n_clusters
     pair = rows < n_pairs
-    if pair.any():
+    if np.count_nonzero(pair):
         out[pair] = pair_turns_of(src.pairs, rows[pair])
-    if len(rows) and not pair.all():
+    if not pair.all():
         cluster = ~pair & (rows < after)
         if cluster.any():
             out[cluster] = union_turns(src.clusters, rows[cluster] - n_pairs)
@@ -153,10 +154,11 @@ def avoid_turns(table, rows) -> np.ndarray:
 
 
 def constraint_table(pair_robot, pair_index, position, counts, value, value_next, centres, alpha, obstacle, found,
-                     maps, pair_turns) -> ConstraintTable:
+                     maps, pair_turns, every_pair=False) -> ConstraintTable:
     """The ``law.ConstraintTable`` of every robot's constraints: the pair rows first (robot
     ``pair_robot``, ``position`` in the robot's detections, of which it has ``counts``; ``pair_index``
-    ascending, its index among all robots' pairs, as ``cluster_rows`` names a cluster's members),
+    ascending, its index among all robots' pairs, as ``cluster_rows`` names a cluster's members;
+    ``every_pair``: every pair is a row, its index its row),
     then the cluster rows ``found`` (``cluster_rows``; a cluster's members' pair rows join its group), then
     the map rows ``maps`` (``map_rows``, None: none; each sound, a group of its own, naming no
     detection (obstacle -1) but the nearest occupied cell: ``xy``, ``gap``); ``obstacle``: what the
@@ -164,18 +166,29 @@ def constraint_table(pair_robot, pair_index, position, counts, value, value_next
     n_pairs = len(pair_robot)
     group = np.arange(n_pairs)          # each obstacle its own group until clustered
     members = found['member_pairs']
-    if len(members) and n_pairs:        # (a member's pair that is no row: far from its robot)
-        row = np.minimum(np.searchsorted(pair_index, members), n_pairs - 1)
-        hit = pair_index[row] == members
-        group[row[hit]] = n_pairs + found['member_groups'][hit]
+    if len(members) and n_pairs:
+        if every_pair:          # (a lone robot's)
+            group[members] = n_pairs + found['member_groups']
+        else:           # (a member's pair that is no row: far from its robot)
+            row = np.minimum(np.searchsorted(pair_index, members), n_pairs - 1)
+            hit = pair_index[row] == members
+            group[row[hit]] = n_pairs + found['member_groups'][hit]
     k = len(found['robot'])
     n_groups = n_pairs + found['n_groups']
     no = np.zeros(n_pairs, bool)        # (not sound, no fallback, not mapped: one array, read only)
     level, members, gap = np.full(n_pairs, alpha), np.ones(n_pairs, np.intp), np.full(n_pairs, np.inf)
-    if not k and maps is None:          # the pair rows alone (most lone robots)
-        return ConstraintTable(pair_robot, position, value, level, value_next, obstacle, centres, no, group, members,
-                               no, no, gap, n_groups, TurnSources(n_pairs, pair_turns, 0, None, _NO_TURNS))
-    # the columns in ConstraintTable's order: the pair rows', then each further segment's
+    if maps is None:
+        if not k:           # the pair rows alone (most lone robots)
+            return ConstraintTable(pair_robot, position, value, level, value_next, obstacle, centres, no, group,
+                                   members, no, no, gap, n_groups, TurnSources(n_pairs, pair_turns, 0, None, _NO_TURNS))
+        cat, yes = np.concatenate, np.ones(k, bool)     # the pair rows, then the cluster rows
+        return ConstraintTable(
+            cat([pair_robot, found['robot']]), cat([position, counts[found['robot']] + found['index']]),
+            cat([value, found['value']]), cat([level, found['level']]), cat([value_next, found['value_next']]),
+            obstacle, cat([centres, found['xy']]), cat([no, yes]), cat([group, n_pairs + found['group']]),
+            cat([members, found['members']]), cat([no, found['fallback']]), cat([no, ~yes]),
+            cat([gap, np.full(k, np.inf)]), n_groups, TurnSources(n_pairs, pair_turns, k, found['turns'], _NO_TURNS))
+    # the columns in ConstraintTable's order: the pair rows', the cluster rows', the map rows'
     columns = [[pair_robot], [position], [value], [level], [value_next], [obstacle], [centres], [no], [group],
                [members], [no], [no], [gap]]
     if k:
@@ -185,7 +198,6 @@ def constraint_table(pair_robot, pair_index, position, counts, value, value_next
                 found['fallback'], np.zeros(k, bool), np.full(k, np.inf))):
             if part is not None:        # (the obstacles come named: ``obstacle``)
                 column.append(part)
-    mapped_turns = _NO_TURNS
     if maps is not None:
         j = len(maps['robot'])
         for column, part in zip(columns, (

@@ -39,7 +39,7 @@ one robot's rows.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -101,8 +101,7 @@ def better_bang(left, right, tie) -> np.ndarray:
     return np.where(left >= right - tie, 1.0, -1.0)
 
 
-@dataclass(frozen=True, slots=True)
-class ConstraintTable:
+class ConstraintTable(NamedTuple):
     """Every constraint of every robot, one row each (pairs first, then clusters, then local maps).
 
     Columns: the robot (its row in ``gather.RobotColumns``), its position in the robot's list (ties go to
@@ -232,8 +231,7 @@ def smallest(table, m) -> np.ndarray:
     return first_min(table.robot, table.position, table.value - table.level, np.isfinite(table.value), m)
 
 
-@dataclass(frozen=True, slots=True)
-class Choice:
+class Choice(NamedTuple):
     """Per robot row, what the law acts on (``choose``): the row it names (``row``: the governing
     one where it overrides, else the smallest V - alpha; -1: none), why that row governs (``kind``,
     ``KINDS``; 0: it passes), whether the robot ``overrides``, and whether it turns by the named
@@ -264,8 +262,7 @@ def choose(table, overriding, margin, failing, fresh, constant) -> Choice:
     return Choice(named, kind, overrides, avoiding)
 
 
-@dataclass(frozen=True, slots=True)
-class Ruling:
+class Ruling(NamedTuple):
     """The law's answer per robot row (``command``): ``omega``, ``linear``, the action ``code`` (0
     pass, 1 override, 2 fail safe), and from its ``Choice``: ``overrides``, the row it names
     (``named``), why it governs (``kind``)."""
@@ -290,7 +287,7 @@ def command(table, choice, turns, failing, fresh, constant, planned, bang, drive
     turn[avoiding] = turns
     omega = np.where(avoiding, bang * turn, np.where(failing & constant, bang, np.where(failing, 0.0, planned)))
     linear = np.where(failing, np.where(avoiding, held, 0.0), np.where(overrides | fresh, drive, 0.0))
-    if overrides.any() and not constant.all():     # a robot that can stop: in place on a loiter fallback
+    if np.count_nonzero(overrides) and not constant.all():     # a robot that can stop: in place on a loiter fallback
         loiter = overrides & ~constant
         loiter[loiter] = table.fallback[named[loiter]]
         linear[loiter] = 0.0

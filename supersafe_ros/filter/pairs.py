@@ -24,10 +24,10 @@ floats (the same bits).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
 from itertools import repeat
 import math
 from operator import is_
+from typing import NamedTuple
 
 import numpy as np
 
@@ -141,8 +141,7 @@ def pair_turns(vf: ValueFunction, rel, value, horizon, speed, bang):
     return turn
 
 
-@dataclass(frozen=True, slots=True)
-class PairTurns:
+class PairTurns(NamedTuple):
     """What the unit avoid turns of pair rows are read from (``pair_turns_of``): the safe set's ``vf``;
     per pair row its relative state ``rel`` (P, 3), V (``value``) and robot row (``robot``); per robot
     row its lookahead, speed and turn bound. A lone robot's few pairs read in Python floats
