@@ -18,6 +18,8 @@ Scenarios (``--only``):
 * ``lone``: one robot's own filter (safety_filter_node's ``decide_many`` of one filter and its
   record): three obstacles, one near; ``lone-cluster``: two close obstacles near, their union
   value in force (solved inline, disk-cached);
+* ``dense-N-V`` (N = 1 or 1,000): bench_nodes.py's ``core`` section: ten obstacles over 24 x 16 m,
+  robots over 30 x 20 m given three of them each, or all ten (``union``);
 * ``fleet-N-V``: the batched fleet of bench_headroom.py's ``batched`` section, N robots (1,000 or
   2,000) over 80 x 80 m among 30 obstacles, one configuration and one detections array for all,
   every planner asking (3 m/s, 0.1 rad/s); V the clusters: ``off``, ``fallback`` (loiter circles:
@@ -41,7 +43,8 @@ import time
 
 HERE = Path(__file__).resolve().parent
 SCENARIOS = ('lone', 'lone-cluster', 'fleet-1000-off', 'fleet-1000-fallback', 'fleet-1000-union',
-             'fleet-2000-off', 'fleet-2000-fallback', 'fleet-2000-union')
+             'fleet-2000-off', 'fleet-2000-fallback', 'fleet-2000-union', 'dense-1-off', 'dense-1-fallback',
+             'dense-1-union', 'dense-1000-off', 'dense-1000-fallback', 'dense-1000-union')
 
 
 def build(name):
@@ -63,8 +66,10 @@ def build(name):
             f.update_pose((-4.0, -1.0, 0.3), t)
             return t
         return [f], store, feed_one
-    _, n, variant = name.split('-')
+    kind, n, variant = name.split('-')
     n = int(n)
+    if kind == 'dense':
+        return _dense(n, variant)
     rng = np.random.default_rng(2)
     field = np.stack([rng.uniform(-40, 40, 30), rng.uniform(-40, 40, 30)], axis=1)
     states = np.stack([rng.uniform(-40, 40, n), rng.uniform(-40, 40, n), rng.uniform(-3, 3, n)], axis=1)
@@ -80,6 +85,35 @@ def build(name):
             update_detections_all(filters, field.copy(), t)
         update_commands(filters, omegas, t, linears=linears)
         update_poses(filters, states, t)
+        return t
+    return filters, store, feed
+
+
+def _dense(n, variant):
+    """bench_nodes.py's ``core`` section: n robots over 30 x 20 m among ten obstacles over 24 x 16
+    m, each given three of them (``off``, ``fallback``) or all ten (``union``), the planner's command
+    0.1 rad/s at the speed, a new pose each tick."""
+    import numpy as np
+    from supersafe_ros.filter import FilterConfig, RobotFilter
+    from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore
+    rng = np.random.default_rng(0)
+    field = np.stack([rng.uniform(-12, 12, 10), rng.uniform(-8, 8, 10)], axis=1)
+    config = FilterConfig(clusters=variant != 'off')
+    store = {'off': None, 'fallback': ClusterStore(ClusterSettings(), fallback_only=True),
+             'union': ClusterStore(ClusterSettings(), background=False)}[variant]
+    filters, poses, dets = [], [], []
+    for i in range(n):
+        filters.append(RobotFilter(config))
+        poses.append((rng.uniform(-15, 15), rng.uniform(-10, 10), rng.uniform(-np.pi, np.pi)))
+        dets.append(field if variant == 'union' else field[rng.choice(len(field), 3, replace=False)])
+
+    def feed(k):
+        t = 0.02 * k
+        for f, pose, det in zip(filters, poses, dets):
+            f.update_pose(pose, t)
+            if k % 5 == 0:
+                f.update_detections(det, t)
+            f.update_command(0.1, t)
         return t
     return filters, store, feed
 
@@ -137,7 +171,7 @@ def ask(proc, scenario, ticks) -> dict:
 
 def ticks_of(scenario) -> int:
     """Ticks a block: about 0.3 s of work."""
-    if scenario.startswith('lone'):
+    if scenario.startswith('lone') or '-1-' in scenario:
         return 1000
     return 20 if '-1000-' in scenario else 10
 
