@@ -623,7 +623,7 @@ def test_one_robots_columns_in_python_floats_are_gathers():
             seen['failing'] += bool(fast.failing[0])
             seen['arcs'] += bool(fast.pose_age[0] > 0.0)
             seen['radii'] += fast.detection_radii[0] is not None
-            seen['kept'] += fast.detections_kept[0] is not None
+            seen['kept'] += fast.detection_inputs[0].kept is not None
         step_many(filters, safe, t)       # commands sent: the next tick's poses are propagated along them
         t += 0.02
         for f in filters:

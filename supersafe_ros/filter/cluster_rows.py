@@ -103,7 +103,7 @@ def cluster_frames(det, store) -> ClusterFrames:
     return got
 
 
-FEW_FALLBACKS = 64     # up to this many instances on the loiter fallback, all are read (no bound)
+FEW_FALLBACKS = 64     # up to this many instances on the loiter fallback (or two a robot), all are read
 
 _NONE_I, _NONE_F, _NONE_B = np.zeros(0, np.intp), np.zeros(0), np.zeros(0, bool)
 _NONE_I.flags.writeable = _NONE_F.flags.writeable = _NONE_B.flags.writeable = False
@@ -112,7 +112,7 @@ _NO_CLUSTERS = dict(robot=_NONE_I, index=_NONE_I, value=_NONE_F, level=_NONE_F, 
                     member_pairs=_NONE_I, member_groups=_NONE_I, n_groups=0)
 
 
-def cluster_rows(configs, solve_clusters, states, planned, horizon, speed, bang, cluster_alpha, margin, dets, start,
+def cluster_rows(configs, inputs, states, planned, horizon, speed, bang, cluster_alpha, margin, dets, start,
                  pairs, store_arg, frames, derived) -> dict:
     """The cluster constraints of every robot, as table columns (see ``law.ConstraintTable``).
 
@@ -133,19 +133,20 @@ def cluster_rows(configs, solve_clusters, states, planned, horizon, speed, bang,
     cluster) instances are evaluated together: one arc_flow for the holds, one value
     read per distinct cluster value, one fallback evaluation per store (two: the fallback
     is read only where it can act or be the robot's smallest row; 1,000 robots among 30
-    obstacles over 80 x 80 m: 820 of its 6,000 instances). The rows' turns
-    are read on demand from ``turns`` (``UnionTurns``: ``union_turns``, for the rows robots
-    avoid by). Per robot row: ``configs``, ``solve_clusters``, ``states`` and the rest
-    (``gather.RobotColumns``'); ``start``: its first pair's index among all robots' pairs; ``pairs``:
-    (robot row, V, level) of the pair rows. A fallback row that can neither act nor be its
-    robot's smallest V - level is left out (``_fallback_bound``). ``frames``: per robot row, its
+    obstacles over 80 x 80 m: 820 of its 6,000 instances). The rows' turns are read on demand
+    from ``turns`` (``UnionTurns``: ``union_turns``, for the rows robots avoid by). Per robot row:
+    ``configs``, ``inputs`` (its detections' input record: whether their clusters' union values
+    may be solved), ``states`` and the rest (``gather.RobotColumns``'); ``start``: its first pair's
+    index among all robots' pairs; ``pairs``: (robot row, V, level) of the pair rows. A fallback
+    row that can neither act nor be its robot's smallest V - level is left out
+    (``_fallback_bound``). ``frames``: per robot row, its
     ``ClusterFrames`` when given (a robot's detections within reach, ``filter.nearby``; None: those
     of its detections array). ``derived``: the decision's ``filter.derived.Derived``, through which
     the frames are read and kept.
     """
     m = len(configs)
     solving = np.zeros(m, dtype=np.intp)
-    entries = _entries(configs, solve_clusters, dets, store_arg, frames, derived)
+    entries = _entries(configs, inputs, dets, store_arg, frames, derived)
     if not entries:
         return dict(_NO_CLUSTERS, solving=solving)
     fc = _FrameColumns(entries)
@@ -184,8 +185,9 @@ def cluster_rows(configs, solve_clusters, states, planned, horizon, speed, bang,
         v4[:, idx] = union.read(idx, np.stack([state[idx], pts[w_], pts[nr + w_], ahead[idx]]))[0]
     u_next = py_min(v4[3], py_max(v4[1], v4[2]))
 
-    # the loiter fallback where no union value is in force; of many instances (a fleet's), read only
-    # where it can act or be its robot's smallest row (a fallback row's level is 0; _fallback_bound):
+    # the loiter fallback where no union value is in force; of many instances (more than two a robot:
+    # robots among many clusters), read only where it can act or be its robot's smallest row (a
+    # fallback row's level is 0; _fallback_bound):
     # first the rows that could act and each robot's row of the smallest bound not above its
     # smallest row read so far, then the rows whose bound is not above the smallest row read then;
     # the others are no row
@@ -194,7 +196,7 @@ def cluster_rows(configs, solve_clusters, states, planned, horizon, speed, bang,
     inst_store = fc.store[frame]
     level = cluster_alpha[inst_row]
     fallback = ~ok
-    if np.count_nonzero(fallback) <= FEW_FALLBACKS:      # (a lone robot's few: all read, at once)
+    if np.count_nonzero(fallback) <= max(FEW_FALLBACKS, 2 * m):      # (a lone robot's few: all read, at once)
         _read_fallback(fallback, f_value, f_turn, state, ahead, member_xy, member_inst, inst_store, fc.stores)
     else:
         bound = _fallback_bound(d[nearest_m], inst_store, fc.stores, speed[inst_row] * horizon[inst_row])
@@ -220,7 +222,7 @@ def cluster_rows(configs, solve_clusters, states, planned, horizon, speed, bang,
                 member_pairs=member_pairs, member_groups=member_inst, n_groups=n_inst, solving=solving)
 
 
-def _entries(configs, solve_clusters, dets, store_arg, frames, derived) -> list:
+def _entries(configs, inputs, dets, store_arg, frames, derived) -> list:
     """[(ClusterFrames, store, robot rows)] of the robots with clusters: robots with one
     detections array and configuration share an entry (a batched fleet: one); each robot
     keeps its frames (its ``'clusters'``, ``derived``) while its detections array is the same."""
@@ -248,7 +250,7 @@ def _entries(configs, solve_clusters, dets, store_arg, frames, derived) -> list:
             store = stores.get(id(cfg))
             if store is None:
                 store = stores[id(cfg)] = default_cluster_store(cfg)
-        if not solve_clusters[row]:      # input that changes every message: the fallback only
+        if not inputs[row].solve_clusters:      # input that changes every message: the fallback only
             store = store.fallback_twin()
         fr = frames[row] if frames is not None else None
         if fr is None:

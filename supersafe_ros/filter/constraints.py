@@ -23,7 +23,7 @@ rest of the table).
 from __future__ import annotations
 
 from itertools import repeat
-from operator import is_
+from operator import attrgetter, is_
 from typing import NamedTuple
 
 import numpy as np
@@ -34,6 +34,8 @@ from .law import ConstraintTable
 from .map_rows import map_rows
 from .nearby import NEAR_QUERY_MIN, narrow
 from .pairs import FEW_PAIRS, PairTurns, near_pairs, pair_reads, pair_turns_of, pair_values_fast
+
+_KEPT = attrgetter('kept')
 
 _ONE_ROBOT = np.zeros(1, np.intp)
 _ONE_ROBOT.flags.writeable = False
@@ -54,7 +56,7 @@ def constraint_rows(cols, safe_set, clusters, derived):
         many = m and counts.max() > NEAR_QUERY_MIN
     narrowed = None
     if many:
-        narrowed = narrow(cols.configs, dets, cols.detections_kept, cols.solve_clusters, states, cols.lookahead,
+        narrowed = narrow(cols.configs, dets, cols.detection_inputs, states, cols.lookahead,
                           cols.max_speed, cols.clear_margin, safe_set, clusters, derived)
         dets = narrowed.dets
         counts = np.fromiter(map(len, dets), dtype=np.intp, count=m)
@@ -78,9 +80,11 @@ def constraint_rows(cols, safe_set, clusters, derived):
             value += shift
             value_next += shift
         pair_turns = PairTurns(vf, None, fast[0], None, horizon, speed, bang, lone + (centres_list,))
+        every_pair = True
     else:       # the pairs near the grid (near_pairs: the others read +inf, no row)
         start = np.concatenate(([0], np.cumsum(counts)[:-1])).astype(np.intp) if m else np.zeros(0, np.intp)
-        pair_robot, local, rel, centres = near_pairs(vf.grid, dets, states, horizon, speed)
+        pair_robot, local, rel, centres = near_pairs(vf.grid, dets, states, horizon, speed, counts, start)
+        every_pair = len(pair_robot) == int(counts.sum())
         pair_index = start[pair_robot] + local
         position = local if narrowed is None else narrowed.position[pair_index]
         shift = pair_shifts(cols.detection_radii, cols.configs, pair_robot, position)
@@ -90,12 +94,12 @@ def constraint_rows(cols, safe_set, clusters, derived):
             value += shift
             value_next += shift
         pair_turns = PairTurns(vf, rel, value, pair_robot, horizon, speed, bang)
-    found = cluster_rows(cols.configs, cols.solve_clusters, states, planned, horizon, speed, bang, cols.cluster_alpha,
+    found = cluster_rows(cols.configs, cols.detection_inputs, states, planned, horizon, speed, bang, cols.cluster_alpha,
                          cols.clear_margin, dets, start, (pair_robot, value, alpha), clusters,
                          narrowed.frames if narrowed is not None else None, derived)
     if narrowed is None:
         obstacle = by_message(np.concatenate([position, found['obstacle']]) if len(found['robot']) else position,
-                              pair_robot, found['robot'], cols.detections_kept)
+                              pair_robot, found['robot'], cols.detection_inputs)
     else:       # (nearby names those it narrowed)
         names = narrowed.names
         obstacle = (np.concatenate([names[pair_index], names[start[found['robot']] + found['obstacle']]])
@@ -109,7 +113,7 @@ def constraint_rows(cols, safe_set, clusters, derived):
             maps = map_rows(cols.map_views, cols.map_values, mapped, states, planned, horizon, speed, bang, safe_set,
                             cols.configs)
     table = constraint_table(pair_robot, pair_index, position, counts, value, value_next, centres, alpha, obstacle,
-                             found, maps, pair_turns, every_pair=fast is not None)
+                             found, maps, pair_turns, every_pair)
     return table, found['solving']
 
 
@@ -215,12 +219,14 @@ _NO_TURNS = np.zeros(0)
 _NO_TURNS.flags.writeable = False
 
 
-def by_message(obstacle, pair_robot, cluster_robot, kept):
+def by_message(obstacle, pair_robot, cluster_robot, inputs):
     """``obstacle`` (per pair row, then per cluster row: its index in its robot's detections; the
     robots ``pair_robot``, ``cluster_robot``) named by its row in the robot's detections message,
-    where a robot's detections are not the message's rows one for one (``kept``, per robot row:
-    discs split into covering rings, ``filter.discs``; None: row i is row i); a new array if any
-    is renamed. ``filter.nearby`` names those it narrows itself."""
+    where a robot's detections are not the message's rows one for one (per robot row, its
+    detections' input record's ``kept``: discs split into covering rings, ``filter.discs``; None:
+    row i is row i); a new array if any is renamed. ``filter.nearby`` names those it narrows
+    itself."""
+    kept = list(map(_KEPT, inputs))
     if all(map(is_, kept, repeat(None))):      # (most decisions: checked in C)
         return obstacle
     robot = np.concatenate([pair_robot, cluster_robot])

@@ -40,7 +40,7 @@ def decide(columns: RobotColumns, safe_set: SafeSet, clusters=None):
     together, is asked for the union values it holds and told which to solve; None: the process's
     shared store for the robots' configuration, ``filter.cluster``)."""
     c = columns
-    updates = Derived(c.caches, c.robot_index)
+    updates = Derived(c.detection_inputs, c.robot_index)
     table, solving = constraint_rows(c, safe_set, clusters, updates)
     choice = choose(table, c.overriding, c.clear_margin, c.failing, c.command_fresh, c.constant_speed)
     turns = avoid_turns(table, choice.row[choice.avoiding])

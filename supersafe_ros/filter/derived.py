@@ -3,11 +3,12 @@ that array is the same (never an input): a robot's ``RobotFilter.derived`` cache
 (``cluster_rows``: the clusters' frames), ``'near_index'`` and ``'near_pick'`` (``nearby``: the
 detections' index, the last pick within reach).
 
-A decision reads them and writes none: ``gather`` reads each robot's caches into its columns
-(``RobotColumns.caches``); ``Derived``, the decision's updates, reads a row's cache through the
-decision's own new values first and keeps what it fills; ``sent.record_decisions`` applies them
-with what was sent (``apply``), so the recorder is the one writer into a filter, and a decision
-not sent (a lockstepped answer held) leaves its filters as they were.
+They are kept with the detections (their input record's ``derived``, read through
+``RobotColumns.detection_inputs``). A decision reads them and writes none: ``Derived``, the
+decision's updates, reads a row's cache through the decision's own new values first and keeps
+what it fills; ``sent.record_decisions`` applies them with what was sent (``apply``), so the
+recorder is the one writer into a filter, and a decision not sent (a lockstepped answer held)
+leaves its filters as they were.
 """
 from __future__ import annotations
 
@@ -17,13 +18,14 @@ _NONE = {}
 class Derived:
     """One decision's updates to its robots' caches, by row of its columns (``gather.RobotColumns``):
     ``get(row, key)``, ``put(row, key, value)``; ``apply(filters)`` writes what was put into the
-    filters (``sent.record_decisions``). ``caches``: per row the caches kept so far; ``robot_index``:
-    per row its robot's index in the filters (None: none, the updates kept by no one)."""
+    filters (``sent.record_decisions``). ``inputs``: per row its detections' input record (their
+    ``derived``: the caches kept so far); ``robot_index``: per row its robot's index in the filters
+    (None: none, the updates kept by no one)."""
 
-    __slots__ = ('_caches', '_robot', '_new')
+    __slots__ = ('_inputs', '_robot', '_new')
 
-    def __init__(self, caches=None, robot_index=None):
-        self._caches, self._robot = caches, robot_index
+    def __init__(self, inputs=None, robot_index=None):
+        self._inputs, self._robot = inputs, robot_index
         self._new = {}      # row -> {key: value}
 
     def get(self, row, key):
@@ -31,7 +33,7 @@ class Derived:
         mine = self._new.get(row)
         if mine is not None and key in mine:
             return mine[key]
-        return (self._caches[row] if self._caches is not None else _NONE).get(key)
+        return (self._inputs[row].derived if self._inputs is not None else _NONE).get(key)
 
     def put(self, row, key, value):
         """Row ``row``'s ``key`` is ``value`` from now on (in its filter once applied); ``value``."""

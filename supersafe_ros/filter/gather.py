@@ -35,7 +35,11 @@ class RobotColumns(NamedTuple):
     valid) state enters the law, the rows, everything the law needs. Per-row arrays are (M,)
     unless said. A NamedTuple, as every record of a decision: typed and immutable as a frozen
     dataclass, and built in 1.7 us where a frozen dataclass takes 4.6 (its ``__init__`` sets each
-    field through ``object.__setattr__``: a lone robot's decision builds eight such records)."""
+    field through ``object.__setattr__``: a lone robot's decision builds eight such records).
+    What a step reads of a few robots' inputs (a run's ``solve_clusters``, ``kept`` where discs were
+    split or dropped) or an explanation reads when built (the inputs' notes) stays in the inputs'
+    records, read there: a column of them for every robot each tick would cost a fleet of robots
+    with detections of their own more than the rest (6 % of bench_core.py's dense-1000)."""
 
     t: float                        # the decision's time
     # -- every robot (N, in the filters' order)
@@ -44,8 +48,7 @@ class RobotColumns(NamedTuple):
     all_omega_max: np.ndarray       # its turn bound w_max
     all_sent_kept: np.ndarray       # how long its commands sent are remembered (FilterConfig.sent_kept)
     all_constant_speed: np.ndarray  # bool: a constant-speed robot (its fail safe the stop-turn)
-    detections_dropped: list        # its detections message's rows beyond max_detections
-    detections_note: list           # which were dropped, and whether that is safe ('' if none)
+    all_detection_inputs: list      # its detections' input record (inputs._Input): its message's notes
     # -- the rows: the robots whose (last valid) state enters the law
     robot_index: np.ndarray         # each row's robot: its index in the filters
     configs: list                   # its configuration
@@ -56,14 +59,14 @@ class RobotColumns(NamedTuple):
     last_sent: np.ndarray           # (M, 3): the last command sent (time, turn, speed; propagation.NEVER_SENT)
     detections: list                # its detected discs' centres (K_i, 2)
     detection_radii: list           # their radii (K_i,), None: all its configuration's radius
-    detections_kept: list           # their rows in the message (K_i,), None: row i is row i (filter.discs)
-    solve_clusters: list            # whether its detections' clusters may have union values solved
-    caches: list                    # what earlier decisions derived from its detections (its filter's
-    #                                 ``derived``; filter.derived): read, never written here
+    detection_inputs: list          # their input record: ``kept`` (their rows in the message, None: row i
+    #                                 is row i; filter.discs), ``solve_clusters`` (whether their clusters'
+    #                                 union values may be solved), ``derived`` (what earlier decisions
+    #                                 derived from them: filter.derived; read, never written here)
     lookahead: np.ndarray           # the hold H the planner's command is judged over (>= the control period)
     command_fresh: np.ndarray       # bool: the planner's command is recent enough to forward
     command_t: np.ndarray           # when the planner's command arrived (-inf: none yet)
-    command_note: list              # what of the planner's command was beyond its limits ('' if nothing)
+    command_inputs: list            # the command's input record: ``note``, what was beyond its limits
     planned_turn: np.ndarray        # the planner's turn rate clipped to +-w_max, 0 if silent
     max_speed: np.ndarray           # the configuration's speed
     omega_max: np.ndarray           # the turn bound w_max
@@ -77,9 +80,8 @@ class RobotColumns(NamedTuple):
     map_values: list | None         # its map's solved value as gathered (None: none yet)
 
 
-_VALUE, _T, _STAMP, _REJECTED, _RADII, _LINEAR, _VIEW, _KEPT, _SOLVE, _DERIVED, _NOTE, _DROPPED = (
-    attrgetter(a) for a in ('value', 't', 'stamp', 'rejected', 'radii', 'linear', 'view', 'kept', 'solve_clusters',
-                            'derived', 'note', 'dropped'))
+_VALUE, _T, _STAMP, _REJECTED, _RADII, _LINEAR, _VIEW = (
+    attrgetter(a) for a in ('value', 't', 'stamp', 'rejected', 'radii', 'linear', 'view'))
 _DETECTIONS, _COMMAND, _POSE = attrgetter('detections'), attrgetter('command'), attrgetter('pose')
 _OVERRIDING, _POSE_WINDOW, _COMMAND_WINDOW = attrgetter('overriding'), attrgetter('pose_intervals'), \
     attrgetter('command_intervals')
@@ -221,13 +223,12 @@ def gather(filters, t) -> RobotColumns:
     period = np.where(period > 0.0, period, measured)
     return RobotColumns(
         t=t, problems=problems, all_configs=all_configs, all_omega_max=omega_max_all, all_sent_kept=sent_kept_all,
-        all_constant_speed=constant_all, detections_dropped=list(map(_DROPPED, dets)),
-        detections_note=list(map(_NOTE, dets)),
+        all_constant_speed=constant_all, all_detection_inputs=dets,
         robot_index=use, configs=configs, failing=failing, states=states, lone_state=None, pose_age=age,
         last_sent=last, detections=det_values, detection_radii=list(map(_RADII, row_dets)),
-        detections_kept=list(map(_KEPT, row_dets)), solve_clusters=list(map(_SOLVE, row_dets)),
-        caches=list(map(_DERIVED, filters)), lookahead=np.where(compensate, py_max(look, period), look),
-        command_fresh=fresh, command_t=command_t, command_note=list(map(_NOTE, commands)), planned_turn=planned,
+        detection_inputs=row_dets,
+        lookahead=np.where(compensate, py_max(look, period), look),
+        command_fresh=fresh, command_t=command_t, command_inputs=commands, planned_turn=planned,
         max_speed=speed, omega_max=omega_max, overriding=overriding, clear_margin=margin, cluster_alpha=cluster_alpha,
         drive_speed=drive_speeds(constant, speed, failing, held, fresh, planned_v), held_speed=held,
         constant_speed=constant, map_views=None if values is None else [views[i] for i in use.tolist()],
@@ -267,12 +268,12 @@ def gather_one_fast(f, t):
          last[2]), dtype=float).reshape(14, 1)
     omega_max, sent_kept, speed, margin, cluster_alpha, age, lookahead, planned, drive, held, command_t = floats[:11]
     failing, overriding, fresh, constant = np.array((bool(why), f.overriding, fresh, cfg.constant_speed)).reshape(4, 1)
-    view, configs = f.view, [cfg]
+    view, configs, inputs = f.view, [cfg], [det]
     # (positional, in the fields' order: half the cost of keywords; the columns are compared with
     # gather's field by field in test_filter_vectorised)
     return RobotColumns(
-        t, [why], configs, omega_max, sent_kept, constant, [det.dropped], [det.note],             # every robot
+        t, [why], configs, omega_max, sent_kept, constant, inputs,                                  # every robot
         _ONE, configs, failing, np.array([(x, y, th)]), (x, y, th), age, floats[11:].T,          # the rows
-        [det.value], [det.radii], [det.kept], [det.solve_clusters], [f.derived],
-        lookahead, fresh, command_t, [command.note], planned, speed, omega_max, overriding, margin, cluster_alpha,
+        [det.value], [det.radii], inputs,
+        lookahead, fresh, command_t, [command], planned, speed, omega_max, overriding, margin, cluster_alpha,
         drive, held, constant, None if view is None else [view], None if view is None else [view.value()])

@@ -130,11 +130,12 @@ class Narrowed:
                           if len(found['robot']) else names.copy())
 
 
-def narrow(configs, dets, kept, solve_clusters, states, horizon, speed, margin, safe_set, store_arg, derived):
+def narrow(configs, dets, inputs, states, horizon, speed, margin, safe_set, store_arg, derived):
     """The detections each robot judges (see the module), or None if every robot judges all of
-    its own (none has more than NEAR_QUERY_MIN). Per robot row: ``configs``, ``dets``, ``kept``
-    (their rows in the message, None: row i is row i), ``solve_clusters``, ``states``
-    (propagated), ``horizon``, ``speed``, ``margin`` (``gather.RobotColumns``'); ``store_arg``: as
+    its own (none has more than NEAR_QUERY_MIN). Per robot row: ``configs``, ``dets``, ``inputs``
+    (their input record: ``kept``, their rows in the message, None: row i is row i;
+    ``solve_clusters``), ``states`` (propagated), ``horizon``, ``speed``, ``margin``
+    (``gather.RobotColumns``'); ``store_arg``: as
     ``decide.step_many``'s; ``derived``: the decision's ``filter.derived.Derived``, through which
     each robot's index and last pick are read and kept."""
     counts = np.fromiter(map(len, dets), dtype=np.intp, count=len(dets))
@@ -144,13 +145,14 @@ def narrow(configs, dets, kept, solve_clusters, states, horizon, speed, margin, 
     out = Narrowed()
     out.dets, out.frames, out.counts = list(dets), [None] * len(dets), counts
     position = [None if n > NEAR_QUERY_MIN else np.arange(n) for n in counts.tolist()]      # (big: below)
+    kept = [inp.kept for inp in inputs]
     names = [p if p is None or k is None else k for p, k in zip(position, kept)]    # (a robot's discs split into
     #                                                                                  rings: filter.discs)
     shared, radii, found = {}, {}, {}
     for i in big.tolist():       # each robot's index, store and radius (robots of a fleet share them)
         cfg, det = configs[i], dets[i]
         store = (store_arg if store_arg is not None else default_cluster_store(cfg)) if cfg.clusters else None
-        if store is not None and not solve_clusters[i]:     # (as cluster_rows._entries)
+        if store is not None and not inputs[i].solve_clusters:     # (as cluster_rows._entries)
             store = store.fallback_twin()
         st = store.settings if store is not None else settings_of(cfg)
         index = _index(i, det, st.link_distance if store is not None else None, shared, derived)

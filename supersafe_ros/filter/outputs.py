@@ -96,8 +96,7 @@ def outputs(cols, safe_set, table, ruling, solving, limits=None) -> Decisions:
     common = set_fields(safe_set)                        # replaces a robot's)
     fresh, kind, named, ages, horizon = cols.command_fresh.tolist(), kind.tolist(), named.tolist(), cols.pose_age, \
         cols.lookahead
-    command_t, dropped, notes, command_notes = cols.command_t, cols.detections_dropped, cols.detections_note, \
-        cols.command_note
+    command_t, detections, commands = cols.command_t, cols.all_detection_inputs, cols.command_inputs
 
     def describe(i) -> FilterOutput:
         row = rows[i]
@@ -109,10 +108,10 @@ def outputs(cols, safe_set, table, ruling, solving, limits=None) -> Decisions:
                                   kind[row], fresh[row], float(horizon[row]), float(ages[row]), int(solving[row]),
                                   silence=t - since if since > -math.inf else math.inf,
                                   limit='' if limits is None else limits.headline(row)))
-        # the inputs' notes as at the decision
-        out.detections_dropped, out.detections_note = dropped[i], notes[i]
+        # the inputs' notes as when read (the nodes read them before new inputs come)
+        out.detections_dropped, out.detections_note = detections[i].dropped, detections[i].note
         if row >= 0 and fresh[row]:      # what of the planner's command was beyond the robot's limits
-            out.cmd_clipped = command_notes[row]
+            out.cmd_clipped = commands[row].note
         return out
 
     def solving_of(i) -> int:
