@@ -278,7 +278,7 @@ def test_a_long_hold_judges_robots_that_start_off_the_grid(standard):
 def test_an_override_whose_row_turns_zero_still_sends_a_bounded_turn(standard):
     """The case above overrides by a row whose avoid turn is 0 (V = +inf now and both bangs
     held from the state now end off the grid): the command sent is still a turn rate within
-    +-w_max (kills ``bang / turn`` for ``bang * turn`` in law.decide_rows, which sends +-inf)."""
+    +-w_max (kills ``bang / turn`` for ``bang * turn`` in law.command, which sends +-inf)."""
     out = robot(pose=at(-13.0, 0.0, 0.0), cmd=0.0, lookahead=2.0).step(SafeSet(standard.vf, 5.5), T)
     assert out.action == OVERRIDE
     assert math.isfinite(out.omega) and abs(out.omega) <= 1.0
