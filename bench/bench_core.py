@@ -26,9 +26,16 @@ Scenarios (``--only``):
   no union value in force, as before the solves end or for sensor discs) or ``union`` (in force:
   solved inline, disk-cached).
 
-``--callgrind SCENARIO --ticks K``: this checkout only, K ticks of one scenario in this process
-(run it under ``valgrind --tool=callgrind`` twice, with K and 2K: the difference is K ticks'
-instructions, whatever the load).
+``--callgrind SCENARIO --ticks K``: this checkout only, K ticks of one scenario in this process,
+each ``step_many`` called through ``operator.call`` (nothing else calls it) after the inputs are
+fed, the garbage collector off (its collections fall on ticks of their own): under callgrind,
+collecting only inside that call, the instructions of K ticks of ``step_many`` alone, whatever
+the load. ``python -S`` with the venv's site-packages on PYTHONPATH: a .pth file the venv runs at
+start-up keeps valgrind from writing its counts at exit (ros_wheels_bootstrapper)::
+
+    PYTHONHASHSEED=0 PYTHONPATH=CHECKOUT:.venv/lib/python3.11/site-packages valgrind --tool=callgrind \
+        --collect-atstart=no --toggle-collect=_operator_call --callgrind-out-file=OUT \
+        python3.11 -S bench/bench_core.py --callgrind lone --ticks 300    # "summary:" in OUT / 300
 """
 from __future__ import annotations
 
@@ -214,15 +221,22 @@ def compare(args):
 
 
 def count(scenario, ticks):
-    """``ticks`` ticks of ``scenario`` in this process (for callgrind; see the module)."""
+    """``ticks`` ticks of ``scenario`` in this process, each ``step_many`` through ``operator.call``
+    (for callgrind; see the module)."""
+    import gc
+    import operator
     from supersafe_ros.filter import SafeSet, step_many
     from supersafe_ros.reach.grid import Grid
     from supersafe_ros.reach.library import load_or_solve
     vf = load_or_solve(Grid((-8, -8), (8, 8), (65, 65, 42)), 3.0, 1.0, 1.8, 3.0)
     safe = SafeSet(vf, 0.0)
     filters, store, feed = build(scenario)
-    for k in range(3 + ticks):
+    for k in range(5):          # warm: cluster frames, union values read from the disk cache
         step_many(filters, safe, feed(k), store)
+    gc.collect()
+    gc.disable()
+    for k in range(5, 5 + ticks):
+        operator.call(step_many, filters, safe, feed(k), store)
 
 
 def main(argv=None):
