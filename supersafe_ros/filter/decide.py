@@ -5,7 +5,8 @@ writing nothing back:
 
 1. ``gather``: the inputs, read once into columns (``RobotColumns``, frozen): which robots are
    judged (``gather.problem``), their states now (``propagation``), commands (``commands``),
-   holds, and whatever else a later step reads (no later step reads a filter); a lone robot's in
+   holds, and whatever else a later step reads (no later step reads a filter: what a step reads of
+   a few robots' inputs, it reads in their input records, in the columns); a lone robot's in
    Python floats (``gather_one_fast``);
 2. ``constraints.constraint_rows``: each robot's constraints, rows of one
    ``law.ConstraintTable`` (per obstacle, ``pairs``; per cluster of close obstacles,
