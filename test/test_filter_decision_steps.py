@@ -1,7 +1,7 @@
 """docs/filter_learner.md "How a decision is made" names only steps that exist: every
 ``path:function`` it lists is a file of the repository defining that function or class, and
-the steps ``decide.step_many`` runs (``decide_many``'s, then the record) appear in it in the order
-it runs them."""
+the steps ``decide.step_many`` runs (``decide_many``'s: ``gather``, then ``decide``'s; then the
+record) appear in it in the order it runs them."""
 import ast
 import re
 from pathlib import Path
@@ -42,23 +42,24 @@ def test_every_step_names_a_function_that_exists():
 
 
 def calls_of(name: str) -> list:
-    """The names called in ``decide.<name>``'s body, in order, a call of ``decide_many`` expanded."""
+    """The names called in ``decide.<name>``'s body, in order, a call of ``decide_many`` or ``decide``
+    expanded."""
     source = (ROOT / 'supersafe_ros' / 'filter' / 'decide.py').read_text()
     body = next(n for n in ast.parse(source).body if isinstance(n, ast.FunctionDef) and n.name == name)
     calls = [n for n in ast.walk(body) if isinstance(n, ast.Call) and isinstance(n.func, ast.Name)]
     called = [n.func.id for n in sorted(calls, key=lambda n: (n.lineno, n.col_offset))]
     return [c for called_name in called for c in ([called_name, *calls_of(called_name)]
-                                                  if called_name == 'decide_many' else [called_name])]
+                                                  if called_name in ('decide_many', 'decide') else [called_name])]
 
 
 def test_the_steps_of_step_many_are_listed_in_the_order_it_runs_them():
-    """The calls in ``step_many``'s body (``decide_many``'s, then the record), in order, are the
-    section's steps in order."""
+    """The calls in ``step_many``'s body (``decide_many``'s and ``decide``'s, then the record), in
+    order, are the section's steps in order."""
     called = calls_of('step_many')
     listed = [name for _, name in steps()]
     in_both = [c for c in dict.fromkeys(called) if c in listed]
-    assert {'decide_many', 'gather', 'constraint_rows', 'decide_rows', 'outputs', 'record_decisions'} <= set(in_both), \
-        in_both
+    assert {'decide_many', 'gather', 'decide', 'constraint_rows', 'choose', 'avoid_turns', 'command', 'outputs',
+            'record_decisions'} <= set(in_both), in_both
     assert in_both == sorted(in_both, key=listed.index), (in_both, listed)
 
 

@@ -159,3 +159,69 @@ def test_many_discs_with_radii_are_narrowed_and_named_by_their_rows(standard):
         outs.append(f.step(standard, 0.0))
     assert outs[0].action == outs[1].action == 'override'
     assert outs[0].obstacle_index == 40 and outs[1].obstacle_index == 0 and outs[0].value == outs[1].value
+
+
+def disc_fleet(seed, n=90):
+    """n robots among discs of radius 0.4 to 4 m (rings): a third given one batched array, a third
+    arrays of their own (some beyond the 64 a robot judges whole: narrowed), a third (N, 2) centres
+    of the configured radius; poses near the discs, planners turning or not."""
+    rng = np.random.default_rng(seed)
+    centres = rng.uniform(-14.0, 14.0, (12, 2))
+    layout = np.column_stack([centres, rng.choice([0.4, 1.0, R, 4.0], 12)])
+    far = np.column_stack([np.linspace(60.0, 160.0, 70), np.full(70, 40.0), np.full(70, 0.5)])
+    filters, batched, messages = [], [], []
+    for i in range(n):
+        f = RobotFilter(FilterConfig(clusters=bool(i % 4)))
+        c = layout[rng.integers(len(layout)), :2]
+        f.update_pose((c[0] + rng.uniform(-7, 7), c[1] + rng.uniform(-7, 7), rng.uniform(-np.pi, np.pi)), 0.0)
+        kind, own = i % 3, None
+        if kind == 0:
+            batched.append(f)
+        else:
+            own = layout[rng.choice(len(layout), int(rng.integers(1, 7)), replace=False)]
+            if kind == 1 and rng.random() < 0.3:
+                own = np.vstack([far, own])
+            own = own if kind == 1 else own[:, :2].copy()
+        f.update_command(float(rng.choice([0.0, 0.6, -1.0])), 0.0)
+        filters.append(f)
+        messages.append(own)
+
+    def detect(t):
+        update_detections_all(batched, layout, t)
+        for f, own in zip(filters, messages):
+            if own is not None:
+                f.update_detections(own, t)
+    detect(0.0)
+    return filters, detect
+
+
+def test_a_fleet_of_discs_of_their_own_radius_decides_each_robot_as_alone(standard):
+    """Robots given discs of several radii (a batched array, arrays of their own, narrowed ones,
+    centres without radii) decide in a fleet as each decides alone: the same command, reason,
+    value and named row, over closed-loop ticks (the pairs' shifts read per robot or for all
+    at once, and only for the pairs near the grid)."""
+    store = ClusterStore(ClusterSettings(), fallback_only=True)
+    (fleet, detect_fleet), (alone, detect_alone) = disc_fleet(5), disc_fleet(5)
+    seen = {'override': 0, 'ring': 0, 'shifted': 0}
+    t = 0.0
+    for tick in range(4):
+        together = step_many(fleet, standard, t, store)
+        apart = [step_many([f], standard, t, store)[0] for f in alone]
+        for i, (a, b) in enumerate(zip(together, apart)):
+            assert repr((a.omega, a.linear, a.action, a.reason, a.obstacle_index, a.value, a.source)) == repr(
+                (b.omega, b.linear, b.action, b.reason, b.obstacle_index, b.value, b.source)), (tick, i)
+            seen['override'] += a.action == 'override'
+            radii = fleet[i].detections.radii
+            named = a.obstacle_index
+            if named >= 0 and radii is not None and a.source == 'standard':
+                kept = fleet[i].detections.kept
+                seen['ring'] += kept is not None and int(np.sum(kept == named)) > 1
+                seen['shifted'] += float(radii[np.flatnonzero(kept == named)[0] if kept is not None else named]) != R
+        t += 0.1
+        for filters, outs, detect in ((fleet, together, detect_fleet), (alone, apart, detect_alone)):
+            for f, o in zip(filters, outs):
+                x, y, th = f.pose.value
+                f.update_pose((x + 0.3 * math.cos(th), y + 0.3 * math.sin(th), th + 0.1 * o.omega), t)
+                f.update_command(f.command.value, t)
+            detect(t)
+    assert min(seen.values()) > 3, seen

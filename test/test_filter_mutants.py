@@ -211,10 +211,10 @@ def test_value_exactly_at_alpha_plus_margin_keeps_overriding(standard):
 
 # -- which constraint governs (govern on a hand-made table) ---------------------------------------
 def table(rows):
-    """A constraint table for govern: rows of (robot, position, value, level, value_next, sound,
-    group)."""
-    from supersafe_ros.filter.law import ConstraintTable
-    tab = ConstraintTable()
+    """A constraint table's columns that govern reads: rows of (robot, position, value, level,
+    value_next, sound, group)."""
+    from types import SimpleNamespace
+    tab = SimpleNamespace()
     cols = list(zip(*rows))
     tab.robot, tab.position = np.array(cols[0], np.intp), np.array(cols[1], np.intp)
     tab.value, tab.level, tab.value_next = (np.array(c, float) for c in cols[2:5])
@@ -278,7 +278,7 @@ def test_a_long_hold_judges_robots_that_start_off_the_grid(standard):
 def test_an_override_whose_row_turns_zero_still_sends_a_bounded_turn(standard):
     """The case above overrides by a row whose avoid turn is 0 (V = +inf now and both bangs
     held from the state now end off the grid): the command sent is still a turn rate within
-    +-w_max (kills ``bang / turn`` for ``bang * turn`` in law.decide_rows, which sends +-inf)."""
+    +-w_max (kills ``bang / turn`` for ``bang * turn`` in law.command, which sends +-inf)."""
     out = robot(pose=at(-13.0, 0.0, 0.0), cmd=0.0, lookahead=2.0).step(SafeSet(standard.vf, 5.5), T)
     assert out.action == OVERRIDE
     assert math.isfinite(out.omega) and abs(out.omega) <= 1.0

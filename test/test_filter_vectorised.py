@@ -377,6 +377,77 @@ def test_long_holds_around_solved_clusters_decide_as_the_reference(standard, sol
     assert sum("the planner's command would bring a cluster" in o.reason for o in outs) > 20
 
 
+def test_far_robots_on_the_loiter_fallback_decide_as_the_reference(standard):
+    """Robots 1-40 m from clusters judged by the loiter fallback alone (a store that never solves):
+    the fallback rows left out as unable to act and above their robot's smallest row
+    (``cluster_rows._fallback_bound``) change no decision: the same command, reason, named row
+    and value as the reference, for robots whose smallest row is a far cluster's (no obstacle
+    near), near and far ones, overriding ones with wide margins, long holds, and constant-speed
+    robots failing safe from their last valid state (they turn by their smallest row)."""
+    configs = [FilterConfig(), FilterConfig(lookahead=1.0, clear_margin=3.0),
+               FilterConfig(fail_safe_command='stop_turn', detections_timeout=0.2, hold_timeout=1.0)]
+    centroids = [LAYOUT[[0, 1, 2]].mean(axis=0), LAYOUT[[3, 4, 5]].mean(axis=0)]
+
+    def fleet():
+        r = np.random.default_rng(41)
+        out = []
+        for i in range(600):
+            c = centroids[i % 2]
+            d, a = r.uniform(1.0, 40.0), r.uniform(-np.pi, np.pi)
+            pose = (c[0] + d * np.cos(a), c[1] + d * np.sin(a), a + np.pi + r.uniform(-1.0, 1.0))
+            f = robot_at(configs[i % 3], pose, LAYOUT.copy(), float(r.uniform(-1, 1)))
+            if i % 3 == 2:          # its detections stale: failing safe from the last valid state
+                f.update_detections(LAYOUT.copy(), 9.5)
+            f.overriding = bool(r.random() < 0.5)
+            out.append(f)
+        return out
+    stores = [ClusterStore(SETTINGS, fallback_only=True) for _ in range(2)]
+    new = step_many(fleet(), standard, 10.0, stores[0])
+    ref = step_many_reference(fleet(), standard, 10.0, stores[1])
+    kinds = {'named far': 0, 'fallback acts': 0, 'fails safe by it': 0}
+    for i, (a, b) in enumerate(zip(new, ref)):
+        assert repr((a.omega, a.linear, a.action, a.reason, a.obstacle_index, a.value, a.source)) == repr(
+            (b.omega, b.linear, b.action, b.reason, b.obstacle_index, b.value, b.source)), i
+        kinds['named far'] += a.action == 'pass' and a.source == 'cluster-fallback' and a.value > 5.0
+        kinds['fallback acts'] += a.action == 'override' and a.source == 'cluster-fallback'
+        kinds['fails safe by it'] += a.action == 'fail_safe' and a.source == 'cluster-fallback'
+    assert min(kinds.values()) > 10, kinds
+
+
+def test_the_fallback_bound_is_below_the_loiter_clearance_now_and_after_the_hold():
+    """cluster_rows._fallback_bound is a lower bound of the loiter fallback's clearance
+    (cluster.orbit_value) at the robot's state now and where the planner's hold ends, and tight
+    where it can be (a robot midway between two members, heading across them): random clusters,
+    states, speeds, turns and holds."""
+    from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore, orbit_value
+    from supersafe_ros.filter.cluster_rows import _fallback_bound
+    from supersafe_ros.filter.propagation import arc_flow
+    st = ClusterSettings()
+    store = ClusterStore(st, fallback_only=True)
+    r, radius = st.turning_radius, st.radius + st.margin
+    rng = np.random.default_rng(43)
+    tight = 0
+    for trial in range(3000):
+        members = rng.uniform(-6.0, 6.0, (int(rng.integers(2, 5)), 2))
+        if trial % 4 == 0:      # midway between two members, heading across them
+            a = rng.uniform(-np.pi, np.pi)
+            d = rng.uniform(2 * r + radius, 30.0)
+            p = rng.uniform(-20.0, 20.0, 2)
+            members = np.array([p + d * np.array([np.cos(a), np.sin(a)]), p - d * np.array([np.cos(a), np.sin(a)])])
+            state = np.array([[p[0], p[1], a + np.pi / 2]])
+        else:
+            state = np.array([[rng.uniform(-40, 40), rng.uniform(-40, 40), rng.uniform(-np.pi, np.pi)]])
+        speed, horizon, turn = rng.choice([0.0, 1.5, 3.0]), rng.choice([0.0, 0.1, 1.0, 2.0]), rng.uniform(-1, 1)
+        ahead = arc_flow(state, np.array([speed]), np.array([turn]), np.array([horizon]))
+        nearest = np.hypot(*(members - state[0, :2]).T).min()
+        bound = _fallback_bound(np.array([nearest]), np.zeros(1, np.intp), [store], np.array([speed * horizon]))
+        now = orbit_value(state, members, radius, r)[0][0]
+        later = orbit_value(ahead, members, radius, r)[0][0]
+        assert bound[0, 0] <= now and bound[1, 0] <= later, trial
+        tight += bool(now - bound[0, 0] < 1e-6)
+    assert tight > 300, tight
+
+
 def test_robots_just_inside_a_union_grids_corners_decide_as_the_reference(standard, solved_values):
     """Robots 0.2 m inside each corner of a solved cluster's grid (where the grid reaches
     farthest from the frame's origin, so a reach bound that is short by a metre leaves their
@@ -508,14 +579,67 @@ def test_a_robots_propagated_state_does_not_depend_on_the_other_robots_plans(sta
     assert {o.action for o in outs} == {'pass', 'override'}
 
 
+def same_bits(a, b) -> bool:
+    """``a`` and ``b`` hold the same values bit for bit (arrays: dtype, shape and bytes; lists and
+    tuples: item by item; anything else: the same object or equal reprs)."""
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        a, b = np.asarray(a), np.asarray(b)
+        return a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
+    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
+        return len(a) == len(b) and all(same_bits(x, y) for x, y in zip(a, b))
+    return a is b or repr(a) == repr(b)
+
+
+def test_one_robots_columns_in_python_floats_are_gathers():
+    """gather_one_fast (one robot, Python floats) gives the columns gather gives for that robot
+    alone, field by field, bit for bit (its ``lone_state`` is its state in floats, which gather
+    leaves None), and None exactly where gather finds no state to judge: robots fresh, delayed,
+    failing safe from a last valid state, lost, with commands sent since their poses, silent
+    planners, commands beyond the bound, discs of their own radius and rings of larger ones."""
+    from supersafe_ros.filter.gather import RobotColumns, gather, gather_one_fast
+    filters, t = build_fleet(21, 300)
+    rng = np.random.default_rng(22)
+    for f in filters[::7]:          # discs of their own radius, some larger than the set's (rings)
+        if f.detections.value is not None and len(f.detections.value):
+            rows = np.column_stack([f.detections.value, rng.choice([0.5, 1.8, 4.0], len(f.detections.value))])
+            f.update_detections(rows, f.detections.t)
+    safe = SafeSet(solve_avoid(Grid((-8, -8), (8, 8), (21, 21, 12)), DubinsCar(3.0, 1.0), Disc(0, 0, 1.8),
+                               horizon=1.0), 0.0)
+    seen = {'fast': 0, 'none': 0, 'failing': 0, 'arcs': 0, 'radii': 0, 'kept': 0}
+    for tick in range(3):
+        for f in filters:
+            fast, full = gather_one_fast(f, t), gather([f], t)
+            if fast is None:
+                assert len(full.robot_index) == 0
+                seen['none'] += 1
+                continue
+            for name in RobotColumns._fields:
+                a, b = getattr(fast, name), getattr(full, name)
+                if name == 'lone_state':
+                    assert b is None and same_bits(np.array(a), fast.states[0]), name
+                else:
+                    assert same_bits(a, b), (name, a, b)
+            seen['fast'] += 1
+            seen['failing'] += bool(fast.failing[0])
+            seen['arcs'] += bool(fast.pose_age[0] > 0.0)
+            seen['radii'] += fast.detection_radii[0] is not None
+            seen['kept'] += fast.detection_inputs[0].kept is not None
+        step_many(filters, safe, t)       # commands sent: the next tick's poses are propagated along them
+        t += 0.02
+        for f in filters:
+            if f.pose.value is not None and rng.random() < 0.7:
+                f.update_pose(f.pose.value, t, stamp=t - float(rng.choice([0.0, 0.01, 0.03])))
+    assert min(seen.values()) > 5, seen
+
+
 @pytest.mark.parametrize('kind', ['standard', 'lopsided, not symmetric'])
 def test_one_robots_pair_values_in_python_floats_equal_numpys(standard, kind):
-    """pair_values_fast (one robot, Python floats) equals pair_values (numpy) bit for bit:
-    V, the turn (the law's and the held one) and V after the hold, for pairs on, near and off
-    the grid, holds of 0 (the law's turn) to 1.5 s, on the standard set and on a set whose
-    grid is not square and whose V is not rotationally symmetric; None exactly when more
+    """pair_values_fast and pair_turn_fast (one robot, Python floats) equal pair_values (numpy)
+    bit for bit: V, the turn (the law's and the held one) and V after the hold, for pairs on,
+    near and off the grid, holds of 0 (the law's turn) to 1.5 s, on the standard set and on a set
+    whose grid is not square and whose V is not rotationally symmetric; None exactly when more
     than ``few`` pairs are near the grid."""
-    from supersafe_ros.filter.pairs import pair_values_fast
+    from supersafe_ros.filter.pairs import pair_turn_fast, pair_values_fast
     from filter_support import pair_values
     from supersafe_ros.reach.value_function import ValueFunction
     vf = standard.vf
@@ -545,7 +669,9 @@ def test_one_robots_pair_values_in_python_floats_equal_numpys(standard, kind):
             assert got is None
             seen['none'] += 1
             continue
-        assert repr(list(got)) == repr(want), trial
+        turns = [pair_turn_fast(vf, x - cx, y - cy, th, v, horizon, speed, bang)
+                 for (cx, cy), v in zip(centres, got[0])]
+        assert repr([got[0], turns, got[1]]) == repr(want), trial
         value, turn, value_next = want
         seen['held'] += sum(v != math.inf for v in value_next)
         seen['law'] += sum(v != math.inf and horizon == 0 and u < 0 for v, u in zip(value, turn))
@@ -559,13 +685,14 @@ def test_the_governing_rule_is_the_per_robot_oracles():
     that differ (pairs at alpha, clusters at their own level), sound cluster rows and their
     members, values off the grid, exact ties, overriding or not."""
     from filter_oracle import govern_one as _govern_one
-    from supersafe_ros.filter.law import ConstraintTable, first_min, govern
+    from types import SimpleNamespace as Columns        # the table's columns govern reads
+    from supersafe_ros.filter.law import first_min, govern
     rng = np.random.default_rng(8)
     kinds = set()
     for trial in range(3000):
         n_pairs, n_cl = int(rng.integers(0, 5)), int(rng.integers(0, 3))
         k = n_pairs + n_cl
-        lists, arrays = ConstraintTable(), ConstraintTable()
+        lists, arrays = Columns(), Columns()
         value = rng.choice([-0.5, 0.0, 0.1, 0.3, 0.8, math.inf], k) + rng.choice([0.0, 1e-3], k) * rng.random(k)
         value_next = np.where(rng.random(k) < 0.2, math.inf, value + rng.normal(0.0, 0.3, k))
         level = np.concatenate([np.full(n_pairs, rng.choice([0.0, 0.3, -0.2])), rng.choice([0.0, 0.2, 0.6], n_cl)])
@@ -584,6 +711,39 @@ def test_the_governing_rule_is_the_per_robot_oracles():
         assert got == (int(k_gov[0]), int(kind[0]), int(k_small[0])), trial
         kinds.add(got[1])
     assert kinds == {0, 1, 2, 3}
+
+
+def test_first_min_over_many_rows_picks_what_a_sort_of_all_of_them_picks():
+    """first_min over a fleet's many rows (each segment's smallest rank and score found first, the
+    ties alone sorted) picks the row a sort of all rows by (segment, rank, score, position) puts
+    first in each segment: many exact ties, -0.0 and 0.0, infinities, segments without rows, and
+    NaN scores (then every row is sorted)."""
+    from supersafe_ros.filter.law import FEW_ROWS, first_min
+
+    def by_sort(segment, position, score, mask, n, rank=None):
+        out = np.full(n, -1, dtype=np.intp)
+        idx = np.flatnonzero(mask)
+        keys = (position[idx], score[idx], segment[idx]) if rank is None else \
+            (position[idx], score[idx], rank[idx], segment[idx])
+        order = idx[np.lexsort(keys)]
+        for i in order[::-1]:       # the first of each segment, last written
+            out[segment[i]] = i
+        return out
+    rng = np.random.default_rng(31)
+    ties = 0
+    for trial in range(300):
+        k, n = int(rng.integers(FEW_ROWS + 1, 3000)), int(rng.integers(1, 300))
+        segment = rng.integers(0, n, k)
+        position = rng.permutation(k)
+        score = rng.choice([-1.0, -0.0, 0.0, 0.5, 0.5 + 1e-12, 2.0, np.inf, -np.inf], k)
+        if trial % 10 == 0:
+            score[rng.integers(0, k, 3)] = np.nan
+        mask = rng.random(k) < rng.choice([0.05, 0.5, 1.0])
+        rank = rng.integers(1, 4, k).astype(np.int8) if trial % 2 else None
+        got, want = first_min(segment, position, score, mask, n, rank), by_sort(segment, position, score, mask, n, rank)
+        assert np.array_equal(got, want), trial
+        ties += int(np.sum(np.bincount(segment[mask], minlength=n) > 1))
+    assert ties > 1000
 
 
 def test_the_first_minimum_of_each_run_is_first_min_s():

@@ -1,24 +1,29 @@
 """The safety filter, ROS-free.
 
 Where the decision is made: ``RobotFilter.step`` (one robot) or ``step_many`` (a fleet), in
-``filter.decide``; the rule itself, written once, is ``filter.law``. A decision goes one way
-(docs/filter_learner.md, "How a decision is made"):
+``filter.decide``; the rule itself, written once, is ``filter.law``. A decision goes one way,
+each step a function of what the steps before it made (docs/filter_learner.md, "How a decision
+is made"):
 
 * ``inputs``: RobotFilter, one robot's inputs (batched updates for a fleet's);
-* ``gather``: every robot's inputs read once into columns, with which are judged (``problem``)
-  and their states now (``propagation``: a pose propagated along the Dubins arcs of the
-  commands sent) and commands (``commands``: the planner's command within the robot's limits);
-* ``constraints``: each robot's rows of the constraint table: ``pairs`` (V at every robot and
-  obstacle pair, now and after the lookahead's holds), ``discs`` (obstacles of their own
-  radius), ``cluster_rows`` (the union value or loiter fallback of close obstacles),
-  ``nearby`` (a robot's many detections narrowed to those within its reach), ``map_rows``
-  (a robot judged by its local map: one row for all the map holds);
-* ``law``: the rule over the constraint table (enter, ahead, stay; the command); ``approach``:
-  the speed cut of a robot that can stop, so that each command's path enters nothing detected;
+* ``gather``: every robot's inputs read once into columns (``RobotColumns``, frozen: what the rest
+  of the decision reads of the robots), with which are judged (``problem``) and their states now
+  (``propagation``: a pose propagated along the Dubins arcs of the commands sent) and commands
+  (``commands``: the planner's command within the robot's limits);
+* ``constraints``: each robot's rows of the constraint table (data: ``law.ConstraintTable``):
+  ``pairs`` (V at every robot and obstacle pair, now and after the lookahead's holds),
+  ``discs`` (obstacles of their own radius), ``cluster_rows`` (the union value or loiter
+  fallback of close obstacles), ``nearby`` (a robot's many detections narrowed to those within
+  its reach), ``map_rows`` (a robot judged by its local map: one row for all the map holds);
+  ``avoid_turns``, the avoid turns of the rows robots avoid by, read from the table's data;
+* ``law``: the rule over the constraint table (``choose``: enter, ahead, stay; ``command``);
+  ``approach``: the speed cut of a robot that can stop, so that each command's path enters
+  nothing detected;
 * ``outputs``: the commands and each robot's explanation;
 * ``sent``: what was sent, the one writer of a filter's ``sent``, ``overriding`` and the caches a
-  decision filled (``derived``);
-* ``decide``: the steps above, in order (``decide_many``; ``step_many`` records them too);
+  decision updates (``derived``);
+* ``decide``: the steps above, in order (``decide(columns, safe_set, clusters)`` -> (decisions,
+  updates); ``decide_many``: ``gather`` then ``decide``; ``step_many`` records them too);
 * beside them: ``types`` (FilterConfig, SafeSet, FilterOutput, the actions), ``cluster``
   (union values solved in the background), ``admissibility`` (a learned set must contain the
   standard unsafe set), ``range_readings`` (a scan's or a cloud's readings, checked),

@@ -64,7 +64,9 @@ at once when no robot has it on.
 """
 from __future__ import annotations
 
+from itertools import repeat
 import math
+from operator import is_
 
 import numpy as np
 
@@ -184,22 +186,19 @@ def allowed_speeds(states, speeds, turns, tau, dets, radii):
     return out, blocker, away, gap_of
 
 
-def blocked_turns(filters, away) -> np.ndarray:
+def blocked_turns(last_sent, away) -> np.ndarray:
     """The unit turn of each blocked robot (see the module): the sign of the turn it was sent
-    last if that command turned in place (speed 0), else ``away``."""
-    out = np.asarray(away, dtype=float).copy()
-    for j, f in enumerate(filters):
-        sent = f.sent
-        if sent and sent[-1][2] == 0.0 and sent[-1][1] != 0.0:
-            out[j] = 1.0 if sent[-1][1] > 0.0 else -1.0
-    return out
+    last (``last_sent``, (k, 3): time, turn, speed; ``propagation.NEVER_SENT``: none) if that
+    command turned in place (speed 0), else ``away``."""
+    in_place = (last_sent[:, 2] == 0.0) & (last_sent[:, 1] != 0.0)
+    return np.where(in_place, np.where(last_sent[:, 1] > 0.0, 1.0, -1.0), np.asarray(away, dtype=float))
 
 
 def limit(cols, omega, linear, action_code):
     """The law's commands ``omega``, ``linear`` (per robot row of ``cols``, ``gather.RobotColumns``:
-    its state now ``cols.states`` and its detections ``cols.dets``, all of them, with ``cols.radii``; a
-    robot judged by its local map: the map's occupied cells, ``map_rows.cut_discs``)
-    with each speed cut to what its path over tau allows (``allowed_speeds``), for the robots
+    its state now ``cols.states`` and its detections ``cols.detections``, all of them, with
+    ``cols.detection_radii``; a robot judged by its local map: the map's occupied cells,
+    ``map_rows.cut_discs``) with each speed cut to what its path over tau allows (``allowed_speeds``), for the robots
     whose configuration has ``time_before_collision`` > 0 (robots that can stop); a robot cut to
     0 where the law passes or overrides (``action_code`` 0 or 1) turns in place
     (``blocked_turns``). None if no robot has it on (nothing changed)."""
@@ -207,7 +206,7 @@ def limit(cols, omega, linear, action_code):
     if not configs:
         return None
     c0 = configs[0]
-    if all(c is c0 for c in configs):
+    if all(map(is_, configs, repeat(c0))):     # (checked in C)
         if c0.time_before_collision <= 0.0:
             return None
         on = np.ones(len(configs), bool)
@@ -217,11 +216,11 @@ def limit(cols, omega, linear, action_code):
         on = tbc > 0.0
         if not on.any():
             return None
-    on &= ~cols.constant & (np.asarray(linear) > 0.0)
+    on &= ~cols.constant_speed & (np.asarray(linear) > 0.0)
     lim = Limits()
     lim.linear, lim.omega = np.array(linear, dtype=float), np.array(omega, dtype=float)
     lim.asked = lim.linear.copy()
-    lim.tau = np.maximum(np.asarray(cols.horizon, dtype=float), tbc)
+    lim.tau = np.maximum(np.asarray(cols.lookahead, dtype=float), tbc)
     m = len(configs)
     lim.limited, lim.blocked = np.zeros(m, bool), np.zeros(m, bool)
     lim.obstacle = np.full(m, -1, dtype=np.intp)
@@ -231,12 +230,12 @@ def limit(cols, omega, linear, action_code):
     if len(idx) == 0:
         return lim
     dets, radii = [], []
-    views = cols.views
+    views = cols.map_views
     for i in idx.tolist():
         view = None if views is None else views[i]
         if view is None:
-            dets.append(cols.dets[i])
-            radii.append(cols.configs[i].radius if cols.radii[i] is None else cols.radii[i])
+            dets.append(cols.detections[i])
+            radii.append(cols.configs[i].radius if cols.detection_radii[i] is None else cols.detection_radii[i])
         else:            # the live map's occupied cells, each cell's disc grown by the clearance
             reach = float(lim.linear[i]) * float(lim.tau[i])
             centres, radius = cut_discs(view, float(cols.states[i, 0]), float(cols.states[i, 1]), reach)
@@ -254,6 +253,6 @@ def limit(cols, omega, linear, action_code):
     lim.blocked[idx] = blocked
     if blocked.any():
         stuck = idx[blocked]
-        lim.omega[stuck] = np.asarray(cols.bang, dtype=float)[stuck] * blocked_turns(
-            [cols.filters[i] for i in stuck.tolist()], away[blocked])
+        turn = blocked_turns(cols.last_sent[stuck], away[blocked])
+        lim.omega[stuck] = np.asarray(cols.omega_max, dtype=float)[stuck] * turn
     return lim

@@ -3,40 +3,50 @@ that array is the same (never an input): a robot's ``RobotFilter.derived`` cache
 (``cluster_rows``: the clusters' frames), ``'near_index'`` and ``'near_pick'`` (``nearby``: the
 detections' index, the last pick within reach).
 
-A decision reads them and writes none: ``Derived`` reads a robot's cache through the decision's
-own new values first, and keeps what it fills as updates; ``sent.record_decisions`` applies them
-with what was sent (``apply``), so the recorder is the one writer into a filter, and a decision
-not sent (a lockstepped answer held) leaves its filters as they were.
+They are kept with the detections (their input record's ``derived``, read through
+``RobotColumns.detection_inputs``). A decision reads them and writes none: ``Derived``, the
+decision's updates, reads a row's cache through the decision's own new values first and keeps
+what it fills; ``sent.record_decisions`` applies them with what was sent (``apply``), so the
+recorder is the one writer into a filter, and a decision not sent (a lockstepped answer held)
+leaves its filters as they were.
 """
 from __future__ import annotations
 
+_NONE = {}
+
 
 class Derived:
-    """One decision's view of its robots' caches: ``get(f, key)``, ``put(f, key, value)``; ``apply()``
-    writes what was put into the filters (``sent.record_decisions``)."""
+    """One decision's updates to its robots' caches, by row of its columns (``gather.RobotColumns``):
+    ``get(row, key)``, ``put(row, key, value)``; ``apply(filters)`` writes what was put into the
+    filters (``sent.record_decisions``). ``inputs``: per row its detections' input record (their
+    ``derived``: the caches kept so far); ``robot_index``: per row its robot's index in the filters
+    (None: none, the updates kept by no one)."""
 
-    __slots__ = ('_new',)
+    __slots__ = ('_inputs', '_robot', '_new')
 
-    def __init__(self):
-        self._new = {}      # id(filter) -> (filter, {key: value})
+    def __init__(self, inputs=None, robot_index=None):
+        self._inputs, self._robot = inputs, robot_index
+        self._new = {}      # row -> {key: value}
 
-    def get(self, f, key):
-        """Robot ``f``'s ``key``: this decision's value, else the one its filter keeps (None: none)."""
-        mine = self._new.get(id(f))
-        if mine is not None and key in mine[1]:
-            return mine[1][key]
-        return f.derived.get(key)
+    def get(self, row, key):
+        """Row ``row``'s ``key``: this decision's value, else the one its robot keeps (None: none)."""
+        mine = self._new.get(row)
+        if mine is not None and key in mine:
+            return mine[key]
+        return (self._inputs[row].derived if self._inputs is not None else _NONE).get(key)
 
-    def put(self, f, key, value):
-        """Robot ``f``'s ``key`` is ``value`` from now on (in the filter once applied); ``value``."""
-        self._new.setdefault(id(f), (f, {}))[1][key] = value
+    def put(self, row, key, value):
+        """Row ``row``'s ``key`` is ``value`` from now on (in its filter once applied); ``value``."""
+        self._new.setdefault(row, {})[key] = value
         return value
 
-    def apply(self) -> None:
-        """Every value put, into its filter's ``derived`` (once)."""
-        for f, values in self._new.values():
-            f.derived.update(values)
+    def apply(self, filters) -> None:
+        """Every value put, into its robot's filter's ``derived`` (once): ``filters`` those decided."""
+        robot = self._robot
+        if robot is not None:
+            for row, values in self._new.items():
+                filters[int(robot[row])].derived.update(values)
         self._new = {}
 
     def __len__(self):
-        return sum(len(values) for _, values in self._new.values())
+        return sum(map(len, self._new.values()))

@@ -101,18 +101,19 @@ def value_shift(radius, radii):
     return None if radii is None else radius - radii
 
 
-def pair_shifts(radii, configs, counts, position=None):
-    """Per pair row (robot-major, ``counts`` per robot): ``value_shift`` of its disc, or None if
-    every robot's discs are of its configured radius. ``radii``: per robot its detections'
-    radii (None: all its radius); ``position``: per pair its index in its robot's detections
-    (None: pair j of a robot is its detection j; ``filter.nearby`` narrows a robot's many)."""
+def pair_shifts(radii, configs, pair_robot, position):
+    """Per pair row (its robot row ``pair_robot``, ascending, and ``position``, its index in the
+    robot's detections): ``value_shift`` of its disc, or None if every robot's discs are of its
+    configured radius. ``radii``: per robot row its detections' radii (None: all its radius)."""
     if all(map(is_, radii, repeat(None))):     # (most decisions: checked in C)
         return None
-    out = np.zeros(int(np.sum(counts)))
-    start = 0
-    for r, cfg, n in zip(radii, configs, np.asarray(counts).tolist()):
-        if r is not None and n:
-            mine = r[position[start:start + n]] if position is not None else r[:n]
-            out[start:start + n] = cfg.radius - mine
-        start += n
+    r0, c0 = radii[0], configs[0]
+    if all(map(is_, radii, repeat(r0))) and all(map(is_, configs, repeat(c0))):    # one array for all
+        return c0.radius - r0[position]
+    out = np.zeros(len(pair_robot))
+    bounds = np.searchsorted(pair_robot, np.arange(len(radii) + 1)).tolist()
+    for i, (r, cfg) in enumerate(zip(radii, configs)):
+        lo, hi = bounds[i], bounds[i + 1]
+        if r is not None and hi > lo:
+            out[lo:hi] = cfg.radius - r[position[lo:hi]]
     return out

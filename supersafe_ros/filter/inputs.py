@@ -54,6 +54,9 @@ class _Input:
     solve_clusters: bool = True   # detections: their clusters' union values may be solved (filter.cluster_rows)
     refused: str = ''             # a map view: why the newest messages were refused (they leave the view
     refusals: int = 0             # as it was, to go stale) and how many since the last valid one
+    # detections: what decisions derived from this array and keep for the next while it is the same
+    # (never an input; filter.derived: written by the recorder; ``RobotFilter.derived``)
+    derived: dict = field(default_factory=dict)
 
     def accept(self, value, t, stamp=None):
         self.value, self.t, self.rejected, self.note = value, float(t), '', ''
@@ -84,10 +87,14 @@ class RobotFilter:
         self.sent = deque()    # (decision time, turn rate, speed driven) of the commands sent, oldest first
         self.pose_intervals = _NO_INTERVALS      # windows of the last intervals (immutable: robots
         self.command_intervals = _NO_INTERVALS   # fed by one message share them)
-        # what a decision derived from this robot's detections array and keeps for the next while
-        # that array is the same (never an input; filter.derived: written by the recorder)
-        self.derived = {}
         self.view = None       # a robot judged by its local map: its MapView (filter.map_rows), else None
+
+    @property
+    def derived(self) -> dict:
+        """What decisions derived from this robot's detections array and keep for the next while that
+        array is the same (never an input; ``filter.derived``: written by the recorder), kept with
+        the detections (``detections.derived``: a decision reads it from their record)."""
+        return self.detections.derived
 
     # -- inputs ------------------------------------------------------------------------
     def update_pose(self, state, t, stamp=None) -> None:

@@ -1,7 +1,7 @@
 """The filter law: the rule every robot obeys, written once, vectorised over robots.
 
-Per constraint (a row of ``ConstraintTable``: one per robot and detected obstacle, one per
-robot and cluster of close obstacles), with V its value at the robot's state now, V_next
+Per constraint (a row of ``ConstraintTable``: one per robot and detected obstacle near it, one
+per robot and cluster of close obstacles), with V its value at the robot's state now, V_next
 its value after the planner's command held for the lookahead H and then the better bang
 held once more (``filter.pairs``), and alpha its level:
 
@@ -13,8 +13,8 @@ Within a cluster whose own (sound) row acts, its members' single-obstacle rows a
 aside, so the union's avoid turn is never traded for a single member's. The governing
 row (``govern``) is the first kind with a hit, in the order enter, ahead, stay, and within
 it the smallest score (V - alpha, or V_next - alpha), the first in the robot's list on
-ties. The command (``decide_rows``), s the planner's speed clipped to [0, speed]
-(``commands.drive_speed``; 0 for a silent planner):
+ties (``choose``: the row each robot acts on or names). The command (``command``), s the
+planner's speed clipped to [0, speed] (``commands.drive_speed``; 0 for a silent planner):
 
     fail safe  inputs stale/invalid (``FilterConfig.fail_safe_command``): 'stop': a zero twist
                (v = 0, u = 0); 'stop_turn' (a constant-speed Dubins robot): from the last
@@ -32,11 +32,14 @@ The avoid turn of a pair is the minimally invasive law's u* = w_max sign(dV/dthe
 (``avoid_turn``; ties left), and with a hold H the bang whose hold ends at the larger V
 (``better_bang``), which tends to sign(dV/dtheta) as H -> 0.
 
-``decide.decide_many`` calls ``decide_rows`` for a fleet and for a lone robot alike
+``decide.decide`` calls ``choose``, then reads the avoid turns of the rows chosen
+(``constraints.avoid_turns``), then ``command``, for a fleet and for a lone robot alike
 (``RobotFilter.step`` is ``step_many`` of one): a lone robot's table is the same table with
 one robot's rows.
 """
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import numpy as np
 
@@ -98,30 +101,50 @@ def better_bang(left, right, tie) -> np.ndarray:
     return np.where(left >= right - tie, 1.0, -1.0)
 
 
-class ConstraintTable:
-    """Every constraint of every robot, one row each (pairs first, then clusters).
+class ConstraintTable(NamedTuple):
+    """Every constraint of every robot, one row each (pairs first, then clusters, then local maps).
 
-    Columns: the robot (row in ``use``), its position in the robot's list (ties go to
-    the first), V, level, the unit avoid turns (``turns_of(rows)``: read only for the rows
-    robots avoid by), V after the planner's hold, the obstacle
+    Columns: the robot (its row in ``gather.RobotColumns``), its position in the robot's list (ties go to
+    the first), V, level, V after the planner's hold, the obstacle
     it names (index in the robot's detections) and its centre, whether it is sound for
     its layout (a cluster's union value or the loiter fallback), its group (a lone
     obstacle, or the cluster its members belong to), members, for a cluster row whether it
     is the loiter fallback (its source 'cluster-fallback', else 'cluster'), and whether the row is
     a robot's local map's (``mapped``: ``filter.map_rows``; ``gap`` the distance to the nearest
-    occupied cell, inf for the other rows).
+    occupied cell, inf for the other rows). ``n_groups``: the number of groups; ``turns``: what
+    the rows' unit avoid turns are read from (``constraints.TurnSources``, read by
+    ``constraints.avoid_turns`` for the rows robots avoid by).
     """
 
-    __slots__ = ('robot', 'position', 'value', 'level', 'turns_of', 'value_next', 'obstacle', 'xy',
-                 'sound', 'group', 'members', 'fallback', 'mapped', 'gap')
+    robot: np.ndarray
+    position: np.ndarray
+    value: np.ndarray
+    level: np.ndarray
+    value_next: np.ndarray
+    obstacle: np.ndarray
+    xy: np.ndarray
+    sound: np.ndarray
+    group: np.ndarray
+    members: np.ndarray
+    fallback: np.ndarray
+    mapped: np.ndarray
+    gap: np.ndarray
+    n_groups: int = 0
+    turns: object = None
 
 
 def first_min(segment, position, score, mask, n, rank=None) -> np.ndarray:
     """Per segment 0..n-1: the row with the smallest ``score`` among ``mask``, the first
     by ``position`` on ties (Python's ``min`` over a list in that order); -1 if none.
-    ``rank``: a key before the score (the smallest rank first, then the smallest score)."""
+    ``rank``: a key before the score (the smallest rank first, then the smallest score).
+
+    Many rows (a fleet's): first each segment's rows of its smallest rank, then of its smallest
+    score, found in one pass each (``np.minimum.at``); only those (ties) are sorted (a sort of
+    a fleet's thousands of rows would cost more than the rest of the rule)."""
     out = np.full(n, -1, dtype=np.intp)
     idx = np.flatnonzero(mask)
+    if len(idx) > FEW_ROWS:
+        idx = _smallest_of_segments(idx, segment, score, n, rank)
     if len(idx):
         keys = (position[idx], score[idx], segment[idx]) if rank is None else \
             (position[idx], score[idx], rank[idx], segment[idx])
@@ -133,6 +156,26 @@ def first_min(segment, position, score, mask, n, rank=None) -> np.ndarray:
             first = np.flatnonzero(np.concatenate(([True], seg[1:] != seg[:-1])))
             out[seg[first]] = order[first]
     return out
+
+
+FEW_ROWS = 32       # up to this many rows first_min sorts them all
+
+
+def _smallest_of_segments(idx, segment, score, n, rank=None) -> np.ndarray:
+    """The rows ``idx`` that have their segment's smallest ``rank`` (if given) and, among those, its
+    smallest ``score``; all of ``idx`` if a score is NaN (the sort orders those)."""
+    seg, s = segment[idx], score[idx]
+    if np.isnan(s).any():
+        return idx
+    keep = np.ones(len(idx), bool)
+    if rank is not None:
+        r = rank[idx]
+        low = np.full(n, r.max(), dtype=r.dtype)
+        np.minimum.at(low, seg, r)
+        keep = r == low[seg]
+    best = np.full(n, np.inf)
+    np.minimum.at(best, seg[keep], s[keep])
+    return idx[keep & (s == best[seg])]
 
 
 def first_min_of_runs(score, run, starts) -> np.ndarray:
@@ -188,18 +231,24 @@ def smallest(table, m) -> np.ndarray:
     return first_min(table.robot, table.position, table.value - table.level, np.isfinite(table.value), m)
 
 
-def decide_rows(table, m, n_groups, overriding, margin, failing, fresh, planned, bang, drive, held, constant):
-    """The rule for the M robot rows of ``table``: (omega, linear, action code 0 pass / 1
-    override / 2 fail safe, overrides, the row each robot names, why it governs (``KINDS``)).
+class Choice(NamedTuple):
+    """Per robot row, what the law acts on (``choose``): the row it names (``row``: the governing
+    one where it overrides, else the smallest V - alpha; -1: none), why that row governs (``kind``,
+    ``KINDS``; 0: it passes), whether the robot ``overrides``, and whether it turns by the named
+    row's avoid turn (``avoiding``: it overrides, or fails safe at constant speed with a row near)."""
 
-    ``overriding``, ``margin``, ``failing``, ``fresh``, ``planned``, ``bang``, ``drive``,
-    ``held``, ``constant``: per robot row (``failing``: inputs stale or invalid, its last
-    valid state judged instead; ``planned``: the planner's turn clipped, 0 if silent;
-    ``drive``: the speed of the command judged, ``commands.drive_speed``; ``held``: the speed
-    last sent; ``constant``: a constant-speed robot, failing safe with the stop-turn). Avoid
-    turns are read (``table.turns_of``) only for the robots that avoid.
-    """
-    k_gov, kind = govern(table, overriding, margin, n_groups, m)
+    row: np.ndarray
+    kind: np.ndarray
+    overrides: np.ndarray
+    avoiding: np.ndarray
+
+
+def choose(table, overriding, margin, failing, fresh, constant) -> Choice:
+    """The rows the M robot rows of ``table`` act on (``Choice``). Per robot row: ``overriding``,
+    ``margin`` (its clear margin), ``failing`` (inputs stale or invalid, its last valid state judged
+    instead), ``fresh`` (the planner's command), ``constant`` (a constant-speed robot)."""
+    m = len(overriding)
+    k_gov, kind = govern(table, overriding, margin, table.n_groups, m)
     k_small = smallest(table, m)
     acts = kind > 0
     # a robot that can stop stops (a zero twist) whenever it fails safe or its planner is silent:
@@ -210,13 +259,37 @@ def decide_rows(table, m, n_groups, overriding, margin, failing, fresh, planned,
     # of its last valid state
     named = np.where(overrides, k_gov, k_small)   # the constraint each robot's output names
     avoiding = overrides | (failing & constant & (k_small >= 0))
-    turn = np.zeros(m)
-    turn[avoiding] = table.turns_of(named[avoiding])
+    return Choice(named, kind, overrides, avoiding)
+
+
+class Ruling(NamedTuple):
+    """The law's answer per robot row (``command``): ``omega``, ``linear``, the action ``code`` (0
+    pass, 1 override, 2 fail safe), and from its ``Choice``: ``overrides``, the row it names
+    (``named``), why it governs (``kind``)."""
+
+    omega: np.ndarray
+    linear: np.ndarray
+    code: np.ndarray
+    overrides: np.ndarray
+    named: np.ndarray
+    kind: np.ndarray
+
+
+def command(table, choice, turns, failing, fresh, constant, planned, bang, drive, held) -> Ruling:
+    """The rule's command for the M robot rows: ``choice`` (``choose``'s), ``turns`` the unit avoid
+    turns of the rows of the robots that avoid (``choice.avoiding``, in order:
+    ``constraints.avoid_turns``). Per robot row: ``failing``, ``fresh``, ``constant`` (as
+    ``choose``'s), ``planned`` (the planner's turn clipped, 0 if silent), ``bang`` (w_max),
+    ``drive`` (the speed of the command judged, ``commands.drive_speed``), ``held`` (the speed last
+    sent)."""
+    named, overrides, avoiding = choice.row, choice.overrides, choice.avoiding
+    turn = np.zeros(len(named))
+    turn[avoiding] = turns
     omega = np.where(avoiding, bang * turn, np.where(failing & constant, bang, np.where(failing, 0.0, planned)))
     linear = np.where(failing, np.where(avoiding, held, 0.0), np.where(overrides | fresh, drive, 0.0))
-    if overrides.any() and not constant.all():     # a robot that can stop: in place on a loiter fallback
+    if np.count_nonzero(overrides) and not constant.all():     # a robot that can stop: in place on a loiter fallback
         loiter = overrides & ~constant
         loiter[loiter] = table.fallback[named[loiter]]
         linear[loiter] = 0.0
     code = np.where(failing, 2, np.where(overrides, 1, 0))
-    return omega, linear, code, overrides, named, kind
+    return Ruling(omega, linear, code, overrides, named, choice.kind)

@@ -9,8 +9,9 @@ read at the robot's state itself (the value's grid is in the map's coordinates: 
 is at the origin):
 
 * V now, and V_next after the planner's command held for the lookahead and the better bang
-  held once more, and the unit avoid turn (``pairs.pair_values_fast``: every hold read, as for a
-  lone robot's pairs; the radial bound of a value solved for a disc at the origin means nothing here);
+  held once more, and the unit avoid turn (``pairs.pair_values_fast``, ``pair_turn_fast``: every hold
+  read, as for a lone robot's pairs; the radial bound of a value solved for a disc at the origin
+  means nothing here);
 * its level: the learned set's alpha when a learned set is in force and the map's value was
   solved with that set's w_max (the supervisor's model: the learned level applied as to discs),
   else the standard level (``FilterConfig.cluster_alpha``) with the value of the true dynamics;
@@ -36,7 +37,7 @@ import math
 import numpy as np
 
 from ..reach.field import FREE
-from .pairs import pair_values_fast
+from .pairs import pair_turn_fast, pair_values_fast
 
 NOTHING_NEAR = FREE / 2.0        # a map's value this high reads no occupied cell (reach.field.FREE)
 
@@ -84,10 +85,10 @@ def nearest_cell(view, x, y, reach):
 def map_rows(views, values, rows, states, planned, horizon, speed, bang, safe_set, configs) -> dict:
     """The map rows of the robot rows ``rows`` (each with a view and its solved value, as gathered:
     ``values[i]``): per row its robot, V, V_next, level, the nearest occupied cell and the gap to
-    it, and ``turns_of(k)`` the unit avoid turns of map rows ``k`` (read only for the robots that
-    avoid by them). Each row's reads are one robot's few, in Python floats (``pairs.pair_values_fast``
-    of the one "obstacle" at the origin: the same values as ``pair_reads`` and ``pair_turns``, bit for
-    bit, at a fifth of their numpy cost here)."""
+    it, and ``turns`` the unit avoid turns of the map rows (read with their values). Each row's
+    reads are one robot's few, in Python floats (``pairs.pair_values_fast`` and ``pair_turn_fast``
+    of the one "obstacle" at the origin: the same values as ``pair_reads`` and ``pair_turns``, bit
+    for bit, at a fifth of their numpy cost here)."""
     k = len(rows)
     out = {'robot': np.asarray(rows, dtype=np.intp), 'value': np.full(k, np.inf), 'value_next': np.full(k, np.inf),
            'level': np.zeros(k), 'xy': np.full((k, 2), np.nan), 'gap': np.full(k, np.inf)}
@@ -96,9 +97,9 @@ def map_rows(views, values, rows, states, planned, horizon, speed, bang, safe_se
         view, mv = views[i], values[i]
         x, y, th = (float(v) for v in states[i])
         if mv.covers(x, y):      # (near the window's rim V reads l beyond it: not the map's value)
-            (value,), (turn,), (value_next,) = pair_values_fast(
-                mv.vf, x, y, th, [(0.0, 0.0)], float(planned[i]), float(horizon[i]), float(speed[i]),
-                float(bang[i]), 1)
+            h, v, w = float(horizon[i]), float(speed[i]), float(bang[i])
+            (value,), (value_next,) = pair_values_fast(mv.vf, x, y, th, [(0.0, 0.0)], float(planned[i]), h, v, w, 1)
+            turn = pair_turn_fast(mv.vf, x - 0.0, y - 0.0, th, value, h, v, w)
             # no occupied cell the value can see: the field's FREE, nothing near (as a pair off its grid)
             out['value'][j] = value if value < NOTHING_NEAR else np.inf
             out['value_next'][j] = value_next if value_next < NOTHING_NEAR else np.inf
@@ -106,7 +107,7 @@ def map_rows(views, values, rows, states, planned, horizon, speed, bang, safe_se
         out['level'][j] = map_value_level(mv, safe_set, configs[i])
         reach = 2.0 * float(speed[i]) * float(horizon[i]) + 2.0 + view.clearance
         out['xy'][j], out['gap'][j] = nearest_cell(view, x, y, reach)
-    out['turns_of'] = lambda picked: turns[np.asarray(picked, dtype=np.intp)]
+    out['turns'] = turns
     return out
 
 

@@ -30,7 +30,6 @@ from scipy.spatial import cKDTree
 
 from . import cluster
 from .cluster_rows import ClusterFrames, default_cluster_store
-from .derived import Derived
 
 NEAR_QUERY_MIN = 64      # up to this many detections a robot judges them all
 UNSEEN, OVERSIZE = -1, -2
@@ -131,14 +130,14 @@ class Narrowed:
                           if len(found['robot']) else names.copy())
 
 
-def narrow(filters, configs, dets, states, horizon, speed, margin, safe_set, store_arg, derived=None):
+def narrow(configs, dets, inputs, states, horizon, speed, margin, safe_set, store_arg, derived):
     """The detections each robot judges (see the module), or None if every robot judges all of
-    its own (none has more than NEAR_QUERY_MIN). ``dets``, ``states`` (propagated), ``horizon``,
-    ``speed``, ``margin``: per robot row; ``store_arg``: as ``decide.step_many``'s; ``derived``: the
-    decision's ``filter.derived.Derived`` (None: one of its own, kept by no one), through which each
-    robot's index and last pick are read and kept."""
-    if derived is None:
-        derived = Derived()
+    its own (none has more than NEAR_QUERY_MIN). Per robot row: ``configs``, ``dets``, ``inputs``
+    (their input record: ``kept``, their rows in the message, None: row i is row i;
+    ``solve_clusters``), ``states`` (propagated), ``horizon``, ``speed``, ``margin``
+    (``gather.RobotColumns``'); ``store_arg``: as
+    ``decide.step_many``'s; ``derived``: the decision's ``filter.derived.Derived``, through which
+    each robot's index and last pick are read and kept."""
     counts = np.fromiter(map(len, dets), dtype=np.intp, count=len(dets))
     big = np.flatnonzero(counts > NEAR_QUERY_MIN)
     if len(big) == 0:
@@ -146,16 +145,17 @@ def narrow(filters, configs, dets, states, horizon, speed, margin, safe_set, sto
     out = Narrowed()
     out.dets, out.frames, out.counts = list(dets), [None] * len(dets), counts
     position = [None if n > NEAR_QUERY_MIN else np.arange(n) for n in counts.tolist()]      # (big: below)
-    names = [p if p is None or f.detections.kept is None or f.detections.value is not det else f.detections.kept
-             for p, f, det in zip(position, filters, dets)]    # (a robot's discs split into rings: filter.discs)
+    kept = [inp.kept for inp in inputs]
+    names = [p if p is None or k is None else k for p, k in zip(position, kept)]    # (a robot's discs split into
+    #                                                                                  rings: filter.discs)
     shared, radii, found = {}, {}, {}
     for i in big.tolist():       # each robot's index, store and radius (robots of a fleet share them)
-        f, cfg, det = filters[i], configs[i], dets[i]
+        cfg, det = configs[i], dets[i]
         store = (store_arg if store_arg is not None else default_cluster_store(cfg)) if cfg.clusters else None
-        if store is not None and not f.detections.solve_clusters:     # (as cluster_rows._entries)
+        if store is not None and not inputs[i].solve_clusters:     # (as cluster_rows._entries)
             store = store.fallback_twin()
         st = store.settings if store is not None else settings_of(cfg)
-        index = _index(f, det, st.link_distance if store is not None else None, shared, derived)
+        index = _index(i, det, st.link_distance if store is not None else None, shared, derived)
         key = (st, float(speed[i]), float(horizon[i]), float(margin[i]))
         radius = radii.get(key)
         if radius is None:
@@ -165,32 +165,31 @@ def narrow(filters, configs, dets, states, horizon, speed, margin, safe_set, sto
         rows = [i for i, _, _, _ in robots]
         near_all = index.within(states[rows, :2], np.array([r for _, _, _, r in robots]))
         for (i, store, st, _), near in zip(robots, near_all):
-            f, det = filters[i], dets[i]
+            det = dets[i]
             picked, groups, canon = index.pick(near, st.key_resolution)
-            memo = derived.get(f, 'near_pick')      # the last decision's, kept while the same are picked
+            memo = derived.get(i, 'near_pick')      # the last decision's, kept while the same are picked
             if (memo is None or memo[0] is not det or memo[1] is not store or len(memo[2]) != len(picked)
                     or not np.array_equal(memo[2], picked)):
                 sub = det[picked]
                 frames = ClusterFrames(sub, store, groups, canon) if store is not None else None
-                memo = derived.put(f, 'near_pick', (det, store, picked, sub, frames))
+                memo = derived.put(i, 'near_pick', (det, store, picked, sub, frames))
             out.dets[i], out.frames[i] = memo[3], memo[4]
             position[i] = picked
-            kept = f.detections.kept if f.detections.value is det else None
-            names[i] = kept[picked] if kept is not None else picked
+            names[i] = kept[i][picked] if kept[i] is not None else picked
     out.position, out.names = np.concatenate(position), np.concatenate(names)
     return out
 
 
-def _index(f, det, link, shared, derived) -> DetectionIndex:
-    """Robot ``f``'s index of ``det``: kept while its detections are that array (``derived``), shared
-    by the robots given the same one (``shared``, for one decision)."""
-    cache = derived.get(f, 'near_index')
+def _index(row, det, link, shared, derived) -> DetectionIndex:
+    """Robot row ``row``'s index of ``det``: kept while its detections are that array (``derived``),
+    shared by the robots given the same one (``shared``, for one decision)."""
+    cache = derived.get(row, 'near_index')
     if cache is not None and cache.det is det and cache.link == link:
         return cache
     got = shared.get((id(det), link))
     if got is None:
         got = shared[(id(det), link)] = DetectionIndex(det, link)
-    return derived.put(f, 'near_index', got)
+    return derived.put(row, 'near_index', got)
 
 
 def within_limit(centres, origins, limit):

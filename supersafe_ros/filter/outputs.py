@@ -63,26 +63,27 @@ class Decisions(Sequence):
         return f'Decisions({list(self)!r})'
 
 
-def outputs(filters, cols, safe_set, table, decided, solving, limits=None, t=math.nan) -> Decisions:
+def outputs(cols, safe_set, table, ruling, solving, limits=None) -> Decisions:
     """Every robot's command (as lists), whether it overrides, the speed the robot drives under
     it (the linear.x sent, a constant-speed robot's speed), and a builder of its FilterOutput:
-    the law's answer ``decided`` (``law.decide_rows`` over ``table``) for the rows of ``cols``
-    spread back to all robots (a robot with no recent valid state stops: a zero twist, or a
-    constant-speed robot's stop-turn). ``limits``: ``approach.limit``'s speeds and turns, where
-    time_before_collision cut them (None: the law's stand); ``t``: the decision's time (how long the
-    planner has been silent)."""
-    n, use = len(filters), cols.use
+    the law's answer ``ruling`` (``law.command`` over ``table``) for the rows of ``cols``
+    (``gather.RobotColumns``, at its time ``cols.t``) spread back to all robots (a robot with no
+    recent valid state stops: a zero twist, or a constant-speed robot's stop-turn). ``solving``: per
+    robot row its clusters being solved; ``limits``: ``approach.limit``'s speeds and turns, where
+    time_before_collision cut them (None: the law's stand)."""
+    n, use, t = len(cols.problems), cols.robot_index, cols.t
     m = len(use)
-    omega, linear, code, over, named, kind = decided
+    omega, linear, code, over, named, kind = (ruling.omega, ruling.linear, ruling.code, ruling.overrides,
+                                              ruling.named, ruling.kind)
     if limits is not None:
         omega, linear = limits.omega, limits.linear
-    moved = np.where(cols.constant, cols.speed, linear)
+    moved = np.where(cols.constant_speed, cols.max_speed, linear)
     if m < n:       # spread to every robot (rows of ``use`` in place; no recent valid state: stop)
         rows = np.full(n, -1, dtype=np.intp)
         rows[use] = np.arange(m)
         all_speed = np.fromiter((c.speed for c in cols.all_configs), dtype=float, count=n)
-        spread = (np.where(cols.all_constant, cols.all_bang, 0.0), np.zeros(n), np.full(n, 2), np.zeros(n, bool),
-                  np.where(cols.all_constant, all_speed, 0.0))
+        spread = (np.where(cols.all_constant_speed, cols.all_omega_max, 0.0), np.zeros(n), np.full(n, 2),
+                  np.zeros(n, bool), np.where(cols.all_constant_speed, all_speed, 0.0))
         for full, part in zip(spread, (omega, linear, code, over, moved)):
             full[use] = part
         omega, linear, code, over, moved = spread
@@ -93,29 +94,30 @@ def outputs(filters, cols, safe_set, table, decided, solving, limits=None, t=mat
     action = _ACTIONS[code].tolist()
     problems, configs = cols.problems, cols.all_configs      # configs as at the decision (a parameter change
     common = set_fields(safe_set)                        # replaces a robot's)
-    fresh, kind, named, ages, horizon = cols.fresh.tolist(), kind.tolist(), named.tolist(), cols.age, cols.horizon
+    fresh, kind, named, ages, horizon = cols.command_fresh.tolist(), kind.tolist(), named.tolist(), cols.pose_age, \
+        cols.lookahead
+    command_t, detections, commands = cols.command_t, cols.all_detection_inputs, cols.command_inputs
 
     def describe(i) -> FilterOutput:
         row = rows[i]
         if row < 0:
             out = explain(Reasons(problems[i], configs[i], omega[i], linear[i], action[i], common, lost=True))
         else:
-            command_t = filters[i].command.t
+            since = float(command_t[row])
             out = explain(Reasons(problems[i], configs[i], omega[i], linear[i], action[i], common, table, named[row],
                                   kind[row], fresh[row], float(horizon[row]), float(ages[row]), int(solving[row]),
-                                  silence=t - command_t if command_t > -math.inf else math.inf,
+                                  silence=t - since if since > -math.inf else math.inf,
                                   limit='' if limits is None else limits.headline(row)))
         # the inputs' notes as when read (the nodes read them before new inputs come)
-        f = filters[i]
-        out.detections_dropped, out.detections_note = f.detections.dropped, f.detections.note
+        out.detections_dropped, out.detections_note = detections[i].dropped, detections[i].note
         if row >= 0 and fresh[row]:      # what of the planner's command was beyond the robot's limits
-            out.cmd_clipped = f.command.note
+            out.cmd_clipped = commands[row].note
         return out
 
     def solving_of(i) -> int:
         return int(solving[rows[i]]) if rows[i] >= 0 else 0
 
-    return Decisions(omega, linear, action, over, moved.tolist(), describe, t, cols.all_keep, solving_of)
+    return Decisions(omega, linear, action, over, moved.tolist(), describe, t, cols.all_sent_kept, solving_of)
 
 
 def set_fields(safe_set) -> dict:

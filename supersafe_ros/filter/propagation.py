@@ -32,7 +32,8 @@ from ..reach.grid import TWO_PI, wrap_angle
 from .elementwise import py_max, py_min
 from .sent import segments_since
 
-_NEVER = (math.inf, 0.0, 0.0)   # the (time, turn, speed) a robot with no such command sent shows: no arc starts then
+# the (time, turn, speed) a robot with no such command sent shows: no arc starts then
+NEVER_SENT = (math.inf, 0.0, 0.0)
 
 
 def arc_flow(states, speed, omega, dt) -> np.ndarray:
@@ -97,7 +98,7 @@ def plan(f, t):
 def plan_columns(filters, t, pose_t, stamp, compensate, hold):
     """``plan`` of every robot of ``filters`` over columns (``pose_t``, ``stamp``: their poses'
     arrival and stamp times; ``compensate``, ``hold``: their configurations'): (ages (m,), the last
-    command sent (m, 3: time, turn, speed; ``_NEVER`` if none), and the arcs as ``follow`` takes them:
+    command sent (m, 3: time, turn, speed; ``NEVER_SENT`` if none), and the arcs as ``follow`` takes them:
     omegas, dts, speeds (depth, m)). The two common cases over columns (nothing sent since the
     pose: one arc; one command sent since: two), ``sent.segments_since`` itself for the others
     (a pose older than two commands sent)."""
@@ -106,7 +107,7 @@ def plan_columns(filters, t, pose_t, stamp, compensate, hold):
     age = np.where(compensate, py_max(0.0, py_min(age, hold)), 0.0)
     t0 = t - age
     sents = [f.sent for f in filters]
-    last = np.fromiter(itertools.chain.from_iterable(s[-1] if s else _NEVER for s in sents), dtype=float,
+    last = np.fromiter(itertools.chain.from_iterable(s[-1] if s else NEVER_SENT for s in sents), dtype=float,
                        count=3 * m).reshape(m, 3)
     moving = compensate & (t > t0)
     one = moving & (last[:, 0] <= t0)                        # nothing sent since the pose: one arc
@@ -114,7 +115,7 @@ def plan_columns(filters, t, pose_t, stamp, compensate, hold):
     others = np.flatnonzero(moving & ~one)
     prev = np.zeros((m, 3))
     prev[others] = np.fromiter(itertools.chain.from_iterable(
-        sents[i][-2] if len(sents[i]) > 1 else _NEVER for i in others.tolist()), dtype=float,
+        sents[i][-2] if len(sents[i]) > 1 else NEVER_SENT for i in others.tolist()), dtype=float,
         count=3 * len(others)).reshape(-1, 3)
     two = moving & ~one & (prev[:, 0] <= t0) & (t0 < last[:, 0]) & (last[:, 0] < t)   # one command since
     rest = np.flatnonzero(moving & ~one & ~two).tolist()

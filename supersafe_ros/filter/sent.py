@@ -32,7 +32,7 @@ def record_decisions(filters, decisions) -> None:
     caches the decision filled (``decisions.derived``, ``filter.derived``) put into the filters."""
     record(filters, decisions, decisions.t, decisions.keep)
     if decisions.derived is not None:
-        decisions.derived.apply()
+        decisions.derived.apply(filters)
 
 
 def record_sent(f, omega, t, speed=None) -> None:
