@@ -339,10 +339,17 @@ def test_a_robots_state_is_due_on_its_phase_on_a_change_and_alike_decided_alone_
             actions = [str(a) for a in rng.choice(['pass', 'override', 'fail_safe'], n, p=[0.9, 0.07, 0.03])]
             update = updates[int(rng.random() < 0.02)]
         got = fleet.due(now, range(n), actions, update, period)
-        want = [i for i in range(n) if alone.due(now, (i,), (actions[i],), update, period)]
+        want = [i for i in range(n) if alone.due(now, (i,), (actions[i],), update, period) == [0]]
+        odd = list(range(1, n, 2))          # a subset, just told: none due
+        assert fleet.due(now, odd, [actions[i] for i in odd], update, period) == []
         assert got == want, f'tick {tick}'
         kinds.add(0 < len(got) < n)
     assert kinds == {True, False}       # some ticks with a few robots due, some with all or none
+    # a subset's due robots are told by their positions in it
+    robots = [3, 8, 21]
+    later = now + 10 * period
+    assert fleet.due(later, robots, ['pass', 'pass', 'pass'], update, period) == [0, 1, 2]
+    assert fleet.due(later, robots, ['pass', 'override', 'pass'], update, period) == [1]
 
 
 class _Decisions(list):

@@ -156,19 +156,20 @@ class StateThrottle:
         self.action, self.update = [None] * n, [None] * n
 
     def due(self, now, rows, actions, update, period) -> list:
-        """The robots of ``rows`` (indices, ``actions`` theirs in order) whose state is due at ``now``."""
+        """Which of the robots ``rows`` (indices, ``actions`` theirs in order) have their state due at
+        ``now``: their positions in ``rows``."""
         out = []
         t, last, updates = self.t, self.action, self.update
-        for i, action in zip(rows, actions):
+        for k, (i, action) in enumerate(zip(rows, actions)):
             changed = action != last[i] or update is not updates[i]
             last[i], updates[i] = action, update
             since = now - t[i]
             if since >= period:
                 # keep the phase; restart it after a long pause (or at start)
                 t[i] = t[i] + period if since < 2.0 * period else now
-                out.append(i)
+                out.append(k)
             elif changed:
-                out.append(i)
+                out.append(k)
         return out
 
 
