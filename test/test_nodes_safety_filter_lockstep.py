@@ -26,7 +26,10 @@ PAIR = ((4.0, -2.0), (8.5, -2.0))
 def setup(ros_context):
     params = [Parameter('standard_shape', value=SHAPE), Parameter('rate', value=50.0),
               Parameter('state_rate', value=100.0), Parameter('lockstep', value=True),
-              Parameter('lockstep_silence', value=60.0), Parameter('cluster_hold_timeout', value=60.0)]
+              Parameter('lockstep_silence', value=60.0), Parameter('cluster_hold_timeout', value=60.0),
+              # a busy machine may hold the test between command and pose: nothing goes stale here
+              Parameter('cmd_timeout', value=60.0), Parameter('pose_timeout', value=60.0),
+              Parameter('detections_timeout', value=60.0)]
     node = SafetyFilterNode(namespace=NS, context=ros_context, parameter_overrides=params)
     # the cluster solver of this process: requests are recorded, solved only when the test says
     store = default_cluster_store(node.filters[0].config)
@@ -48,8 +51,7 @@ def setup(ros_context):
 
 
 def answers_to(driver, spin, pose, detections, cmd=None, settle=0.2):
-    """Send a planner command first (if any), then the pose; the commands the filter sent.
-    ``settle`` stays below the filter's cmd_timeout (0.5 s), or the command is stale."""
+    """Send a planner command first (if any), then the pose; the commands the filter sent."""
     driver.out.clear()
     driver.states.clear()
     if cmd is not None:
