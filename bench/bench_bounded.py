@@ -56,7 +56,8 @@ def us(seconds):
 # -- core ------------------------------------------------------------------------------------------
 def core(args):
     from supersafe_ros.filter import FilterConfig, RobotFilter, step_many, update_detections_all
-    from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore
+    from supersafe_ros.filter.clusters.geometry import ClusterSettings
+    from supersafe_ros.filter.clusters.store import ClusterStore
     from supersafe_ros.reach.library import LibrarySpec, load_or_build_library
     from supersafe_ros.filter import SafeSet
     library = load_or_build_library(LibrarySpec())

@@ -39,7 +39,8 @@ import time
 
 import numpy as np
 
-from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore
+from supersafe_ros.filter.clusters.geometry import ClusterSettings
+from supersafe_ros.filter.clusters.store import ClusterStore
 from supersafe_ros.filter import FilterConfig, RobotFilter, SafeSet, step_many
 from supersafe_ros.sim.trials import (ScanSensor, cup_layout, field_trials, layout_trials, random_layout,
                                       row_layout, run_trials, single_disc_trials, speed_profiles, standard_guard)

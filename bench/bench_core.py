@@ -58,7 +58,8 @@ def build(name):
     """(filters, cluster store, feed(k) -> t): the scenario's robots and its inputs at tick k."""
     import numpy as np
     from supersafe_ros.filter import FilterConfig, RobotFilter, update_commands, update_detections_all, update_poses
-    from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore
+    from supersafe_ros.filter.clusters.geometry import ClusterSettings
+    from supersafe_ros.filter.clusters.store import ClusterStore
     if name.startswith('lone'):
         f = RobotFilter(FilterConfig())
         dets = (np.array([[2.0, 1.5], [12.0, -20.0], [-30.0, 4.0]]) if name == 'lone' else
@@ -102,7 +103,8 @@ def _dense(n, variant):
     0.1 rad/s at the speed, a new pose each tick."""
     import numpy as np
     from supersafe_ros.filter import FilterConfig, RobotFilter
-    from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore
+    from supersafe_ros.filter.clusters.geometry import ClusterSettings
+    from supersafe_ros.filter.clusters.store import ClusterStore
     rng = np.random.default_rng(0)
     field = np.stack([rng.uniform(-12, 12, 10), rng.uniform(-8, 8, 10)], axis=1)
     config = FilterConfig(clusters=variant != 'off')

@@ -1,4 +1,4 @@
-"""The local map's cost per message (``filter.local_map``, ROS-free; prints figures, no assertions).
+"""The local map's cost per message (``filter.sensing.local_map``, ROS-free; prints figures, no assertions).
 
     .venv/bin/python bench/bench_local_map.py                 # every case, 200 runs each
     .venv/bin/python bench/bench_local_map.py --repeat 500 --only scan
@@ -29,8 +29,8 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from supersafe_ros.filter.local_map import LocalMap, MapSettings  # noqa: E402
-from supersafe_ros.filter.range_readings import scan_rays  # noqa: E402
+from supersafe_ros.filter.sensing.local_map import LocalMap, MapSettings  # noqa: E402
+from supersafe_ros.filter.sensing.readings import scan_rays  # noqa: E402
 
 CELL = 0.05
 DISCS = np.array([(4.0, 1.0, 1.8), (6.0, -3.0, 0.8), (8.0, 4.0, 2.6), (-5.0, 2.0, 1.8), (1.0, -6.0, 0.8)])

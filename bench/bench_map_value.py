@@ -1,4 +1,4 @@
-"""The local map's avoid value (filter.map_value): solve times, what reuse saves, whether an
+"""The local map's avoid value (filter.sensing.map_value): solve times, what reuse saves, whether an
 incremental re-solve would pay, and what a background solve does to another thread (prints figures).
 
     .venv/bin/python bench/bench_map_value.py                  # everything
@@ -42,9 +42,9 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from supersafe_ros.filter import map_value as mvmod  # noqa: E402
-from supersafe_ros.filter.map_value import (MapArrays, MapValueSettings, MapValueWorker,  # noqa: E402
-                                            solve_map_value, window_half_widths)
+from supersafe_ros.filter.sensing import map_value as mvmod  # noqa: E402
+from supersafe_ros.filter.sensing.map_value import (MapArrays, MapValueSettings, MapValueWorker,  # noqa: E402
+                                                    solve_map_value, window_half_widths)
 from supersafe_ros.reach.field import FieldKeepout  # noqa: E402
 from supersafe_ros.reach.solver import _steps  # noqa: E402
 

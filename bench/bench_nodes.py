@@ -285,7 +285,8 @@ def bench_core(args):
     """step_many per robot, compute only (no messages): clusters off, clusters on with the
     loiter fallback in force (union values not yet solved), clusters on with the union values
     in force (every robot sees the same 10 obstacles, as the batched fleet/detections give)."""
-    from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore
+    from supersafe_ros.filter.clusters.geometry import ClusterSettings
+    from supersafe_ros.filter.clusters.store import ClusterStore
     from supersafe_ros.filter import SafeSet, step_many
     from supersafe_ros.reach.grid import Grid
     from supersafe_ros.reach.library import load_or_solve

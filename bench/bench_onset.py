@@ -3,7 +3,7 @@
 The lockstepped team holds each command exactly one step and the filter answers every
 pose on that pose, so the look-ahead only has to cover one hold: H = one step judges the
 planner's command held for the step and then the better bang held for one more step
-(``filter.pairs``). This bench measures, for H = 1 and 2 steps at the study's step (0.2 s)
+(``filter.constraints.pairs``). This bench measures, for H = 1 and 2 steps at the study's step (0.2 s)
 and the team's (0.05 s):
 
 * onset: V_std - alpha at the first override of each approach (alpha = 0, the standard
@@ -23,7 +23,8 @@ import time
 import numpy as np
 
 from supersafe_ros.filter import FilterConfig, RobotFilter, SafeSet, step_many
-from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore
+from supersafe_ros.filter.clusters.geometry import ClusterSettings
+from supersafe_ros.filter.clusters.store import ClusterStore
 from supersafe_ros.sim.trials import (cup_layout, layout_trials, random_layout, row_layout, run_trials,
                                       single_disc_trials)
 from supersafe_ros.reach.dynamics import DubinsCar

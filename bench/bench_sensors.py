@@ -26,7 +26,7 @@ supersafe_ros; the checkouts alternate input by input so that the machine's load
   its cmd_vel per second.
 * **value**: the local map's value of the nav2 robot (speed 0.5, w_max 1, clearance 0.25, 10 m map at
   5 cm, value grid 0.1 m x 32 headings, horizon 3 s) solved in this process: a first solve and a
-  re-solve after a scan moved the robot 0.1 m (``filter.map_value.solve_map_value``), with the
+  re-solve after a scan moved the robot 0.1 m (``filter.sensing.map_value.solve_map_value``), with the
   checkout's own modules; a checkout without them says so.
 
 Times between processes on CLOCK_MONOTONIC; /proc/loadavg on every line.
@@ -345,9 +345,9 @@ def bench_value(checkout, label):
     code = r'''
 import json, time, numpy as np
 try:
-    from supersafe_ros.filter.local_map import LocalMap, MapSettings
-    from supersafe_ros.filter.map_value import MapValueSettings, solve_map_value
-    from supersafe_ros.filter.range_readings import scan_rays
+    from supersafe_ros.filter.sensing.local_map import LocalMap, MapSettings
+    from supersafe_ros.filter.sensing.map_value import MapValueSettings, solve_map_value
+    from supersafe_ros.filter.sensing.readings import scan_rays
 except ImportError as exc:
     print(json.dumps({'none': str(exc)})); raise SystemExit(0)
 from supersafe_ros.sim.laser import beam_angles, ray_cast

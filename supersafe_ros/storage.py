@@ -8,7 +8,7 @@ Three places grow as the package runs:
 * **cluster values** (``clusters/`` in that folder, ``cluster-*.npz``): union values of
   detected obstacle clusters, shared by every filter process and run; bounded by
   $SUPERSAFE_CLUSTER_CACHE_MB (1024 MB, least recently used first:
-  ``filter.cluster.prune_disk_cache``); solved again if removed;
+  ``filter.clusters.prune_disk_cache``); solved again if removed;
 * **learner runs** (``runs_dir()``: $XDG_DATA_HOME or ~/.local/share, then
   supersafe_ros/runs/): one folder ``<UTC time>-<pid>`` per learner started without a
   ``store_path``, holding that run's interventions and encounters. These are data, not a
@@ -116,7 +116,7 @@ def _run_folders(runs: Path) -> list[Path]:
 
 def usage(cache: Path | None = None, runs: Path | None = None) -> list[Usage]:
     """Entries and bytes of the value functions, the cluster values and the learner runs."""
-    from .filter.cluster import disk_cache_limit
+    from .filter.clusters.store import disk_cache_limit
     from .reach.library import default_cache_dir
     cache = Path(cache) if cache is not None else default_cache_dir()
     runs = Path(runs) if runs is not None else runs_dir()

@@ -141,7 +141,7 @@ def step_many_reference(filters, safe_set: SafeSet, t, clusters=None) -> list:
     fail safe use their last valid pose and detections if younger than
     ``hold_timeout``, else the stop-turn policy. ``clusters``: the ClusterStore
     for obstacles judged together (None: the process's shared store for the
-    robots' configuration; see ``filter.cluster``).
+    robots' configuration; see ``filter.clusters``).
     """
     n = len(filters)  # noqa: F841  (unused, kept: the reference is the old code verbatim)
     problems = [_problem(f, t) for f in filters]
@@ -330,15 +330,15 @@ class _Constraints:
 
 def _add_cluster_constraints(c: _Constraints, f, state, horizon, t, store, drive) -> None:
     """Cluster constraints of robot ``f`` at its (propagated) ``state``."""
-    from supersafe_ros.filter import cluster as cl
+    from supersafe_ros.filter.clusters.geometry import canonical, components, orbit_value, to_frame
     cfg = f.config
     store = store if store is not None else default_cluster_store(cfg)
     st = store.settings
     key_det = f.detections.value
     cache = f.__dict__.get('_reference_cluster_cache')
     if cache is None or cache[0] is not key_det:
-        groups = [g for g in cl.components(key_det, st.link_distance) if len(g) > 1]
-        frames = [cl.canonical(key_det[g], st.key_resolution) for g in groups]
+        groups = [g for g in components(key_det, st.link_distance) if len(g) > 1]
+        frames = [canonical(key_det[g], st.key_resolution) for g in groups]
         cache = (key_det, groups, frames)
         f._reference_cluster_cache = cache
     _, groups, frames = cache
@@ -370,7 +370,7 @@ def _add_cluster_constraints(c: _Constraints, f, state, horizon, t, store, drive
             if store.solving(key):
                 c.solving += 1
         if solved is not None:
-            v, _ = solved.evaluate(cl.to_frame(np.vstack([state[None], points, ahead[None]]), origin, angle))
+            v, _ = solved.evaluate(to_frame(np.vstack([state[None], points, ahead[None]]), origin, angle))
             turn = 1.0 if v[1] >= v[2] - solved.tie else -1.0
             c.add(v[0], cfg.cluster_alpha, turn, min(v[5], max(v[3], v[4])), nearest, 'cluster', len(g),
                   group)
@@ -378,8 +378,8 @@ def _add_cluster_constraints(c: _Constraints, f, state, horizon, t, store, drive
             # the loiter-circle fallback keeps its invariant only from a state with a clear
             # circle; from any other state the per-obstacle rule (always in the list) is the
             # best known until the union's value is in force
-            v, turn = cl.orbit_value(np.stack([state, ahead]), key_det[g], st.radius + st.margin,
-                                     st.turning_radius)
+            v, turn = orbit_value(np.stack([state, ahead]), key_det[g], st.radius + st.margin,
+                                  st.turning_radius)
             if v[0] > 0.0:
                 c.add(v[0], 0.0, turn[0], v[1], nearest, 'cluster-fallback', len(g), group)
 

@@ -3,12 +3,12 @@
 ``robot`` builds a ``RobotFilter`` with a pose, detections and a planner command at time
 ``t``; ``at`` places a pose relative to ``OBSTACLE``, which is not at the origin, so the
 relative frame is exercised. ``pair_values``: every pair's V, avoid turn and V next in one
-call (``filter.pairs``' two reads together), what the pair tests compare against.
+call (``filter.constraints.pairs``' two reads together), what the pair tests compare against.
 """
 import numpy as np
 
 from supersafe_ros.filter import FilterConfig, RobotFilter
-from supersafe_ros.filter.pairs import pair_reads, pair_turns
+from supersafe_ros.filter.constraints.pairs import pair_reads, pair_turns
 from supersafe_ros.reach.value_function import ValueFunction
 
 OBSTACLE = (10.0, 5.0)   # obstacle centre in map (not at the origin: exercises the relative frame)

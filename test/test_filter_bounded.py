@@ -1,6 +1,6 @@
 """Bounded work on any detections message (issue 22), ROS-free.
 
-* clustering is near-linear and exact: ``cluster.components`` equals a union-find over all
+* clustering is near-linear and exact: ``geometry.components`` equals a union-find over all
   pairs on small random sets (duplicates, pairs exactly at the link distance) and labels
   100,000 centres as an independent sweep does; the spatial index's cluster search
   (``nearby.DetectionIndex``) finds the same clusters, or marks those too large to solve;
@@ -24,8 +24,9 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from supersafe_ros.filter import FilterConfig, RobotFilter, SafeSet, step_many, update_commands, update_detections_all
-from supersafe_ros.filter.cluster import SOLVE_MEMBERS_MAX, ClusterSettings, ClusterStore, components
-from supersafe_ros.filter.nearby import NEAR_QUERY_MIN, OVERSIZE, DetectionIndex, judged_radius
+from supersafe_ros.filter.clusters.geometry import ClusterSettings, components
+from supersafe_ros.filter.clusters.store import SOLVE_MEMBERS_MAX, ClusterStore
+from supersafe_ros.filter.constraints.nearby import NEAR_QUERY_MIN, OVERSIZE, DetectionIndex, judged_radius
 from supersafe_ros.reach.dynamics import DubinsCar
 from supersafe_ros.reach.grid import Grid
 from supersafe_ros.reach.sets import Disc

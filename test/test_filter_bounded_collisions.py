@@ -1,7 +1,7 @@
 """Collision counts on the decision path for many detections (issue 22), ROS-free.
 
-Beyond 64 detections a robot judges only those within its reach (``filter.nearby``), and a
-cluster of more than ``cluster.SOLVE_MEMBERS_MAX`` obstacles is never solved: the loiter
+Beyond 64 detections a robot judges only those within its reach (``filter.constraints.nearby``), and a
+cluster of more than ``store.SOLVE_MEMBERS_MAX`` obstacles is never solved: the loiter
 fallback and the per-obstacle rows judge it. The loops of test_filter_collisions.py
 (0.2 s step, 7.3 % of decisions on the previous pose) count entries deeper than 1 cm:
 
@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 
 from supersafe_ros.filter import FilterConfig, SafeSet, step_many
-from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore
+from supersafe_ros.filter.clusters.geometry import ClusterSettings
+from supersafe_ros.filter.clusters.store import ClusterStore
 from supersafe_ros.sim.trials import CollisionTrial, cup_layout, layout_trials, row_layout, run_trials
 from supersafe_ros.reach.dynamics import DubinsCar
 from supersafe_ros.reach.grid import Grid

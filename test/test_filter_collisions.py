@@ -9,7 +9,8 @@ CI-sized; bench/bench_collisions.py runs the same loops bigger.
 import numpy as np
 import pytest
 
-from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore, canonical, components, to_frame
+from supersafe_ros.filter.clusters.geometry import ClusterSettings, canonical, components, to_frame
+from supersafe_ros.filter.clusters.store import ClusterStore
 from supersafe_ros.filter import FilterConfig, RobotFilter, SafeSet, step_many
 from supersafe_ros.sim.trials import (cup_layout, layout_trials, random_layout, row_layout, run_trials,
                                       single_disc_trials, speed_profiles, standard_guard)
@@ -149,14 +150,14 @@ def test_a_half_written_cluster_file_is_solved_again_not_left_on_the_fallback(tm
     """A cluster file cut short (a copy or a write interrupted) must not put its cluster on
     the fallback rule for good: the store solves it again. A solve that really fails is
     kept with its reason (the filter nodes log it and count it on their state topic)."""
-    from supersafe_ros.filter import cluster as cl
+    from supersafe_ros.filter.clusters import store as cluster_store
     monkeypatch.setenv('SUPERSAFE_CACHE', str(tmp_path))
     settings = ClusterSettings(cell=0.7, headings=16, reach=4.0)
     pair = np.array([[0.0, 0.0], [4.5, 0.0]])
     key, _, _, centres = canonical(pair, settings.key_resolution)
     first = ClusterStore(settings, background=False)
     first.request(key, centres)
-    path = cl.cache_path(settings, key)
+    path = cluster_store.cache_path(settings, key)
     assert first.get(key) is not None and path.exists()
     path.write_bytes(path.read_bytes()[:300])
     second = ClusterStore(settings, background=False)
@@ -167,7 +168,7 @@ def test_a_half_written_cluster_file_is_solved_again_not_left_on_the_fallback(tm
 
     def broken(*args):
         raise RuntimeError('solver broke')
-    monkeypatch.setattr(cl, 'solve_cluster', broken)
+    monkeypatch.setattr(cluster_store, 'solve_cluster', broken)
     third = ClusterStore(settings, background=False)
     other, _, _, other_centres = canonical(pair * 1.2, settings.key_resolution)
     third.request(other, other_centres)
@@ -180,14 +181,14 @@ def test_the_disk_cache_of_cluster_values_stays_within_its_bound(tmp_path, monke
     used ones within $SUPERSAFE_CLUSTER_CACHE_MB (a read counts as a use), and a pruned
     cluster is simply solved again."""
     import os
-    from supersafe_ros.filter import cluster as cl
+    from supersafe_ros.filter.clusters.store import cache_path, prune_disk_cache
     monkeypatch.setenv('SUPERSAFE_CACHE', str(tmp_path))
     settings = ClusterSettings(cell=0.7, headings=16, reach=4.0)
     keys = []
     for gap in (4.0, 4.5, 5.0):
         key, _, _, centres = canonical(np.array([[0.0, 0.0], [gap, 0.0]]), settings.key_resolution)
         ClusterStore(settings, background=False).request(key, centres)
-        keys.append((key, centres, cl.cache_path(settings, key)))
+        keys.append((key, centres, cache_path(settings, key)))
     sizes = [p.stat().st_size for _, _, p in keys]
     for k, (_, _, p) in enumerate(keys):          # oldest first: 4.0, 4.5, 5.0
         os.utime(p, (1000.0 + k, 1000.0 + k))
@@ -197,7 +198,7 @@ def test_the_disk_cache_of_cluster_values_stays_within_its_bound(tmp_path, monke
     assert reader.get(keys[0][0]).solve_time == 0.0          # read, not solved
     # room for two files: the least recently used (4.5) goes
     limit = sizes[0] + sizes[2] + 10
-    assert cl.prune_disk_cache(keys[0][2].parent, limit) == 1
+    assert prune_disk_cache(keys[0][2].parent, limit) == 1
     assert [p.exists() for _, _, p in keys] == [True, False, True]
     # the store prunes by itself at its first write: a bound of 0 leaves only what it
     # writes after that check... and nothing of the old files

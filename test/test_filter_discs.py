@@ -1,4 +1,4 @@
-"""Obstacles of their own radius (filter.discs): the value shift V_r = V_R + (R - r) on solved
+"""Obstacles of their own radius (filter.constraints.discs): the value shift V_r = V_R + (R - r) on solved
 sets, the covering ring of discs larger than R, and the filter judging (N, 3) detections."""
 import math
 
@@ -7,8 +7,9 @@ import pytest
 
 from filter_support import at, robot
 from supersafe_ros.filter import FilterConfig, RobotFilter, SafeSet, step_many, update_detections_all
-from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore
-from supersafe_ros.filter.discs import RING_SLACK, checked_discs, covering_ring, ring_size
+from supersafe_ros.filter.clusters.geometry import ClusterSettings
+from supersafe_ros.filter.clusters.store import ClusterStore
+from supersafe_ros.filter.constraints.discs import RING_SLACK, checked_discs, covering_ring, ring_size
 from supersafe_ros.sim.trials import layout_trials, run_trials
 from supersafe_ros.reach.dynamics import DubinsCar
 from supersafe_ros.reach.grid import Grid

@@ -1,11 +1,11 @@
-"""filter.local_map: what the range sensors saw, kept in a rolling window of cells (ROS-free)."""
+"""filter.sensing.local_map: what the range sensors saw, kept in a rolling window of cells (ROS-free)."""
 import math
 
 import numpy as np
 import pytest
 
-from supersafe_ros.filter.local_map import LocalMap, MapSettings
-from supersafe_ros.filter.range_readings import scan_rays
+from supersafe_ros.filter.sensing.local_map import LocalMap, MapSettings
+from supersafe_ros.filter.sensing.readings import scan_rays
 
 CELL = 0.1
 

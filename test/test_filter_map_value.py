@@ -1,4 +1,4 @@
-"""The local map's one avoid value (filter.map_value): against disc values, a wall's closed form, a door;
+"""The local map's one avoid value (filter.sensing.map_value): against disc values, a wall's closed form, a door;
 its window; the background worker."""
 import math
 import threading
@@ -6,9 +6,9 @@ import threading
 import numpy as np
 import pytest
 
-from supersafe_ros.filter import map_value
-from supersafe_ros.filter.map_value import (MapArrays, MapValueSettings, MapValueWorker, solve_map_value,
-                                            value_lattice_node, window_half_widths)
+from supersafe_ros.filter.sensing import map_value
+from supersafe_ros.filter.sensing.map_value import (MapArrays, MapValueSettings, MapValueWorker, solve_map_value,
+                                                    value_lattice_node, window_half_widths)
 from supersafe_ros.reach.dynamics import DubinsCar
 from supersafe_ros.reach.field import FREE
 from supersafe_ros.reach.sets import Disc

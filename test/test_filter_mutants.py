@@ -412,7 +412,8 @@ def test_the_loiter_fallback_turns_left_on_an_exact_tie(standard):
     left, as everywhere in the filter (kills ``left > right`` in the fallback's turn). The
     circle is clear now (0.2 m) but not after the planner's 0.2 s hold: the fallback governs
     by the lookahead and sets its members' own rows aside."""
-    from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore
+    from supersafe_ros.filter.clusters.geometry import ClusterSettings
+    from supersafe_ros.filter.clusters.store import ClusterStore
     from supersafe_ros.filter import step_many
     store = ClusterStore(ClusterSettings(), fallback_only=True)
     f = robot(pose=at(-5.0, 0.0, 0.0), detections=[(OBSTACLE[0], OBSTACLE[1] + 4.0), (OBSTACLE[0], OBSTACLE[1] - 4.0)],
@@ -427,7 +428,8 @@ def test_new_detections_replace_the_clusters_of_the_old_ones(standard):
     """The cluster frames cached for a detections array are used only for that array: after
     new detections (the pair moved 30 m away) the old cluster no longer constrains the robot
     (kills reusing the cache when the array is not the cached one)."""
-    from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore
+    from supersafe_ros.filter.clusters.geometry import ClusterSettings
+    from supersafe_ros.filter.clusters.store import ClusterStore
     from supersafe_ros.filter import step_many
     store = ClusterStore(ClusterSettings(), fallback_only=True)
     pair = np.array([(OBSTACLE[0], OBSTACLE[1] + 4.0), (OBSTACLE[0], OBSTACLE[1] - 4.0)])
@@ -443,15 +445,15 @@ def test_new_detections_replace_the_clusters_of_the_old_ones(standard):
 def test_a_diagonal_clusters_union_value_is_read_in_its_canonical_frame(standard, monkeypatch):
     """A pair of obstacles on a diagonal (its canonical frame is rotated: sin(angle) != 0, unlike
     the axis-aligned layouts elsewhere): the V the filter reports for the cluster is the union
-    value at the robot's state mapped by ``cluster.to_frame`` (kills sign and operator errors
+    value at the robot's state mapped by ``geometry.to_frame`` (kills sign and operator errors
     in the vectorised frame transform). ``RobotFilter.step`` uses the store it is given, not
     the process's default one (here a fallback-only store without the union value)."""
-    from supersafe_ros.filter import cluster_rows
-    from supersafe_ros.filter.cluster import (ClusterSettings, ClusterStore, ClusterValue, canonical,
-                                              solve_cluster, to_frame)
+    from supersafe_ros.filter.clusters import store as cluster_store
+    from supersafe_ros.filter.clusters.geometry import ClusterSettings, ClusterValue, canonical, to_frame
+    from supersafe_ros.filter.clusters.store import ClusterStore, solve_cluster
     from supersafe_ros.filter import step_many
     default = ClusterSettings(radius=1.8, speed=3.0, omega_max=1.0, link=0.0)
-    monkeypatch.setitem(cluster_rows._STORES, default, ClusterStore(default, fallback_only=True))
+    monkeypatch.setitem(cluster_store._STORES, default, ClusterStore(default, fallback_only=True))
     settings = ClusterSettings(cell=0.8, headings=12, reach=5.0, disk_cache=False)
     dets = np.array([OBSTACLE, (OBSTACLE[0] + 3.0, OBSTACLE[1] + 3.0)])
     key, origin, angle, centres = canonical(dets, settings.key_resolution)
@@ -479,12 +481,13 @@ def test_robots_with_different_cluster_stores_keep_their_own_fallback(standard, 
     radius 3 m and 6 m). Stepped together, each robot's loiter fallback is computed with its
     own store's settings, exactly as when stepped alone (kills selecting every fallback row
     for every store, where the last store's circles win)."""
-    from supersafe_ros.filter import cluster_rows
-    from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore
+    from supersafe_ros.filter.clusters import store as cluster_store
+    from supersafe_ros.filter.clusters.geometry import ClusterSettings
+    from supersafe_ros.filter.clusters.store import ClusterStore
     for w in (1.0, 0.5):       # fallback-only default stores: no background solves in a test
         cfg = FilterConfig(omega_max=w)
         settings = ClusterSettings(radius=cfg.radius, speed=cfg.speed, omega_max=w, link=cfg.cluster_link)
-        monkeypatch.setitem(cluster_rows._STORES, settings, ClusterStore(settings, fallback_only=True))
+        monkeypatch.setitem(cluster_store._STORES, settings, ClusterStore(settings, fallback_only=True))
 
     def fleet():
         out = []
@@ -539,14 +542,14 @@ def test_batched_detections_accept_none_and_reject_malformed():
 def test_the_default_cluster_store_follows_the_robots_configuration(monkeypatch):
     """One shared store per robot configuration, with that robot's radius, speed, turn rate and
     link distance (kills every wrong or missing field, and not keeping or creating the store)."""
-    from supersafe_ros.filter import cluster_rows
-    monkeypatch.setattr(cluster_rows, '_STORES', {})
+    from supersafe_ros.filter.clusters import store as cluster_store
+    monkeypatch.setattr(cluster_store, '_STORES', {})
     cfg = FilterConfig(radius=1.5, speed=2.0, omega_max=0.8, cluster_link=7.0)
-    store = cluster_rows.default_cluster_store(cfg)
+    store = cluster_store.default_cluster_store(cfg)
     st = store.settings
     assert (st.radius, st.speed, st.omega_max, st.link) == (1.5, 2.0, 0.8, 7.0)
-    assert cluster_rows.default_cluster_store(cfg) is store
-    assert cluster_rows.default_cluster_store(FilterConfig()) is not store
+    assert cluster_store.default_cluster_store(cfg) is store
+    assert cluster_store.default_cluster_store(FilterConfig()) is not store
 
 
 def test_a_robots_inputs_accept_a_pose_row_and_empty_detections_and_reject_a_bare_number():
@@ -654,7 +657,8 @@ def test_an_override_on_a_loiter_fallback_turns_in_place_for_a_robot_that_can_st
     """A cluster governed by its loiter fallback (a circle drawn at full speed): a robot that
     can stop turns in place, a constant-speed robot turns at its speed; a union row or a
     pair keeps the planner's speed (kills the fallback test dropped or inverted)."""
-    from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore
+    from supersafe_ros.filter.clusters.geometry import ClusterSettings
+    from supersafe_ros.filter.clusters.store import ClusterStore
     never = ClusterStore(ClusterSettings(), fallback_only=True)
     row = np.array([[OBSTACLE[0], OBSTACLE[1]], [OBSTACLE[0] + 4.5, OBSTACLE[1]]])     # head on, along the row
     seen = {}

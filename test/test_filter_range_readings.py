@@ -1,11 +1,11 @@
-"""filter.range_readings: a scan's beams as REP 117 readings, a cloud's strict layout, the pose at a stamp."""
+"""filter.sensing.readings: a scan's beams as REP 117 readings, a cloud's strict layout, the pose at a stamp."""
 import array
 import math
 
 import numpy as np
 import pytest
 
-from supersafe_ros.filter.range_readings import cloud_xy, interpolated_pose, scan_rays
+from supersafe_ros.filter.sensing.readings import cloud_xy, interpolated_pose, scan_rays
 
 FULL = dict(angle_min=-math.pi, angle_max=math.pi - 2 * math.pi / 360, angle_increment=2 * math.pi / 360,
             range_min=0.1, range_max=10.0)

@@ -351,8 +351,9 @@ def test_equal_detections_in_separate_arrays_share_their_cluster_frames(standard
     """Robots sent equal detections in separate messages (the fleet node's per-robot topics)
     compute the cluster frames once; other content gets its own; the cache is bounded; and
     the decisions are those computed without it."""
-    import supersafe_ros.filter.cluster_rows as cluster_rows
-    from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore
+    import supersafe_ros.filter.constraints.cluster_rows as cluster_rows
+    from supersafe_ros.filter.clusters.geometry import ClusterSettings
+    from supersafe_ros.filter.clusters.store import ClusterStore
     store = ClusterStore(ClusterSettings(), fallback_only=True)
     pair = [(OBSTACLE[0], OBSTACLE[1]), (OBSTACLE[0] + 4.0, OBSTACLE[1] + 1.0)]      # one cluster
     moved = [(OBSTACLE[0], OBSTACLE[1]), (OBSTACLE[0] + 4.5, OBSTACLE[1] + 1.0)]
@@ -400,9 +401,10 @@ def test_a_decision_writes_nothing_into_its_filters_until_recorded_caches_includ
     pick, the clusters' frames: ``filter.derived``); ``record_decisions`` writes them with what was
     sent, and the next decision reads them (the same objects, not built again)."""
     import pickle
-    from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore
+    from supersafe_ros.filter.clusters.geometry import ClusterSettings
+    from supersafe_ros.filter.clusters.store import ClusterStore
     from supersafe_ros.filter.decide import decide_many
-    from supersafe_ros.filter.nearby import NEAR_QUERY_MIN
+    from supersafe_ros.filter.constraints.nearby import NEAR_QUERY_MIN
     from supersafe_ros.filter.sent import record_decisions
     from supersafe_ros.reach.library import load_or_solve
     vf = load_or_solve(Grid((-10.0, -10.0), (10.0, 10.0), (21, 21, 16)), 3.0, 1.0, 1.8, 2.0)

@@ -19,7 +19,8 @@ import numpy as np
 import pytest
 
 from filter_oracle import step_many_reference
-from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore, ClusterValue, solve_cluster
+from supersafe_ros.filter.clusters.geometry import ClusterSettings, ClusterValue
+from supersafe_ros.filter.clusters.store import ClusterStore, solve_cluster
 from supersafe_ros.filter import FilterConfig, RobotFilter, SafeSet, step_many
 from supersafe_ros.filter.sent import record_sent
 from supersafe_ros.reach.dynamics import DubinsCar
@@ -54,7 +55,7 @@ class PendingStore(ClusterStore):
 @pytest.fixture(scope='module')
 def solved_values():
     """Union values of the row's first pair and of the cup (solved once, shared by the stores)."""
-    from supersafe_ros.filter.cluster import canonical
+    from supersafe_ros.filter.clusters.geometry import canonical
     out = {}
     for members in ([0, 1], [3, 4, 5]):
         key, _, _, centres = canonical(LAYOUT[members], SETTINGS.key_resolution)
@@ -285,7 +286,7 @@ def test_cluster_instances_left_out_are_off_their_grid_for_every_hold(solved_val
     (both bangs from now, the planner's hold, both bangs after it) all end off the grid, so the
     rows left out would have read V = +inf. Robots sampled in a ring around the grid's corners,
     where the bound is tight, and everywhere else."""
-    from supersafe_ros.filter.cluster_rows import _beyond_grid
+    from supersafe_ros.filter.constraints.cluster_rows import _beyond_grid
     from supersafe_ros.filter.propagation import arc_flow
     from types import SimpleNamespace
     rng = np.random.default_rng(5)
@@ -419,8 +420,9 @@ def test_the_fallback_bound_is_below_the_loiter_clearance_now_and_after_the_hold
     (cluster.orbit_value) at the robot's state now and where the planner's hold ends, and tight
     where it can be (a robot midway between two members, heading across them): random clusters,
     states, speeds, turns and holds."""
-    from supersafe_ros.filter.cluster import ClusterSettings, ClusterStore, orbit_value
-    from supersafe_ros.filter.cluster_rows import _fallback_bound
+    from supersafe_ros.filter.clusters.geometry import ClusterSettings, orbit_value
+    from supersafe_ros.filter.clusters.store import ClusterStore
+    from supersafe_ros.filter.constraints.cluster_rows import _fallback_bound
     from supersafe_ros.filter.propagation import arc_flow
     st = ClusterSettings()
     store = ClusterStore(st, fallback_only=True)
@@ -453,7 +455,7 @@ def test_robots_just_inside_a_union_grids_corners_decide_as_the_reference(standa
     farthest from the frame's origin, so a reach bound that is short by a metre leaves their
     own rows out), with short holds: the same decisions, reasons and values as the reference
     (kills a reach of 2 speed H - 1 in _cluster_rows)."""
-    from supersafe_ros.filter.cluster import canonical
+    from supersafe_ros.filter.clusters.geometry import canonical
     cfg = FilterConfig(lookahead=0.1, control_period=0.1)
     dets = LAYOUT[[0, 1, 3, 4, 5]].copy()
 
@@ -482,9 +484,10 @@ def test_each_robot_decided_alone_decides_as_in_the_fleet(standard, solved_value
     V read in Python floats when few obstacles are near) decides as the vectorised fleet path
     decides that robot: over six closed-loop ticks, the same command, reason, values and state
     for every robot, with clusters solved, pending and solved at the request."""
-    from supersafe_ros.filter import constraints, decide
+    from supersafe_ros.filter import decide
+    from supersafe_ros.filter.constraints import table
     alone_calls, python_reads = [], []
-    gather_one_fast, pair_values_fast = decide.gather_one_fast, constraints.pair_values_fast
+    gather_one_fast, pair_values_fast = decide.gather_one_fast, table.pair_values_fast
 
     def gather_one_spy(*a):
         got = gather_one_fast(*a)
@@ -497,7 +500,7 @@ def test_each_robot_decided_alone_decides_as_in_the_fleet(standard, solved_value
         got = pair_values_fast(*a)
         python_reads.append(got is not None)
         return got
-    monkeypatch.setattr(constraints, 'pair_values_fast', pair_values_spy)
+    monkeypatch.setattr(table, 'pair_values_fast', pair_values_spy)
     safe = SafeSet(standard.vf, alpha, source)
     fleets = [build_fleet(seed, 320) for _ in range(2)]
     stores = [make_store(store_kind, solved_values) for _ in range(2)]
@@ -639,7 +642,7 @@ def test_one_robots_pair_values_in_python_floats_equal_numpys(standard, kind):
     near and off the grid, holds of 0 (the law's turn) to 1.5 s, on the standard set and on a set
     whose grid is not square and whose V is not rotationally symmetric; None exactly when more
     than ``few`` pairs are near the grid."""
-    from supersafe_ros.filter.pairs import pair_turn_fast, pair_values_fast
+    from supersafe_ros.filter.constraints.pairs import pair_turn_fast, pair_values_fast
     from filter_support import pair_values
     from supersafe_ros.reach.value_function import ValueFunction
     vf = standard.vf

@@ -3,7 +3,7 @@ filter's pair reads that skip the holds it rules out (the same decisions)."""
 import numpy as np
 import pytest
 
-from supersafe_ros.filter.pairs import pair_reads
+from supersafe_ros.filter.constraints.pairs import pair_reads
 from supersafe_ros.reach.dynamics import DubinsCar
 from supersafe_ros.reach.grid import Grid
 from supersafe_ros.reach.sets import Disc

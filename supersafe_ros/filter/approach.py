@@ -20,7 +20,7 @@ one of the arc's two ends. For |u| tau < ``STRAIGHT_TURN`` the segment is used (
 closest distance minus the largest gap between the arc and the segment, s' tau |u| tau / 2,
 so still a lower bound; the arc formula would lose digits to a turning centre kilometres
 away). A path whose distance to every disc centre is at least that disc's radius enters no
-disc (the discs are inflated by the robot's radius already: ``sensing``, ``filter.discs``).
+disc (the discs are inflated by the robot's radius already: ``sensing``, ``filter.constraints.discs``).
 
 **The speed.** Lowering s' at a fixed u tightens the arc, so the clear speeds need not be an
 interval: the candidates s (1, (J-1)/J, ..., 1/J, 0) are checked (J = ``CANDIDATES``) and the
@@ -70,7 +70,7 @@ from operator import is_
 
 import numpy as np
 
-from .map_rows import cut_discs
+from .constraints.map_rows import cut_discs
 
 CANDIDATES = 16          # the speeds checked: s (J, J - 1, ..., 0) / J
 STRAIGHT_TURN = 1e-4     # |u| tau below this [rad]: the path is taken as a segment (see the module)

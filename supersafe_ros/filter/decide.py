@@ -8,11 +8,11 @@ writing nothing back:
    holds, and whatever else a later step reads (no later step reads a filter: what a step reads of
    a few robots' inputs, it reads in their input records, in the columns); a lone robot's in
    Python floats (``gather_one_fast``);
-2. ``constraints.constraint_rows``: each robot's constraints, rows of one
+2. ``constraints.table.constraint_rows``: each robot's constraints, rows of one
    ``law.ConstraintTable`` (per obstacle, ``pairs``; per cluster of close obstacles,
    ``cluster_rows``; of the detections within its reach when it has many, ``nearby``), data only;
 3. ``law.choose``: the row each robot acts on or names (enter, ahead, stay);
-   ``constraints.avoid_turns``: the avoid turns of the rows robots avoid by (read for those alone);
+   ``constraints.table.avoid_turns``: the avoid turns of the rows robots avoid by (read for those alone);
    ``law.command``: the rule's command;
    ``approach.limit``: for robots that can stop (``time_before_collision``), each speed cut
    so that the command's path enters no detected disc;
@@ -25,7 +25,7 @@ writing nothing back:
 from __future__ import annotations
 
 from .approach import limit
-from .constraints import avoid_turns, constraint_rows
+from .constraints.table import avoid_turns, constraint_rows
 from .derived import Derived
 from .gather import RobotColumns, gather, gather_one_fast
 from .law import choose, command
@@ -39,7 +39,7 @@ def decide(columns: RobotColumns, safe_set: SafeSet, clusters=None):
     keep: ``derived.Derived``), steps 2-4, with one vectorised evaluation of the law; reads nothing
     but its arguments and writes nothing (``clusters``, the ClusterStore for obstacles judged
     together, is asked for the union values it holds and told which to solve; None: the process's
-    shared store for the robots' configuration, ``filter.cluster``)."""
+    shared store for the robots' configuration, ``filter.clusters``)."""
     c = columns
     updates = Derived(c.detection_inputs, c.robot_index)
     table, solving = constraint_rows(c, safe_set, clusters, updates)
@@ -60,7 +60,7 @@ def decide_many(filters, safe_set: SafeSet, t, clusters=None) -> Decisions:
     fail safe use their last valid pose and detections if younger than
     ``hold_timeout``, else ``fail_safe_command``. ``clusters``: the ClusterStore
     for obstacles judged together (None: the process's shared store for the
-    robots' configuration; see ``filter.cluster``). Returns ``Decisions``: the
+    robots' configuration; see ``filter.clusters``). Returns ``Decisions``: the
     commands as lists, each robot's ``FilterOutput`` built when read, the updates in ``derived``.
     """
     columns = gather_one_fast(filters[0], t) if len(filters) == 1 else None

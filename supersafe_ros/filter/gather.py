@@ -60,7 +60,7 @@ class RobotColumns(NamedTuple):
     detections: list                # its detected discs' centres (K_i, 2)
     detection_radii: list           # their radii (K_i,), None: all its configuration's radius
     detection_inputs: list          # their input record: ``kept`` (their rows in the message, None: row i
-    #                                 is row i; filter.discs), ``solve_clusters`` (whether their clusters'
+    #                                 is row i; filter.constraints.discs), ``solve_clusters`` (whether their clusters'
     #                                 union values may be solved), ``derived`` (what earlier decisions
     #                                 derived from them: filter.derived; read, never written here)
     lookahead: np.ndarray           # the hold H the planner's command is judged over (>= the control period)

@@ -1,5 +1,5 @@
 """What a filter knows of its robot: the newest pose, detections (discs of the configured
-radius or their own, ``filter.discs``) and planner command (turn rate and linear.x; each
+radius or their own, ``filter.constraints.discs``) and planner command (turn rate and linear.x; each
 with when it arrived and whether a newer one was rejected); beside them, written by the
 decision alone (``filter.sent.record``), whether it is overriding and the commands it sent
 with the speed the robot drives under each (to propagate an old pose to now,
@@ -25,9 +25,9 @@ from operator import attrgetter, is_
 import numpy as np
 
 from .decide import step_many
-from .discs import checked_discs
+from .constraints.discs import checked_discs
 from .commands import SPEED_TOLERANCE, command_excess
-from .nearby import drop_note, message_reach, within_limit
+from .constraints.nearby import drop_note, message_reach, within_limit
 from .types import FilterConfig, FilterOutput, SafeSet
 
 PERIOD_SAMPLES = 16    # intervals in the median that measures the control period
@@ -51,7 +51,7 @@ class _Input:
     dropped_safely: bool = True   # detections: all of them beyond any robot's reach (nearby.drop_note)
     radii: object = None          # detections: each one's radius (M,), None: all the configured radius
     linear: object = None         # command: the planner's linear.x (None: not given, taken as the speed)
-    solve_clusters: bool = True   # detections: their clusters' union values may be solved (filter.cluster_rows)
+    solve_clusters: bool = True   # detections: their clusters' union values may be solved (cluster_rows)
     refused: str = ''             # a map view: why the newest messages were refused (they leave the view
     refusals: int = 0             # as it was, to go stale) and how many since the last valid one
     # detections: what decisions derived from this array and keep for the next while it is the same
@@ -87,7 +87,7 @@ class RobotFilter:
         self.sent = deque()    # (decision time, turn rate, speed driven) of the commands sent, oldest first
         self.pose_intervals = _NO_INTERVALS      # windows of the last intervals (immutable: robots
         self.command_intervals = _NO_INTERVALS   # fed by one message share them)
-        self.view = None       # a robot judged by its local map: its MapView (filter.map_rows), else None
+        self.view = None       # a robot judged by its local map: its MapView (filter.constraints.map_rows), else None
 
     @property
     def derived(self) -> dict:
@@ -125,7 +125,7 @@ class RobotFilter:
 
     def update_detections(self, rows, t, safe_set=None, solve_clusters=True) -> None:
         """Obstacles in map, N >= 0: (N, 2) centres, each of the configured ``radius``, or
-        (N, 3) rows [x, y, r] of their own radius r (finite, > 0; ``filter.discs``: a disc
+        (N, 3) rows [x, y, r] of their own radius r (finite, > 0; ``filter.constraints.discs``: a disc
         larger than ``radius`` is judged as a ring of discs of that radius); raises ValueError
         (and records it) if malformed.
 
@@ -149,7 +149,7 @@ class RobotFilter:
         self.detections.reject(reason, t)
 
     def update_view(self, view, t) -> None:
-        """A valid view of the robot's local map at ``t`` (``filter.map_rows.MapView``: the map a
+        """A valid view of the robot's local map at ``t`` (``filter.constraints.map_rows.MapView``: the map a
         sensor message has just updated, the robot's clearance and the map's values): the robot
         is judged by the map's value (one row for all it holds) and its speed cut on the map's
         occupied cells, not by detected discs; the view is fresh until ``detections_timeout``."""

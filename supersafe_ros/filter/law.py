@@ -3,7 +3,7 @@
 Per constraint (a row of ``ConstraintTable``: one per robot and detected obstacle near it, one
 per robot and cluster of close obstacles), with V its value at the robot's state now, V_next
 its value after the planner's command held for the lookahead H and then the better bang
-held once more (``filter.pairs``), and alpha its level:
+held once more (``filter.constraints.pairs``), and alpha its level:
 
     enter  = V <= alpha
     ahead  = V_next <= alpha
@@ -33,7 +33,7 @@ The avoid turn of a pair is the minimally invasive law's u* = w_max sign(dV/dthe
 (``better_bang``), which tends to sign(dV/dtheta) as H -> 0.
 
 ``decide.decide`` calls ``choose``, then reads the avoid turns of the rows chosen
-(``constraints.avoid_turns``), then ``command``, for a fleet and for a lone robot alike
+(``constraints.table.avoid_turns``), then ``command``, for a fleet and for a lone robot alike
 (``RobotFilter.step`` is ``step_many`` of one): a lone robot's table is the same table with
 one robot's rows.
 """
@@ -56,7 +56,7 @@ def evaluate_pairs(vf: ValueFunction, rel_states):
     interpolated dV/dtheta at a head-on state is float32 round-off (-1.4e-8 at
     (-3, 0, 0) on 41 x 41 x 24), whose sign means nothing. Only the theta
     component of the gradient is interpolated. Callers that hold a robot in an
-    override band (filter.pairs) need the turn where V > alpha too, so it is
+    override band (filter.constraints.pairs) need the turn where V > alpha too, so it is
     evaluated at every pair.
     """
     s = np.asarray(rel_states, dtype=float).reshape(-1, 3)
@@ -110,10 +110,10 @@ class ConstraintTable(NamedTuple):
     its layout (a cluster's union value or the loiter fallback), its group (a lone
     obstacle, or the cluster its members belong to), members, for a cluster row whether it
     is the loiter fallback (its source 'cluster-fallback', else 'cluster'), and whether the row is
-    a robot's local map's (``mapped``: ``filter.map_rows``; ``gap`` the distance to the nearest
+    a robot's local map's (``mapped``: ``filter.constraints.map_rows``; ``gap`` the distance to the nearest
     occupied cell, inf for the other rows). ``n_groups``: the number of groups; ``turns``: what
-    the rows' unit avoid turns are read from (``constraints.TurnSources``, read by
-    ``constraints.avoid_turns`` for the rows robots avoid by).
+    the rows' unit avoid turns are read from (``constraints.table.TurnSources``, read by
+    ``constraints.table.avoid_turns`` for the rows robots avoid by).
     """
 
     robot: np.ndarray
@@ -278,7 +278,7 @@ class Ruling(NamedTuple):
 def command(table, choice, turns, failing, fresh, constant, planned, bang, drive, held) -> Ruling:
     """The rule's command for the M robot rows: ``choice`` (``choose``'s), ``turns`` the unit avoid
     turns of the rows of the robots that avoid (``choice.avoiding``, in order:
-    ``constraints.avoid_turns``). Per robot row: ``failing``, ``fresh``, ``constant`` (as
+    ``constraints.table.avoid_turns``). Per robot row: ``failing``, ``fresh``, ``constant`` (as
     ``choose``'s), ``planned`` (the planner's turn clipped, 0 if silent), ``bang`` (w_max),
     ``drive`` (the speed of the command judged, ``commands.drive_speed``), ``held`` (the speed last
     sent)."""

@@ -170,7 +170,7 @@ def explain(r: Reasons) -> FilterOutput:
         source = 'map' if table.mapped[k] else 'cluster-fallback' if table.fallback[k] else 'cluster'   # a sound row's
         if table.sound[k]:
             common['source'] = source
-        if table.mapped[k]:        # a local map's value: it names the nearest occupied cell (filter.map_rows)
+        if table.mapped[k]:        # a local map's value: it names the nearest occupied cell (map_rows)
             gap = float(table.gap[k])
             label = (f'an obstacle {max(gap, 0.0):.2g} m away' if math.isfinite(gap) else
                      'the mapped obstacles')

@@ -23,7 +23,7 @@ FAIL_SAFE = 'fail_safe'
 STOP, STOP_TURN = 'stop', 'stop_turn'
 FAIL_SAFE_COMMANDS = (STOP, STOP_TURN)
 
-# max_detections is at least this (more than filter.nearby.NEAR_QUERY_MIN: a message it cut is narrowed)
+# max_detections is at least this (more than filter.constraints.nearby.NEAR_QUERY_MIN: a message it cut is narrowed)
 MAX_DETECTIONS_LEAST = 100
 
 # diagnostic_msgs/DiagnosticStatus levels, by action
@@ -52,12 +52,12 @@ class FilterConfig:
     # behaviour before issue 9; for ablation benchmarks only)
     compensate_delay: bool = True
     # obstacles closer than cluster_link (0 = 2 radius + a turning diameter) are judged by
-    # their union's value (filter.cluster), at level cluster_alpha, with the true dynamics
+    # their union's value (filter.clusters), at level cluster_alpha, with the true dynamics
     clusters: bool = True
     radius: float = 1.8              # obstacle radius (cluster values)
     cluster_link: float = 0.0
     cluster_alpha: float = 0.0       # the union's level (the standard set's alpha)
-    # a detections message keeps at most this many, the nearest to the robot (filter.nearby)
+    # a detections message keeps at most this many, the nearest to the robot (filter.constraints.nearby)
     max_detections: int = 10000
     # what a robot that can stop does when the filter cannot judge (FAIL_SAFE_COMMANDS): 'stop', a
     # zero twist (the avoid turn at the speed last sent first, where the last valid state calls

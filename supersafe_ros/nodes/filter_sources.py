@@ -16,10 +16,10 @@ command through these, as ``pose_type``, ``detections_type`` and ``cmd_vel_stamp
   own radii, ``marker_discs``; bytes are deserialized);
 * ``SensorMap``: a sensor_msgs/LaserScan's or PointCloud2's returns (in the sensor's frame, its mount
   ``sensor_x/y/yaw`` on the robot) or a nav_msgs/OccupancyGrid (in ``frame_id``, e.g. Nav2's local
-  costmap) kept in the robot's local map (``filter.local_map``: a valid return marks, a valid beam
+  costmap) kept in the robot's local map (``filter.sensing.local_map``: a valid return marks, a valid beam
   clears what it passes through, REP 117's NaN, below-minimum and missing returns clear nothing),
   and the map's avoid value, solved again in the background as the map changes
-  (``filter.map_value``); each message is checked first (``filter.range_readings``: a scan or cloud
+  (``filter.sensing.map_value``); each message is checked first (``filter.sensing.readings``: a scan or cloud
   of invalid geometry is refused with the fault named, and the map stays as it was). Scans and
   clouds are subscribed with the sensor-data QoS (best effort: it matches best-effort and
   reliable drivers alike); grids reliable and volatile, which matches a costmap's
@@ -42,10 +42,10 @@ from rclpy.qos import qos_profile_sensor_data
 
 from ..filter import FAIL_SAFE
 from ..filter.commands import command_fresh
-from ..filter.local_map import LocalMap, MapSettings
-from ..filter.map_rows import MapView
-from ..filter.map_value import MapValueSettings, MapValueWorker
-from ..filter.range_readings import cloud_xy, interpolated_pose, scan_rays
+from ..filter.sensing.local_map import LocalMap, MapSettings
+from ..filter.constraints.map_rows import MapView
+from ..filter.sensing.map_value import MapValueSettings, MapValueWorker
+from ..filter.sensing.readings import cloud_xy, interpolated_pose, scan_rays
 from ..ros_io import cdr, rosmsg
 from ..ros_io.rosmsg import QOS_STREAM, MessageError
 from .filter_parameters import RANGE_SENSORS
@@ -237,7 +237,7 @@ class PoseHistory:
 
     def at(self, stamp: float, max_gap: float):
         """(the pose at ``stamp``, its gap in time: 0 when interpolated between two poses that bracket it
-        within ``max_gap``; ``range_readings.interpolated_pose``)."""
+        within ``max_gap``; ``readings.interpolated_pose``)."""
         return interpolated_pose(np.fromiter(self.stamps, float, len(self.stamps)), list(self.states), stamp,
                                  max_gap)
 
@@ -457,7 +457,7 @@ class SensorMap:
         """Ask for the map's value around (x, y) with turn bound ``omega_max`` (the set in force's), at most
         every ``value_period`` seconds of ``now`` (the filter's time; True if asked). The worker solves in
         the background (inline: at once), the newest request replacing one not yet started, and solves
-        nothing when neither the map nor the window changed (``filter.map_value``)."""
+        nothing when neither the map nor the window changed (``filter.sensing.map_value``)."""
         if now - self._asked < self.period:
             return False
         self._asked = now

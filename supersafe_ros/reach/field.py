@@ -14,7 +14,7 @@ l = ``outside``, a number (default ``FREE``: a large positive distance, "unknown
 free", as an occupancy map's never-seen cells): l jumps there from the rim's values to
 ``outside``. So a lattice must cover everything read at its values: the avoid solver reads
 l on its grid padded by a few cells and along each step's arcs (``AvoidSolver.read_bounds``),
-and ``filter.map_value`` builds the field over all of that, from a map padded with free
+and ``filter.sensing.map_value`` builds the field over all of that, from a map padded with free
 cells, so that its solver never reads ``outside``.
 
 The solver reads l through ``signed_distance_xy(x, y)`` with x of shape (..., n, 1) and y of

@@ -50,7 +50,8 @@ import math
 
 import numpy as np
 
-from ..filter.cluster import ClusterSettings, ClusterStore, canonical, components
+from ..filter.clusters.geometry import ClusterSettings, canonical, components
+from ..filter.clusters.store import ClusterStore
 from ..filter import FilterConfig, RobotFilter, SafeSet, step_many
 from .dubins_sim import LossySensor, RobotSim
 from .planner import goal_seeking_turn_rate

@@ -91,7 +91,7 @@ class ScanSensor:
     whose centre is within ``range_max`` (the simulated robot's sensor, ``sim.laser``; +inf where
     nothing is within range), its scans kept in a local map and judged by the map's one avoid value,
     as the filter node does with ``detections_type`` laser_scan (``filter_inputs.SensorMap``): each
-    scan's REP 117 readings (``range_readings.scan_rays``, a +inf clearing to range_max with
+    scan's REP 117 readings (``readings.scan_rays``, a +inf clearing to range_max with
     ``inf_is_valid``) put into a ``local_map.LocalMap`` (``cell``, ``size``, ``depth``) at the
     scan's own pose (gap 0), and the map's value (``map_value``: ``value_cell``,
     ``value_headings``, ``value_horizon``, ``value_reach``, the robot's clearance ``robot_radius``)
@@ -130,9 +130,9 @@ class _MapRobot:
     """A ``ScanSensor`` robot's local map and values (``view``: what its filter judges by)."""
 
     def __init__(self, sensor: ScanSensor, config):
-        from ..filter.local_map import LocalMap, MapSettings
-        from ..filter.map_rows import MapView
-        from ..filter.map_value import MapValueSettings, MapValueWorker
+        from ..filter.sensing.local_map import LocalMap, MapSettings
+        from ..filter.constraints.map_rows import MapView
+        from ..filter.sensing.map_value import MapValueSettings, MapValueWorker
         self.sensor = sensor
         self.map = LocalMap(MapSettings(cell=sensor.cell, size=sensor.size, depth=sensor.depth))
         settings = MapValueSettings(cell=sensor.value_cell, headings=sensor.value_headings,
@@ -148,7 +148,7 @@ class _MapRobot:
 
     def scan(self, state, layout, radii) -> None:
         """A scan of ``layout`` taken at ``state``, put into the map."""
-        from ..filter.range_readings import scan_rays
+        from ..filter.sensing.readings import scan_rays
         s = self.sensor
         a = beam_angles(s.beams)
         near = np.hypot(layout[:, 0] - state[0], layout[:, 1] - state[1]) <= s.range_max + radii

@@ -87,11 +87,11 @@ import time
 
 import numpy as np
 
-from ..reach.dynamics import DubinsCar
-from ..reach.field import FREE, FieldKeepout, occupancy_field
-from ..reach.grid import Grid
-from ..reach.solver import AvoidSolver, SolverSettings
-from ..reach.value_function import ValueFunction
+from ...reach.dynamics import DubinsCar
+from ...reach.field import FREE, FieldKeepout, occupancy_field
+from ...reach.grid import Grid
+from ...reach.solver import AvoidSolver, SolverSettings
+from ...reach.value_function import ValueFunction
 
 MAX_ERRORS = 64          # errors kept by a worker (the count goes on)
 THREAD_NAME = 'map_value'     # the worker's thread, by this name in top -H and /proc/<pid>/task/*/comm
@@ -446,7 +446,7 @@ def _solve_remote(snapshot, centre, speed, omega_max, clearance, settings, stamp
 def _start_pool():
     """A spawned worker process for the solves (None if none can be started), as the cluster store's:
     stop signals blocked in the spawning thread, the worker gone with its parent."""
-    from .cluster import _block_stop_signals, _exit_with_parent
+    from ..clusters.store import _block_stop_signals, _exit_with_parent
     try:
         import concurrent.futures
         import multiprocessing

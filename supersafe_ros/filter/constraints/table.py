@@ -30,7 +30,7 @@ import numpy as np
 
 from .cluster_rows import UnionTurns, cluster_rows, union_turns
 from .discs import pair_shifts
-from .law import ConstraintTable
+from ..law import ConstraintTable
 from .map_rows import map_rows
 from .nearby import NEAR_QUERY_MIN, narrow
 from .pairs import FEW_PAIRS, PairTurns, near_pairs, pair_reads, pair_turns_of, pair_values_fast
@@ -44,7 +44,7 @@ _ONE_ROBOT.flags.writeable = False
 def constraint_rows(cols, safe_set, clusters, derived):
     """(the table of every robot's constraints, per robot row the clusters near it whose union
     value is being solved) from ``gather``'s columns ``cols``; ``clusters``: the ClusterStore
-    (None: the process's shared one, ``filter.cluster``); ``derived``: the decision's
+    (None: the process's shared one, ``filter.clusters``); ``derived``: the decision's
     ``filter.derived.Derived`` (what it keeps, written by the recorder)."""
     m = len(cols.robot_index)
     dets, states, lone = cols.detections, cols.states, cols.lone_state
@@ -76,7 +76,7 @@ def constraint_rows(cols, safe_set, clusters, derived):
         position = pair_index if narrowed is None else narrowed.position
         value, value_next = np.array(fast[0], dtype=float), np.array(fast[1], dtype=float)
         shift = pair_shifts(cols.detection_radii, cols.configs, pair_robot, position)
-        if shift is not None:        # discs of their own radius (filter.discs): V_r = V_R + (R - r)
+        if shift is not None:        # discs of their own radius (filter.constraints.discs): V_r = V_R + (R - r)
             value += shift
             value_next += shift
         pair_turns = PairTurns(vf, None, fast[0], None, horizon, speed, bang, lone + (centres_list,))
@@ -90,7 +90,7 @@ def constraint_rows(cols, safe_set, clusters, derived):
         shift = pair_shifts(cols.detection_radii, cols.configs, pair_robot, position)
         value, value_next = pair_reads(vf, rel, planned[pair_robot], horizon[pair_robot], speed[pair_robot],
                                        bang[pair_robot], alpha if shift is None else alpha - shift)
-        if shift is not None:        # discs of their own radius (filter.discs): V_r = V_R + (R - r)
+        if shift is not None:        # discs of their own radius (filter.constraints.discs): V_r = V_R + (R - r)
             value += shift
             value_next += shift
         pair_turns = PairTurns(vf, rel, value, pair_robot, horizon, speed, bang)
@@ -223,8 +223,8 @@ def by_message(obstacle, pair_robot, cluster_robot, inputs):
     """``obstacle`` (per pair row, then per cluster row: its index in its robot's detections; the
     robots ``pair_robot``, ``cluster_robot``) named by its row in the robot's detections message,
     where a robot's detections are not the message's rows one for one (per robot row, its
-    detections' input record's ``kept``: discs split into covering rings, ``filter.discs``; None:
-    row i is row i); a new array if any is renamed. ``filter.nearby`` names those it narrows
+    detections' input record's ``kept``: discs split into covering rings, ``filter.constraints.discs``; None:
+    row i is row i); a new array if any is renamed. ``filter.constraints.nearby`` names those it narrows
     itself."""
     kept = list(map(_KEPT, inputs))
     if all(map(is_, kept, repeat(None))):      # (most decisions: checked in C)

@@ -12,7 +12,7 @@ x, j along y). Each cell is occupied or not, and seen or not (marked or cleared 
 (I0 = round(x / c - n / 2)), only when the robot is farther than ``recentre`` from its centre: a
 move is an exact shift of the arrays; cells that leave are forgotten, cells that enter are unknown.
 
-**One message** (``integrate_rays``: a scan's ``range_readings.Rays``; ``integrate_points``: a
+**One message** (``integrate_rays``: a scan's ``readings.Rays``; ``integrate_points``: a
 cloud's points), seen from the sensor at (x_s, y_s, yaw) in the map frame (the robot's pose at the
 stamp composed with the sensor's mount, by the caller), in this order:
 
@@ -389,7 +389,7 @@ class LocalMap:
 
     # -- messages --------------------------------------------------------------------------------
     def integrate_rays(self, sensor_pose, rays, slack=0.0) -> ViewSummary:
-        """One scan (``range_readings.Rays``) seen from ``sensor_pose`` (x, y, yaw) in the map frame; ``slack``
+        """One scan (``readings.Rays``) seen from ``sensor_pose`` (x, y, yaw) in the map frame; ``slack``
         (m, a number or one per beam) marks every cell whose centre is within it of a return (see the
         module: clear, then mark, then depth)."""
         sx, sy, yaw = _finite_pose(sensor_pose, 'sensor_pose')

@@ -9,7 +9,7 @@ dynamics: the shift is independent of the state) and
     V_r(s) = V_R(s) + (R - r)                                                   (exact)
 
 up to the grid's error (test_filter_discs solves two radii and compares). Each pair row of a
-disc of radius r adds ``R - r`` to V and to V after the lookahead's holds (``filter.pairs``);
+disc of radius r adds ``R - r`` to V and to V after the lookahead's holds (``filter.constraints.pairs``);
 the avoid turn, sign(dV/dtheta) or the better bang, is unchanged by a constant.
 
 Off the value function's grid V is read as +inf (never constraining): sound for r <= R (V_r
@@ -22,7 +22,7 @@ outside the disc meets a ring disc before it can reach the disc: avoiding the ri
 the disc. The ring's members are ordinary obstacles of radius R (pairs, clusters, nearby,
 max_detections), each named by the disc it covers (``origin``).
 
-Clusters (``filter.cluster``: union values, loiter fallback) judge every member as a disc of
+Clusters (``filter.clusters``: union values, loiter fallback) judge every member as a disc of
 radius R about its centre: a disc of radius r <= R lies inside it, so the union (and the
 fallback's clear circle) is a conservative covering of the mixed radii, and the same
 geometry keys the same solved value whatever its members' radii.

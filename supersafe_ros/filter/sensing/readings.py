@@ -1,7 +1,7 @@
 """What one range-sensor message says, checked: a scan's beams as REP 117 readings, a cloud's points, the pose.
 
 These are pure functions over a message's fields (plain Python and numpy values, no rclpy); the
-filter's local map (``filter.local_map``) takes what they return.
+filter's local map (``filter.sensing.local_map``) takes what they return.
 
 **A laser scan** (``scan_rays``). Beam i points at a_i = angle_min + i angle_increment in the
 sensor's frame and reads r_i. REP 117 says what a reading means, and so what it tells the map:

@@ -17,7 +17,7 @@ has a finite clearance, which a pass would name as its smallest value) and the l
 a robot failing safe with such a far cluster as its nearest constraint (either turn keeps it
 clear there).
 
-A cluster of more than ``cluster.SOLVE_MEMBERS_MAX`` obstacles is never solved (its grid and
+A cluster of more than ``SOLVE_MEMBERS_MAX`` obstacles is never solved (its grid and
 union grow with it), so its search stops there: such obstacles within a robot's radius are
 judged one by one and together by the loiter fallback, as one group.
 """
@@ -28,8 +28,9 @@ import math
 import numpy as np
 from scipy.spatial import cKDTree
 
-from . import cluster
-from .cluster_rows import ClusterFrames, default_cluster_store
+from ..clusters.geometry import canonical
+from ..clusters.store import SOLVE_MEMBERS_MAX, default_cluster_store, settings_of
+from .cluster_rows import ClusterFrames
 
 NEAR_QUERY_MIN = 64      # up to this many detections a robot judges them all
 UNSEEN, OVERSIZE = -1, -2
@@ -55,7 +56,7 @@ class DetectionIndex:
         self.tree = cKDTree(det)
         self.label = np.full(len(det), UNSEEN, dtype=np.intp)     # a cluster, OVERSIZE or UNSEEN
         self.members = []            # cluster label -> its members, ascending
-        self._canon = {}             # (label, resolution) -> cluster.canonical of its members
+        self._canon = {}             # (label, resolution) -> geometry.canonical of its members
 
     def within(self, xy, radius) -> list:
         """Per point of ``xy`` (k, 2): the detections within its ``radius``, ascending."""
@@ -88,7 +89,7 @@ class DetectionIndex:
 
     def _search(self, start):
         """Label the cluster of detection ``start`` (centres within ``link``, transitively, by
-        np.hypot as ``cluster.components`` judges them), or OVERSIZE once it has more than
+        np.hypot as ``geometry.components`` judges them), or OVERSIZE once it has more than
         SOLVE_MEMBERS_MAX members (what was found so far: the rest are found the same way)."""
         c, link = self.det, self.link
         found = np.array([start], dtype=np.intp)
@@ -101,7 +102,7 @@ class DetectionIndex:
             close = j[np.hypot(c[i, 0] - c[j, 0], c[i, 1] - c[j, 1]) <= link]
             frontier = np.setdiff1d(close, found)
             found = np.union1d(found, frontier)
-            if len(found) > cluster.SOLVE_MEMBERS_MAX or np.any(self.label[frontier] == OVERSIZE):
+            if len(found) > SOLVE_MEMBERS_MAX or np.any(self.label[frontier] == OVERSIZE):
                 self.label[found] = OVERSIZE
                 return
         self.label[found] = len(self.members)
@@ -110,7 +111,7 @@ class DetectionIndex:
     def _canonical(self, k, resolution):
         got = self._canon.get((k, resolution))
         if got is None:
-            got = self._canon[(k, resolution)] = cluster.canonical(self.det[self.members[k]], resolution)
+            got = self._canon[(k, resolution)] = canonical(self.det[self.members[k]], resolution)
         return got
 
 
@@ -147,7 +148,7 @@ def narrow(configs, dets, inputs, states, horizon, speed, margin, safe_set, stor
     position = [None if n > NEAR_QUERY_MIN else np.arange(n) for n in counts.tolist()]      # (big: below)
     kept = [inp.kept for inp in inputs]
     names = [p if p is None or k is None else k for p, k in zip(position, kept)]    # (a robot's discs split into
-    #                                                                                  rings: filter.discs)
+    #                                                                                  rings: filter.constraints.discs)
     shared, radii, found = {}, {}, {}
     for i in big.tolist():       # each robot's index, store and radius (robots of a fleet share them)
         cfg, det = configs[i], dets[i]
@@ -210,11 +211,6 @@ def within_limit(centres, origins, limit):
     part = np.argpartition(d, limit)
     kept = np.sort(part[:limit])
     return kept, float(d[part[limit:]].min())
-
-
-def settings_of(cfg) -> cluster.ClusterSettings:
-    """The cluster settings of a robot configuration's default store (``default_cluster_store``)."""
-    return cluster.ClusterSettings(radius=cfg.radius, speed=cfg.speed, omega_max=cfg.omega_max, link=cfg.cluster_link)
 
 
 def message_reach(cfg, grid, horizon, pose_age) -> float:

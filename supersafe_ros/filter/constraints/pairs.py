@@ -31,9 +31,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..reach.value_function import ValueFunction
-from .law import avoid_turn, avoid_turn_at, better_bang, tie_tolerance
-from .propagation import arc, arc_flow, bang_ends
+from ...reach.value_function import ValueFunction
+from ..law import avoid_turn, avoid_turn_at, better_bang, tie_tolerance
+from ..propagation import arc, arc_flow, bang_ends
 
 
 def pair_reads(vf: ValueFunction, rel, omega, horizon, speed, bang, level=math.inf):
@@ -97,7 +97,7 @@ def near_pairs(grid, dets, states, horizon, speed, counts, start):
     ``horizon``, ``speed``. Robots given one detections array
     (the batched fleet) are tested at once over (robots x detections), without the pairs of
     every robot laid out; robots given arrays of their own keep every pair (such an array holds
-    what is near its robot: its own sensor's, or narrowed to its reach, ``filter.nearby``; testing
+    what is near its robot: its own sensor's, or narrowed to its reach, ``filter.constraints.nearby``; testing
     them costs more than the rows it saves: bench_core.py's dense-1000 fleets, 6 %)."""
     m = len(dets)
     det = dets[0] if m else None

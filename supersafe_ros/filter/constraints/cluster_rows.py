@@ -1,12 +1,12 @@
 """The cluster constraints: obstacles closer than the link distance judged by their union.
 
 Two discs closer than 2 radius + a turning diameter can trap a robot that avoids each
-alone (filter.cluster). For every robot with more than one detection, per cluster of its
+alone (filter.clusters). For every robot with more than one detection, per cluster of its
 detections: one constraint row (``filter.law.ConstraintTable``) with
 
 * the union's value, solved in the background by the ``ClusterStore`` and read in the
   cluster's canonical frame, when it is in force;
-* else the loiter-circle fallback (``cluster.orbit_value``) from a state with a clear circle.
+* else the loiter-circle fallback (``geometry.orbit_value``) from a state with a clear circle.
 
 Robots given one detections array (the fleet node's batched topic) share its cluster
 frames; robots sent equal arrays share them by content (``cluster_frames``).
@@ -15,7 +15,7 @@ Detections that change every message (discs from a laser scan or a point cloud, 
 ``solve_clusters=False``) are judged with the store's ``fallback_twin``: their clusters by
 the loiter fallback alone, which is sound for any layout, and no union solve is queued (a
 new geometry each message would queue one per message, none in force in time): the work per
-message stays bounded (clusters of at most ``cluster.SOLVE_MEMBERS_MAX`` get a canonical
+message stays bounded (clusters of at most ``store.SOLVE_MEMBERS_MAX`` get a canonical
 frame, larger ones none).
 """
 from __future__ import annotations
@@ -27,11 +27,11 @@ from typing import NamedTuple
 
 import numpy as np
 
-from . import cluster
-from .elementwise import py_max, py_min
-from .law import better_bang, first_min, first_min_of_runs
-from .propagation import arc_flow, bang_ends
-from .types import FilterConfig
+from ..clusters.geometry import canonical, components
+from ..clusters.store import SOLVE_MEMBERS_MAX, default_cluster_store
+from ..elementwise import py_max, py_min
+from ..law import better_bang, first_min, first_min_of_runs
+from ..propagation import arc_flow, bang_ends
 
 
 class ClusterFrames:
@@ -39,13 +39,13 @@ class ClusterFrames:
     (computed once per detections array and store settings; robots given the same array, as
     the fleet node's batched detections, share them). ``groups`` and their ``canon``
     (``cluster_frame``'s, None: compute it), if given, are the clusters (a robot's detections
-    within reach, ``filter.nearby``). A cluster of more than ``cluster.SOLVE_MEMBERS_MAX``
+    within reach, ``filter.constraints.nearby``). A cluster of more than ``store.SOLVE_MEMBERS_MAX``
     has no key (never solved) and no canonical frame: its fallback is read in the map frame."""
 
     def __init__(self, det, store, groups=None, canon=None):
         st = store.settings
         if groups is None:
-            groups = [g for g in cluster.components(det, st.link_distance) if len(g) > 1]
+            groups = [g for g in components(det, st.link_distance) if len(g) > 1]
         self.n = len(groups)
         self.keys, self.centres = [], []
         origin, angle, cs, sn = [], [], [], []
@@ -56,7 +56,7 @@ class ClusterFrames:
             self.centres.append(c)
             origin.append(o)
             angle.append(a)
-            cs.append(math.cos(a))      # as cluster.to_frame computes them
+            cs.append(math.cos(a))      # as geometry.to_frame computes them
             sn.append(math.sin(a))
         size = [len(g) for g in groups]
         # per cluster: origin x, y, angle, cos, sin, members; per member (in its cluster's order): index, x, y
@@ -66,12 +66,12 @@ class ClusterFrames:
 
 
 def cluster_frame(centres, settings):
-    """``cluster.canonical`` of a cluster's centres, or for a cluster too large to be solved
-    (more than ``cluster.SOLVE_MEMBERS_MAX``) (None, its centroid, 0, None), without the
+    """``geometry.canonical`` of a cluster's centres, or for a cluster too large to be solved
+    (more than ``store.SOLVE_MEMBERS_MAX``) (None, its centroid, 0, None), without the
     all-pairs search of its farthest pair."""
-    if len(centres) > cluster.SOLVE_MEMBERS_MAX:
+    if len(centres) > SOLVE_MEMBERS_MAX:
         return None, centres.mean(axis=0), 0.0, None
-    return cluster.canonical(centres, settings.key_resolution)
+    return canonical(centres, settings.key_resolution)
 
 
 _FRAMES_BY_CONTENT: OrderedDict = OrderedDict()      # (link, resolution, shape, bytes) -> _ClusterFrames
@@ -117,14 +117,14 @@ def cluster_rows(configs, inputs, states, planned, horizon, speed, bang, cluster
     """The cluster constraints of every robot, as table columns (see ``law.ConstraintTable``).
 
     A robot with clusters enabled and more than one detection gets, per cluster of its
-    detections (obstacles within the link distance, see ``filter.cluster``), one row:
+    detections (obstacles within the link distance, see ``filter.clusters``), one row:
 
     * the union's value if solved, read at its state now; its turn is the bang
       (+-w_max) with the larger V at the end of its hold (ties left), and the planner's
       command is judged by V where its hold ends and after the better bang held one
       more period from there (the smaller): a pass never leaves the robot where no
       held turn keeps V above the level;
-    * else the loiter-circle fallback (``cluster.orbit_value``) if the robot's state now
+    * else the loiter-circle fallback (``geometry.orbit_value``) if the robot's state now
       has a clear circle (its invariant holds only from such a state; from any other,
       the per-obstacle rows, always in the table, are the best known until the
       union's value is in force).
@@ -140,7 +140,7 @@ def cluster_rows(configs, inputs, states, planned, horizon, speed, bang, cluster
     index among all robots' pairs; ``pairs``: (robot row, V, level) of the pair rows. A fallback
     row that can neither act nor be its robot's smallest V - level is left out
     (``_fallback_bound``). ``frames``: per robot row, its
-    ``ClusterFrames`` when given (a robot's detections within reach, ``filter.nearby``; None: those
+    ``ClusterFrames`` when given (a robot's detections within reach, ``filter.constraints.nearby``; None: those
     of its detections array). ``derived``: the decision's ``filter.derived.Derived``, through which
     the frames are read and kept.
     """
@@ -395,11 +395,11 @@ class UnionFrames(NamedTuple):
     def read(self, idx, s):
         """(V (+inf off the grid), each instance's tie tolerance) of instances ``idx`` at their states
         ``s`` (k, len(idx), 3) in the map frame, each read in its cluster's canonical frame
-        (``cluster.to_frame``)."""
+        (``geometry.to_frame``)."""
         v = np.full(s.shape[:2], np.inf)
         tie = np.zeros(len(idx))
         origin, angle, cs, sn = self.origin[idx], self.angle[idx], self.cos[idx], self.sin[idx]
-        dx, dy = s[..., 0] - origin[:, 0], s[..., 1] - origin[:, 1]      # cluster.to_frame
+        dx, dy = s[..., 0] - origin[:, 0], s[..., 1] - origin[:, 1]      # geometry.to_frame
         in_frame = np.stack([cs * dx + sn * dy, -sn * dx + cs * dy, s[..., 2] - angle], axis=-1)
         for j, cv in enumerate(self.values):
             sel = np.flatnonzero(self.val[idx] == j)
@@ -487,7 +487,7 @@ def _fallback_bound(nearest, inst_store, stores, travel):
 
 
 def _orbit_values(states, member_xy, member_inst, sel, radius, turning_radius):
-    """``cluster.orbit_value`` for many (state, cluster) pairs at once.
+    """``geometry.orbit_value`` for many (state, cluster) pairs at once.
 
     ``states`` (2, k, 3): the state now and after the planner's hold of each selected
     cluster instance; its discs are the rows of ``member_xy`` whose ``member_inst`` is
@@ -508,16 +508,3 @@ def _orbit_values(states, member_xy, member_inst, sel, radius, turning_radius):
         out.append(np.minimum.reduceat(np.abs(dist - turning_radius) - radius, starts, axis=1))
     left, right = out
     return np.maximum(left, right), np.where(left >= right, 1.0, -1.0)
-
-
-_STORES = {}
-
-
-def default_cluster_store(cfg: FilterConfig):
-    """The process's shared ClusterStore for a robot configuration (background solves)."""
-    settings = cluster.ClusterSettings(radius=cfg.radius, speed=cfg.speed, omega_max=cfg.omega_max,
-                                       link=cfg.cluster_link)
-    store = _STORES.get(settings)
-    if store is None:
-        store = _STORES[settings] = cluster.ClusterStore(settings)
-    return store

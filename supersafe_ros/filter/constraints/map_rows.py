@@ -1,8 +1,8 @@
 """A robot judged by its local map: one constraint row for everything the map holds.
 
 A robot whose obstacles come from a range sensor or a costmap (``MapView``: a
-``filter.local_map.LocalMap`` of what its sensors saw, the robot's clearance, and the avoid
-value of that map, ``filter.map_value``) is not judged per obstacle: the map's value V_map is
+``filter.sensing.local_map.LocalMap`` of what its sensors saw, the robot's clearance, and the avoid
+value of that map, ``filter.sensing.map_value``) is not judged per obstacle: the map's value V_map is
 the Hamilton-Jacobi avoid value of the robot's dynamics over the union of the map's occupied
 cells in a window around it, so it is one row of the law's table (``law.ConstraintTable``),
 read at the robot's state itself (the value's grid is in the map's coordinates: the "obstacle"
@@ -36,7 +36,7 @@ import math
 
 import numpy as np
 
-from ..reach.field import FREE
+from ...reach.field import FREE
 from .pairs import pair_turn_fast, pair_values_fast
 
 NOTHING_NEAR = FREE / 2.0        # a map's value this high reads no occupied cell (reach.field.FREE)
@@ -47,7 +47,7 @@ class MapView:
     """What a robot judged by its local map gives the decision: the live ``local_map``, the
     robot's ``clearance`` (its radius: an occupied cell's disc is grown by it), where its values
     come from (``values.latest()`` -> the newest ``MapValue`` or None; a
-    ``filter.map_value.MapValueWorker``), and the ``sensor`` word the reasons use ('scan',
+    ``filter.sensing.map_value.MapValueWorker``), and the ``sensor`` word the reasons use ('scan',
     'cloud', 'costmap')."""
 
     local_map: object
