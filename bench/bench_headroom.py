@@ -47,6 +47,9 @@ def import_from(root: str):
     sys.path.insert(0, str(HERE))
     import bench_nodes as module
     bench_nodes = module
+    # bench_nodes puts this checkout first on sys.path: the checkout's own goes first again, or a
+    # process the node spawns (its cluster and map workers) imports this checkout's package
+    sys.path.insert(0, root)
 
 
 def ensure_local_ros_env(env=None):
@@ -117,7 +120,10 @@ def serve(checkout: str, m: int, batched: bool, core: int | None):
     for module, name in (('supersafe_ros.ros_io.cdr', 'diagnostic_status_bytes'),
                          ('supersafe_ros.nodes.fleet_safety_filter_node', 'array_bytes'),
                          ('supersafe_ros.nodes.filter_topics', 'array_bytes')):
-        module = importlib.import_module(module)
+        try:
+            module = importlib.import_module(module)
+        except ImportError:             # a checkout without that module
+            continue
         if hasattr(module, name):       # a checkout that serializes its states itself
             setattr(module, name, states.wrap(getattr(module, name)))
     for topics in getattr(node, 'topics', []):
