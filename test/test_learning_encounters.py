@@ -410,3 +410,23 @@ def test_a_fast_clocks_poses_also_wait_in_wall_time_for_a_set_read_late(reorder_
     (r,) = b.pop_finished()
     assert r.reason == 'passed'
     assert (r.t[0] == pytest.approx(1.0)) == (reorder_wall > 0), r.t[:3]
+
+
+@pytest.mark.parametrize('start', [-8.0 + 3e-14, -8.0 - 3e-14])
+def test_a_robot_placed_on_the_grids_edge_starts_its_encounter_there(start):
+    """A scene starts the robot at the library's lo (x = -8 from the obstacle), a float hair inside
+    or outside by the arithmetic that put it there (-8.000000000000034 in a Phase II run): the
+    encounter starts at that pose either way. (When the world's coarse removal stamp fell before
+    the next pose, the intervention found no encounter.)"""
+    b = builder()
+    b.set_obstacles([1], [(0.0, 0.0)], 0.5)
+    b.pose('r', 1.0, (start, 0.5, 0.0))
+    b.set_obstacles([], np.zeros((0, 2)), 1.1)         # removed (its stamp coarse: before the next pose)
+    for k in range(1, 4):
+        b.pose('r', 1.0 + 0.2 * k, (start + 0.6 * k, 0.5, 0.0))
+    b.intervention(1, 1.5, (start + 1.5, 0.5, 0.0))
+    b.pose('r', 1.8, (start + 2.4, 0.5, 0.0))
+    b.finish_all()
+    (r,) = b.pop_finished()
+    assert r.intervened and b.counts['unmatched_interventions'] == 0
+    assert r.t[0] == pytest.approx(1.0)

@@ -73,6 +73,10 @@ from .data import Encounter
 
 END_REASONS = ('intervention', 'passed', 'left_grid', 'obstacle_gone', 'jump', 'max_frames', 'shutdown')
 
+# a robot placed on the grid's edge (a scene's start at the library's lo) lands a float hair outside
+# or inside depending on the arithmetic that put it there: within a micrometre counts as inside
+GRID_EDGE = 1e-6
+
 
 @dataclass(frozen=True)
 class EncounterRecord:
@@ -262,7 +266,8 @@ class EncounterBuilder:
         for oid, (cx, cy) in obstacles.items():
             rx, ry = x - cx, y - cy
             key = (robot, oid)
-            inside = self.lo[0] <= rx <= self.hi[0] and self.lo[1] <= ry <= self.hi[1]
+            inside = (self.lo[0] - GRID_EDGE <= rx <= self.hi[0] + GRID_EDGE
+                      and self.lo[1] - GRID_EDGE <= ry <= self.hi[1] + GRID_EDGE)
             passed = rx * c + ry * s > 0.0
             enc = self._open.get(key)
             if enc is not None:
