@@ -392,26 +392,6 @@ def test_an_intervention_read_before_its_poses_is_matched_when_its_wall_time_run
     (r,) = b.pop_finished()
     # its frame: the last pose of the pass (1.6) or the reported state at its stamp (1.61)
     assert r.intervened and list(r.t) == pytest.approx([1.0, 1.2, 1.4, 1.6], abs=0.011)
-
-
-@pytest.mark.parametrize('reorder_wall', [0.0, 0.25])
-def test_a_fast_clocks_poses_also_wait_in_wall_time_for_a_set_read_late(reorder_wall):
-    """A sim clock 40 times the wall: ``reorder`` (1 s of pose time) lasts 25 ms of wall time, and
-    a set read 45 ms after the poses it precedes misses the first of them (the encounter starts
-    late) unless the poses also wait ``reorder_wall`` wall seconds (it starts at the set's stamp)."""
-    b = builder(reorder=1.0, reorder_wall=reorder_wall)
-    for k in range(15):                       # 0.2 s of pose time every 5 ms; passes x > 0 at 3.4
-        wall = 100.0 + 0.005 * k
-        b.pose('r', 1.0 + 0.2 * k, (-7.0 + 0.6 * k, 0.5, 0.0), wall=wall)
-        if k == 9:
-            b.set_obstacles([1], [(0.0, 0.0)], 1.0, wall=wall)
-    b.tick(100.5)
-    b.finish_all()
-    (r,) = b.pop_finished()
-    assert r.reason == 'passed'
-    assert (r.t[0] == pytest.approx(1.0)) == (reorder_wall > 0), r.t[:3]
-
-
 @pytest.mark.parametrize('start', [-8.0 + 3e-14, -8.0 - 3e-14])
 def test_a_robot_placed_on_the_grids_edge_starts_its_encounter_there(start):
     """A scene starts the robot at the library's lo (x = -8 from the obstacle), a float hair inside

@@ -36,10 +36,7 @@ stamps, not arrival:
   ``tick``), so an obstacle set or intervention that arrives up to ``reorder`` seconds of
   pose time after poses stamped later than it is still in force for them (DDS orders
   messages within a topic, not across topics; a set read after the poses it precedes
-  would miss the encounter's start, and an intervention then finds no encounter). With
-  ``reorder_wall`` > 0 a held pose also waits that many wall seconds after it arrived: a
-  sim clock running many times faster than the wall squeezes ``reorder`` seconds of pose
-  time into a few milliseconds, shorter than a busy machine's delay between topics;
+  would miss the encounter's start, and an intervention then finds no encounter);
 
 * an obstacle set stamped T applies to a robot's poses stamped >= T (each robot keeps
   its own place in the list of obstacle-set versions); unstamped sets (T = 0) apply at
@@ -147,15 +144,14 @@ class EncounterBuilder:
     def __init__(self, lo, hi, speed: float, *, jump_distance: float = 1.0, grace: float = 2.0,
                  match_tolerance: float = 1.0, pending_timeout: float = 5.0, max_frames: int = 2000,
                  stale_wall: float = 2.0, max_versions: int = 1000, removal_delay: float = 1.0,
-                 reorder: float = 0.0, reorder_wall: float = 0.0, same_pose: float = 0.05):
+                 reorder: float = 0.0, same_pose: float = 0.05):
         self.lo = np.asarray(lo, dtype=float).reshape(2)
         self.hi = np.asarray(hi, dtype=float).reshape(2)
         if not np.all(self.hi > self.lo):
             raise ValueError(f'grid bounds must have hi > lo, got {lo}, {hi}')
         for name, v in (('speed', speed), ('jump_distance', jump_distance), ('grace', grace),
                         ('match_tolerance', match_tolerance), ('pending_timeout', pending_timeout),
-                        ('stale_wall', stale_wall), ('reorder', reorder), ('reorder_wall', reorder_wall),
-                        ('same_pose', same_pose)):
+                        ('stale_wall', stale_wall), ('reorder', reorder), ('same_pose', same_pose)):
             if not (math.isfinite(v) and v >= 0):
                 raise ValueError(f'{name} must be finite and >= 0, got {v}')
         if max_frames < 2:
@@ -164,7 +160,6 @@ class EncounterBuilder:
         self.match_tolerance, self.pending_timeout = float(match_tolerance), float(pending_timeout)
         self.max_frames, self.stale_wall, self.max_versions = int(max_frames), float(stale_wall), max_versions
         self.removal_delay, self.reorder, self.same_pose = float(removal_delay), float(reorder), float(same_pose)
-        self.reorder_wall = float(reorder_wall)
         self._last_wall: dict[str, float] = {}     # robot -> arrival (wall) of its newest pose
         self._held: dict[str, deque] = {}           # robot -> poses (t, x, y, th, wall) not judged yet
         self._lingering: dict[tuple, float] = {}    # (robot, obstacle) -> pose time it ends at
@@ -221,15 +216,12 @@ class EncounterBuilder:
         if held and stamp < held[-1][0]:
             self._release(robot, math.inf)      # the stamps went back (a reset): judge what came before
         held.append((stamp, x, y, th, float(wall)))
-        self._release(robot, stamp - self.reorder, now=float(wall))
+        self._release(robot, stamp - self.reorder)
 
-    def _release(self, robot, until, wall=None, now=None):
-        """Judge the robot's held poses stamped <= until (and, given the wall clock ``now``, arrived
-        ``reorder_wall`` before it), or arrived stale_wall before ``wall``."""
+    def _release(self, robot, until, wall=None):
+        """Judge the robot's held poses stamped <= until (or arrived stale_wall before wall)."""
         held = self._held.get(robot)
-        waited = math.inf if now is None else now - self.reorder_wall
-        while held and ((held[0][0] <= until and held[0][4] <= waited)
-                        or (wall is not None and held[0][4] + self.stale_wall <= wall)):
+        while held and (held[0][0] <= until or (wall is not None and held[0][4] + self.stale_wall <= wall)):
             t, x, y, th, _ = held.popleft()
             self._judge(robot, t, x, y, th)
         if held is not None and not held:
@@ -425,8 +417,8 @@ class EncounterBuilder:
         stopped ``stale_wall`` seconds ago, its encounters held for the grace time become final
         and its interventions waiting for the pose judged take their reported state: no pose
         time will pass for them (the end of a stream), and the fit should not wait."""
-        for r in list(self._held):     # held long enough in pose time and wall time, or stale
-            self._release(r, self._held[r][-1][0] - self.reorder, wall, now=wall)
+        for r in list(self._held):
+            self._release(r, -math.inf, wall)
         for k, v in enumerate(self._versions):
             if v[0] > -math.inf and v[1] + self.stale_wall <= wall:
                 v[0] = -math.inf       # in force now

@@ -182,10 +182,7 @@ class LearnerNode(Node):
                             'after the removal\'s stamp (the world stamps with a coarse clock) [s]', 0.0, 100.0),
             reorder=p('reorder_window', 1.0, 'a pose is judged once its robot has poses this much newer '
                       '(pose time), so obstacle sets and interventions read up to this late still apply '
-                      'to it (topics are not ordered with each other) [s]', 0.0, 100.0),
-            reorder_wall=p('reorder_wall_window', 0.25, 'a pose also waits this long after it arrived before it '
-                           'is judged (a sim clock many times faster than the wall squeezes reorder_window '
-                           'into milliseconds) [steady s]', 0.0, 10.0))
+                      'to it (topics are not ordered with each other) [s]', 0.0, 100.0))
 
         t0 = time.perf_counter()
         self.entries = build_library(speed, radius, horizon, omegas, self.lo, self.hi, shape, cache_dir)
