@@ -392,6 +392,8 @@ def test_an_intervention_read_before_its_poses_is_matched_when_its_wall_time_run
     (r,) = b.pop_finished()
     # its frame: the last pose of the pass (1.6) or the reported state at its stamp (1.61)
     assert r.intervened and list(r.t) == pytest.approx([1.0, 1.2, 1.4, 1.6], abs=0.011)
+
+
 @pytest.mark.parametrize('start', [-8.0 + 3e-14, -8.0 - 3e-14])
 def test_a_robot_placed_on_the_grids_edge_starts_its_encounter_there(start):
     """A scene starts the robot at the library's lo (x = -8 from the obstacle), a float hair inside
