@@ -108,9 +108,11 @@ class StateReporter:
         """The values every robot's state carries alike at a time: the set update, the time base,
         the cluster solves that failed."""
         s = self._selector
+        # the counts before the verdict (the selector's worker writes the verdict first)
+        accepted, rejected = s.set_updates['accepted'], s.set_updates['rejected']
         update, reason = s.set_update
         return {'set_update': update, 'set_update_reason': reason,
-                'sets_accepted': str(s.set_updates['accepted']), 'sets_rejected': str(s.set_updates['rejected']),
+                'sets_accepted': str(accepted), 'sets_rejected': str(rejected),
                 'time_base': ('wall (steady)' if not self._time.sim else
                               'wall (sim time stands still)' if self._time.stalled else 'sim'),
                 'cluster_solves_failed': str(self.report_cluster_errors())}

@@ -211,13 +211,14 @@ class LearnedSetSelector:
             f'{verdict.reason}')
 
     # -- verdicts -------------------------------------------------------------------------------
+    # the verdict first, then its count: a state built meanwhile (another thread) reads the counts
+    # first (filter_state.shared_values), so a state with the new count carries the new verdict
     def _accept(self, reason):
-        self.set_updates['accepted'] += 1
         self.set_update = ('accepted', reason)
+        self.set_updates['accepted'] += 1
         self.log.info(reason)
 
     def _reject(self, reason, revert=False):
-        self.set_updates['rejected'] += 1
         with self._lock:
             if revert and self.safe_set is not self.standard:
                 self.safe_set = self.standard
@@ -225,6 +226,7 @@ class LearnedSetSelector:
             else:
                 reason += f'; keeping the {self.safe_set.source} set'
         self.set_update = ('rejected', reason)
+        self.set_updates['rejected'] += 1
         self.log.error(reason)
 
     def close(self):
