@@ -51,7 +51,7 @@ import math
 import numpy as np
 
 from ..filter.clusters.geometry import ClusterSettings, canonical, components
-from ..filter.clusters.store import ClusterStore
+from ..filter.clusters.store import ClusterStore, settings_of
 from ..filter import FilterConfig, RobotFilter, SafeSet, step_many
 from .dubins_sim import LossySensor, RobotSim
 from .planner import goal_seeking_turn_rate
@@ -235,12 +235,7 @@ class TeamLoop:
 def inline_cluster_store(cfg: FilterConfig) -> ClusterStore:
     """A cluster store for the filter's configuration that solves in the caller's thread
     (values on disk are shared with the graph's filters: ``disk_cache``)."""
-    return ClusterStore(cluster_settings(cfg), background=False)
-
-
-def cluster_settings(cfg: FilterConfig) -> ClusterSettings:
-    """The cluster settings of a filter configuration (as the filter nodes build them)."""
-    return ClusterSettings(radius=cfg.radius, speed=cfg.speed, omega_max=cfg.omega_max, link=cfg.cluster_link)
+    return ClusterStore(settings_of(cfg), background=False)
 
 
 @functools.lru_cache(maxsize=2)

@@ -39,13 +39,14 @@ import numpy as np
 
 from ..filter.admissibility import check_learned_set
 from ..filter import FilterConfig, SafeSet
+from ..filter.clusters.store import settings_of
 from ..learning.encounters import EncounterBuilder
 from ..learning.phase2_stream import feed, phase2_events
 from ..learning.estimators import (admissible_mask, encounter_intervals, fit_first_passage_intervals,
                                    fit_paper_values)
 from ..reach.grid import Grid
 from ..reach.library import LibrarySpec, load_or_build_library, load_or_solve
-from ..sim.team_loop import RobotParams, TeamLoop, cluster_settings, process_cluster_store
+from ..sim.team_loop import RobotParams, TeamLoop, process_cluster_store
 from ..sim.supervisor_models import DEFAULT_MODEL, AttentiveParams
 from ..sim.watcher import Watcher
 from ..sim.world import WorldConfig
@@ -262,7 +263,7 @@ class CoreStudy:
         trace = GameTrace()
         online = OnlineLearner(learners(), online_records, safe_set) if online_records is not None else None
         loop = TeamLoop(world_config(), world_seed, starts, seeds, robot_params(), cfg, safe_set, watcher,
-                        opts.step, filtered=filtered, clusters=process_cluster_store(cluster_settings(cfg)),
+                        opts.step, filtered=filtered, clusters=process_cluster_store(settings_of(cfg)),
                         observer=trace, learner=online)
         loop.run(opts.game_seconds)
         stats = loop.stats()
