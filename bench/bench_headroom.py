@@ -24,6 +24,7 @@ Times between processes on CLOCK_MONOTONIC; /proc/loadavg on every line.
 from __future__ import annotations
 
 import argparse
+from functools import partial
 import os
 from pathlib import Path
 import subprocess
@@ -180,20 +181,17 @@ def print_figures(section, tag, m, reports, t0, t1, cpu):
           f'time ({1e6 * state_s / max(robot_decisions, 1):5.1f} us a robot-decision)  {load()}', flush=True)
 
 
-def bench_fleet(args, checkouts):
-    print(f'== fleet: per-robot topics, fed pose + command at 50 Hz, detections at 10 Hz, {args.window:g} s a row; '
-          f'the node pinned to core {bench_nodes.node_core()}, the driver off it', flush=True)
-    for m in args.fleet_sizes:
-        for checkout, tag in checkouts:
-            row(args, 'fleet', checkout, tag, m)
+FEEDS = {'fleet': 'per-robot topics, fed pose + command at 50 Hz, detections at 10 Hz',
+         'batched': 'fleet/poses + fleet/cmd_vel_nav at 50 Hz, fleet/detections at 10 Hz'}
 
 
-def bench_batched(args, checkouts):
-    print(f'== batched: fleet/poses + fleet/cmd_vel_nav at 50 Hz, fleet/detections at 10 Hz, {args.window:g} s a '
-          f'row; the node pinned to core {bench_nodes.node_core()}, the driver off it', flush=True)
-    for n in args.batched_sizes:
+def bench_rows(section, args, checkouts):
+    """The ``section``'s rows (fleet or batched): every size, every checkout in turn."""
+    print(f'== {section}: {FEEDS[section]}, {args.window:g} s a row; the node pinned to core '
+          f'{bench_nodes.node_core()}, the driver off it', flush=True)
+    for size in (args.fleet_sizes if section == 'fleet' else args.batched_sizes):
         for checkout, tag in checkouts:
-            row(args, 'batched', checkout, tag, n)
+            row(args, section, checkout, tag, size)
 
 
 def row(args, section, checkout, tag, size):
@@ -279,7 +277,7 @@ def bench_latency(args, checkouts):
         bench_nodes.stop(procs)
 
 
-SECTIONS = {'latency': bench_latency, 'fleet': bench_fleet, 'batched': bench_batched}
+SECTIONS = {'latency': bench_latency, 'fleet': partial(bench_rows, 'fleet'), 'batched': partial(bench_rows, 'batched')}
 
 
 def main(argv=None):
