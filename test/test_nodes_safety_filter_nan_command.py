@@ -48,6 +48,8 @@ def test_a_nan_turn_rate_stops_a_robot_that_can_stop_and_is_said(ros_context, mo
             nan_command(driver)
             spin.until(lambda: len(driver.states) > n, 10.0, 'a decision')
             st = driver.last_state()
+            if mode == 'stop' and not outputs and st['reason'].startswith("passing the planner's command"):
+                continue    # the watchdog decided before the NaN was taken (a busy machine): the 0.3 still
             outputs.append((float(st['cmd_angular_z']), st['reason']))
             if mode == 'stop' or 'planner silent' in st['reason']:
                 break
